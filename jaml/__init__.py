@@ -1,0 +1,1 @@
+"""jaml: Analytic Manifold Learning and an MJX evaluation suite for representation learning."""

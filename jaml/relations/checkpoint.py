@@ -1,0 +1,90 @@
+"""Save and load a `RelationSet` with Orbax (arrays) plus a JSON description (shapes, stats).
+
+Orbax writes into a temporary directory and renames it on success, so a crash mid-save never
+leaves a half-written checkpoint under the final name. Loading logs what App. B.3.1 prints:
+the number of relations and syzygies and the recorded on/off means.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import orbax.checkpoint as ocp
+
+from jaml.relations.networks import Relation
+from jaml.relations.relation_set import RelationSet
+
+log = logging.getLogger("jaml.relations")
+FORMAT = "jaml.relations/1"
+
+
+def _arrays(rs: RelationSet) -> dict:
+    return {"params": list(rs.params), "on_means": rs.on_means, "off_means": rs.off_means}
+
+
+def _describe(rs: RelationSet) -> dict:
+    return {
+        "format": FORMAT, "dim": rs.dim, "depth": rs.depth, "widths": list(rs.widths),
+        "tolerance": rs.tolerance, "syzygies": list(rs.syzygies), "dim_names": list(rs.dim_names),
+        "on_means": np.asarray(rs.on_means).tolist(), "off_means": np.asarray(rs.off_means).tolist(),
+    }
+
+
+def save(rs: RelationSet, path, *, overwrite: bool = True) -> Path:
+    """Write `rs` to the directory `path` (atomically; replaces an existing one if overwrite)."""
+    path = Path(path).absolute()
+    with ocp.Checkpointer(ocp.CompositeCheckpointHandler()) as ckptr:
+        ckptr.save(
+            path,
+            args=ocp.args.Composite(
+                arrays=ocp.args.StandardSave(_arrays(rs)), meta=ocp.args.JsonSave(_describe(rs))
+            ),
+            force=overwrite,
+        )
+    return path
+
+
+def load(path) -> RelationSet:
+    """Read a RelationSet written by `save`; raises FileNotFoundError / ValueError if unusable."""
+    path = Path(path).absolute()
+    if not path.is_dir():
+        raise FileNotFoundError(f"no relations checkpoint at {path}")
+    try:
+        with ocp.Checkpointer(ocp.CompositeCheckpointHandler()) as ckptr:
+            meta = ckptr.restore(path, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
+    except Exception as error:
+        raise ValueError(f"corrupt or foreign relations checkpoint at {path}: {error}") from error
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise ValueError(f"{path} is not a jaml relations checkpoint (format {meta!r})")
+    dim, depth, widths = meta["dim"], meta["depth"], meta["widths"]
+    target = {
+        "params": [
+            jax.eval_shape(Relation(w, depth).init, jax.random.key(0), jnp.zeros((1, dim)))
+            for w in widths
+        ],
+        "on_means": jax.ShapeDtypeStruct((len(widths),), jnp.float32),
+        "off_means": jax.ShapeDtypeStruct((len(widths),), jnp.float32),
+    }
+    try:
+        with ocp.Checkpointer(ocp.CompositeCheckpointHandler()) as ckptr:
+            arrays = ckptr.restore(
+                path, args=ocp.args.Composite(arrays=ocp.args.StandardRestore(target))
+            )["arrays"]
+    except Exception as error:
+        raise ValueError(f"corrupt relations checkpoint at {path}: {error}") from error
+    rs = RelationSet(
+        params=tuple(arrays["params"]), on_means=arrays["on_means"], off_means=arrays["off_means"],
+        widths=tuple(widths), depth=depth, dim=dim, tolerance=meta["tolerance"],
+        syzygies=tuple(meta["syzygies"]), dim_names=tuple(meta["dim_names"]),
+    )
+    log.info("AML loaded %d relations, %d syzygies, on/off means:\n%s\n%s", rs.num_relations,
+             sum(rs.syzygies), np.round(np.asarray(rs.on_means), 4),
+             np.round(np.asarray(rs.off_means), 4))
+    if not json.dumps(meta):  # pragma: no cover - meta always serialises
+        raise ValueError("unreadable metadata")
+    return rs

@@ -1,0 +1,150 @@
+"""`Config`: every knob of Algorithm 1, with defaults from the paper (the reference where it is silent).
+
+Derived values (the transversality weight of each objective, the syzygy step budget) are computed
+by properties, not stored. `docs/relations.md` lists where a default follows the reference
+implementation instead of the paper, and why.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+INDEPENDENCE = ("transversality", "syzygy")
+OBJECTIVES = ("paper", "reference")
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    """Configuration of `relations.fit`.
+
+    Attributes:
+      max_relations: relations g_1..g_K to learn (Algorithm 1 loops k = 1, 2, …; reference: 10).
+      independence: "transversality" (eq. 2) or "syzygy" (restricted syzygies, eq. 3).
+      objective: "paper": d_g − log‖∇g‖ (eq. 1), −β log Π sin² (eq. 2), other terms clipped to
+        twice the first (App. B.3.1). "reference": the hinged terms of the authors' code.
+      seed: PRNG seed for initialisation and data.
+      batch_size: on- and off-manifold rows per step (reference: 1024).
+      learning_rate: Adam step size (reference: 1e-4).
+      max_steps: cap on optimizer steps per relation (reference: 50 000).
+      base_width, max_width, depth: g_k has `depth` hidden layers of base·2^(k−1) units, capped.
+      transversality_weight: β of eq. 2; None picks the objective's default (paper 1e3, ref. 1).
+      syzygies_per_relation: rounds S of {fit f, push g_k} per relation in syzygy mode.
+      syzygy_width: hidden width of the syzygy network f.
+      syzygy_max_steps: cap on f's steps per round; None ⇒ max_steps // 2 (reference).
+      syzygy_push_steps: g_k steps per push round; None ⇒ max_steps // syzygies_per_relation.
+      separation_ratio: stop when mean |g| off-manifold > ratio × on-manifold (App. B.3.1: 5).
+      separation_top_fraction: the on-manifold statistic is the mean of the largest fraction of
+        |g| values (reference: 0.2, stricter than the paper's plain mean, which is 1.0).
+      stop_patience: the stopping rule must hold on this many consecutive steps (fresh batches
+        each) before a relation is done; 1 stops on the first batch that passes (the reference).
+      min_angle: transversality mode also waits for the mean angle between ∇g_k and earlier
+        gradients to exceed this (radians; reference 0.4·π/2).
+      tolerance: `holds` accepts τ when every |g_k(τ)| < tolerance × its recorded on-manifold mean.
+      noise_scale: uniform noise, as a fraction of the data box, added to on and off rows.
+      pretrain_steps: supervised steps towards a prior heuristic, when `fit` is given priors.
+      chunk_steps: optimizer steps per compiled `lax.scan` call (logging / progress granularity).
+      eval_batches: batches of fresh data used to record on/off means after each relation.
+    """
+
+    max_relations: int = 10
+    independence: str = "transversality"
+    objective: str = "paper"
+    seed: int = 0
+    batch_size: int = 1024
+    learning_rate: float = 1e-4
+    max_steps: int = 50_000
+    base_width: int = 4
+    max_width: int = 256
+    depth: int = 3
+    transversality_weight: float | None = None
+    syzygies_per_relation: int = 3
+    syzygy_width: int = 32
+    syzygy_max_steps: int | None = None
+    syzygy_push_steps: int | None = None
+    separation_ratio: float = 5.0
+    separation_top_fraction: float = 0.2
+    min_angle: float = 0.4 * math.pi / 2
+    stop_patience: int = 250
+    tolerance: float = 1.5
+    noise_scale: float = 0.0
+    pretrain_steps: int = 2_000
+    chunk_steps: int = 500
+    eval_batches: int = 16
+
+    def __post_init__(self):
+        problems = []
+        if self.independence not in INDEPENDENCE:
+            problems.append(f"independence must be one of {INDEPENDENCE}, got {self.independence!r}")
+        if self.objective not in OBJECTIVES:
+            problems.append(f"objective must be one of {OBJECTIVES}, got {self.objective!r}")
+        positive_ints = ("max_relations", "batch_size", "max_steps", "base_width", "max_width",
+                         "depth", "syzygy_width", "chunk_steps", "eval_batches", "stop_patience")
+        for name in positive_ints:
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                problems.append(f"{name} must be a positive integer, got {value!r}")
+        for name in ("syzygies_per_relation", "pretrain_steps", "seed"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+                problems.append(f"{name} must be a non-negative integer, got {value!r}")
+        for name in ("syzygy_max_steps", "syzygy_push_steps"):
+            value = getattr(self, name)
+            if value is not None and (not isinstance(value, int) or value < 1):
+                problems.append(f"{name} must be None or a positive integer, got {value!r}")
+        if isinstance(self.batch_size, int) and self.batch_size < 2:
+            problems.append(f"batch_size must be at least 2, got {self.batch_size}")
+        positive_floats = ("learning_rate", "separation_ratio", "tolerance")
+        for name in positive_floats:
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                problems.append(f"{name} must be a positive finite number, got {value!r}")
+        if self.transversality_weight is not None and not (
+            math.isfinite(self.transversality_weight) and self.transversality_weight >= 0
+        ):
+            problems.append(f"transversality_weight must be ≥ 0, got {self.transversality_weight}")
+        if not 0.0 < self.separation_top_fraction <= 1.0:
+            problems.append(
+                f"separation_top_fraction must lie in (0, 1], got {self.separation_top_fraction}"
+            )
+        if not 0.0 <= self.min_angle <= math.pi / 2:
+            problems.append(f"min_angle must lie in [0, π/2], got {self.min_angle}")
+        if not (math.isfinite(self.noise_scale) and self.noise_scale >= 0):
+            problems.append(f"noise_scale must be ≥ 0, got {self.noise_scale}")
+        if isinstance(self.max_width, int) and isinstance(self.base_width, int) and (
+            self.max_width < self.base_width
+        ):
+            problems.append(f"max_width ({self.max_width}) < base_width ({self.base_width})")
+        if self.independence == "syzygy" and self.syzygies_per_relation < 1:
+            problems.append("independence='syzygy' needs syzygies_per_relation ≥ 1")
+        if problems:
+            raise ValueError("invalid relations.Config: " + "; ".join(problems))
+
+    @property
+    def beta(self) -> float:
+        """The transversality weight in use: the paper's 1e3 or the reference's 1."""
+        if self.transversality_weight is not None:
+            return self.transversality_weight
+        return 1e3 if self.objective == "paper" else 1.0
+
+    @property
+    def syzygy_steps(self) -> int:
+        return self.syzygy_max_steps or max(self.max_steps // 2, 1)
+
+    @property
+    def push_steps(self) -> int:
+        return self.syzygy_push_steps or max(self.max_steps // max(self.syzygies_per_relation, 1), 1)
+
+    def replace(self, **changes) -> Config:
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict) -> Config:
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(f"unknown relations.Config fields: {unknown}")
+        return cls(**values)

@@ -1,0 +1,117 @@
+"""Turn what a user passes to `fit` (rows or a sampler) into pure on/off-manifold batch samplers.
+
+Validation happens here, eagerly and before any training: wrong shapes or dtypes, NaN/inf,
+empty or constant data raise a ValueError/TypeError that names the problem.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaml.sources.off_manifold import bounding_box, uniform_in_box
+
+
+class Batches(NamedTuple):
+    """Pure samplers of [B, D] batches. `rows` is an argument, so jitted code never embeds it."""
+
+    rows: jax.Array | None  # the user's data [N, D], or None for a sampler
+    sampler: Callable[[jax.Array], jax.Array] | None
+    low: jax.Array  # [D] the box around the data
+    high: jax.Array
+    batch_size: int
+    noise_scale: float
+    dim_names: tuple[str, ...]
+
+    @property
+    def dim(self) -> int:
+        return int(self.low.shape[0])
+
+    def _noise(self, key, x):
+        if self.noise_scale == 0.0:
+            return x
+        return x + (jax.random.uniform(key, x.shape) - 0.5) * (self.high - self.low) * self.noise_scale
+
+    def clean_on(self, key, rows, n: int | None = None) -> jax.Array:
+        n = n or self.batch_size
+        if self.sampler is not None:
+            return self.sampler(key, n)
+        return rows[jax.random.randint(key, (n,), 0, rows.shape[0])]
+
+    def on(self, key, rows, n: int | None = None) -> jax.Array:
+        """[n, D] on-manifold rows (with noise, if configured)."""
+        k_draw, k_noise = jax.random.split(key)
+        return self._noise(k_noise, self.clean_on(k_draw, rows, n))
+
+    def off(self, key, n: int | None = None) -> jax.Array:
+        """[n, D] off-manifold rows: uniform in the data's box (with noise, if configured)."""
+        k_draw, k_noise = jax.random.split(key)
+        return self._noise(k_noise, uniform_in_box(k_draw, self.low, self.high, n or self.batch_size))
+
+
+def _as_sampler(on_manifold):
+    """A (key, n) -> [n, D] function for a Source, a key -> [B, D] callable, or None for rows."""
+    if hasattr(on_manifold, "sample") and callable(on_manifold.sample):
+        return on_manifold.sample, tuple(getattr(on_manifold, "dim_names", ()))
+    if callable(on_manifold):
+        fn = on_manifold
+
+        def sampler(key, n):
+            # A user's key -> [B, D] sampler fixes its own batch size; draw enough batches.
+            first = fn(key)
+            reps = -(-n // first.shape[0])
+            if reps == 1:
+                return first[:n]
+            more = jax.vmap(fn)(jax.random.split(jax.random.fold_in(key, 1), reps - 1))
+            return jnp.concatenate([first, more.reshape(-1, first.shape[-1])])[:n]
+
+        return sampler, ()
+    return None, ()
+
+
+def _check_rows(rows, what: str) -> np.ndarray:
+    if isinstance(rows, jax.Array | np.ndarray):
+        dtype = rows.dtype
+    else:
+        rows = np.asarray(rows)
+        dtype = rows.dtype
+    if not np.issubdtype(dtype, np.floating):
+        raise TypeError(f"{what} must be a floating-point array, got dtype {dtype}")
+    host = np.asarray(rows)
+    if host.ndim != 2:
+        raise ValueError(f"{what} must have shape [N, D], got {host.shape}")
+    if host.shape[0] == 0 or host.shape[1] == 0:
+        raise ValueError(f"{what} is empty: shape {host.shape}")
+    bad = ~np.isfinite(host)
+    if bad.any():
+        rows_bad = np.unique(np.nonzero(bad)[0])
+        raise ValueError(
+            f"{what} has {bad.sum()} non-finite values (NaN/inf) in {rows_bad.size} rows, "
+            f"first at row {rows_bad[0]}"
+        )
+    if host.shape[0] < 2 or np.all(host.max(axis=0) == host.min(axis=0)):
+        raise ValueError(f"{what} is constant: every row is identical, there is no manifold to learn")
+    return host
+
+
+def prepare(on_manifold, batch_size: int, noise_scale: float, key, calibration_batches: int):
+    """Validate the user's data and build its `Batches`."""
+    sampler, names = _as_sampler(on_manifold)
+    if sampler is None:
+        host = _check_rows(on_manifold, "on_manifold data")
+        rows = jnp.asarray(host, jnp.float32)
+        low, high = bounding_box(rows)
+        return Batches(rows, None, low, high, batch_size, noise_scale, names)
+    try:
+        sample = sampler(key, batch_size * calibration_batches)
+    except Exception as error:  # the user's code: say whose it is
+        raise ValueError(f"the on_manifold sampler failed when called with a PRNG key: {error}") from error
+    host = _check_rows(sample, "the on_manifold sampler's output")
+    low, high = bounding_box(jnp.asarray(host, jnp.float32))
+    if names and len(names) != host.shape[1]:
+        names = ()
+    return Batches(None, sampler, low, high, batch_size, noise_scale, names)

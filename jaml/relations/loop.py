@@ -1,0 +1,131 @@
+"""A jitted `lax.scan` over many optimizer steps that stops in place once training is done.
+
+Both g_k and syzygy training use it: `train_step(state, args) -> (state, metrics)` decides
+`done` itself; once done, later steps of the chunk are skipped by `lax.cond`, so a relation
+stops exactly at the step its stopping rule fires. Python sees one call per chunk: logging and
+progress bars live there, not on the hot path.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+RUNNING, CONVERGED, CAPPED, NONFINITE = 0, 1, 2, 3
+STATUS_NAMES = {RUNNING: "running", CONVERGED: "done", CAPPED: "capped", NONFINITE: "non-finite"}
+
+
+@struct.dataclass
+class LoopState:
+    params: dict
+    opt_state: optax.OptState
+    key: jax.Array
+    step: jax.Array  # optimizer steps taken
+    status: jax.Array  # RUNNING / CONVERGED / CAPPED / NONFINITE
+    streak: jax.Array  # consecutive steps on which the stopping rule held
+
+    @property
+    def done(self):
+        return self.status != RUNNING
+
+
+def init_state(params, optimizer: optax.GradientTransformation, key) -> LoopState:
+    zero = jnp.zeros((), jnp.int32)
+    return LoopState(params, optimizer.init(params), key, zero, jnp.asarray(RUNNING, jnp.int32),
+                     zero)
+
+
+def optimizer_step(
+    state: LoopState,
+    objective: Callable,
+    optimizer: optax.GradientTransformation,
+    max_steps: int,
+    *batch,
+    patience: int = 1,
+):
+    """One step: evaluate `objective(params, *batch) -> (loss, (metrics, holds))`.
+
+    The stopping rule `holds` is checked on the current parameters before they are updated (as
+    the reference does); training converges once it has held on `patience` consecutive steps,
+    each on a fresh batch. A non-finite loss or gradient stops with the last finite parameters.
+    """
+    (loss, (metrics, holds)), grads = jax.value_and_grad(objective, has_aux=True)(
+        state.params, *batch
+    )
+    streak = jnp.where(holds, state.streak + 1, 0)
+    converged = streak >= patience
+    finite = jnp.isfinite(loss) & jnp.all(
+        jnp.stack([jnp.all(jnp.isfinite(g)) for g in jax.tree.leaves(grads)])
+    )
+    updates, opt_state = optimizer.update(grads, state.opt_state, state.params)
+    params = optax.apply_updates(state.params, updates)
+    take = finite & ~converged
+    step = state.step + take.astype(jnp.int32)
+    status = jnp.where(
+        ~finite, NONFINITE,
+        jnp.where(converged, CONVERGED, jnp.where(step >= max_steps, CAPPED, RUNNING)),
+    )
+    keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(take, a, b), new, old)  # noqa: E731
+    new_state = state.replace(
+        params=keep(params, state.params),
+        opt_state=keep(opt_state, state.opt_state),
+        step=step,
+        status=status.astype(jnp.int32),
+        streak=streak.astype(jnp.int32),
+    )
+    return new_state, {"loss": loss, **metrics}
+
+
+def make_chunk(train_step: Callable, length: int, draw: Callable | None = None):
+    """jit(state, args) → (state, metrics [length], valid [length]): `length` steps in a scan.
+
+    `draw(key, args) -> batch` samples one step's data; a whole chunk's batches are drawn up
+    front by one vmapped call (on CPU, per-step RNG launches cost more than the math), and
+    `train_step(state, batch, args) -> (state, metrics)` consumes one of them.
+    """
+
+    def run(state: LoopState, args):
+        key, chunk_key = jax.random.split(state.key)
+        state = state.replace(key=key)
+        if draw is None:
+            batches = None
+        else:
+            batches = jax.vmap(lambda k: draw(k, args))(jax.random.split(chunk_key, length))
+
+        def body(state, batch):
+            def active(s):
+                new, metrics = train_step(s, batch, args)
+                return new, metrics, jnp.asarray(True)
+
+            shapes = jax.eval_shape(lambda s: train_step(s, batch, args)[1], state)
+            zeros = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), shapes)
+
+            def idle(s):
+                return s, zeros, jnp.asarray(False)
+
+            new, metrics, valid = jax.lax.cond(state.done, idle, active, state)
+            return new, (metrics, valid)
+
+        state, (metrics, valid) = jax.lax.scan(body, state, batches, length=length)
+        return state, metrics, valid
+
+    return jax.jit(run)
+
+
+def run_until_done(chunk, state: LoopState, args, on_chunk: Callable | None = None) -> LoopState:
+    """Call a compiled chunk until the state reports done; `on_chunk(state, metrics)` per call.
+
+    `metrics` passed to on_chunk are host floats averaged over the chunk's active steps.
+    """
+    while True:
+        state, metrics, valid = chunk(state, args)
+        valid = jax.device_get(valid)
+        if on_chunk is not None and valid.any():
+            host = jax.device_get(metrics)
+            on_chunk(state, {k: float(v[valid].mean()) for k, v in host.items()}, int(valid.sum()))
+        if bool(state.done):
+            return state

@@ -1,0 +1,84 @@
+"""`RelationSet`: learned relations g_1..g_K as a pytree, and the functions users call on it."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from jaml.relations.networks import Relation
+
+
+@struct.dataclass
+class RelationSet:
+    """Learned relations and their recorded statistics (paper App. B.3.1).
+
+    Attributes:
+      params: per-relation Flax parameters, g_1 first.
+      on_means, off_means: [K] mean |g_k| on fresh on- and off-manifold data after training.
+      widths: hidden width of each g_k. depth: hidden layers. dim: D, the size of τ.
+      tolerance: `holds` accepts |g_k| < tolerance × on_means[k].
+      syzygies: restricted syzygies found (and pushed away from) per relation.
+      dim_names: names of τ's coordinates, when the source gave them.
+    """
+
+    params: tuple
+    on_means: jax.Array
+    off_means: jax.Array
+    widths: tuple[int, ...] = struct.field(pytree_node=False)
+    depth: int = struct.field(pytree_node=False)
+    dim: int = struct.field(pytree_node=False)
+    tolerance: float = struct.field(pytree_node=False, default=1.5)
+    syzygies: tuple[int, ...] = struct.field(pytree_node=False, default=())
+    dim_names: tuple[str, ...] = struct.field(pytree_node=False, default=())
+
+    @property
+    def num_relations(self) -> int:
+        return len(self.params)
+
+    def relation(self, k: int):
+        """g_{k+1} as a function of τ [..., D] → [...]."""
+        module = Relation(self.widths[k], self.depth)
+        return lambda tau: module.apply(self.params[k], tau)
+
+    def append(self, params, on_mean, off_mean, width: int, syzygies: int = 0) -> RelationSet:
+        return self.replace(
+            params=(*self.params, params),
+            on_means=jnp.append(self.on_means, on_mean),
+            off_means=jnp.append(self.off_means, off_mean),
+            widths=(*self.widths, width),
+            syzygies=(*self.syzygies, syzygies),
+        )
+
+    @classmethod
+    def empty(cls, dim: int, depth: int, tolerance: float, dim_names=()) -> RelationSet:
+        zeros = jnp.zeros((0,), jnp.float32)
+        return cls((), zeros, zeros, (), depth, dim, tolerance, (), tuple(dim_names))
+
+
+def _check_tau(rs: RelationSet, tau) -> jax.Array:
+    tau = jnp.asarray(tau)
+    if tau.ndim < 1 or tau.shape[-1] != rs.dim:
+        raise ValueError(f"tau must have shape [..., {rs.dim}], got {tuple(tau.shape)}")
+    if not jnp.issubdtype(tau.dtype, jnp.floating):
+        raise TypeError(f"tau must be a floating-point array, got dtype {tau.dtype}")
+    return tau
+
+
+def evaluate(rs: RelationSet, tau) -> jax.Array:
+    """[..., K]: g_1..g_K at tau [..., D]."""
+    tau = _check_tau(rs, tau)
+    if rs.num_relations == 0:
+        return jnp.zeros((*tau.shape[:-1], 0), tau.dtype)
+    return jnp.stack([rs.relation(k)(tau) for k in range(rs.num_relations)], axis=-1)
+
+
+def penalty(rs: RelationSet, tau) -> jax.Array:
+    """[...]: Σ_k |g_k(tau)| (paper eq. 4), differentiable in tau."""
+    return jnp.sum(jnp.abs(evaluate(rs, tau)), axis=-1)
+
+
+def holds(rs: RelationSet, tau, tolerance: float | None = None) -> jax.Array:
+    """bool [...]: every |g_k(tau)| is below tolerance × its recorded on-manifold mean."""
+    tol = rs.tolerance if tolerance is None else tolerance
+    return jnp.all(jnp.abs(evaluate(rs, tau)) < tol * rs.on_means, axis=-1)

@@ -1,0 +1,340 @@
+"""Algorithm 1 of the paper: learn relations g_1, g_2, … one at a time, earlier ones frozen.
+
+Each g_k trains on fresh on-manifold batches with eq. 1; with transversality (eq. 2) the angle
+between ∇g_k and the frozen ∇g_j is pushed towards 90°; with restricted syzygies (eq. 3) a
+network f is fitted to express g_k through g_1..g_{k−1} on off-manifold data, and while it
+succeeds g_k is pushed away from it. Every loop is a jitted `lax.scan` (see `loop.py`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from collections.abc import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from jaml.relations import losses
+from jaml.relations.config import Config
+from jaml.relations.data import Batches, prepare
+from jaml.relations.loop import (
+    CAPPED,
+    CONVERGED,
+    NONFINITE,
+    STATUS_NAMES,
+    init_state,
+    make_chunk,
+    optimizer_step,
+    run_until_done,
+)
+from jaml.relations.networks import Relation, SyzygyCoefficients, relation_width
+from jaml.relations.relation_set import RelationSet
+from jaml.sources.off_manifold import thicken
+
+log = logging.getLogger("jaml.relations")
+
+THICKENING_LEVELS = np.linspace(0.1, 2.1, 10)
+
+
+@dataclasses.dataclass
+class RelationSummary:
+    """What happened while learning one relation (written to summary.json by the CLI)."""
+
+    index: int
+    width: int
+    steps: int
+    seconds: float
+    status: str
+    on_mean: float
+    off_mean: float
+    syzygies_found: int = 0
+    syzygy_rounds: list = dataclasses.field(default_factory=list)
+
+    @property
+    def ratio(self) -> float:
+        return self.off_mean / max(self.on_mean, 1e-30)
+
+
+Callback = Callable[[str, int, dict], None]  # (phase, relation index, metrics)
+
+
+def _frozen_relations(rs: RelationSet):
+    return [rs.relation(j) for j in range(rs.num_relations)]
+
+
+def _relation_objective(cfg: Config, module: Relation, earlier: Sequence[Callable], num_syz: int):
+    """The per-step loss of g_k: (params, frozen syzygy params, batches) → (loss, aux)."""
+    transversal = cfg.independence == "transversality" and len(earlier) > 0
+    syz_module = SyzygyCoefficients(max(len(earlier), 1), cfg.syzygy_width, cfg.depth)
+    B = cfg.batch_size
+
+    def objective(params, syz_params, on, off, thick):
+        g = lambda t: module.apply(params, t)  # noqa: E731
+        y_on, v = losses.input_gradients(g, on)
+        y_off = g(off)
+        metrics = {"on_mean": jnp.mean(jnp.abs(y_on)), "off_mean": jnp.mean(jnp.abs(y_off)),
+                   "grad_norm": jnp.mean(jnp.sqrt(jnp.sum(v**2, -1)))}
+        if cfg.objective == "paper":
+            first = jnp.mean(losses.distance(y_on, v))
+            grad_term = losses.clip_to(jnp.mean(losses.log_gradient_norm(v)), first)
+        else:
+            first = jnp.mean(losses.reference_distance_term(y_on, v, B))
+            grad_term = jnp.mean(losses.reference_gradient_term(v, B))
+        loss = first + grad_term
+        metrics |= {"distance": first, "gradient_term": grad_term}
+        converged = losses.separated(jnp.abs(y_on), jnp.abs(y_off), cfg.separation_ratio,
+                                     cfg.separation_top_fraction)
+        if cfg.objective == "reference":
+            # Reference stopping also waits for mean ‖∇g/B‖ ≥ 0.9e-4.
+            converged &= metrics["grad_norm"] / B >= 0.9 * losses.REF_GRAD_FLOOR
+        if transversal:
+            u = jax.lax.stop_gradient(
+                jnp.stack([losses.input_gradients(gj, on)[1] for gj in earlier])
+            )
+            if cfg.objective == "paper":
+                t_term = jnp.mean(losses.log_sin_product(u, v))
+            else:
+                t_term = jnp.mean(losses.reference_transversality(u, v))
+            angle = losses.mean_angle(u, v)
+            loss = loss + cfg.beta * t_term
+            metrics |= {"transversality": t_term, "angle": angle}
+            converged &= angle >= cfg.min_angle
+        if num_syz:
+            earlier_vals = jnp.stack([gj(thick) for gj in earlier], axis=-1)
+            y_thick = g(thick)
+            coefficients = jax.vmap(lambda p: syz_module.apply(p, thick))(syz_params)
+            residual = jnp.abs(jax.vmap(losses.syzygy_residual, (0, None, None))(
+                coefficients, earlier_vals, y_thick))
+            per_syzygy = jnp.mean(residual, axis=-1)  # [S]
+            scale = jnp.mean(jnp.abs(y_thick))
+            if cfg.objective == "paper":
+                push = losses.clip_to(-jnp.mean(per_syzygy), first)  # eq. 3, clipped (App. B.3.1)
+            else:  # (1/100)·max(0, 100·5·L_on − L_syz), summed over the syzygies
+                ref = 100.0 * 5.0 * jax.lax.stop_gradient(first)
+                push = jnp.sum(jnp.maximum(0.0, ref - per_syzygy)) / 100.0
+            loss = loss + push
+            still_holds = jnp.any(per_syzygy * cfg.separation_ratio < scale)
+            metrics |= {"syzygy_residual": jnp.mean(per_syzygy), "syzygy_push": push}
+            converged &= ~still_holds
+        return loss, (metrics, converged)
+
+    return objective
+
+
+def _fit_relation(cfg, batches: Batches, rs: RelationSet, params, key, max_steps: int,
+                  syz_params=None, thickening: float = 0.0, callback=None, phase="relation"):
+    k = rs.num_relations
+    module = Relation(relation_width(k, cfg.base_width, cfg.max_width), cfg.depth)
+    earlier = _frozen_relations(rs)
+    num_syz = 0 if syz_params is None else int(jax.tree.leaves(syz_params)[0].shape[0])
+    objective = _relation_objective(cfg, module, earlier, num_syz)
+    optimizer = optax.adam(cfg.learning_rate)
+
+    def draw(key, args):
+        rows, _ = args
+        k_on, k_off, k_thick, k_jit = jax.random.split(key, 4)
+        thick = None
+        if num_syz:  # syzygy push rounds only: skip the extra batch otherwise
+            thick = thicken(k_jit, batches.on(k_thick, rows), batches.low, batches.high, thickening)
+        return batches.on(k_on, rows), batches.off(k_off), thick
+
+    def train_step(state, batch, args):
+        return optimizer_step(state, objective, optimizer, max_steps, args[1], *batch,
+                              patience=cfg.stop_patience)
+
+    chunk = make_chunk(train_step, cfg.chunk_steps, draw)
+    state = init_state(params, optimizer, key)
+    report = None
+    if callback is not None:
+        report = lambda s, m, n: callback(phase, k, {"step": int(s.step), "steps": n, **m})  # noqa: E731
+    state = run_until_done(chunk, state, (batches.rows, syz_params), report)
+    return state
+
+
+def _fit_syzygy(cfg, batches: Batches, rs: RelationSet, g_params, key, thickening, callback):
+    """Fit f with L1 on thickened data so that Σ_j f_j g_j ≈ g_k (g's frozen)."""
+    k = rs.num_relations
+    g_k = Relation(relation_width(k, cfg.base_width, cfg.max_width), cfg.depth)
+    earlier = _frozen_relations(rs)
+    module = SyzygyCoefficients(len(earlier), cfg.syzygy_width, cfg.depth)
+    optimizer = optax.adam(cfg.learning_rate)
+    min_steps = cfg.syzygy_steps // 10
+
+    def objective(params, step, thick):
+        earlier_vals = jnp.stack([gj(thick) for gj in earlier], axis=-1)
+        y = g_k.apply(g_params, thick)
+        residual = jnp.abs(losses.syzygy_residual(module.apply(params, thick), earlier_vals, y))
+        loss = jnp.mean(residual)
+        scale = jnp.mean(jnp.abs(y))
+        holds = (loss * cfg.separation_ratio < scale) & (step >= min_steps)
+        return loss, ({"residual": loss, "g_scale": scale}, holds)
+
+    def draw(key, rows):
+        k_on, k_jit = jax.random.split(key)
+        return thicken(k_jit, batches.on(k_on, rows), batches.low, batches.high, thickening)
+
+    def train_step(state, thick, rows):
+        return optimizer_step(state, objective, optimizer, cfg.syzygy_steps, state.step, thick)
+
+    k_init, k_loop, k_test = jax.random.split(key, 3)
+    params = module.init(k_init, jnp.zeros((1, rs.dim)))
+    state = init_state(params, optimizer, k_loop)
+    report = None
+    if callback is not None:
+        report = lambda s, m, n: callback("syzygy", k, {"step": int(s.step), "steps": n, **m})  # noqa: E731
+    state = run_until_done(make_chunk(train_step, cfg.chunk_steps, draw), state, batches.rows,
+                           report)
+    # Judge on fresh test data (Algorithm 1: "if f ≠ 0 on τ_off^test").
+    thick = thicken(k_test, batches.on(jax.random.fold_in(k_test, 1), batches.rows,
+                                       cfg.batch_size * 4), batches.low, batches.high, thickening)
+    _, ((metrics, _)) = objective(state.params, jnp.asarray(min_steps), thick)
+    found = float(metrics["residual"]) * cfg.separation_ratio < float(metrics["g_scale"])
+    return state.params, found, {k: float(v) for k, v in metrics.items()} | {
+        "steps": int(state.step), "found": found, "thickening": float(thickening)}
+
+
+def choose_thickening(cfg, batches: Batches, rs: RelationSet, key) -> float:
+    """The reference's σ: the first level whose jittered rows sit > 2× as far from the earlier
+    relations' zero sets (mean d_g) as on-manifold rows do, else the smallest level."""
+    earlier = _frozen_relations(rs)
+
+    def mean_distance(tau):
+        return jnp.mean(jnp.stack([jnp.mean(losses.distance(*losses.input_gradients(g, tau)))
+                                   for g in earlier]))
+
+    k_on, k_jit = jax.random.split(key)
+    on = batches.on(k_on, batches.rows)
+    base = mean_distance(on)
+    for level in THICKENING_LEVELS:
+        wide = mean_distance(thicken(k_jit, on, batches.low, batches.high, level))
+        if float(wide) > 2.0 * float(base):
+            return float(level)
+    return float(THICKENING_LEVELS[0])
+
+
+def record_means(cfg, batches: Batches, g: Callable, key):
+    """Mean |g| over `eval_batches` fresh on- and off-manifold batches (App. B.3.1)."""
+    n = cfg.batch_size * cfg.eval_batches
+    k_on, k_off = jax.random.split(key)
+    on = jnp.mean(jnp.abs(g(batches.on(k_on, batches.rows, n))))
+    off = jnp.mean(jnp.abs(g(batches.off(k_off, n))))
+    return float(on), float(off)
+
+
+def _pretrain(cfg, batches: Batches, module, params, prior: Callable, key):
+    """Supervised warm start: regress g to tanh(prior(τ)) on on- and off-manifold rows (L1)."""
+    optimizer = optax.adam(cfg.learning_rate * 10)
+
+    def objective(p, tau):
+        target = jnp.tanh(prior(tau))
+        loss = jnp.mean(jnp.abs(module.apply(p, tau) - target))
+        return loss, ({}, jnp.asarray(False))
+
+    def draw(key, rows):
+        k_on, k_off = jax.random.split(key)
+        return jnp.concatenate([batches.on(k_on, rows), batches.off(k_off)])
+
+    def train_step(state, tau, rows):
+        return optimizer_step(state, objective, optimizer, cfg.pretrain_steps, tau)
+
+    state = init_state(params, optimizer, key)
+    chunk = make_chunk(train_step, min(cfg.chunk_steps, cfg.pretrain_steps), draw)
+    return run_until_done(chunk, state, batches.rows).params
+
+
+def _stack(trees):
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *trees)
+
+
+def fit(
+    on_manifold,
+    config: Config | None = None,
+    *,
+    priors: Sequence[Callable | None] | None = None,
+    start: RelationSet | None = None,
+    callback: Callback | None = None,
+    on_relation: Callable[[RelationSet, RelationSummary], None] | None = None,
+) -> RelationSet:
+    """Learn relations that vanish on `on_manifold` (Algorithm 1).
+
+    Args:
+      on_manifold: rows float [N, D]; or a sampler `key -> [B, D]`; or a `jaml.sources.Source`.
+      config: see `Config`.
+      priors: optional heuristics h_k(τ [..., D]) -> [...]: g_k is first pre-trained to output
+        tanh(h_k) on- and off-manifold (end of paper §3.2), then trained as usual.
+      start: relations learned earlier (e.g. a loaded checkpoint): training continues with the
+        next relation.
+      callback: called as (phase, k, metrics) once per compiled chunk, for logging.
+      on_relation: called with the grown RelationSet and a summary after each relation.
+
+    Returns:
+      RelationSet with up to `max_relations` relations. A relation whose loss turns non-finite
+      stops with a logged error and training ends, keeping what was learned so far.
+    """
+    cfg = config or Config()
+    key = jax.random.key(cfg.seed)
+    k_data, key = jax.random.split(key)
+    batches = prepare(on_manifold, cfg.batch_size, cfg.noise_scale, k_data, cfg.eval_batches)
+    if start is not None:
+        if start.dim != batches.dim:
+            raise ValueError(f"start relations take τ of size {start.dim}, data has {batches.dim}")
+        rs = start
+    else:
+        rs = RelationSet.empty(batches.dim, cfg.depth, cfg.tolerance, batches.dim_names)
+    if priors is not None and not all(p is None or callable(p) for p in priors):
+        raise TypeError("priors must be a sequence of callables (or None entries)")
+
+    for k in range(rs.num_relations, cfg.max_relations):
+        started = time.perf_counter()
+        k_key = jax.random.fold_in(key, k)
+        k_init, k_pre, k_train, k_syz, k_eval = jax.random.split(k_key, 5)
+        width = relation_width(k, cfg.base_width, cfg.max_width)
+        module = Relation(width, cfg.depth)
+        params = module.init(k_init, jnp.zeros((1, batches.dim)))
+        if priors is not None and k < len(priors) and priors[k] is not None:
+            params = _pretrain(cfg, batches, module, params, priors[k], k_pre)
+        state = _fit_relation(cfg, batches, rs, params, k_train, cfg.max_steps, callback=callback)
+        steps, status, rounds = int(state.step), int(state.status), []
+        if cfg.independence == "syzygy" and k > 0 and status != NONFINITE:
+            syz_found = []
+            for s in range(cfg.syzygies_per_relation):
+                ks = jax.random.fold_in(k_syz, s)
+                level = choose_thickening(cfg, batches, rs, ks)
+                f_params, found, info = _fit_syzygy(
+                    cfg, batches, rs, state.params, jax.random.fold_in(ks, 1), level, callback)
+                rounds.append(info)
+                log.info("relation %d syzygy %d: residual %.4g vs |g| %.4g -> %s", k + 1, s + 1,
+                         info["residual"], info["g_scale"], "found" if found else "none")
+                if not found:
+                    break
+                syz_found.append(f_params)
+                state = _fit_relation(cfg, batches, rs, state.params, jax.random.fold_in(ks, 2),
+                                      cfg.push_steps, syz_params=_stack(syz_found),
+                                      thickening=level, callback=callback, phase="push")
+                steps += int(state.step)
+                status = int(state.status)
+                if status == NONFINITE:
+                    break
+        g = module.bind(state.params)
+        on_mean, off_mean = record_means(cfg, batches, g, k_eval)
+        summary = RelationSummary(
+            index=k + 1, width=width, steps=steps, seconds=time.perf_counter() - started,
+            status=STATUS_NAMES[status], on_mean=on_mean, off_mean=off_mean,
+            syzygies_found=sum(r["found"] for r in rounds), syzygy_rounds=rounds)
+        if status == NONFINITE:
+            log.error("relation %d: loss became non-finite at step %d; stopping with the %d "
+                      "relations learned so far", k + 1, steps, rs.num_relations)
+            break
+        rs = rs.append(state.params, on_mean, off_mean, width, summary.syzygies_found)
+        log.info("relation %d %s after %d steps (%.1fs): mean |g| on %.4g off %.4g (x%.1f)",
+                 k + 1, summary.status, steps, summary.seconds, on_mean, off_mean, summary.ratio)
+        if on_relation is not None:
+            on_relation(rs, summary)
+    return rs
+
+
+__all__ = ["CAPPED", "CONVERGED", "RelationSummary", "choose_thickening", "fit", "record_means"]

@@ -1,0 +1,23 @@
+"""The on-manifold data contract: a `Source` draws rows τ ∈ R^D that satisfy the relations to learn."""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import jax
+
+
+@runtime_checkable
+class Source(Protocol):
+    """A sampler of on-manifold rows.
+
+    `sample(key, n)` must be a pure, jittable function of the key (n static) returning a float
+    array [n, D] whose columns are named by `dim_names`.
+    """
+
+    name: str
+
+    @property
+    def dim_names(self) -> tuple[str, ...]: ...
+
+    def sample(self, key: jax.Array, n: int) -> jax.Array: ...

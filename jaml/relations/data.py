@@ -63,6 +63,9 @@ def _as_sampler(on_manifold):
         def sampler(key, n):
             # A user's key -> [B, D] sampler fixes its own batch size; draw enough batches.
             first = fn(key)
+            if getattr(first, "ndim", None) != 2:
+                shape = getattr(first, "shape", type(first).__name__)
+                raise ValueError(f"the on_manifold sampler's output must have shape [B, D], got {shape}")
             reps = -(-n // first.shape[0])
             if reps == 1:
                 return first[:n]
@@ -108,6 +111,10 @@ def prepare(on_manifold, batch_size: int, noise_scale: float, key, calibration_b
         return Batches(rows, None, low, high, batch_size, noise_scale, names)
     try:
         sample = sampler(key, batch_size * calibration_batches)
+    except ValueError as error:
+        if "sampler's output" in str(error):
+            raise
+        raise ValueError(f"the on_manifold sampler failed when called with a PRNG key: {error}") from error
     except Exception as error:  # the user's code: say whose it is
         raise ValueError(f"the on_manifold sampler failed when called with a PRNG key: {error}") from error
     host = _check_rows(sample, "the on_manifold sampler's output")

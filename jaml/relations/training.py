@@ -22,8 +22,6 @@ from jaml.relations import losses
 from jaml.relations.config import Config
 from jaml.relations.data import Batches, prepare
 from jaml.relations.loop import (
-    CAPPED,
-    CONVERGED,
     NONFINITE,
     STATUS_NAMES,
     init_state,
@@ -155,18 +153,21 @@ def _fit_relation(cfg, batches: Batches, rs: RelationSet, params, key, max_steps
     return state
 
 
-def _fit_syzygy(cfg, batches: Batches, rs: RelationSet, g_params, key, thickening, callback):
-    """Fit f with L1 on thickened data so that Σ_j f_j g_j ≈ g_k (g's frozen)."""
-    k = rs.num_relations
-    g_k = Relation(relation_width(k, cfg.base_width, cfg.max_width), cfg.depth)
-    earlier = _frozen_relations(rs)
+def fit_syzygy(cfg: Config, batches: Batches, earlier: Sequence[Callable], g_k: Callable, key,
+               thickening: float, callback: Callback | None = None, index: int = 0):
+    """Fit a restricted syzygy: f with Σ_j f_j(τ) g_j(τ) ≈ g_k(τ) on thickened data (L1).
+
+    The relations are frozen functions τ [..., D] → [...]. Returns (f params, found, info):
+    `found` says whether f explains g_k on fresh test data, i.e. its mean residual is below
+    1/separation_ratio of mean |g_k| there (the "f ≈ 0" of Algorithm 1).
+    """
     module = SyzygyCoefficients(len(earlier), cfg.syzygy_width, cfg.depth)
     optimizer = optax.adam(cfg.learning_rate)
-    min_steps = cfg.syzygy_steps // 10
+    min_steps = cfg.syzygy_steps // 10  # the reference's early exit waits for a tenth of the budget
 
     def objective(params, step, thick):
         earlier_vals = jnp.stack([gj(thick) for gj in earlier], axis=-1)
-        y = g_k.apply(g_params, thick)
+        y = g_k(thick)
         residual = jnp.abs(losses.syzygy_residual(module.apply(params, thick), earlier_vals, y))
         loss = jnp.mean(residual)
         scale = jnp.mean(jnp.abs(y))
@@ -178,23 +179,24 @@ def _fit_syzygy(cfg, batches: Batches, rs: RelationSet, g_params, key, thickenin
         return thicken(k_jit, batches.on(k_on, rows), batches.low, batches.high, thickening)
 
     def train_step(state, thick, rows):
-        return optimizer_step(state, objective, optimizer, cfg.syzygy_steps, state.step, thick)
+        return optimizer_step(state, objective, optimizer, cfg.syzygy_steps, state.step, thick,
+                              patience=cfg.stop_patience)
 
     k_init, k_loop, k_test = jax.random.split(key, 3)
-    params = module.init(k_init, jnp.zeros((1, rs.dim)))
+    params = module.init(k_init, jnp.zeros((1, batches.dim)))
     state = init_state(params, optimizer, k_loop)
     report = None
     if callback is not None:
-        report = lambda s, m, n: callback("syzygy", k, {"step": int(s.step), "steps": n, **m})  # noqa: E731
-    state = run_until_done(make_chunk(train_step, cfg.chunk_steps, draw), state, batches.rows,
-                           report)
+        report = lambda s, m, n: callback("syzygy", index, {"step": int(s.step), "steps": n, **m})  # noqa: E731
+    chunk = make_chunk(train_step, min(cfg.chunk_steps, cfg.syzygy_steps), draw)
+    state = run_until_done(chunk, state, batches.rows, report)
     # Judge on fresh test data (Algorithm 1: "if f ≠ 0 on τ_off^test").
-    thick = thicken(k_test, batches.on(jax.random.fold_in(k_test, 1), batches.rows,
-                                       cfg.batch_size * 4), batches.low, batches.high, thickening)
-    _, ((metrics, _)) = objective(state.params, jnp.asarray(min_steps), thick)
-    found = float(metrics["residual"]) * cfg.separation_ratio < float(metrics["g_scale"])
-    return state.params, found, {k: float(v) for k, v in metrics.items()} | {
-        "steps": int(state.step), "found": found, "thickening": float(thickening)}
+    test = draw(k_test, batches.rows)
+    _, (metrics, _) = objective(state.params, jnp.asarray(min_steps), test)
+    info = {k: float(v) for k, v in metrics.items()}
+    found = info["residual"] * cfg.separation_ratio < info["g_scale"]
+    return state.params, found, info | {"steps": int(state.step), "found": found,
+                                        "thickening": float(thickening)}
 
 
 def choose_thickening(cfg, batches: Batches, rs: RelationSet, key) -> float:
@@ -304,8 +306,9 @@ def fit(
             for s in range(cfg.syzygies_per_relation):
                 ks = jax.random.fold_in(k_syz, s)
                 level = choose_thickening(cfg, batches, rs, ks)
-                f_params, found, info = _fit_syzygy(
-                    cfg, batches, rs, state.params, jax.random.fold_in(ks, 1), level, callback)
+                g_k = module.bind(state.params)
+                f_params, found, info = fit_syzygy(cfg, batches, _frozen_relations(rs), g_k,
+                                                   jax.random.fold_in(ks, 1), level, callback, k)
                 rounds.append(info)
                 log.info("relation %d syzygy %d: residual %.4g vs |g| %.4g -> %s", k + 1, s + 1,
                          info["residual"], info["g_scale"], "found" if found else "none")
@@ -337,4 +340,4 @@ def fit(
     return rs
 
 
-__all__ = ["CAPPED", "CONVERGED", "RelationSummary", "choose_thickening", "fit", "record_means"]
+__all__ = ["RelationSummary", "choose_thickening", "fit", "fit_syzygy", "record_means"]

@@ -1,0 +1,177 @@
+"""The functional API: validation before training, determinism, checkpoints, non-finite losses."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaml import relations, sources
+from jaml.relations import loop
+
+TINY = relations.Config(max_relations=2, max_steps=60, chunk_steps=30, batch_size=64,
+                        eval_batches=2, stop_patience=1)
+
+
+@pytest.fixture(scope="module")
+def tiny_set():
+    rows = sources.make("ellipse").sample(jax.random.key(0), 512)
+    return relations.fit(rows, TINY), rows
+
+
+def test_fit_returns_the_declared_structure(tiny_set):
+    rs, rows = tiny_set
+    assert rs.num_relations == 2 and rs.widths == (4, 8) and rs.dim == 3
+    assert rs.on_means.shape == (2,) and rs.off_means.shape == (2,)
+    assert relations.evaluate(rs, rows[:5]).shape == (5, 2)
+    assert relations.evaluate(rs, rows.reshape(4, 128, 3)).shape == (4, 128, 2)
+    assert relations.penalty(rs, rows[:5]).shape == (5,)
+    assert relations.holds(rs, rows[:5]).dtype == jnp.bool_
+    np.testing.assert_allclose(relations.penalty(rs, rows[:5]),
+                               jnp.abs(relations.evaluate(rs, rows[:5])).sum(-1), rtol=1e-6)
+
+
+def test_penalty_is_differentiable_in_tau(tiny_set):
+    rs, rows = tiny_set
+    grad = jax.grad(lambda t: relations.penalty(rs, t).sum())(rows[:8])
+    assert grad.shape == (8, 3) and bool(jnp.all(jnp.isfinite(grad)))
+    assert float(jnp.abs(grad).sum()) > 0
+
+
+def test_same_seed_same_parameters_different_seed_differs(tiny_set):
+    rs, rows = tiny_set
+    again = relations.fit(rows, TINY)
+    for a, b in zip(jax.tree.leaves(rs.params), jax.tree.leaves(again.params), strict=True):
+        np.testing.assert_array_equal(a, b)
+    other = relations.fit(rows, TINY.replace(seed=1, max_relations=1))
+    assert not np.allclose(jax.tree.leaves(other.params)[0], jax.tree.leaves(rs.params)[0])
+
+
+def test_samplers_and_sources_are_accepted():
+    src = sources.make("block45")
+    rs = relations.fit(src, TINY.replace(max_relations=1))
+    assert rs.dim_names == src.dim_names
+    rs = relations.fit(lambda key: src.sample(key, 32), TINY.replace(max_relations=1))
+    assert rs.num_relations == 1 and rs.dim == 4
+
+
+def test_checkpoint_round_trip(tiny_set, tmp_path, caplog):
+    rs, rows = tiny_set
+    relations.save(rs, tmp_path / "rs")
+    with caplog.at_level("INFO", logger="jaml.relations"):
+        loaded = relations.load(tmp_path / "rs")
+    assert "AML loaded 2 relations, 0 syzygies" in caplog.text
+    np.testing.assert_array_equal(relations.evaluate(loaded, rows), relations.evaluate(rs, rows))
+    np.testing.assert_array_equal(loaded.on_means, rs.on_means)
+    assert (loaded.widths, loaded.depth, loaded.tolerance) == (rs.widths, rs.depth, rs.tolerance)
+    # Overwriting an existing checkpoint replaces it whole.
+    relations.save(relations.fit(rows, TINY.replace(max_relations=1)), tmp_path / "rs")
+    assert relations.load(tmp_path / "rs").num_relations == 1
+
+
+def test_training_continues_from_a_loaded_set(tiny_set):
+    rs, rows = tiny_set
+    first = relations.RelationSet.empty(3, 3, 1.5).append(rs.params[0], rs.on_means[0],
+                                                          rs.off_means[0], 4)
+    grown = relations.fit(rows, TINY, start=first)
+    assert grown.num_relations == 2
+    np.testing.assert_array_equal(jax.tree.leaves(grown.params[0])[0],
+                                  jax.tree.leaves(rs.params[0])[0])
+
+
+def test_missing_and_corrupt_checkpoints_raise(tiny_set, tmp_path):
+    with pytest.raises(FileNotFoundError, match="no relations checkpoint"):
+        relations.load(tmp_path / "absent")
+    (tmp_path / "junk").mkdir()
+    (tmp_path / "junk" / "meta").mkdir()
+    with pytest.raises(ValueError, match="corrupt or foreign|not a jaml"):
+        relations.load(tmp_path / "junk")
+    rs, _ = tiny_set
+    relations.save(rs, tmp_path / "rs")
+    for path in (tmp_path / "rs" / "arrays").rglob("*"):
+        if path.is_file():
+            path.write_bytes(b"garbage")
+    with pytest.raises(ValueError, match="corrupt"):
+        relations.load(tmp_path / "rs")
+
+
+@pytest.mark.parametrize(("data", "error", "match"), [
+    (np.zeros((10, 3), np.int32), TypeError, "floating-point"),
+    (np.zeros((10,), np.float32), ValueError, r"shape \[N, D\]"),
+    (np.zeros((0, 3), np.float32), ValueError, "empty"),
+    (np.ones((10, 3), np.float32), ValueError, "constant"),
+    (np.where(np.eye(10, 3) > 0, np.nan, 1.0).astype(np.float32), ValueError, "non-finite"),
+    (np.full((10, 3), np.inf, np.float32), ValueError, "non-finite"),
+])
+def test_bad_data_raises_before_training(data, error, match):
+    with pytest.raises(error, match=match):
+        relations.fit(data, TINY)
+
+
+def test_failing_or_misshapen_sampler_raises():
+    def broken(key):
+        raise RuntimeError("boom")
+
+    with pytest.raises(ValueError, match="sampler failed.*boom"):
+        relations.fit(broken, TINY)
+    with pytest.raises(ValueError, match="sampler's output.*shape"):
+        relations.fit(lambda key: jnp.zeros((4,)), TINY)
+
+
+@pytest.mark.parametrize(("field", "value", "match"), [
+    ("independence", "orthogonality", "independence must be one of"),
+    ("objective", "mine", "objective must be one of"),
+    ("max_relations", 0, "max_relations must be a positive integer"),
+    ("batch_size", 1, "batch_size must be at least 2"),
+    ("learning_rate", -1.0, "learning_rate must be a positive"),
+    ("separation_ratio", math.inf, "separation_ratio must be a positive finite"),
+    ("separation_top_fraction", 0.0, "separation_top_fraction"),
+    ("min_angle", 2.0, "min_angle"),
+    ("transversality_weight", -1.0, "transversality_weight"),
+    ("syzygies_per_relation", -1, "syzygies_per_relation"),
+])
+def test_invalid_config_values_raise(field, value, match):
+    with pytest.raises(ValueError, match=match):
+        relations.Config(**{field: value})
+
+
+def test_config_round_trips_and_rejects_unknown_fields():
+    cfg = relations.Config(max_relations=3, objective="reference")
+    assert relations.Config.from_dict(cfg.to_dict()) == cfg
+    assert cfg.beta == 1.0 and relations.Config().beta == 1e3
+    with pytest.raises(ValueError, match="unknown relations.Config fields"):
+        relations.Config.from_dict({"max_relation": 2})
+
+
+def test_evaluate_rejects_wrong_tau(tiny_set):
+    rs, _ = tiny_set
+    with pytest.raises(ValueError, match=r"\[..., 3\]"):
+        relations.evaluate(rs, jnp.zeros((5, 4)))
+    with pytest.raises(TypeError, match="floating-point"):
+        relations.evaluate(rs, jnp.zeros((5, 3), jnp.int32))
+
+
+def test_a_non_finite_loss_stops_and_keeps_the_last_finite_parameters():
+    optimizer = __import__("optax").sgd(0.1)
+    params = {"w": jnp.ones(3)}
+    state = loop.init_state(params, optimizer, jax.random.key(0))
+
+    def objective(p, x):
+        loss = jnp.sum(p["w"] * x)
+        return loss, ({}, jnp.asarray(False))
+
+    state, _ = loop.optimizer_step(state, objective, optimizer, 10, jnp.ones(3))
+    kept = state.params["w"]
+    state, _ = loop.optimizer_step(state, objective, optimizer, 10, jnp.full(3, jnp.nan))
+    assert int(state.status) == loop.NONFINITE and int(state.step) == 1
+    np.testing.assert_array_equal(state.params["w"], kept)
+
+
+def test_fit_stops_on_a_non_finite_loss_and_keeps_earlier_relations(caplog):
+    rows = sources.make("ellipse").sample(jax.random.key(0), 512)
+    first = relations.fit(rows, TINY.replace(max_relations=1))
+    with caplog.at_level("ERROR", logger="jaml.relations"):
+        rs = relations.fit(rows, TINY.replace(learning_rate=1e38), start=first)
+    assert "non-finite" in caplog.text
+    assert rs.num_relations == 1

@@ -1,0 +1,110 @@
+"""Data sources against closed forms, hand-computed values and an independent ODE solve."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from jaml import sources
+from jaml.relations.data import prepare
+
+
+def test_ellipse_lies_on_hyperboloid_and_plane():
+    tau = sources.HyperboloidPlaneCurve().sample(jax.random.key(0), 4096)
+    residuals = sources.HyperboloidPlaneCurve.residuals(tau)
+    assert float(jnp.max(jnp.abs(residuals))) < 1e-5
+    lo, hi = np.asarray(tau.min(0)), np.asarray(tau.max(0))
+    np.testing.assert_allclose(lo, [-math.sqrt(2), -3, -2], atol=1e-2)
+    np.testing.assert_allclose(hi, [math.sqrt(2), 1, 0], atol=1e-2)
+
+
+def test_off_manifold_is_uniform_in_the_data_box():
+    batches = prepare(sources.make("ellipse"), 1024, 0.0, jax.random.key(0), 4)
+    off = np.asarray(batches.off(jax.random.key(1), 20_000))
+    low, high = np.asarray(batches.low), np.asarray(batches.high)
+    assert (off >= low).all() and (off <= high).all()
+    np.testing.assert_allclose(off.mean(0), (low + high) / 2, atol=0.03 * (high - low).max())
+
+
+@pytest.mark.parametrize(("incline", "friction", "c"), [
+    (math.pi / 4, 0.0, 6.9296465), (math.pi / 5, 0.2, 4.1746222), (0.4, 0.2, 2.0110202)])
+def test_block_presets_satisfy_the_constant_acceleration_relations(incline, friction, c):
+    src = sources.BlockOnIncline(incline=incline, friction=friction)
+    s0, v0, s1, v1 = np.asarray(src.sample(jax.random.key(0), 2048)).T
+    assert float(sources.downhill_acceleration(9.8, incline, friction)) == pytest.approx(c, abs=1e-6)
+    np.testing.assert_allclose(v1 - v0, c, atol=1e-5)
+    np.testing.assert_allclose(s1 - s0 - v0, c / 2, atol=1e-5)
+
+
+def test_block45_hand_computed_example():
+    c = sources.downhill_acceleration(9.8, math.pi / 4, 0.0)
+    s1, v1 = sources.flow(0.5, -0.5, 1.0, c, 0.0, "none")
+    assert float(s1) == pytest.approx(3.4648232, abs=1e-5)
+    assert float(v1) == pytest.approx(6.4296465, abs=1e-5)
+
+
+def test_conservative_block_with_ranged_incline():
+    src = sources.BlockOnIncline(incline=(0.1, 1.0))
+    s0, v0, s1, v1 = np.asarray(src.sample(jax.random.key(0), 4096)).T
+    np.testing.assert_allclose(s1 - s0, (v0 + v1) / 2, atol=1e-5)
+    ratio = (v1 - v0) / 9.8
+    assert ratio.min() >= math.sin(0.1) - 1e-6 and ratio.max() <= math.sin(1.0) + 1e-6
+
+
+def _ode(s0, v0, t, c, r, drag):
+    drag_fn = {"none": lambda v: 0.0, "linear": lambda v: r * v, "quadratic": lambda v: r * v * abs(v)}
+    sol = solve_ivp(lambda _, y: [y[1], c - drag_fn[drag](y[1])], (0.0, t), [s0, v0],
+                    method="DOP853", rtol=1e-12, atol=1e-13)
+    return sol.y[0, -1], sol.y[1, -1]
+
+
+@pytest.mark.parametrize(("drag", "incline", "start", "expected"), [
+    ("quadratic", 0.4, (0.5, -0.5), (0.93672189, 1.12438136)),
+    ("quadratic", 0.4, (0.0, 0.0), (0.78194949, 1.26098246)),
+    ("quadratic", 0.4, (0.0, 3.0), (1.84012464, 1.47893851)),
+    ("linear", 0.4, (0.5, -0.5), (0.92375271, 1.08726750)),
+    ("linear", math.pi / 5, (0.0, 0.0), (1.53575767, 2.63886449)),
+])
+def test_closed_forms_match_reference_values_and_ode(drag, incline, start, expected):
+    with jax.enable_x64(True):
+        c = float(sources.downhill_acceleration(9.8, incline, 0.2))
+        s, v = sources.flow(jnp.float64(start[0]), jnp.float64(start[1]), 1.0, c, 1.0, drag)
+        np.testing.assert_allclose([float(s), float(v)], expected, atol=1e-8)
+        np.testing.assert_allclose([float(s), float(v)], _ode(*start, 1.0, c, 1.0, drag), atol=1e-8)
+
+
+@pytest.mark.parametrize("drag", ["none", "linear", "quadratic"])
+def test_closed_forms_match_ode_across_regimes(drag):
+    # Includes climbing starts that stop and turn (v0 < 0) and starts above terminal speed.
+    with jax.enable_x64(True):
+        c = float(sources.downhill_acceleration(9.8, 0.4, 0.2))
+        for v0 in (-3.0, -1.0, -0.2, 0.0, 0.5, 1.0, 2.5, 4.0):
+            for t in (0.0, 0.3, 1.0, 2.0):
+                s, v = sources.flow(jnp.float64(0.1), jnp.float64(v0), t, c, 1.0, drag)
+                np.testing.assert_allclose([float(s), float(v)], _ode(0.1, v0, t, c, 1.0, drag),
+                                           atol=1e-8, err_msg=f"v0={v0} t={t}")
+
+
+def test_rows_are_time_major_and_named():
+    src = sources.BlockOnIncline(times=(0.0, 0.5, 1.0))
+    assert src.dim_names == ("position_0", "velocity_0", "position_1", "velocity_1",
+                             "position_2", "velocity_2")
+    tau = np.asarray(src.sample(jax.random.key(0), 8))
+    assert tau.shape == (8, 6)
+    np.testing.assert_allclose(tau[:, 3] - tau[:, 1], 9.8 * math.sin(math.pi / 4) * 0.5, atol=1e-5)
+
+
+def test_bad_source_parameters_raise():
+    with pytest.raises(ValueError, match="unknown drag"):
+        sources.BlockOnIncline(drag="cubic")
+    with pytest.raises(ValueError, match="downhill acceleration"):
+        sources.BlockOnIncline(incline=0.1, friction=0.8, drag="quadratic", drag_coef=1.0)
+    with pytest.raises(ValueError, match="drag_coef > 0"):
+        sources.BlockOnIncline(drag="linear")
+    with pytest.raises(ValueError, match="strictly increasing"):
+        sources.BlockOnIncline(times=(1.0, 0.0))
+    with pytest.raises(ValueError, match="valid sources"):
+        sources.make("torus")

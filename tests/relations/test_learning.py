@@ -1,0 +1,95 @@
+"""End-to-end learning: Algorithm 1 recovers the known relations of the analytic and block domains.
+
+Stochastic training; thresholds are loose bounds from aml_reference.md §12 and the issue, checked
+on fresh data never seen in training.
+"""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaml import relations, sources
+from jaml.relations import losses
+from jaml.relations.data import prepare
+from jaml.relations.training import fit_syzygy
+
+N_FRESH = 20_000
+
+
+def _fresh_ratio(rs, src, key, scale=1.0):
+    """Per-relation mean |g| on uniform box points / on fresh on-manifold points."""
+    if scale != 1.0:
+        src = src.widened(scale)
+    k_on, k_off = jax.random.split(key)
+    on = src.sample(k_on, N_FRESH)
+    low, high = on.min(0), on.max(0)
+    off = jax.random.uniform(k_off, on.shape, minval=low, maxval=high)
+    return np.asarray(jnp.mean(jnp.abs(relations.evaluate(rs, off)), 0)
+                      / jnp.mean(jnp.abs(relations.evaluate(rs, on)), 0))
+
+
+@pytest.fixture(scope="module")
+def ellipse():
+    src = sources.make("ellipse")
+    return src, relations.fit(src, relations.Config(max_relations=2))
+
+
+def test_ellipse_relations_separate_on_from_off_manifold(ellipse):
+    src, rs = ellipse
+    assert rs.num_relations == 2
+    ratios = _fresh_ratio(rs, src, jax.random.key(11))
+    assert (ratios >= 10).all(), ratios
+
+
+def test_ellipse_relations_are_transverse_on_the_curve(ellipse):
+    src, rs = ellipse
+    tau = src.sample(jax.random.key(12), 4096)
+    grads = [losses.input_gradients(rs.relation(k), tau)[1] for k in range(2)]
+    sin = jnp.sqrt(losses.sin_squared(grads[0], grads[1]))
+    assert float(jnp.mean(sin)) >= 0.6
+
+
+def test_where_all_relations_hold_the_true_equations_nearly_hold(ellipse):
+    src, rs = ellipse
+    on = src.sample(jax.random.key(13), 4096)
+    box = jax.random.uniform(jax.random.key(14), (400_000, 3), minval=on.min(0), maxval=on.max(0))
+    kept = box[np.asarray(relations.holds(rs, box))]
+    assert kept.shape[0] >= 50, "too few box points satisfy every learned relation"
+    kept_residual = np.median(np.abs(np.asarray(src.residuals(kept))), axis=0)
+    box_residual = np.median(np.abs(np.asarray(src.residuals(box))), axis=0)
+    assert (box_residual >= 5 * kept_residual).all(), (kept_residual, box_residual)
+
+
+@pytest.mark.parametrize("preset", ["block45", "block36-drag"])
+def test_block_relations_generalize_beyond_the_training_range(preset):
+    src = sources.make(preset)
+    rs = relations.fit(src, relations.Config(max_relations=2))
+    assert rs.num_relations == 2
+    assert (_fresh_ratio(rs, src, jax.random.key(21)) >= 5).all()
+    # Initial positions and velocities from twice the training range.
+    assert (_fresh_ratio(rs, src, jax.random.key(22), scale=2.0) >= 3).all()
+
+
+def test_syzygy_network_expresses_a_dependent_relation_but_not_an_independent_one():
+    cfg = relations.Config(syzygy_max_steps=6000, separation_ratio=20.0)
+    batches = prepare(sources.make("ellipse"), cfg.batch_size, 0.0, jax.random.key(0), 4)
+    plane = lambda t: 0.2 * (t[..., 1] - 2 * t[..., 2] - 1)  # noqa: E731
+    multiple = lambda t: (1.0 + 0.5 * t[..., 0] ** 2) * plane(t)  # noqa: E731  h·g1
+    hyperboloid = lambda t: 0.1 * (t[..., 0] ** 2 + t[..., 1] ** 2 - 2 * t[..., 2] ** 2 - 1)  # noqa: E731
+    _, found, dep = fit_syzygy(cfg, batches, [plane], multiple, jax.random.key(1), 0.5)
+    assert found and dep["residual"] < 0.05 * dep["g_scale"], dep
+    _, found, ind = fit_syzygy(cfg, batches, [plane], hyperboloid, jax.random.key(1), 0.5)
+    assert not found and ind["residual"] > 0.2 * ind["g_scale"], ind
+
+
+def test_algorithm_1_with_syzygies_learns_separating_relations():
+    src = sources.make("ellipse")
+    cfg = relations.Config(max_relations=2, independence="syzygy", syzygies_per_relation=1,
+                           max_steps=30_000, syzygy_max_steps=4000, syzygy_push_steps=8000)
+    rs = relations.fit(src, cfg)
+    assert rs.num_relations == 2
+    assert (_fresh_ratio(rs, src, jax.random.key(31)) >= 5).all()
+    assert math.isfinite(float(rs.on_means.sum()))

@@ -1,4 +1,4 @@
-"""Alignment and distortion curves over training (paper Fig. 2, 9, 7) from a JSON-lines history.
+"""Alignment and distortion curves over training (paper Fig. 2, 9) from a JSON-lines history.
 
 A history is a list of records, one per (step, learner, test set, run):
 

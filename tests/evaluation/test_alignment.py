@@ -151,7 +151,7 @@ def test_bad_inputs_raise_before_training(data):
 
 @pytest.mark.slow
 def test_spec_defaults_align_an_invertible_map(data):
-    """All reference defaults for a sequence learner with L = 24 (≈ 45 s on 2 CPU cores)."""
+    """All reference defaults for a sequence learner with L = 24 (≈ 47 s on 2 CPU cores)."""
     f, st = data["invertible"], data["states_test"]
     rng = np.random.default_rng(2)
     s10k = rng.normal(size=(10_000, D)).astype(np.float32)

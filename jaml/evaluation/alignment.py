@@ -172,6 +172,10 @@ def _train(key: jax.Array, x: jax.Array, y: jax.Array, config: RegressorConfig, 
 def fit_regressor(latents, states, seed: int = 0, config: RegressorConfig | None = None,
                   **overrides) -> Regressor:
     """Trains a fresh regressor latents [N, Z] → states [N, D]; deterministic for a given seed."""
+    known = {f.name for f in dataclasses.fields(RegressorConfig)}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise ValueError(f"unknown regressor override(s) {unknown}; known: {sorted(known)}")
     config = dataclasses.replace(config or RegressorConfig(), **overrides)
     x, y = _checks.paired(("latents_train", "states_train"), latents, states)
     n_val = config.split(x.shape[0])

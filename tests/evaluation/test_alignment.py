@@ -145,6 +145,8 @@ def test_bad_inputs_raise_before_training(data):
             evaluation.alignment_error(*args, **FAST)
     with pytest.raises(ValueError, match="test_sets"):
         evaluation.alignment_errors(lat, s, {}, **FAST)
+    with pytest.raises(ValueError, match="epochs"):
+        evaluation.alignment_error(lat, s, lat_t, st, epochs=3)
     with pytest.raises(ValueError, match="dropout"):
         evaluation.alignment_error(lat, s, lat_t, st, dropout=1.5)
 

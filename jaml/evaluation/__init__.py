@@ -1,0 +1,34 @@
+"""Evaluation suite (paper §2.1, eq. 5): latent–state alignment error and encoder distortion.
+
+    from jaml import evaluation
+    evaluation.alignment_error(lat_tr, st_tr, lat_te, st_te)     # [D], training-std units
+    evaluation.alignment_errors(lat_tr, st_tr, {"pi_curr": (l, s), "pi_rand": (l, s)})
+    evaluation.distortion(latents, states)                       # Var ρ over random pairs
+    evaluation.plot_alignment(history, "alignment.png"); evaluation.plot_distortion(...)
+"""
+
+from jaml.evaluation.alignment import (
+    Regressor,
+    RegressorConfig,
+    alignment_error,
+    alignment_errors,
+    fit_regressor,
+    regressor_error,
+)
+from jaml.evaluation.distortion import distortion, distortion_coefficients, sample_pairs
+from jaml.evaluation.plots import history_records, plot_alignment, plot_distortion
+
+__all__ = [
+    "Regressor",
+    "RegressorConfig",
+    "alignment_error",
+    "alignment_errors",
+    "distortion",
+    "distortion_coefficients",
+    "fit_regressor",
+    "history_records",
+    "plot_alignment",
+    "plot_distortion",
+    "regressor_error",
+    "sample_pairs",
+]

@@ -1,0 +1,68 @@
+"""Encoder distortion (paper eq. 5, App. B.3.2): Var of ρ = log(‖φ1 − φ2‖ / ‖τ1 − τ2‖) over pairs.
+
+The paper computes it on 10K test points and reports the variance; the reference suite's
+"irregularity" (the std over ≤ 500 points, indexing latents by LD-dimension indices) is not used.
+
+Zero distances: a pair with τ1 = τ2 has no ratio and is skipped (repeated frames at episode ends
+give such pairs). A pair with τ1 ≠ τ2 but φ1 = φ2 has ρ = −∞: the encoder collapses distinct
+states, and the distortion is then +inf, as the definition says.
+
+Shapes: N points, Z latent width, D LD-state width, P pairs.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaml.evaluation import _checks
+
+DEFAULT_NUM_PAIRS = 10_000
+
+
+def sample_pairs(num_points: int, num_pairs: int, seed: int = 0) -> tuple[jax.Array, jax.Array]:
+    """Index pairs (i [P], j [P]), uniform over ordered pairs of distinct points (i ≠ j)."""
+    if num_points < 2:
+        raise ValueError(f"too few samples: need at least 2 points for pairs, got {num_points}")
+    if num_pairs < 2:
+        raise ValueError(f"num_pairs must be ≥ 2 (a variance needs two values), got {num_pairs}")
+    first_key, offset_key = jax.random.split(jax.random.key(seed))
+    i = jax.random.randint(first_key, (num_pairs,), 0, num_points)
+    j = (i + jax.random.randint(offset_key, (num_pairs,), 1, num_points)) % num_points
+    return i, j
+
+
+@jax.jit
+def _coefficients(latents, states, i, j):
+    """ρ [P] and its validity mask [P] (False where τ_i = τ_j) for given pairs."""
+    d_latent = jnp.linalg.norm(latents[i] - latents[j], axis=-1)
+    d_state = jnp.linalg.norm(states[i] - states[j], axis=-1)
+    valid = d_state > 0
+    # log 0 = −inf on purpose where only the latent distance vanishes (see module docstring).
+    rho = jnp.log(d_latent) - jnp.log(jnp.where(valid, d_state, 1.0))
+    return jnp.where(valid, rho, jnp.nan), valid
+
+
+def distortion_coefficients(latents, states, num_pairs: int = DEFAULT_NUM_PAIRS, seed: int = 0):
+    """ρ [P] for pairs drawn with `seed` (NaN where τ1 = τ2) and the mask of valid pairs [P].
+
+    latents [N, Z] = φ(x), states [N, D] = τ. The same (N, num_pairs, seed) gives the same pairs,
+    so coefficients of different maps over the same points can be compared pairwise.
+    """
+    lat, st = _checks.paired(("latents", "states"), latents, states, min_rows=2)
+    i, j = sample_pairs(lat.shape[0], num_pairs, seed)
+    return _coefficients(jnp.asarray(lat), jnp.asarray(st), i, j)
+
+
+def distortion(latents, states, num_pairs: int = DEFAULT_NUM_PAIRS, seed: int = 0) -> float:
+    """Var(ρ) over `num_pairs` random pairs of distinct points, skipping pairs with τ1 = τ2."""
+    rho, valid = distortion_coefficients(latents, states, num_pairs, seed)
+    rho = np.asarray(rho, np.float64)[np.asarray(valid)]
+    if rho.size < 2:
+        raise ValueError(
+            f"too few non-coincident pairs: {rho.size} of {num_pairs} have τ1 ≠ τ2; need at least 2"
+        )
+    if np.isneginf(rho).any():
+        return float("inf")
+    return float(np.var(rho))

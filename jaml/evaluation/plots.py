@@ -1,0 +1,156 @@
+"""Alignment and distortion curves over training (paper Fig. 2, 9) from a JSON-lines history.
+
+A history is a list of records, one per (step, learner, test set, run):
+
+    {"step": 500, "learner": "PRED", "test_set": "pi_rand", "run": 0,
+     "errors": {"x": 0.21, "theta": 0.13}, "distortion": 0.42}
+
+"errors" holds the per-dimension alignment errors by LD-state name; "distortion" (Var ρ, eq. 5)
+may be None or absent. Records of several runs at one step are shown as their mean with a
+90 % interval (mean ± 1.645·s/√n, a normal approximation), as the paper's figures show 90 %
+confidence intervals over runs. Figures use matplotlib's Agg canvas; no global state is touched.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Iterable, Mapping, Sequence
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+_Z90 = 1.6448536269514722  # two-sided 90 % normal quantile
+
+
+def history_records(step: int, learner: str, errors: Mapping[str, Sequence[float]],
+                    names: Sequence[str], distortion: float | None = None,
+                    run: int = 0) -> list[dict]:
+    """Records for one analysis: `errors` maps test set → [D] errors, `names` the D state names."""
+    records = []
+    for test_set, values in errors.items():
+        values = np.asarray(values, np.float64).reshape(-1)
+        if values.size != len(names):
+            raise ValueError(
+                f"errors[{test_set!r}] has {values.size} entries but {len(names)} names were given"
+            )
+        records.append(
+            {
+                "step": int(step),
+                "learner": str(learner),
+                "test_set": str(test_set),
+                "run": int(run),
+                "errors": {n: float(v) for n, v in zip(names, values, strict=True)},
+                "distortion": None if distortion is None else float(distortion),
+            }
+        )
+    return records
+
+
+def _check(history: Iterable[Mapping]) -> list[Mapping]:
+    history = list(history)
+    if not history:
+        raise ValueError("history is empty")
+    for k, rec in enumerate(history):
+        missing = [key for key in ("step", "learner", "test_set") if key not in rec]
+        if missing:
+            raise ValueError(f"history[{k}] lacks {missing}")
+    return history
+
+
+def _ordered(values: Iterable) -> list:
+    return list(dict.fromkeys(values))
+
+
+def _band(samples: Sequence[float]) -> tuple[float, float, float]:
+    """Mean and the 90 % normal-approximation interval of the mean (degenerate for one sample)."""
+    a = np.asarray(samples, np.float64)
+    mean = float(a.mean())
+    if a.size < 2:
+        return mean, mean, mean
+    half = _Z90 * float(a.std(ddof=1)) / math.sqrt(a.size)
+    return mean, mean - half, mean + half
+
+
+def _curves(points: Mapping[int, list[float]]):
+    steps = sorted(points)
+    stats = np.array([_band(points[s]) for s in steps])
+    return np.asarray(steps), stats[:, 0], stats[:, 1], stats[:, 2]
+
+
+def _save(fig: Figure, path) -> None:
+    FigureCanvasAgg(fig)
+    fig.savefig(path, dpi=100)
+
+
+def plot_alignment(history: Iterable[Mapping], path,
+                   groups: Mapping[str, Sequence[str]] | None = None) -> Figure:
+    """Alignment error vs training step: one row per test set, one column per dimension.
+
+    Writes the figure to `path` and returns it (lines carry the per-step means).
+
+    groups: optional panel title → state names; the panel shows the mean error over those names
+    (the paper aggregates position / velocity / contacts this way for the locomotion domains).
+    """
+    history = [r for r in _check(history) if r.get("errors")]
+    if not history:
+        raise ValueError("history has no records with alignment errors")
+    if groups is None:
+        names = _ordered(n for r in history for n in r["errors"])
+        groups = {n: [n] for n in names}
+    elif not groups or any(not dims for dims in groups.values()):
+        raise ValueError("groups must map each panel title to at least one state name")
+    test_sets = _ordered(r["test_set"] for r in history)
+    learners = _ordered(r["learner"] for r in history)
+    fig = Figure(figsize=(3.6 * len(groups), 2.8 * len(test_sets)), layout="constrained")
+    axes = fig.subplots(len(test_sets), len(groups), squeeze=False)
+    colors = {name: f"C{k % 10}" for k, name in enumerate(learners)}
+    for row, test_set in enumerate(test_sets):
+        for col, (title, dims) in enumerate(groups.items()):
+            ax = axes[row, col]
+            for learner in learners:
+                points = defaultdict(list)
+                for r in history:
+                    if r["learner"] == learner and r["test_set"] == test_set:
+                        vals = [r["errors"][d] for d in dims if d in r["errors"]]
+                        if len(vals) == len(dims):
+                            points[int(r["step"])].append(float(np.mean(vals)))
+                if not points:
+                    continue
+                steps, mean, lo, hi = _curves(points)
+                ax.plot(steps, mean, color=colors[learner], label=learner)
+                ax.fill_between(steps, lo, hi, color=colors[learner], alpha=0.2, linewidth=0)
+            ax.set_title(f"{title} ({test_set})", fontsize=9)
+            ax.set_xlabel("training step")
+            if col == 0:
+                ax.set_ylabel("test error (train std)")
+            ax.set_ylim(bottom=0.0)
+    axes[0, 0].legend(fontsize=8)
+    _save(fig, path)
+    return fig
+
+
+def plot_distortion(history: Iterable[Mapping], path) -> Figure:
+    """Distortion Var(ρ) vs training step, one curve per learner (and test set, if several)."""
+    history = [r for r in _check(history) if r.get("distortion") is not None]
+    if not history:
+        raise ValueError("history has no records with a distortion value")
+    test_sets = _ordered(r["test_set"] for r in history)
+    series = _ordered((r["learner"], r["test_set"]) for r in history)
+    fig = Figure(figsize=(5.0, 3.5), layout="constrained")
+    ax = fig.subplots()
+    for k, (learner, test_set) in enumerate(series):
+        points = defaultdict(list)
+        for r in history:
+            if r["learner"] == learner and r["test_set"] == test_set:
+                points[int(r["step"])].append(float(r["distortion"]))
+        steps, mean, lo, hi = _curves(points)
+        label = learner if len(test_sets) == 1 else f"{learner} ({test_set})"
+        ax.plot(steps, mean, color=f"C{k % 10}", label=label)
+        ax.fill_between(steps, lo, hi, color=f"C{k % 10}", alpha=0.2, linewidth=0)
+    ax.set_xlabel("training step")
+    ax.set_ylabel("distortion Var(ρ)")
+    ax.legend(fontsize=8)
+    _save(fig, path)
+    return fig

@@ -1,0 +1,116 @@
+"""Distortion Var(ρ) (eq. 5): zero for similarities, additive ρ, zero distances."""
+
+import math
+
+import numpy as np
+import pytest
+
+from jaml import evaluation
+
+N, D = 2000, 3
+
+
+def _states(seed=0, n=N):
+    return np.random.default_rng(seed).uniform(-1.0, 1.0, size=(n, D))
+
+
+def _similarity(seed=1, out_dim=5):
+    """τ ↦ s·τQ + b with Q [D, out_dim] having orthonormal rows: a rotation into R^out_dim."""
+    rng = np.random.default_rng(seed)
+    q, _ = np.linalg.qr(rng.normal(size=(out_dim, D)))
+    scale, shift = 2.5, rng.normal(size=out_dim) * 3.0
+    return lambda t: scale * t @ q.T + shift
+
+
+def test_coefficients_match_a_plain_loop():
+    rng = np.random.default_rng(3)
+    lat, st = rng.normal(size=(7, 4)), rng.normal(size=(7, 2))
+    rho, valid = evaluation.distortion_coefficients(lat, st, num_pairs=50, seed=5)
+    i, j = evaluation.sample_pairs(7, 50, seed=5)
+    for k, (a, b) in enumerate(zip(np.asarray(i), np.asarray(j), strict=True)):
+        assert a != b
+        expected = math.log(np.linalg.norm(lat[a] - lat[b]) / np.linalg.norm(st[a] - st[b]))
+        assert valid[k]
+        assert rho[k] == pytest.approx(expected, rel=1e-5, abs=1e-5)
+    expected_var = np.var(np.asarray(rho, np.float64))
+    assert evaluation.distortion(lat, st, num_pairs=50, seed=5) == pytest.approx(expected_var)
+
+
+@pytest.mark.parametrize("out_dim", [D, 5])
+def test_similarity_has_zero_distortion(out_dim):
+    t = _states()
+    assert evaluation.distortion(_similarity(out_dim=out_dim)(t), t) < 1e-9
+
+
+def test_nonlinear_warp_has_positive_distortion():
+    t = _states()
+    warped = np.tanh(2.0 * t) + 0.3 * t**3
+    assert evaluation.distortion(warped, t) > 1e-3
+
+
+def test_rho_is_additive_under_composition():
+    t = _states()
+    a = np.random.default_rng(4).normal(size=(D, D))
+    g = np.tanh(t @ a)  # g: τ ↦ tanh(τA)
+    h = g**3 + g  # h = f ∘ g with f(u) = u³ + u, elementwise
+    rho_h, valid_h = evaluation.distortion_coefficients(h, t, seed=7)
+    rho_g, valid_g = evaluation.distortion_coefficients(g, t, seed=7)
+    rho_f, valid_f = evaluation.distortion_coefficients(h, g, seed=7)  # f on (g(τ1), g(τ2))
+    assert np.all(valid_h) and np.all(valid_g) and np.all(valid_f)
+    np.testing.assert_allclose(rho_h, np.asarray(rho_g) + np.asarray(rho_f), atol=2e-5)
+    # A similarity after g adds a constant to every ρ, so the variance is unchanged.
+    sim_g = _similarity()(g)
+    assert evaluation.distortion(sim_g, t, seed=7) == pytest.approx(
+        evaluation.distortion(g, t, seed=7), rel=1e-4
+    )
+    assert evaluation.distortion(h, t, seed=7) != pytest.approx(
+        evaluation.distortion(g, t, seed=7), rel=1e-2
+    )
+
+
+def test_coincident_pairs_are_skipped():
+    base = _states(n=10)
+    t = np.concatenate([base, base])  # every point appears twice
+    lat = np.sin(3.0 * t) + t
+    rho, valid = evaluation.distortion_coefficients(lat, t, num_pairs=400, seed=2)
+    i, j = (np.asarray(v) for v in evaluation.sample_pairs(20, 400, seed=2))
+    coincident = (i % 10) == (j % 10)
+    assert coincident.any() and (~coincident).any()
+    np.testing.assert_array_equal(np.asarray(valid), ~coincident)
+    assert np.all(np.isnan(np.asarray(rho)[coincident]))
+    value = evaluation.distortion(lat, t, num_pairs=400, seed=2)
+    assert np.isfinite(value)
+    assert value == pytest.approx(np.var(np.asarray(rho, np.float64)[~coincident]))
+
+
+def test_collapsed_distinct_states_give_infinite_distortion():
+    t = _states(n=50)
+    lat = t.copy()
+    lat[1:10] = lat[0]  # the encoder maps ten distinct states to one latent
+    num_pairs = 2000  # ≈ 2000·90/2450 ≈ 73 pairs expected among the collapsed ten
+    assert evaluation.distortion(lat, t, num_pairs=num_pairs) == math.inf
+    assert math.isfinite(evaluation.distortion(t, t, num_pairs=num_pairs))
+
+
+def test_same_seed_same_result():
+    t = _states()
+    warped = np.tanh(2.0 * t)
+    assert evaluation.distortion(warped, t, seed=3) == evaluation.distortion(warped, t, seed=3)
+    assert evaluation.distortion(warped, t, seed=3) != evaluation.distortion(warped, t, seed=4)
+
+
+def test_bad_inputs_raise():
+    t = _states(n=20)
+    cases = {
+        "mismatched N": (t[:-1], t),
+        "2-D": (t[:, 0], t),
+        "floating-point dtype": (t.astype(np.int64), t),
+        "NaN or inf": (np.where(t > 0.9, np.inf, t), t),
+        "too few samples": (t[:1], t[:1]),
+        "non-coincident pairs": (t, np.zeros_like(t)),
+    }
+    for expected, (lat, st) in cases.items():
+        with pytest.raises(ValueError, match=expected):
+            evaluation.distortion(lat, st)
+    with pytest.raises(ValueError, match="num_pairs"):
+        evaluation.distortion(t, t, num_pairs=1)

@@ -1,0 +1,88 @@
+"""Plots from a JSON-lines history: files written, curves carry run means, bad input raises."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from jaml import evaluation
+
+NAMES = ("x", "theta", "vx", "vtheta")
+
+
+def _history():
+    rng = np.random.default_rng(0)
+    history = []
+    for learner, level in (("VAE", 0.6), ("PRED", 0.3)):
+        for run in range(3):
+            for step in (0, 100, 200):
+                errors = {
+                    "pi_curr": level * np.exp(-step / 200) + 0.02 * rng.normal(size=4),
+                    "pi_rand": 1.2 * level + 0.02 * rng.normal(size=4),
+                }
+                history += evaluation.history_records(
+                    step, learner, errors, NAMES, distortion=level + 0.01 * run, run=run
+                )
+    # JSON-lines round trip: the plots must work from what a run directory stores.
+    return [json.loads(line) for line in "\n".join(json.dumps(r) for r in history).splitlines()]
+
+
+def _png(path):
+    with open(path, "rb") as fh:
+        return fh.read(8) == b"\x89PNG\r\n\x1a\n"
+
+
+def test_alignment_plot_shows_run_means(tmp_path):
+    history = _history()
+    fig = evaluation.plot_alignment(history, tmp_path / "alignment.png")
+    assert _png(tmp_path / "alignment.png")
+    axes = fig.axes
+    assert len(axes) == 2 * len(NAMES)  # rows: pi_curr, pi_rand; columns: dimensions
+    assert axes[0].get_title() == "x (pi_curr)"
+    vae = axes[0].lines[0]
+    assert vae.get_label() == "VAE"
+    expected = [
+        np.mean([r["errors"]["x"] for r in history
+                 if (r["learner"], r["test_set"], r["step"]) == ("VAE", "pi_curr", step)])
+        for step in (0, 100, 200)
+    ]
+    np.testing.assert_allclose(vae.get_xdata(), [0, 100, 200])
+    np.testing.assert_allclose(vae.get_ydata(), expected)
+
+
+def test_alignment_plot_groups_dimensions(tmp_path):
+    groups = {"position": ["x", "theta"], "velocity": ["vx", "vtheta"]}
+    fig = evaluation.plot_alignment(_history(), tmp_path / "grouped.png", groups=groups)
+    assert len(fig.axes) == 2 * 2
+    pred_velocity = fig.axes[1].lines[1]
+    history = _history()
+    at_0 = [np.mean([r["errors"]["vx"], r["errors"]["vtheta"]]) for r in history
+            if (r["learner"], r["test_set"], r["step"]) == ("PRED", "pi_curr", 0)]
+    assert pred_velocity.get_ydata()[0] == pytest.approx(np.mean(at_0))
+
+
+def test_distortion_plot_band_is_a_90_percent_interval(tmp_path):
+    fig = evaluation.plot_distortion(_history(), tmp_path / "distortion.png")
+    assert _png(tmp_path / "distortion.png")
+    ax = fig.axes[0]
+    labels = [line.get_label() for line in ax.lines]
+    assert labels == ["VAE (pi_curr)", "VAE (pi_rand)", "PRED (pi_curr)", "PRED (pi_rand)"]
+    runs = np.array([0.6, 0.61, 0.62])
+    np.testing.assert_allclose(ax.lines[0].get_ydata(), runs.mean())
+    band = ax.collections[0].get_paths()[0].vertices[:, 1]
+    half = 1.6448536 * runs.std(ddof=1) / math.sqrt(3)
+    assert band.max() == pytest.approx(runs.mean() + half, rel=1e-6)
+    assert band.min() == pytest.approx(runs.mean() - half, rel=1e-6)
+
+
+def test_bad_histories_raise(tmp_path):
+    with pytest.raises(ValueError, match="empty"):
+        evaluation.plot_alignment([], tmp_path / "a.png")
+    with pytest.raises(ValueError, match="lacks"):
+        evaluation.plot_alignment([{"step": 0, "errors": {"x": 1.0}}], tmp_path / "a.png")
+    no_distortion = evaluation.history_records(0, "VAE", {"pi_rand": [0.1] * 4}, NAMES)
+    with pytest.raises(ValueError, match="distortion"):
+        evaluation.plot_distortion(no_distortion, tmp_path / "d.png")
+    with pytest.raises(ValueError, match="names"):
+        evaluation.history_records(0, "VAE", {"pi_rand": [0.1] * 3}, NAMES)

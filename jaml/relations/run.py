@@ -1,0 +1,138 @@
+"""A relations run directory: resolved config, metrics (JSON lines + TensorBoard), checkpoint,
+summary.json and figures. A run interrupted at any point resumes from its last finished relation
+when started again with the same directory and configuration."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+from tqdm.auto import tqdm
+
+from jaml import sources
+from jaml.relations import checkpoint, plots
+from jaml.relations.config import Config
+from jaml.relations.relation_set import RelationSet
+from jaml.relations.training import RelationSummary, fit
+
+log = logging.getLogger("jaml.relations")
+
+
+def _write_json(path: Path, value) -> None:
+    """Write JSON atomically: a reader never sees a half-written file."""
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(value, indent=2, default=float) + "\n")
+    os.replace(tmp, path)
+
+
+class _Recorder:
+    """Metrics to metrics.jsonl and TensorBoard scalars; a tqdm bar per relation."""
+
+    def __init__(self, out: Path, cfg: Config, step_offset: int, progress: bool):
+        from tensorboardX import SummaryWriter
+
+        self.jsonl = (out / "metrics.jsonl").open("a")
+        self.tb = SummaryWriter(str(out / "tensorboard"))
+        self.cfg, self.offset, self.progress = cfg, step_offset, progress
+        self.bar, self.bar_key, self.last_step = None, None, 0
+
+    def __call__(self, phase: str, k: int, metrics: dict) -> None:
+        total = self.offset + metrics["step"]
+        self.jsonl.write(json.dumps({"phase": phase, "relation": k + 1, "total_step": total,
+                                     "time": time.time(), **metrics}) + "\n")
+        self.jsonl.flush()
+        for name, value in metrics.items():
+            if name not in ("step", "steps"):
+                self.tb.add_scalar(f"g{k + 1}/{phase}/{name}", value, total)
+        if self.progress:
+            if self.bar_key != (phase, k):
+                self._close_bar()
+                budget = {"relation": self.cfg.max_steps, "push": self.cfg.push_steps,
+                          "syzygy": self.cfg.syzygy_steps}[phase]
+                self.bar = tqdm(total=budget, desc=f"g{k + 1} {phase}", unit="step", leave=False)
+                self.bar_key, self.last_step = (phase, k), 0
+            self.bar.update(metrics["step"] - self.last_step)
+            self.last_step = metrics["step"]
+            self.bar.set_postfix(on=f"{metrics.get('on_mean', 0):.3g}",
+                                 off=f"{metrics.get('off_mean', 0):.3g}")
+
+    def relation_done(self, steps: int) -> None:
+        self._close_bar()
+        self.offset += steps
+
+    def _close_bar(self):
+        if self.bar is not None:
+            self.bar.close()
+            self.bar, self.bar_key = None, None
+
+    def close(self):
+        self._close_bar()
+        self.jsonl.close()
+        self.tb.close()
+
+
+def run(source_name: str, cfg: Config, out, *, progress: bool = True, figures: bool = True) -> dict:
+    """Learn relations on a preset source into the run directory `out`; returns the summary."""
+    source = sources.make(source_name)
+    out = Path(out)
+    resolved = {"source": source_name, "relations": cfg.to_dict()}
+    config_path, summary_path, ckpt_path = out / "config.json", out / "summary.json", out / "checkpoint"
+    start, done = None, []
+    if config_path.exists():
+        previous = json.loads(config_path.read_text())
+        if previous != resolved:
+            raise ValueError(
+                f"{out} holds a run with a different configuration ({config_path}); "
+                "resume with the same options or choose a new --out")
+        if ckpt_path.exists():
+            start = checkpoint.load(ckpt_path)
+            done = json.loads(summary_path.read_text())["relations"][: start.num_relations]
+            log.info("resuming %s after %d relations", out, start.num_relations)
+    out.mkdir(parents=True, exist_ok=True)
+    _write_json(config_path, resolved)
+
+    started = time.perf_counter()
+    recorder = _Recorder(out, cfg, sum(r["steps"] for r in done), progress)
+    summaries = list(done)
+
+    def write_summary(rs: RelationSet | None, status: str):
+        _write_json(summary_path, {
+            "source": source_name, "status": status, "num_relations": len(summaries),
+            "seconds": time.perf_counter() - started, "relations": summaries})
+
+    def on_relation(rs: RelationSet, summary: RelationSummary):
+        recorder.relation_done(summary.steps)
+        checkpoint.save(rs, ckpt_path)  # atomic: Orbax renames a finished temporary directory
+        summaries.append(dataclasses.asdict(summary) | {"ratio": summary.ratio})
+        write_summary(rs, "running")
+
+    try:
+        rs = fit(source, cfg, start=start, callback=recorder, on_relation=on_relation)
+    finally:
+        recorder.close()
+    status = "done" if rs.num_relations == cfg.max_relations else "stopped"
+    write_summary(rs, status)
+    if figures and rs.num_relations:
+        draw_figures(rs, source, out)
+    return json.loads(summary_path.read_text())
+
+
+def draw_figures(rs: RelationSet, source, out: Path) -> list[Path]:
+    """The paper-style figures that fit this source's data."""
+    key = jax.random.key(0)
+    on = np.asarray(source.sample(key, 2500))
+    paths = []
+    if rs.dim == 3:
+        paths.append(plots.plot_zero_sets_3d(rs, on, out / "zero_sets.png", key,
+                                             names=source.dim_names))
+    elif hasattr(source, "widened") and rs.dim >= 4:
+        wide = np.asarray(source.widened(2.0).sample(key, 2500))
+        paths.append(plots.plot_phase_space(
+            rs, {"training range": on, "2x training range": wide}, out / "phase_space.png", key))
+    return paths

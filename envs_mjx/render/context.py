@@ -55,9 +55,9 @@ class RenderContext:
     background: jnp.ndarray  # [3] in [0, 1]
     znear: float
     zfar: float
+    cam_id: jnp.ndarray  # int32 scalar; data, not static, so cameras share one compile
     height: int = struct.field(pytree_node=False)
     width: int = struct.field(pytree_node=False)
-    cam_id: int = struct.field(pytree_node=False)
     group_types: tuple = struct.field(pytree_node=False)  # per group, the mjtGeom int
     group_geoms: tuple = struct.field(pytree_node=False)  # per group, tuple of geom ids
     light_id: int = struct.field(pytree_node=False)  # the model light's id, -1 for none
@@ -251,5 +251,5 @@ def make_context(mj_model: mujoco.MjModel, camera: str | int, height: int = 64, 
         light_specular=jnp.asarray(np.array(specular), f32),
         ambient=jnp.asarray(ambient, f32), background=jnp.asarray(background, f32),
         znear=float(m.vis.map.znear * extent), zfar=float(zfar),
-        height=height, width=width, cam_id=cam, group_types=tuple(types),
+        cam_id=jnp.asarray(cam, jnp.int32), height=height, width=width, group_types=tuple(types),
         group_geoms=tuple(groups), light_id=light_id)

@@ -42,4 +42,5 @@ def world_rays(rays_cam, cam_xpos, cam_xmat):
 
     Returns (origin [3], directions [P, 3]); directions keep their length (see camera_rays).
     """
-    return cam_xpos, rays_cam @ jnp.transpose(cam_xmat)
+    # A broadcast sum rather than a [P, 3] x [3, 3] matmul, which XLA:CPU runs unfused.
+    return cam_xpos, jnp.sum(rays_cam[:, None, :] * cam_xmat[None], axis=-1)

@@ -55,7 +55,7 @@ def _primitive_group(ctx, gi, gtype, ids, o_l, d_l, rot):
     t = jnp.min(t_all, axis=1)
     t_safe = jnp.where(jnp.isfinite(t), t, 0.0)
     p_l = o_l[k] + t_safe[:, None] * _take(d_l, k)
-    n_w = jnp.einsum("pij,pj->pi", rot[k], normal_fn(p_l, size[k]))
+    n_w = jnp.sum(rot[k] * normal_fn(p_l, size[k])[:, None, :], axis=-1)
     geom = jnp.asarray(ids, jnp.int32)[k]
     is_plane = gtype == int(_G.mjGEOM_PLANE)
     if is_plane:
@@ -83,7 +83,7 @@ def _mesh_group(ctx, ids, o_l, d_l, rot):
     t, u, v = intersect.hit_triangles(o_l[g], d_w, mesh.v0[g, tri], mesh.e1[g, tri],
                                       mesh.e2[g, tri], mesh.valid[g, tri], ctx.znear)
     n_l = jnp.cross(mesh.e1[g, tri], mesh.e2[g, tri])
-    n_w = jnp.einsum("pij,pj->pi", rot[g], n_l)
+    n_w = jnp.sum(rot[g] * n_l[:, None, :], axis=-1)
     corners = mesh.uv[g, tri]  # [P, 3, 2]
     uv = ((1.0 - u - v)[:, None] * corners[:, 0] + u[:, None] * corners[:, 1]
           + v[:, None] * corners[:, 2])
@@ -105,8 +105,10 @@ def render(ctx: RenderContext, data) -> RenderOutput:
     for gi, (gtype, ids) in enumerate(zip(ctx.group_types, ctx.group_geoms, strict=True)):
         sel = np.asarray(ids)
         pos, rot = geom_xpos[sel], geom_xmat[sel]  # [G, 3], [G, 3, 3]
-        o_l = jnp.einsum("gji,gj->gi", rot, origin[None] - pos)  # R^T (o - p)
-        d_l = jnp.einsum("gji,pj->pgi", rot, dirs)  # [P, G, 3]
+        # R^T (o - p) and R^T d as broadcast sums: XLA:CPU fuses these into the intersection
+        # loop, whereas 3x3 dot_generals become separate, slow small-matrix calls.
+        o_l = jnp.sum(rot * (origin[None] - pos)[:, :, None], axis=1)  # [G, 3]
+        d_l = jnp.sum(rot[None] * dirs[:, None, :, None], axis=2)  # [P, G, 3]
         if gtype == int(_G.mjGEOM_MESH):
             hits.append(_mesh_group(ctx, ids, o_l, d_l, rot))
         else:

@@ -1,1 +1,1 @@
-"""The evaluation suite's domains: MJCF models stepped in MJX, rendered by a JAX software renderer."""
+"""The evaluation suite's domains: MJCF models stepped in MJX, drawn by a JAX software renderer."""

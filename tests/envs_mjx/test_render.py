@@ -1,0 +1,243 @@
+"""The ray caster against mujoco.Renderer (segmentation, depth) plus its jit/vmap contract."""
+
+import os
+
+# MuJoCo picks its GL backend at import; EGL is the headless one that works on this machine.
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from mujoco import mjx
+
+from envs_mjx import render
+from envs_mjx.render import intersect
+
+H = W = 64
+
+
+class Poses(NamedTuple):
+    """The four arrays the renderer reads, as plain arrays (a pytree jit accepts)."""
+
+    geom_xpos: np.ndarray
+    geom_xmat: np.ndarray
+    cam_xpos: np.ndarray
+    cam_xmat: np.ndarray
+
+
+def poses(d: mujoco.MjData) -> Poses:
+    return Poses(*(np.array(getattr(d, f), np.float32) for f in Poses._fields))
+
+
+def torus(big=0.25, small=0.1, nu=16, nv=8):
+    """A non-convex triangle mesh ([V, 3], [F, 3]) with 2*nu*nv faces and per-vertex uv."""
+    a, b = np.meshgrid(2 * np.pi * np.arange(nu) / nu, 2 * np.pi * np.arange(nv) / nv,
+                       indexing="ij")
+    verts = np.stack([(big + small * np.cos(b)) * np.cos(a), (big + small * np.cos(b)) * np.sin(a),
+                      small * np.sin(b)], -1).reshape(-1, 3)
+    uv = np.stack([a / (2 * np.pi), b / (2 * np.pi)], -1).reshape(-1, 2)
+    i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
+    idx = lambda ii, jj: (ii % nu) * nv + (jj % nv)  # noqa: E731
+    quads = [idx(i, j), idx(i + 1, j), idx(i + 1, j + 1), idx(i, j + 1)]
+    faces = np.concatenate([np.stack([quads[0], quads[1], quads[2]], -1).reshape(-1, 3),
+                            np.stack([quads[0], quads[2], quads[3]], -1).reshape(-1, 3)])
+    return verts, faces, uv
+
+
+def _fmt(x):
+    return " ".join(f"{v:.6g}" for v in np.ravel(x))
+
+
+def all_geoms_xml(nu=16, nv=8):
+    """Every drawable geom type on free bodies, a textured floor, a fixed and a tracking camera."""
+    v, f, uv = torus(nu=nu, nv=nv)
+    return f"""<mujoco><asset>
+  <mesh name="torus" vertex="{_fmt(v)}" face="{_fmt(f)}" texcoord="{_fmt(uv)}"/>
+  <texture name="grid" type="2d" builtin="checker" width="64" height="64" rgb1=".1 .2 .3"
+           rgb2=".8 .8 .8"/>
+  <material name="grid" texture="grid" texrepeat="2 2" texuniform="true"/>
+  <material name="tmesh" texture="grid" rgba="1 .8 .8 1"/></asset>
+<worldbody><light pos="0 0 3" dir="0 0 -1"/>
+  <geom name="floor" type="plane" size="0 0 1" material="grid"/>
+  <geom name="tile" type="plane" size=".3 .2 1" pos="-1 1 .3" euler="30 0 0" rgba="0 1 0 1"/>
+  <body name="box" pos="0 0 .5"><freejoint/><geom type="box" size=".2 .1 .15" rgba="1 0 0 1"/>
+  </body>
+  <body name="ball" pos=".6 0 .5"><freejoint/><geom type="sphere" size=".15" rgba="0 0 1 1"/></body>
+  <body name="pill" pos="-.6 0 .5"><freejoint/><geom type="capsule" size=".08 .2"/></body>
+  <body name="can" pos="0 .6 .5"><freejoint/><geom type="cylinder" size=".12 .15"/></body>
+  <body name="egg" pos="0 -.6 .5"><freejoint/><geom type="ellipsoid" size=".2 .1 .12"/></body>
+  <body name="ring" pos=".6 .6 .5"><freejoint/><geom type="mesh" mesh="torus" material="tmesh"/>
+    <camera name="track" mode="trackcom" pos="0 -2 1.5" xyaxes="1 0 0 0 .6 .8"/></body>
+  <camera name="fixed" pos=".2 -2.2 1.8" xyaxes="1 0 0 0 .6 .8"/>
+</worldbody></mujoco>"""
+
+
+CARTPOLE_XML = """<mujoco><worldbody><light pos="0 0 4" dir="0 0 -1"/>
+  <geom name="floor" type="plane" size="3 3 .1" rgba=".9 .9 .9 1"/>
+  <geom name="rail" type="box" size="2 .02 .02" pos="0 0 1" rgba=".3 .3 .3 1" contype="0"
+        conaffinity="0"/>
+  <body name="cart" pos="0 0 1"><joint name="slide" type="slide" axis="1 0 0"/>
+    <geom name="cart" type="box" size=".2 .1 .08" rgba=".8 .3 .2 1" contype="0" conaffinity="0"/>
+    <body name="pole"><joint name="hinge" type="hinge" axis="0 1 0"/>
+      <geom name="pole" type="box" size=".03 .03 .4" pos="0 0 .4" rgba=".2 .5 .8 1" contype="0"
+            conaffinity="0"/></body></body>
+  <camera name="side" pos="0 -4 1.2" xyaxes="1 0 0 0 0 1"/>
+</worldbody></mujoco>"""
+
+
+def random_poses(m, d, rng, n):
+    """n random configurations: free bodies jittered and spun, hinge/slide joints drawn."""
+    out = []
+    for _ in range(n):
+        mujoco.mj_resetData(m, d)
+        for j in range(m.njnt):
+            a = m.jnt_qposadr[j]
+            if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
+                d.qpos[a:a + 3] += rng.uniform(-0.25, 0.25, 3)
+                q = rng.normal(size=4)
+                d.qpos[a + 3:a + 7] = q / np.linalg.norm(q)
+            else:
+                d.qpos[a] = rng.uniform(-1.0, 1.0)
+        mujoco.mj_forward(m, d)
+        out.append(poses(d))
+    return out
+
+
+@pytest.fixture(scope="module")
+def jit_render():
+    return jax.jit(render.render)
+
+
+def mujoco_segmentation(m, d, camera):
+    with mujoco.Renderer(m, H, W) as r:
+        r.enable_segmentation_rendering()
+        r.update_scene(d, camera)
+        s = r.render()
+    return np.where(s[..., 1] == mujoco.mjtObj.mjOBJ_GEOM, s[..., 0], -1)
+
+
+def agreement_per_pose(xml, cameras, n_poses, jit_render, seed=0, **ctx_kwargs):
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    rng = np.random.default_rng(seed)
+    scores = []
+    for camera in cameras:
+        ctx = render.make_context(m, camera, H, W, **ctx_kwargs)
+        for p in random_poses(m, d, rng, n_poses):
+            # random_poses leaves d at the last pose; re-derive d for this one from its arrays.
+            d.geom_xpos[:], d.geom_xmat[:] = p.geom_xpos, p.geom_xmat.reshape(-1, 9)
+            d.cam_xpos[:], d.cam_xmat[:] = p.cam_xpos, p.cam_xmat.reshape(-1, 9)
+            ref = mujoco_segmentation(m, d, camera)
+            seg = np.asarray(jit_render(ctx, p).segmentation)
+            assert len(np.unique(ref)) > 2, "scene should show several geoms"
+            scores.append(((seg == ref).mean(), camera))
+    return scores
+
+
+def test_segmentation_matches_mujoco_all_geom_types(jit_render):
+    scores = agreement_per_pose(all_geoms_xml(), ["fixed", "track"], 3, jit_render)
+    worst = min(scores)
+    assert worst[0] >= 0.99, scores
+
+
+def test_segmentation_matches_mujoco_cartpole(jit_render):
+    scores = agreement_per_pose(CARTPOLE_XML, ["side"], 3, jit_render)
+    assert min(scores)[0] >= 0.99, scores
+
+
+def test_decimated_mesh_still_matches(jit_render):
+    # 1024 faces squeezed to at most 300: silhouettes may move by about one grid cell.
+    scores = agreement_per_pose(all_geoms_xml(nu=32, nv=16), ["fixed"], 2, jit_render,
+                                max_mesh_faces=300)
+    assert min(scores)[0] >= 0.99, scores
+
+
+def test_depth_matches_mujoco(jit_render):
+    m = mujoco.MjModel.from_xml_string(CARTPOLE_XML)
+    d = mujoco.MjData(m)
+    d.qpos[:] = [0.3, 0.5]
+    mujoco.mj_forward(m, d)
+    with mujoco.Renderer(m, H, W) as r:
+        r.enable_depth_rendering()
+        r.update_scene(d, "side")
+        ref = r.render()
+    out = jit_render(render.make_context(m, "side"), poses(d))
+    seg = np.asarray(out.segmentation)
+    mask = seg >= 0
+    rel = np.abs(np.asarray(out.depth)[mask] - ref[mask]) / ref[mask]
+    assert np.median(rel) < 1e-3 and np.quantile(rel, 0.95) < 1e-2, (np.median(rel), rel.max())
+
+
+def test_dtypes_shapes_jit_vmap_and_no_recompile():
+    m = mujoco.MjModel.from_xml_string(CARTPOLE_XML)
+    ctx = render.make_context(m, "side", 48, 32)
+    dx = mjx.put_data(m, mujoco.MjData(m))
+    mx = mjx.put_model(m)
+    qpos = jnp.stack([jnp.array([x, 0.4 * x]) for x in np.linspace(-1, 1, 5)])
+    # camlight is where MJX fills cam_xpos / cam_xmat, after kinematics has placed the bodies.
+    place = jax.jit(jax.vmap(lambda q: mjx.camlight(mx, mjx.kinematics(mx, dx.replace(qpos=q)))))
+    batch = place(qpos)
+    f = jax.jit(jax.vmap(render.render, in_axes=(None, 0)))
+    out = f(ctx, batch)
+    assert out.rgb.shape == (5, 48, 32, 3) and out.rgb.dtype == jnp.uint8
+    assert out.depth.shape == (5, 48, 32) and out.depth.dtype == jnp.float32
+    assert out.segmentation.shape == (5, 48, 32) and out.segmentation.dtype == jnp.int32
+    # The cart moves, so the frames must differ; each equals its unbatched render.
+    assert not np.array_equal(out.segmentation[0], out.segmentation[-1])
+    single = jax.jit(render.render)(ctx, jax.tree.map(lambda x: x[2], batch))
+    np.testing.assert_array_equal(out.segmentation[2], single.segmentation)
+    np.testing.assert_array_equal(out.rgb[2], single.rgb)
+    # New data values (and another camera of the same model) reuse the compiled program.
+    f(ctx, place(qpos[::-1] * 0.5))
+    f(ctx.replace(cam_id=jnp.asarray(0, jnp.int32)), batch)
+    assert f._cache_size() == 1
+
+
+def test_background_and_colours(jit_render):
+    m = mujoco.MjModel.from_xml_string(CARTPOLE_XML)
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    out = jit_render(render.make_context(m, "side", background=(0.0, 1.0, 0.0)), poses(d))
+    seg, rgb = np.asarray(out.segmentation), np.asarray(out.rgb)
+    assert (seg == -1).any() and (rgb[seg == -1] == [0, 255, 0]).all()
+    cart = rgb[seg == 2].astype(float)  # geom 2 is the reddish cart
+    assert (cart[:, 0] > cart[:, 2]).all()
+
+
+def test_unknown_camera_lists_valid_ones():
+    m = mujoco.MjModel.from_xml_string(CARTPOLE_XML)
+    with pytest.raises(ValueError, match=r"unknown camera 'nope'.*0: 'side'"):
+        render.make_context(m, "nope")
+    with pytest.raises(ValueError, match="unknown camera 7"):
+        render.make_context(m, 7)
+
+
+def test_undrawable_geom_type_is_rejected():
+    xml = """<mujoco><asset><hfield name="h" nrow="3" ncol="3" size="1 1 .1 .1"/></asset>
+      <worldbody><geom name="terrain" type="hfield" hfield="h"/>
+      <camera name="c" pos="0 0 3"/></worldbody></mujoco>"""
+    m = mujoco.MjModel.from_xml_string(xml)
+    with pytest.raises(ValueError, match=r"cannot draw.*'terrain'.*HFIELD"):
+        render.make_context(m, "c")
+
+
+def test_primitive_hits_closed_form():
+    o = jnp.array([0.0, 0.0, 5.0])
+    d = jnp.array([0.0, 0.0, -2.0])  # non-unit: t is in units of d
+    size = jnp.array([1.0, 0.5, 0.25])
+    assert np.isclose(intersect.hit_sphere(o, d, size, 0.0), 2.0)
+    assert np.isclose(intersect.hit_ellipsoid(o, d, size, 0.0), (5 - 0.25) / 2)
+    assert np.isclose(intersect.hit_box(o, d, size, 0.0), (5 - 0.25) / 2)
+    assert np.isclose(intersect.hit_cylinder(o, d, size, 0.0), (5 - 0.5) / 2)
+    assert np.isclose(intersect.hit_capsule(o, d, size, 0.0), (5 - 1.5) / 2)
+    assert np.isclose(intersect.hit_plane(o, d, size, 0.0), 2.5)
+    # A ray starting inside reports the exit; one pointing away misses.
+    assert np.isclose(intersect.hit_sphere(jnp.zeros(3), d, size, 0.0), 0.5)
+    assert np.isinf(intersect.hit_box(o, -d, size, 0.0))
+    tri = intersect.hit_triangles(o, d, jnp.array([-1.0, -1.0, 1.0]), jnp.array([3.0, 0, 0]),
+                                  jnp.array([0, 3.0, 0]), jnp.array(True), 0.0)
+    assert np.isclose(tri[0], 2.0) and np.isclose(tri[1] + tri[2], 2 / 3)

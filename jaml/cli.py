@@ -33,15 +33,29 @@ def _add_config_options(parser: argparse.ArgumentParser) -> None:
     doc = _relations_config().__doc__ or ""
     for field in dataclasses.fields(_relations_config()):
         flag = "--" + field.name.replace("_", "-")
-        described = next((line.split(":", 1)[1].strip() for line in doc.splitlines()
-                          if line.strip().startswith(field.name + ":")), "")
-        group.add_argument(flag, dest=field.name, type=_field_type(field), default=None,
-                           help=f"{described} (default: {field.default})")
+        described = next(
+            (
+                line.split(":", 1)[1].strip()
+                for line in doc.splitlines()
+                if line.strip().startswith(field.name + ":")
+            ),
+            "",
+        )
+        group.add_argument(
+            flag,
+            dest=field.name,
+            type=_field_type(field),
+            default=None,
+            help=f"{described} (default: {field.default})",
+        )
 
 
 def _config_from(args):
-    values = {f.name: getattr(args, f.name) for f in dataclasses.fields(_relations_config())
-              if getattr(args, f.name) is not None}
+    values = {
+        f.name: getattr(args, f.name)
+        for f in dataclasses.fields(_relations_config())
+        if getattr(args, f.name) is not None
+    }
     return _relations_config()(**values)
 
 
@@ -54,12 +68,16 @@ def _cmd_relations(args) -> int:
 
 
 def _print_summary(out, summary) -> None:
-    print(f"{summary['source']}: {summary['num_relations']} relations, {summary['status']}, "
-          f"{summary['seconds']:.1f}s -> {out}")
+    print(
+        f"{summary['source']}: {summary['num_relations']} relations, {summary['status']}, "
+        f"{summary['seconds']:.1f}s -> {out}"
+    )
     for r in summary["relations"]:
-        print(f"  g{r['index']} (width {r['width']}): {r['status']} after {r['steps']} steps, "
-              f"{r['seconds']:.1f}s, mean |g| on {r['on_mean']:.4g} off {r['off_mean']:.4g} "
-              f"(x{r['ratio']:.1f}), syzygies {r['syzygies_found']}")
+        print(
+            f"  g{r['index']} (width {r['width']}): {r['status']} after {r['steps']} steps, "
+            f"{r['seconds']:.1f}s, mean |g| on {r['on_mean']:.4g} off {r['off_mean']:.4g} "
+            f"(x{r['ratio']:.1f}), syzygies {r['syzygies_found']}"
+        )
 
 
 def _cmd_demo(args) -> int:
@@ -82,19 +100,25 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    rel = sub.add_parser("relations", help="learn AML relations on a source (paper §3, Alg. 1)",
-                         description="Learn relations g_1..g_K on a source's on-manifold data and "
-                         "write a run directory (config, metrics, checkpoint, summary, figures). "
-                         "Re-running with the same --out and options resumes.")
+    rel = sub.add_parser(
+        "relations",
+        help="learn AML relations on a source (paper §3, Alg. 1)",
+        description="Learn relations g_1..g_K on a source's on-manifold data and "
+        "write a run directory (config, metrics, checkpoint, summary, figures). "
+        "Re-running with the same --out and options resumes.",
+    )
     rel.add_argument("--source", required=True, choices=sorted(PRESETS), help="data source")
     rel.add_argument("--out", required=True, type=Path, help="run directory")
     rel.add_argument("--no-progress", action="store_true", help="no progress bars")
     _add_config_options(rel)
     rel.set_defaults(func=_cmd_relations)
 
-    demo = sub.add_parser("demo", help="the quick tour: relations on the analytic and block domains",
-                          description="Learn two relations with transversality on the ellipse "
-                          "and on the 45° block-on-incline, writing run directories and figures.")
+    demo = sub.add_parser(
+        "demo",
+        help="the quick tour: relations on the analytic and block domains",
+        description="Learn two relations with transversality on the ellipse "
+        "and on the 45° block-on-incline, writing run directories and figures.",
+    )
     demo.add_argument("--out", type=Path, default=Path("runs/demo"), help="parent run directory")
     demo.add_argument("--no-progress", action="store_true", help="no progress bars")
     demo.set_defaults(func=_cmd_demo)
@@ -103,8 +127,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(asctime)s %(name)s %(message)s", datefmt="%H:%M:%S")
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="%(asctime)s %(name)s %(message)s",
+        datefmt="%H:%M:%S",
+    )
     try:
         return args.func(args)
     except (ValueError, TypeError, FileNotFoundError) as error:

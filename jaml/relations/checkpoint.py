@@ -29,9 +29,15 @@ def _arrays(rs: RelationSet) -> dict:
 
 def _describe(rs: RelationSet) -> dict:
     return {
-        "format": FORMAT, "dim": rs.dim, "depth": rs.depth, "widths": list(rs.widths),
-        "tolerance": rs.tolerance, "syzygies": list(rs.syzygies), "dim_names": list(rs.dim_names),
-        "on_means": np.asarray(rs.on_means).tolist(), "off_means": np.asarray(rs.off_means).tolist(),
+        "format": FORMAT,
+        "dim": rs.dim,
+        "depth": rs.depth,
+        "widths": list(rs.widths),
+        "tolerance": rs.tolerance,
+        "syzygies": list(rs.syzygies),
+        "dim_names": list(rs.dim_names),
+        "on_means": np.asarray(rs.on_means).tolist(),
+        "off_means": np.asarray(rs.off_means).tolist(),
     }
 
 
@@ -78,13 +84,23 @@ def load(path) -> RelationSet:
     except Exception as error:
         raise ValueError(f"corrupt relations checkpoint at {path}: {error}") from error
     rs = RelationSet(
-        params=tuple(arrays["params"]), on_means=arrays["on_means"], off_means=arrays["off_means"],
-        widths=tuple(widths), depth=depth, dim=dim, tolerance=meta["tolerance"],
-        syzygies=tuple(meta["syzygies"]), dim_names=tuple(meta["dim_names"]),
+        params=tuple(arrays["params"]),
+        on_means=arrays["on_means"],
+        off_means=arrays["off_means"],
+        widths=tuple(widths),
+        depth=depth,
+        dim=dim,
+        tolerance=meta["tolerance"],
+        syzygies=tuple(meta["syzygies"]),
+        dim_names=tuple(meta["dim_names"]),
     )
-    log.info("AML loaded %d relations, %d syzygies, on/off means:\n%s\n%s", rs.num_relations,
-             sum(rs.syzygies), np.round(np.asarray(rs.on_means), 4),
-             np.round(np.asarray(rs.off_means), 4))
+    log.info(
+        "AML loaded %d relations, %d syzygies, on/off means:\n%s\n%s",
+        rs.num_relations,
+        sum(rs.syzygies),
+        np.round(np.asarray(rs.on_means), 4),
+        np.round(np.asarray(rs.off_means), 4),
+    )
     if not json.dumps(meta):  # pragma: no cover - meta always serialises
         raise ValueError("unreadable metadata")
     return rs

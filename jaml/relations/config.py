@@ -1,4 +1,4 @@
-"""`Config`: every knob of Algorithm 1, with defaults from the paper (the reference where it is silent).
+"""`Config`: every knob of Algorithm 1; defaults from the paper (the reference where it is silent).
 
 Derived values (the transversality weight of each objective, the syzygy step budget) are computed
 by properties, not stored. `docs/relations.md` lists where a default follows the reference
@@ -75,11 +75,23 @@ class Config:
     def __post_init__(self):
         problems = []
         if self.independence not in INDEPENDENCE:
-            problems.append(f"independence must be one of {INDEPENDENCE}, got {self.independence!r}")
+            problems.append(
+                f"independence must be one of {INDEPENDENCE}, got {self.independence!r}"
+            )
         if self.objective not in OBJECTIVES:
             problems.append(f"objective must be one of {OBJECTIVES}, got {self.objective!r}")
-        positive_ints = ("max_relations", "batch_size", "max_steps", "base_width", "max_width",
-                         "depth", "syzygy_width", "chunk_steps", "eval_batches", "stop_patience")
+        positive_ints = (
+            "max_relations",
+            "batch_size",
+            "max_steps",
+            "base_width",
+            "max_width",
+            "depth",
+            "syzygy_width",
+            "chunk_steps",
+            "eval_batches",
+            "stop_patience",
+        )
         for name in positive_ints:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
@@ -111,8 +123,10 @@ class Config:
             problems.append(f"min_angle must lie in [0, π/2], got {self.min_angle}")
         if not (math.isfinite(self.noise_scale) and self.noise_scale >= 0):
             problems.append(f"noise_scale must be ≥ 0, got {self.noise_scale}")
-        if isinstance(self.max_width, int) and isinstance(self.base_width, int) and (
-            self.max_width < self.base_width
+        if (
+            isinstance(self.max_width, int)
+            and isinstance(self.base_width, int)
+            and (self.max_width < self.base_width)
         ):
             problems.append(f"max_width ({self.max_width}) < base_width ({self.base_width})")
         if self.independence == "syzygy" and self.syzygies_per_relation < 1:
@@ -133,7 +147,9 @@ class Config:
 
     @property
     def push_steps(self) -> int:
-        return self.syzygy_push_steps or max(self.max_steps // max(self.syzygies_per_relation, 1), 1)
+        return self.syzygy_push_steps or max(
+            self.max_steps // max(self.syzygies_per_relation, 1), 1
+        )
 
     def replace(self, **changes) -> Config:
         return dataclasses.replace(self, **changes)

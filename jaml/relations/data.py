@@ -34,7 +34,9 @@ class Batches(NamedTuple):
     def _noise(self, key, x):
         if self.noise_scale == 0.0:
             return x
-        return x + (jax.random.uniform(key, x.shape) - 0.5) * (self.high - self.low) * self.noise_scale
+        return (
+            x + (jax.random.uniform(key, x.shape) - 0.5) * (self.high - self.low) * self.noise_scale
+        )
 
     def clean_on(self, key, rows, n: int | None = None) -> jax.Array:
         n = n or self.batch_size
@@ -50,7 +52,9 @@ class Batches(NamedTuple):
     def off(self, key, n: int | None = None) -> jax.Array:
         """[n, D] off-manifold rows: uniform in the data's box (with noise, if configured)."""
         k_draw, k_noise = jax.random.split(key)
-        return self._noise(k_noise, uniform_in_box(k_draw, self.low, self.high, n or self.batch_size))
+        return self._noise(
+            k_noise, uniform_in_box(k_draw, self.low, self.high, n or self.batch_size)
+        )
 
 
 def _as_sampler(on_manifold):
@@ -65,7 +69,9 @@ def _as_sampler(on_manifold):
             first = fn(key)
             if getattr(first, "ndim", None) != 2:
                 shape = getattr(first, "shape", type(first).__name__)
-                raise ValueError(f"the on_manifold sampler's output must have shape [B, D], got {shape}")
+                raise ValueError(
+                    f"the on_manifold sampler's output must have shape [B, D], got {shape}"
+                )
             reps = -(-n // first.shape[0])
             if reps == 1:
                 return first[:n]
@@ -97,7 +103,9 @@ def _check_rows(rows, what: str) -> np.ndarray:
             f"first at row {rows_bad[0]}"
         )
     if host.shape[0] < 2 or np.all(host.max(axis=0) == host.min(axis=0)):
-        raise ValueError(f"{what} is constant: every row is identical, there is no manifold to learn")
+        raise ValueError(
+            f"{what} is constant: every row is identical, there is no manifold to learn"
+        )
     return host
 
 
@@ -114,9 +122,13 @@ def prepare(on_manifold, batch_size: int, noise_scale: float, key, calibration_b
     except ValueError as error:
         if "sampler's output" in str(error):
             raise
-        raise ValueError(f"the on_manifold sampler failed when called with a PRNG key: {error}") from error
+        raise ValueError(
+            f"the on_manifold sampler failed when called with a PRNG key: {error}"
+        ) from error
     except Exception as error:  # the user's code: say whose it is
-        raise ValueError(f"the on_manifold sampler failed when called with a PRNG key: {error}") from error
+        raise ValueError(
+            f"the on_manifold sampler failed when called with a PRNG key: {error}"
+        ) from error
     host = _check_rows(sample, "the on_manifold sampler's output")
     low, high = bounding_box(jnp.asarray(host, jnp.float32))
     if names and len(names) != host.shape[1]:

@@ -35,8 +35,9 @@ class LoopState:
 
 def init_state(params, optimizer: optax.GradientTransformation, key) -> LoopState:
     zero = jnp.zeros((), jnp.int32)
-    return LoopState(params, optimizer.init(params), key, zero, jnp.asarray(RUNNING, jnp.int32),
-                     zero)
+    return LoopState(
+        params, optimizer.init(params), key, zero, jnp.asarray(RUNNING, jnp.int32), zero
+    )
 
 
 def optimizer_step(
@@ -66,7 +67,8 @@ def optimizer_step(
     take = finite & ~converged
     step = state.step + take.astype(jnp.int32)
     status = jnp.where(
-        ~finite, NONFINITE,
+        ~finite,
+        NONFINITE,
         jnp.where(converged, CONVERGED, jnp.where(step >= max_steps, CAPPED, RUNNING)),
     )
     keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(take, a, b), new, old)  # noqa: E731

@@ -30,6 +30,24 @@ def _bias_init(fan_in: int):
     return init
 
 
+@jax.custom_jvp
+def tanh(x):
+    """tanh whose derivative is written t·(1 − tanh²x).
+
+    jax's own rule, t·(1 + y)(1 − y), is equivalent, but AML differentiates through input
+    gradients (a second derivative of every tanh), and the one-product form compiles to a
+    measurably faster step on CPU (benchmarks/relations_fit.py).
+    """
+    return jnp.tanh(x)
+
+
+@tanh.defjvp
+def _tanh_jvp(primals, tangents):
+    (x,), (t,) = primals, tangents
+    y = jnp.tanh(x)
+    return y, t * (1.0 - y * y)
+
+
 class _MLP(nn.Module):
     """Fully connected stack on the last axis with PyTorch-style fan-in init."""
 
@@ -40,20 +58,30 @@ class _MLP(nn.Module):
 
     @nn.compact
     def __call__(self, x):
-        act = {"tanh": jnp.tanh, "elu": nn.elu}[self.activation]
+        act = {"tanh": tanh, "elu": nn.elu}[self.activation]
         fan_in = x.shape[-1]
         for i in range(self.depth):
             x = act(
-                nn.Dense(self.width, kernel_init=fan_in_uniform(), bias_init=_bias_init(fan_in),
-                         name=f"hidden{i}")(x)
+                nn.Dense(
+                    self.width,
+                    kernel_init=fan_in_uniform(),
+                    bias_init=_bias_init(fan_in),
+                    name=f"hidden{i}",
+                )(x)
             )
             fan_in = self.width
-        return nn.Dense(self.out, kernel_init=fan_in_uniform(), bias_init=_bias_init(fan_in),
-                        name="out")(x)
+        return nn.Dense(
+            self.out, kernel_init=fan_in_uniform(), bias_init=_bias_init(fan_in), name="out"
+        )(x)
 
 
 class Relation(nn.Module):
-    """g: R^D → (−1, 1). `depth` tanh hidden layers of `width` units, tanh on the output."""
+    """g: R^D → (−1, 1). `depth` tanh hidden layers of `width` units, tanh on the output.
+
+    Rows are processed feature-major (activations [width, N]): with widths of 4–256 and
+    batches of 1024, XLA's CPU matmuls and fusions run markedly faster with the batch as the
+    contiguous axis. Kernels are stored [out, in] (PyTorch's layout); the API is row-major.
+    """
 
     width: int
     depth: int = 3
@@ -61,7 +89,17 @@ class Relation(nn.Module):
     @nn.compact
     def __call__(self, tau):
         """tau [..., D] → g(tau) [...]."""
-        return jnp.tanh(_MLP(self.width, self.depth, 1, "tanh", name="mlp")(tau))[..., 0]
+        lead, dim = tau.shape[:-1], tau.shape[-1]
+        h = tau.reshape(-1, dim).T  # [D, N]
+        fan_in = dim
+        for i in range(self.depth + 1):
+            out = self.width if i < self.depth else 1
+            name = f"hidden{i}" if i < self.depth else "out"
+            kernel = self.param(f"{name}_kernel", _bias_init(fan_in), (out, fan_in))
+            bias = self.param(f"{name}_bias", _bias_init(fan_in), (out, 1))
+            h = tanh(kernel @ h + bias)
+            fan_in = out
+        return h[0].reshape(lead)
 
 
 class SyzygyCoefficients(nn.Module):
@@ -84,5 +122,5 @@ class SyzygyCoefficients(nn.Module):
 
 
 def relation_width(index: int, base_width: int, max_width: int) -> int:
-    """Hidden width of relation g_{index+1}: base · 2^index, capped (App. B.3.1: 4, 8, 16, … 256)."""
+    """Hidden width of g_{index+1}: base · 2^index, capped (App. B.3.1: 4, 8, 16, … 256)."""
     return min(base_width * 2 ** min(index, 30), max_width)

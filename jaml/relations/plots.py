@@ -13,10 +13,10 @@ import jax.numpy as jnp
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from jaml.relations.relation_set import RelationSet, evaluate  # noqa: E402
+from jaml.relations.relation_set import RelationSet, evaluate
 
 
 def level_set_points(rs: RelationSet, low, high, key, which=None, n_points=2500, rounds=20):
@@ -50,7 +50,8 @@ def _box(on: np.ndarray, scale=1.0):
 
 def _titles(rs: RelationSet):
     return ["g" + "∩g".join(str(k + 1) for k in range(rs.num_relations))] + [
-        f"g{k + 1} = 0" for k in range(rs.num_relations)]
+        f"g{k + 1} = 0" for k in range(rs.num_relations)
+    ]
 
 
 def plot_zero_sets_3d(rs: RelationSet, on: np.ndarray, path, key=None, names=("x", "y", "z")):
@@ -59,15 +60,24 @@ def plot_zero_sets_3d(rs: RelationSet, on: np.ndarray, path, key=None, names=("x
     low, high = _box(on, 1.2)
     sets = [level_set_points(rs, low, high, key)] + [
         level_set_points(rs, low, high, jax.random.fold_in(key, k + 1), which=[k])
-        for k in range(rs.num_relations)]
+        for k in range(rs.num_relations)
+    ]
     titles = ["on-manifold data", *_titles(rs)]
     fig = plt.figure(figsize=(4 * len(titles), 4.2))
     for i, (points, title) in enumerate(zip([on, *sets], titles, strict=True)):
         ax = fig.add_subplot(1, len(titles), i + 1, projection="3d")
         if len(points):
-            ax.scatter(points[:, 0], points[:, 1], points[:, 2], s=1, c=points[:, 2], cmap="viridis")
-        ax.set(xlim=(low[0], high[0]), ylim=(low[1], high[1]), zlim=(low[2], high[2]),
-               xlabel=names[0], ylabel=names[1], zlabel=names[2])
+            ax.scatter(
+                points[:, 0], points[:, 1], points[:, 2], s=1, c=points[:, 2], cmap="viridis"
+            )
+        ax.set(
+            xlim=(low[0], high[0]),
+            ylim=(low[1], high[1]),
+            zlim=(low[2], high[2]),
+            xlabel=names[0],
+            ylabel=names[1],
+            zlabel=names[2],
+        )
         ax.set_title(f"{title} ({len(points)} pts)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -86,8 +96,19 @@ def _arrows(ax, tau: np.ndarray, title: str, limits):
     # Scale arrows to fit (as the paper does): the longest one spans a tenth of the axes.
     span = np.hypot((limits[0][1] - limits[0][0]), (limits[1][1] - limits[1][0]))
     scale = 0.1 * span / max(np.hypot(ds, dv).max(), 1e-9)
-    ax.quiver(tau[:, 0], tau[:, 1], ds * scale, dv * scale, np.arctan2(dv, ds), cmap="brg",
-              angles="xy", scale_units="xy", scale=1.0, width=0.004, alpha=0.6)
+    ax.quiver(
+        tau[:, 0],
+        tau[:, 1],
+        ds * scale,
+        dv * scale,
+        np.arctan2(dv, ds),
+        cmap="brg",
+        angles="xy",
+        scale_units="xy",
+        scale=1.0,
+        width=0.004,
+        alpha=0.6,
+    )
 
 
 def plot_phase_space(rs: RelationSet, on_by_range: dict, path, key=None):
@@ -95,15 +116,17 @@ def plot_phase_space(rs: RelationSet, on_by_range: dict, path, key=None):
     each relation's zero-level set. τ must be (s0, v0, s1, v1, …) time-major rows."""
     key = jax.random.key(0) if key is None else key
     ncols = 2 + rs.num_relations
-    fig, axes = plt.subplots(len(on_by_range), ncols, figsize=(3.6 * ncols, 3.4 * len(on_by_range)),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        len(on_by_range), ncols, figsize=(3.6 * ncols, 3.4 * len(on_by_range)), squeeze=False
+    )
     for row, (label, on) in enumerate(on_by_range.items()):
         low, high = _box(np.asarray(on))
         limits = ((low[0], high[0]), (low[1], high[1]))
         k = jax.random.fold_in(key, row)
         sets = [level_set_points(rs, low, high, k)] + [
             level_set_points(rs, low, high, jax.random.fold_in(k, j + 1), which=[j])
-            for j in range(rs.num_relations)]
+            for j in range(rs.num_relations)
+        ]
         titles = [f"on-manifold, {label}"] + [f"{t}, {label}" for t in _titles(rs)]
         for col, (tau, title) in enumerate(zip([np.asarray(on), *sets], titles, strict=True)):
             _arrows(axes[row, col], tau, title, limits)

@@ -44,8 +44,18 @@ class _Recorder:
 
     def __call__(self, phase: str, k: int, metrics: dict) -> None:
         total = self.offset + metrics["step"]
-        self.jsonl.write(json.dumps({"phase": phase, "relation": k + 1, "total_step": total,
-                                     "time": time.time(), **metrics}) + "\n")
+        self.jsonl.write(
+            json.dumps(
+                {
+                    "phase": phase,
+                    "relation": k + 1,
+                    "total_step": total,
+                    "time": time.time(),
+                    **metrics,
+                }
+            )
+            + "\n"
+        )
         self.jsonl.flush()
         for name, value in metrics.items():
             if name not in ("step", "steps"):
@@ -53,14 +63,18 @@ class _Recorder:
         if self.progress:
             if self.bar_key != (phase, k):
                 self._close_bar()
-                budget = {"relation": self.cfg.max_steps, "push": self.cfg.push_steps,
-                          "syzygy": self.cfg.syzygy_steps}[phase]
+                budget = {
+                    "relation": self.cfg.max_steps,
+                    "push": self.cfg.push_steps,
+                    "syzygy": self.cfg.syzygy_steps,
+                }[phase]
                 self.bar = tqdm(total=budget, desc=f"g{k + 1} {phase}", unit="step", leave=False)
                 self.bar_key, self.last_step = (phase, k), 0
             self.bar.update(metrics["step"] - self.last_step)
             self.last_step = metrics["step"]
-            self.bar.set_postfix(on=f"{metrics.get('on_mean', 0):.3g}",
-                                 off=f"{metrics.get('off_mean', 0):.3g}")
+            self.bar.set_postfix(
+                on=f"{metrics.get('on_mean', 0):.3g}", off=f"{metrics.get('off_mean', 0):.3g}"
+            )
 
     def relation_done(self, steps: int) -> None:
         self._close_bar()
@@ -82,14 +96,19 @@ def run(source_name: str, cfg: Config, out, *, progress: bool = True, figures: b
     source = sources.make(source_name)
     out = Path(out)
     resolved = {"source": source_name, "relations": cfg.to_dict()}
-    config_path, summary_path, ckpt_path = out / "config.json", out / "summary.json", out / "checkpoint"
+    config_path, summary_path, ckpt_path = (
+        out / "config.json",
+        out / "summary.json",
+        out / "checkpoint",
+    )
     start, done = None, []
     if config_path.exists():
         previous = json.loads(config_path.read_text())
         if previous != resolved:
             raise ValueError(
                 f"{out} holds a run with a different configuration ({config_path}); "
-                "resume with the same options or choose a new --out")
+                "resume with the same options or choose a new --out"
+            )
         if ckpt_path.exists():
             start = checkpoint.load(ckpt_path)
             done = json.loads(summary_path.read_text())["relations"][: start.num_relations]
@@ -102,9 +121,16 @@ def run(source_name: str, cfg: Config, out, *, progress: bool = True, figures: b
     summaries = list(done)
 
     def write_summary(rs: RelationSet | None, status: str):
-        _write_json(summary_path, {
-            "source": source_name, "status": status, "num_relations": len(summaries),
-            "seconds": time.perf_counter() - started, "relations": summaries})
+        _write_json(
+            summary_path,
+            {
+                "source": source_name,
+                "status": status,
+                "num_relations": len(summaries),
+                "seconds": time.perf_counter() - started,
+                "relations": summaries,
+            },
+        )
 
     def on_relation(rs: RelationSet, summary: RelationSummary):
         recorder.relation_done(summary.steps)
@@ -129,10 +155,14 @@ def draw_figures(rs: RelationSet, source, out: Path) -> list[Path]:
     on = np.asarray(source.sample(key, 2500))
     paths = []
     if rs.dim == 3:
-        paths.append(plots.plot_zero_sets_3d(rs, on, out / "zero_sets.png", key,
-                                             names=source.dim_names))
+        paths.append(
+            plots.plot_zero_sets_3d(rs, on, out / "zero_sets.png", key, names=source.dim_names)
+        )
     elif hasattr(source, "widened") and rs.dim >= 4:
         wide = np.asarray(source.widened(2.0).sample(key, 2500))
-        paths.append(plots.plot_phase_space(
-            rs, {"training range": on, "2x training range": wide}, out / "phase_space.png", key))
+        paths.append(
+            plots.plot_phase_space(
+                rs, {"training range": on, "2x training range": wide}, out / "phase_space.png", key
+            )
+        )
     return paths

@@ -74,8 +74,11 @@ def _relation_objective(cfg: Config, module: Relation, earlier: Sequence[Callabl
         g = lambda t: module.apply(params, t)  # noqa: E731
         y_on, v = losses.input_gradients(g, on)
         y_off = g(off)
-        metrics = {"on_mean": jnp.mean(jnp.abs(y_on)), "off_mean": jnp.mean(jnp.abs(y_off)),
-                   "grad_norm": jnp.mean(jnp.sqrt(jnp.sum(v**2, -1)))}
+        metrics = {
+            "on_mean": jnp.mean(jnp.abs(y_on)),
+            "off_mean": jnp.mean(jnp.abs(y_off)),
+            "grad_norm": jnp.mean(jnp.sqrt(jnp.sum(v**2, -1))),
+        }
         if cfg.objective == "paper":
             first = jnp.mean(losses.distance(y_on, v))
             grad_term = losses.clip_to(jnp.mean(losses.log_gradient_norm(v)), first)
@@ -84,8 +87,9 @@ def _relation_objective(cfg: Config, module: Relation, earlier: Sequence[Callabl
             grad_term = jnp.mean(losses.reference_gradient_term(v, B))
         loss = first + grad_term
         metrics |= {"distance": first, "gradient_term": grad_term}
-        converged = losses.separated(jnp.abs(y_on), jnp.abs(y_off), cfg.separation_ratio,
-                                     cfg.separation_top_fraction)
+        converged = losses.separated(
+            jnp.abs(y_on), jnp.abs(y_off), cfg.separation_ratio, cfg.separation_top_fraction
+        )
         if cfg.objective == "reference":
             # Reference stopping also waits for mean ‖∇g/B‖ ≥ 0.9e-4.
             converged &= metrics["grad_norm"] / B >= 0.9 * losses.REF_GRAD_FLOOR
@@ -105,8 +109,11 @@ def _relation_objective(cfg: Config, module: Relation, earlier: Sequence[Callabl
             earlier_vals = jnp.stack([gj(thick) for gj in earlier], axis=-1)
             y_thick = g(thick)
             coefficients = jax.vmap(lambda p: syz_module.apply(p, thick))(syz_params)
-            residual = jnp.abs(jax.vmap(losses.syzygy_residual, (0, None, None))(
-                coefficients, earlier_vals, y_thick))
+            residual = jnp.abs(
+                jax.vmap(losses.syzygy_residual, (0, None, None))(
+                    coefficients, earlier_vals, y_thick
+                )
+            )
             per_syzygy = jnp.mean(residual, axis=-1)  # [S]
             scale = jnp.mean(jnp.abs(y_thick))
             if cfg.objective == "paper":
@@ -123,8 +130,20 @@ def _relation_objective(cfg: Config, module: Relation, earlier: Sequence[Callabl
     return objective
 
 
-def _fit_relation(cfg, batches: Batches, rs: RelationSet, params, key, max_steps: int,
-                  syz_params=None, thickening: float = 0.0, callback=None, phase="relation"):
+def relation_trainer(
+    cfg: Config,
+    batches: Batches,
+    rs: RelationSet,
+    params,
+    key,
+    max_steps: int,
+    syz_params=None,
+    thickening: float = 0.0,
+):
+    """The compiled training loop of g_{K+1} given frozen `rs`: (chunk, initial state, args).
+
+    `chunk(state, args)` runs `cfg.chunk_steps` optimizer steps in one jitted `lax.scan`.
+    """
     k = rs.num_relations
     module = Relation(relation_width(k, cfg.base_width, cfg.max_width), cfg.depth)
     earlier = _frozen_relations(rs)
@@ -141,20 +160,46 @@ def _fit_relation(cfg, batches: Batches, rs: RelationSet, params, key, max_steps
         return batches.on(k_on, rows), batches.off(k_off), thick
 
     def train_step(state, batch, args):
-        return optimizer_step(state, objective, optimizer, max_steps, args[1], *batch,
-                              patience=cfg.stop_patience)
+        return optimizer_step(
+            state, objective, optimizer, max_steps, args[1], *batch, patience=cfg.stop_patience
+        )
 
     chunk = make_chunk(train_step, cfg.chunk_steps, draw)
-    state = init_state(params, optimizer, key)
+    return chunk, init_state(params, optimizer, key), (batches.rows, syz_params)
+
+
+def _fit_relation(
+    cfg,
+    batches: Batches,
+    rs: RelationSet,
+    params,
+    key,
+    max_steps: int,
+    syz_params=None,
+    thickening: float = 0.0,
+    callback=None,
+    phase="relation",
+):
+    k = rs.num_relations
+    chunk, state, args = relation_trainer(
+        cfg, batches, rs, params, key, max_steps, syz_params, thickening
+    )
     report = None
     if callback is not None:
         report = lambda s, m, n: callback(phase, k, {"step": int(s.step), "steps": n, **m})  # noqa: E731
-    state = run_until_done(chunk, state, (batches.rows, syz_params), report)
-    return state
+    return run_until_done(chunk, state, args, report)
 
 
-def fit_syzygy(cfg: Config, batches: Batches, earlier: Sequence[Callable], g_k: Callable, key,
-               thickening: float, callback: Callback | None = None, index: int = 0):
+def fit_syzygy(
+    cfg: Config,
+    batches: Batches,
+    earlier: Sequence[Callable],
+    g_k: Callable,
+    key,
+    thickening: float,
+    callback: Callback | None = None,
+    index: int = 0,
+):
     """Fit a restricted syzygy: f with Σ_j f_j(τ) g_j(τ) ≈ g_k(τ) on thickened data (L1).
 
     The relations are frozen functions τ [..., D] → [...]. Returns (f params, found, info):
@@ -179,8 +224,15 @@ def fit_syzygy(cfg: Config, batches: Batches, earlier: Sequence[Callable], g_k: 
         return thicken(k_jit, batches.on(k_on, rows), batches.low, batches.high, thickening)
 
     def train_step(state, thick, rows):
-        return optimizer_step(state, objective, optimizer, cfg.syzygy_steps, state.step, thick,
-                              patience=cfg.stop_patience)
+        return optimizer_step(
+            state,
+            objective,
+            optimizer,
+            cfg.syzygy_steps,
+            state.step,
+            thick,
+            patience=cfg.stop_patience,
+        )
 
     k_init, k_loop, k_test = jax.random.split(key, 3)
     params = module.init(k_init, jnp.zeros((1, batches.dim)))
@@ -195,8 +247,11 @@ def fit_syzygy(cfg: Config, batches: Batches, earlier: Sequence[Callable], g_k: 
     _, (metrics, _) = objective(state.params, jnp.asarray(min_steps), test)
     info = {k: float(v) for k, v in metrics.items()}
     found = info["residual"] * cfg.separation_ratio < info["g_scale"]
-    return state.params, found, info | {"steps": int(state.step), "found": found,
-                                        "thickening": float(thickening)}
+    return (
+        state.params,
+        found,
+        info | {"steps": int(state.step), "found": found, "thickening": float(thickening)},
+    )
 
 
 def choose_thickening(cfg, batches: Batches, rs: RelationSet, key) -> float:
@@ -205,8 +260,9 @@ def choose_thickening(cfg, batches: Batches, rs: RelationSet, key) -> float:
     earlier = _frozen_relations(rs)
 
     def mean_distance(tau):
-        return jnp.mean(jnp.stack([jnp.mean(losses.distance(*losses.input_gradients(g, tau)))
-                                   for g in earlier]))
+        return jnp.mean(
+            jnp.stack([jnp.mean(losses.distance(*losses.input_gradients(g, tau))) for g in earlier])
+        )
 
     k_on, k_jit = jax.random.split(key)
     on = batches.on(k_on, batches.rows)
@@ -307,17 +363,40 @@ def fit(
                 ks = jax.random.fold_in(k_syz, s)
                 level = choose_thickening(cfg, batches, rs, ks)
                 g_k = module.bind(state.params)
-                f_params, found, info = fit_syzygy(cfg, batches, _frozen_relations(rs), g_k,
-                                                   jax.random.fold_in(ks, 1), level, callback, k)
+                f_params, found, info = fit_syzygy(
+                    cfg,
+                    batches,
+                    _frozen_relations(rs),
+                    g_k,
+                    jax.random.fold_in(ks, 1),
+                    level,
+                    callback,
+                    k,
+                )
                 rounds.append(info)
-                log.info("relation %d syzygy %d: residual %.4g vs |g| %.4g -> %s", k + 1, s + 1,
-                         info["residual"], info["g_scale"], "found" if found else "none")
+                log.info(
+                    "relation %d syzygy %d: residual %.4g vs |g| %.4g -> %s",
+                    k + 1,
+                    s + 1,
+                    info["residual"],
+                    info["g_scale"],
+                    "found" if found else "none",
+                )
                 if not found:
                     break
                 syz_found.append(f_params)
-                state = _fit_relation(cfg, batches, rs, state.params, jax.random.fold_in(ks, 2),
-                                      cfg.push_steps, syz_params=_stack(syz_found),
-                                      thickening=level, callback=callback, phase="push")
+                state = _fit_relation(
+                    cfg,
+                    batches,
+                    rs,
+                    state.params,
+                    jax.random.fold_in(ks, 2),
+                    cfg.push_steps,
+                    syz_params=_stack(syz_found),
+                    thickening=level,
+                    callback=callback,
+                    phase="push",
+                )
                 steps += int(state.step)
                 status = int(state.status)
                 if status == NONFINITE:
@@ -325,19 +404,46 @@ def fit(
         g = module.bind(state.params)
         on_mean, off_mean = record_means(cfg, batches, g, k_eval)
         summary = RelationSummary(
-            index=k + 1, width=width, steps=steps, seconds=time.perf_counter() - started,
-            status=STATUS_NAMES[status], on_mean=on_mean, off_mean=off_mean,
-            syzygies_found=sum(r["found"] for r in rounds), syzygy_rounds=rounds)
+            index=k + 1,
+            width=width,
+            steps=steps,
+            seconds=time.perf_counter() - started,
+            status=STATUS_NAMES[status],
+            on_mean=on_mean,
+            off_mean=off_mean,
+            syzygies_found=sum(r["found"] for r in rounds),
+            syzygy_rounds=rounds,
+        )
         if status == NONFINITE:
-            log.error("relation %d: loss became non-finite at step %d; stopping with the %d "
-                      "relations learned so far", k + 1, steps, rs.num_relations)
+            log.error(
+                "relation %d: loss became non-finite at step %d; stopping with the %d "
+                "relations learned so far",
+                k + 1,
+                steps,
+                rs.num_relations,
+            )
             break
         rs = rs.append(state.params, on_mean, off_mean, width, summary.syzygies_found)
-        log.info("relation %d %s after %d steps (%.1fs): mean |g| on %.4g off %.4g (x%.1f)",
-                 k + 1, summary.status, steps, summary.seconds, on_mean, off_mean, summary.ratio)
+        log.info(
+            "relation %d %s after %d steps (%.1fs): mean |g| on %.4g off %.4g (x%.1f)",
+            k + 1,
+            summary.status,
+            steps,
+            summary.seconds,
+            on_mean,
+            off_mean,
+            summary.ratio,
+        )
         if on_relation is not None:
             on_relation(rs, summary)
     return rs
 
 
-__all__ = ["RelationSummary", "choose_thickening", "fit", "fit_syzygy", "record_means"]
+__all__ = [
+    "RelationSummary",
+    "choose_thickening",
+    "fit",
+    "fit_syzygy",
+    "record_means",
+    "relation_trainer",
+]

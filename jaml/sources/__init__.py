@@ -1,4 +1,4 @@
-"""On-manifold data for AML: analytic curves, closed-form block-on-incline, off-manifold samplers."""
+"""On-manifold data for AML: analytic curves, closed-form block-on-incline, off-manifold."""
 
 from jaml.sources.analytic import HyperboloidPlaneCurve
 from jaml.sources.base import Source

@@ -1,4 +1,4 @@
-"""The on-manifold data contract: a `Source` draws rows τ ∈ R^D that satisfy the relations to learn."""
+"""The on-manifold data contract: a `Source` draws rows τ ∈ R^D on the manifold to learn."""
 
 from __future__ import annotations
 

@@ -92,9 +92,8 @@ def _draw(key, param: Param, n: int):
 
 
 def _check_param(name: str, param: Param):
-    if isinstance(param, tuple):
-        if len(param) != 2 or not param[0] <= param[1]:
-            raise ValueError(f"{name} range must be (lo, hi) with lo ≤ hi, got {param}")
+    if isinstance(param, tuple) and (len(param) != 2 or not param[0] <= param[1]):
+        raise ValueError(f"{name} range must be (lo, hi) with lo ≤ hi, got {param}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,7 +121,9 @@ class BlockOnIncline:
             raise ValueError(f"unknown drag {self.drag!r}; expected one of {DRAG_KINDS}")
         for field in ("gravity", "incline", "friction", "drag_coef"):
             _check_param(field, getattr(self, field))
-        if len(self.times) < 2 or any(b <= a for a, b in zip(self.times, self.times[1:])):
+        if len(self.times) < 2 or any(
+            b <= a for a, b in zip(self.times, self.times[1:], strict=False)
+        ):
             raise ValueError(f"times must be ≥ 2 strictly increasing values, got {self.times}")
         if self.drag != "none" and _lowest(self.drag_coef) <= 0:
             raise ValueError(f"drag {self.drag!r} needs drag_coef > 0, got {self.drag_coef}")

@@ -1,4 +1,4 @@
-"""Named sources for the CLI and the tests: the paper's analytic domain and block-on-incline setups."""
+"""Named sources for the CLI and tests: the paper's analytic domain and block-on-incline setups."""
 
 from __future__ import annotations
 

@@ -10,8 +10,9 @@ import pytest
 from jaml import relations, sources
 from jaml.relations import loop
 
-TINY = relations.Config(max_relations=2, max_steps=60, chunk_steps=30, batch_size=64,
-                        eval_batches=2, stop_patience=1)
+TINY = relations.Config(
+    max_relations=2, max_steps=60, chunk_steps=30, batch_size=64, eval_batches=2, stop_patience=1
+)
 
 
 @pytest.fixture(scope="module")
@@ -28,8 +29,11 @@ def test_fit_returns_the_declared_structure(tiny_set):
     assert relations.evaluate(rs, rows.reshape(4, 128, 3)).shape == (4, 128, 2)
     assert relations.penalty(rs, rows[:5]).shape == (5,)
     assert relations.holds(rs, rows[:5]).dtype == jnp.bool_
-    np.testing.assert_allclose(relations.penalty(rs, rows[:5]),
-                               jnp.abs(relations.evaluate(rs, rows[:5])).sum(-1), rtol=1e-6)
+    np.testing.assert_allclose(
+        relations.penalty(rs, rows[:5]),
+        jnp.abs(relations.evaluate(rs, rows[:5])).sum(-1),
+        rtol=1e-6,
+    )
 
 
 def test_penalty_is_differentiable_in_tau(tiny_set):
@@ -72,12 +76,14 @@ def test_checkpoint_round_trip(tiny_set, tmp_path, caplog):
 
 def test_training_continues_from_a_loaded_set(tiny_set):
     rs, rows = tiny_set
-    first = relations.RelationSet.empty(3, 3, 1.5).append(rs.params[0], rs.on_means[0],
-                                                          rs.off_means[0], 4)
+    first = relations.RelationSet.empty(3, 3, 1.5).append(
+        rs.params[0], rs.on_means[0], rs.off_means[0], 4
+    )
     grown = relations.fit(rows, TINY, start=first)
     assert grown.num_relations == 2
-    np.testing.assert_array_equal(jax.tree.leaves(grown.params[0])[0],
-                                  jax.tree.leaves(rs.params[0])[0])
+    np.testing.assert_array_equal(
+        jax.tree.leaves(grown.params[0])[0], jax.tree.leaves(rs.params[0])[0]
+    )
 
 
 def test_missing_and_corrupt_checkpoints_raise(tiny_set, tmp_path):
@@ -85,7 +91,7 @@ def test_missing_and_corrupt_checkpoints_raise(tiny_set, tmp_path):
         relations.load(tmp_path / "absent")
     (tmp_path / "junk").mkdir()
     (tmp_path / "junk" / "meta").mkdir()
-    with pytest.raises(ValueError, match="corrupt or foreign|not a jaml"):
+    with pytest.raises(ValueError, match=r"corrupt or foreign|not a jaml"):
         relations.load(tmp_path / "junk")
     rs, _ = tiny_set
     relations.save(rs, tmp_path / "rs")
@@ -96,14 +102,17 @@ def test_missing_and_corrupt_checkpoints_raise(tiny_set, tmp_path):
         relations.load(tmp_path / "rs")
 
 
-@pytest.mark.parametrize(("data", "error", "match"), [
-    (np.zeros((10, 3), np.int32), TypeError, "floating-point"),
-    (np.zeros((10,), np.float32), ValueError, r"shape \[N, D\]"),
-    (np.zeros((0, 3), np.float32), ValueError, "empty"),
-    (np.ones((10, 3), np.float32), ValueError, "constant"),
-    (np.where(np.eye(10, 3) > 0, np.nan, 1.0).astype(np.float32), ValueError, "non-finite"),
-    (np.full((10, 3), np.inf, np.float32), ValueError, "non-finite"),
-])
+@pytest.mark.parametrize(
+    ("data", "error", "match"),
+    [
+        (np.zeros((10, 3), np.int32), TypeError, "floating-point"),
+        (np.zeros((10,), np.float32), ValueError, r"shape \[N, D\]"),
+        (np.zeros((0, 3), np.float32), ValueError, "empty"),
+        (np.ones((10, 3), np.float32), ValueError, "constant"),
+        (np.where(np.eye(10, 3) > 0, np.nan, 1.0).astype(np.float32), ValueError, "non-finite"),
+        (np.full((10, 3), np.inf, np.float32), ValueError, "non-finite"),
+    ],
+)
 def test_bad_data_raises_before_training(data, error, match):
     with pytest.raises(error, match=match):
         relations.fit(data, TINY)
@@ -113,24 +122,27 @@ def test_failing_or_misshapen_sampler_raises():
     def broken(key):
         raise RuntimeError("boom")
 
-    with pytest.raises(ValueError, match="sampler failed.*boom"):
+    with pytest.raises(ValueError, match=r"sampler failed.*boom"):
         relations.fit(broken, TINY)
-    with pytest.raises(ValueError, match="sampler's output.*shape"):
+    with pytest.raises(ValueError, match=r"sampler's output.*shape"):
         relations.fit(lambda key: jnp.zeros((4,)), TINY)
 
 
-@pytest.mark.parametrize(("field", "value", "match"), [
-    ("independence", "orthogonality", "independence must be one of"),
-    ("objective", "mine", "objective must be one of"),
-    ("max_relations", 0, "max_relations must be a positive integer"),
-    ("batch_size", 1, "batch_size must be at least 2"),
-    ("learning_rate", -1.0, "learning_rate must be a positive"),
-    ("separation_ratio", math.inf, "separation_ratio must be a positive finite"),
-    ("separation_top_fraction", 0.0, "separation_top_fraction"),
-    ("min_angle", 2.0, "min_angle"),
-    ("transversality_weight", -1.0, "transversality_weight"),
-    ("syzygies_per_relation", -1, "syzygies_per_relation"),
-])
+@pytest.mark.parametrize(
+    ("field", "value", "match"),
+    [
+        ("independence", "orthogonality", "independence must be one of"),
+        ("objective", "mine", "objective must be one of"),
+        ("max_relations", 0, "max_relations must be a positive integer"),
+        ("batch_size", 1, "batch_size must be at least 2"),
+        ("learning_rate", -1.0, "learning_rate must be a positive"),
+        ("separation_ratio", math.inf, "separation_ratio must be a positive finite"),
+        ("separation_top_fraction", 0.0, "separation_top_fraction"),
+        ("min_angle", 2.0, "min_angle"),
+        ("transversality_weight", -1.0, "transversality_weight"),
+        ("syzygies_per_relation", -1, "syzygies_per_relation"),
+    ],
+)
 def test_invalid_config_values_raise(field, value, match):
     with pytest.raises(ValueError, match=match):
         relations.Config(**{field: value})
@@ -140,7 +152,7 @@ def test_config_round_trips_and_rejects_unknown_fields():
     cfg = relations.Config(max_relations=3, objective="reference")
     assert relations.Config.from_dict(cfg.to_dict()) == cfg
     assert cfg.beta == 1.0 and relations.Config().beta == 1e3
-    with pytest.raises(ValueError, match="unknown relations.Config fields"):
+    with pytest.raises(ValueError, match=r"unknown relations.Config fields"):
         relations.Config.from_dict({"max_relation": 2})
 
 

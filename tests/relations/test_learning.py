@@ -27,8 +27,10 @@ def _fresh_ratio(rs, src, key, scale=1.0):
     on = src.sample(k_on, N_FRESH)
     low, high = on.min(0), on.max(0)
     off = jax.random.uniform(k_off, on.shape, minval=low, maxval=high)
-    return np.asarray(jnp.mean(jnp.abs(relations.evaluate(rs, off)), 0)
-                      / jnp.mean(jnp.abs(relations.evaluate(rs, on)), 0))
+    return np.asarray(
+        jnp.mean(jnp.abs(relations.evaluate(rs, off)), 0)
+        / jnp.mean(jnp.abs(relations.evaluate(rs, on)), 0)
+    )
 
 
 @pytest.fixture(scope="module")
@@ -87,8 +89,14 @@ def test_syzygy_network_expresses_a_dependent_relation_but_not_an_independent_on
 
 def test_algorithm_1_with_syzygies_learns_separating_relations():
     src = sources.make("ellipse")
-    cfg = relations.Config(max_relations=2, independence="syzygy", syzygies_per_relation=1,
-                           max_steps=30_000, syzygy_max_steps=4000, syzygy_push_steps=8000)
+    cfg = relations.Config(
+        max_relations=2,
+        independence="syzygy",
+        syzygies_per_relation=1,
+        max_steps=30_000,
+        syzygy_max_steps=4000,
+        syzygy_push_steps=8000,
+    )
     rs = relations.fit(src, cfg)
     assert rs.num_relations == 2
     assert (_fresh_ratio(rs, src, jax.random.key(31)) >= 5).all()

@@ -48,8 +48,11 @@ def test_input_gradients_equal_per_row_autodiff():
     np.testing.assert_allclose(y, g.apply(params, tau), rtol=1e-6)
     # The reference's per-row vector is 1/B of this: its hinge uses ‖v‖/B.
     B = 16
-    np.testing.assert_allclose(losses.reference_gradient_term(v, B),
-                               1 - 100 * np.minimum(np.linalg.norm(v, axis=-1) / B, 1e-4), rtol=1e-6)
+    np.testing.assert_allclose(
+        losses.reference_gradient_term(v, B),
+        1 - 100 * np.minimum(np.linalg.norm(v, axis=-1) / B, 1e-4),
+        rtol=1e-6,
+    )
 
 
 def test_paper_terms_on_hand_values():

@@ -29,12 +29,16 @@ def test_off_manifold_is_uniform_in_the_data_box():
     np.testing.assert_allclose(off.mean(0), (low + high) / 2, atol=0.03 * (high - low).max())
 
 
-@pytest.mark.parametrize(("incline", "friction", "c"), [
-    (math.pi / 4, 0.0, 6.9296465), (math.pi / 5, 0.2, 4.1746222), (0.4, 0.2, 2.0110202)])
+@pytest.mark.parametrize(
+    ("incline", "friction", "c"),
+    [(math.pi / 4, 0.0, 6.9296465), (math.pi / 5, 0.2, 4.1746222), (0.4, 0.2, 2.0110202)],
+)
 def test_block_presets_satisfy_the_constant_acceleration_relations(incline, friction, c):
     src = sources.BlockOnIncline(incline=incline, friction=friction)
     s0, v0, s1, v1 = np.asarray(src.sample(jax.random.key(0), 2048)).T
-    assert float(sources.downhill_acceleration(9.8, incline, friction)) == pytest.approx(c, abs=1e-6)
+    assert float(sources.downhill_acceleration(9.8, incline, friction)) == pytest.approx(
+        c, abs=1e-6
+    )
     np.testing.assert_allclose(v1 - v0, c, atol=1e-5)
     np.testing.assert_allclose(s1 - s0 - v0, c / 2, atol=1e-5)
 
@@ -55,19 +59,32 @@ def test_conservative_block_with_ranged_incline():
 
 
 def _ode(s0, v0, t, c, r, drag):
-    drag_fn = {"none": lambda v: 0.0, "linear": lambda v: r * v, "quadratic": lambda v: r * v * abs(v)}
-    sol = solve_ivp(lambda _, y: [y[1], c - drag_fn[drag](y[1])], (0.0, t), [s0, v0],
-                    method="DOP853", rtol=1e-12, atol=1e-13)
+    drag_fn = {
+        "none": lambda v: 0.0,
+        "linear": lambda v: r * v,
+        "quadratic": lambda v: r * v * abs(v),
+    }
+    sol = solve_ivp(
+        lambda _, y: [y[1], c - drag_fn[drag](y[1])],
+        (0.0, t),
+        [s0, v0],
+        method="DOP853",
+        rtol=1e-12,
+        atol=1e-13,
+    )
     return sol.y[0, -1], sol.y[1, -1]
 
 
-@pytest.mark.parametrize(("drag", "incline", "start", "expected"), [
-    ("quadratic", 0.4, (0.5, -0.5), (0.93672189, 1.12438136)),
-    ("quadratic", 0.4, (0.0, 0.0), (0.78194949, 1.26098246)),
-    ("quadratic", 0.4, (0.0, 3.0), (1.84012464, 1.47893851)),
-    ("linear", 0.4, (0.5, -0.5), (0.92375271, 1.08726750)),
-    ("linear", math.pi / 5, (0.0, 0.0), (1.53575767, 2.63886449)),
-])
+@pytest.mark.parametrize(
+    ("drag", "incline", "start", "expected"),
+    [
+        ("quadratic", 0.4, (0.5, -0.5), (0.93672189, 1.12438136)),
+        ("quadratic", 0.4, (0.0, 0.0), (0.78194949, 1.26098246)),
+        ("quadratic", 0.4, (0.0, 3.0), (1.84012464, 1.47893851)),
+        ("linear", 0.4, (0.5, -0.5), (0.92375271, 1.08726750)),
+        ("linear", math.pi / 5, (0.0, 0.0), (1.53575767, 2.63886449)),
+    ],
+)
 def test_closed_forms_match_reference_values_and_ode(drag, incline, start, expected):
     with jax.enable_x64(True):
         c = float(sources.downhill_acceleration(9.8, incline, 0.2))
@@ -84,14 +101,24 @@ def test_closed_forms_match_ode_across_regimes(drag):
         for v0 in (-3.0, -1.0, -0.2, 0.0, 0.5, 1.0, 2.5, 4.0):
             for t in (0.0, 0.3, 1.0, 2.0):
                 s, v = sources.flow(jnp.float64(0.1), jnp.float64(v0), t, c, 1.0, drag)
-                np.testing.assert_allclose([float(s), float(v)], _ode(0.1, v0, t, c, 1.0, drag),
-                                           atol=1e-8, err_msg=f"v0={v0} t={t}")
+                np.testing.assert_allclose(
+                    [float(s), float(v)],
+                    _ode(0.1, v0, t, c, 1.0, drag),
+                    atol=1e-8,
+                    err_msg=f"v0={v0} t={t}",
+                )
 
 
 def test_rows_are_time_major_and_named():
     src = sources.BlockOnIncline(times=(0.0, 0.5, 1.0))
-    assert src.dim_names == ("position_0", "velocity_0", "position_1", "velocity_1",
-                             "position_2", "velocity_2")
+    assert src.dim_names == (
+        "position_0",
+        "velocity_0",
+        "position_1",
+        "velocity_1",
+        "position_2",
+        "velocity_2",
+    )
     tau = np.asarray(src.sample(jax.random.key(0), 8))
     assert tau.shape == (8, 6)
     np.testing.assert_allclose(tau[:, 3] - tau[:, 1], 9.8 * math.sin(math.pi / 4) * 0.5, atol=1e-5)

@@ -1,0 +1,151 @@
+"""AML speed: optimizer steps/s of g_1 and g_2 (transversality) at batch 1024, and wall time to
+learn the ellipse's two relations to the stopping rule; the PyTorch reference step (restated in
+`peers/aml_torch.py`, single-threaded as the reference was calibrated) in the same run.
+
+    python benchmarks/relations_fit.py [--quick] [--no-peer]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import jax
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from benchmarks.harness import measure, record
+from jaml import relations, sources
+from jaml.relations.data import prepare
+from jaml.relations.networks import Relation
+from jaml.relations.training import relation_trainer
+
+# Steps the reference took on the ellipse (aml_reference.md §9a: g1 7,875, g2 47,321).
+REFERENCE_STEPS = 7_875 + 47_321
+CHUNK = 500
+
+
+def jaml_steps_per_second(objective: str, k: int, repeats: int) -> dict:
+    """Steps/s of the compiled g_{k+1} loop: chunks of 500 steps, stopping rule never firing."""
+    cfg = relations.Config(
+        objective=objective, separation_ratio=1e30, chunk_steps=CHUNK, max_steps=10**9
+    )
+    batches = prepare(sources.make("ellipse"), cfg.batch_size, 0.0, jax.random.key(0), 4)
+    rs = relations.RelationSet.empty(3, 3, 1.5)
+    for j in range(k):
+        params = Relation(4 * 2**j).init(jax.random.key(j), jax.numpy.zeros((1, 3)))
+        rs = rs.append(params, 0.01, 0.1, 4 * 2**j)
+    params = Relation(4 * 2**k).init(jax.random.key(9), jax.numpy.zeros((1, 3)))
+    chunk, state, args = relation_trainer(cfg, batches, rs, params, jax.random.key(1), 10**9)
+    holder = {"state": state}
+
+    def run():
+        holder["state"], metrics, _ = chunk(holder["state"], args)
+        return metrics
+
+    timing = measure(run, repeats=repeats)
+    return {"steps_per_s": CHUNK / timing["median_s"], "compile_s": timing["compile_s"]}
+
+
+def torch_steps_per_second(k: int, repeats: int, device: str) -> dict:
+    import torch
+
+    from benchmarks.peers.aml_torch import ReferenceStep
+
+    if device == "cpu":
+        torch.set_num_threads(1)  # the reference was calibrated single-threaded (§9a)
+    peer = ReferenceStep(k, device=device)
+    steps = 200
+    timing = measure(peer, steps, repeats=repeats)
+    return {"steps_per_s": steps / timing["median_s"], "torch_threads": torch.get_num_threads()}
+
+
+def fit_wall_time(objective: str, seed: int) -> dict:
+    src = sources.make("ellipse")
+    start = time.perf_counter()
+    summaries = []
+    rs = relations.fit(
+        src,
+        relations.Config(max_relations=2, objective=objective, seed=seed),
+        on_relation=lambda rs, s: summaries.append(s),
+    )
+    wall = time.perf_counter() - start
+    steps = sum(s.steps for s in summaries)
+    ratios = (rs.off_means / rs.on_means).tolist()
+    return {
+        "wall_s": wall,
+        "steps": steps,
+        "status": "/".join(s.status for s in summaries),
+        "off_on_ratios": "/".join(f"{r:.1f}" for r in ratios),
+    }
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--quick", action="store_true", help="fewer repetitions and seeds")
+    parser.add_argument("--no-peer", action="store_true", help="skip the PyTorch reference")
+    parser.add_argument("--no-record", action="store_true", help="print only")
+    args = parser.parse_args(argv)
+    repeats = 3 if args.quick else 7
+    seeds = (0,) if args.quick else (0, 1, 2)
+    device = jax.devices()[0].platform
+    rows = []
+    peer = {}
+    for k, case in ((0, "step g1 (width 4)"), (1, "step g2 (width 8, transversality)")):
+        if not args.no_peer:
+            peer[k] = torch_steps_per_second(k, repeats, "cuda" if device == "gpu" else "cpu")
+            rows.append({"case": f"{case}, batch 1024", "impl": "pytorch reference", **peer[k]})
+        for objective in ("paper", "reference"):
+            r = jaml_steps_per_second(objective, k, repeats)
+            if k in peer:
+                r["speedup_vs_pytorch"] = r["steps_per_s"] / peer[k]["steps_per_s"]
+            rows.append(
+                {"case": f"{case}, batch 1024", "impl": f"jaml ({objective} objective)", **r}
+            )
+            print(rows[-1], flush=True)
+    peer_wall = None
+    if peer:
+        # The peer's time to learn: the reference's step counts at the per-step speed measured
+        # here (g1 at the g1 rate, g2 at the g2 rate).
+        peer_wall = 7_875 / peer[0]["steps_per_s"] + 47_321 / peer[1]["steps_per_s"]
+        rows.append(
+            {
+                "case": "ellipse, 2 relations to the stopping rule",
+                "impl": "pytorch reference (reference step counts x measured steps/s)",
+                "wall_s": peer_wall,
+                "steps": REFERENCE_STEPS,
+            }
+        )
+    for objective in ("paper", "reference"):
+        runs = [fit_wall_time(objective, seed) for seed in seeds]
+        runs.sort(key=lambda r: r["wall_s"])
+        median = runs[len(runs) // 2]
+        row = {
+            "case": "ellipse, 2 relations to the stopping rule",
+            "impl": f"jaml ({objective} objective), median of {len(runs)} seeds",
+            **median,
+        }
+        if peer_wall:
+            row["speedup_vs_pytorch"] = peer_wall / median["wall_s"]
+        rows.append(row)
+        print(row, flush=True)
+    if not args.no_record:
+        record(
+            "relations_fit",
+            rows,
+            notes=(
+                "Steps/s: one compiled lax.scan chunk of 500 optimizer steps (fresh on/off batches "
+                "each step, stopping rule evaluated every step), median of blocked repetitions. "
+                "Wall time includes compilation. The PyTorch peer is the reference's step restated "
+                "in benchmarks/peers/aml_torch.py; on CPU it runs single-threaded, as the "
+                "reference's ~230 steps/s calibration did."
+            ),
+        )
+    for row in rows:
+        print(row)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,105 @@
+"""The `jaml relations` run directory: contents, figures, resume after an interruption, refusal."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaml import cli, relations, sources
+from jaml.relations import run as run_module
+
+TINY_FLAGS = ["--max-steps", "40", "--chunk-steps", "20", "--batch-size", "64",
+              "--stop-patience", "1", "--eval-batches", "2", "--no-progress"]
+
+
+def _tiny_config(**changes):
+    return relations.Config(max_relations=2, max_steps=40, chunk_steps=20, batch_size=64,
+                            stop_patience=1, eval_batches=2).replace(**changes)
+
+
+def test_cli_writes_the_run_directory(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert cli.main(["relations", "--source", "block45", "--max-relations", "2", "--out",
+                     str(out), *TINY_FLAGS]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["num_relations"] == 2 and summary["status"] == "done"
+    for r in summary["relations"]:
+        assert r["steps"] <= 40 and r["status"] in ("done", "capped") and r["seconds"] > 0
+        assert r["off_mean"] > 0 and r["on_mean"] > 0
+    config = json.loads((out / "config.json").read_text())
+    assert config["source"] == "block45" and config["relations"]["max_steps"] == 40
+    lines = [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines()]
+    assert {line["relation"] for line in lines} == {1, 2}
+    assert {"loss", "distance", "on_mean", "off_mean"} <= set(lines[0])
+    assert "angle" in lines[-1] and "transversality" in lines[-1]
+    assert any((out / "tensorboard").iterdir())
+    assert (out / "phase_space.png").stat().st_size > 10_000
+    assert relations.load(out / "checkpoint").num_relations == 2
+    assert "block45: 2 relations, done" in capsys.readouterr().out
+
+
+def test_three_dimensional_sources_get_zero_level_set_figures(tmp_path):
+    run_module.run("ellipse", _tiny_config(max_relations=1), tmp_path / "e", progress=False)
+    assert (tmp_path / "e" / "zero_sets.png").stat().st_size > 10_000
+
+
+def test_an_interrupted_run_resumes_after_its_last_finished_relation(tmp_path, monkeypatch):
+    out, cfg = tmp_path / "run", _tiny_config()
+    real_save = run_module.checkpoint.save
+
+    def save_then_die(rs, path):
+        real_save(rs, path)
+        raise KeyboardInterrupt  # killed right after the first relation's checkpoint
+
+    monkeypatch.setattr(run_module.checkpoint, "save", save_then_die)
+    with pytest.raises(KeyboardInterrupt):
+        run_module.run("ellipse", cfg, out, progress=False, figures=False)
+    first = relations.load(out / "checkpoint")
+    assert first.num_relations == 1
+    monkeypatch.setattr(run_module.checkpoint, "save", real_save)
+    summary = run_module.run("ellipse", cfg, out, progress=False, figures=False)
+    assert summary["num_relations"] == 2 and summary["status"] == "done"
+    resumed = relations.load(out / "checkpoint")
+    tau = sources.make("ellipse").sample(jax.random.key(0), 16)
+    np.testing.assert_array_equal(relations.evaluate(resumed, tau)[:, 0],
+                                  relations.evaluate(first, tau)[:, 0])
+    assert [r["index"] for r in summary["relations"]] == [1, 2]
+
+
+def test_a_different_configuration_in_the_same_directory_is_refused(tmp_path, capsys):
+    out = tmp_path / "run"
+    run_module.run("ellipse", _tiny_config(max_relations=1), out, progress=False, figures=False)
+    code = cli.main(["relations", "--source", "ellipse", "--max-relations", "1", "--seed", "3",
+                     "--out", str(out), *TINY_FLAGS])
+    assert code == 2 and "different configuration" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["relations", "--help"], ["demo", "--help"]])
+def test_every_subcommand_has_help(argv, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(argv)
+    assert exit_info.value.code == 0 and "usage: jaml" in capsys.readouterr().out
+
+
+def test_bad_cli_values_give_clear_errors(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["relations", "--source", "torus", "--out", str(tmp_path)])
+    assert "invalid choice: 'torus'" in capsys.readouterr().err
+    code = cli.main(["relations", "--source", "ellipse", "--out", str(tmp_path),
+                     "--independence", "orthogonality"])
+    assert code == 2 and "independence must be one of" in capsys.readouterr().err
+
+
+def test_pretraining_towards_a_prior_heuristic():
+    src = sources.make("ellipse")
+    plane = lambda t: t[..., 1] - 2 * t[..., 2] - 1  # noqa: E731
+    cfg = _tiny_config(max_relations=1, max_steps=1, pretrain_steps=1500, batch_size=256)
+    rs = relations.fit(src, cfg, priors=[plane])
+    box = jax.random.uniform(jax.random.key(3), (2048, 3), minval=jnp.array([-1.4, -3, -2]),
+                             maxval=jnp.array([1.4, 1, 0]))
+    g = np.asarray(relations.evaluate(rs, box)[:, 0])
+    assert np.corrcoef(g, np.tanh(np.asarray(plane(box))))[0, 1] > 0.95
+    with pytest.raises(TypeError, match="priors"):
+        relations.fit(src, cfg, priors=["plane"])

@@ -53,7 +53,7 @@ class CartPole(Env):
         s = jax.random.uniform(k_state, (4,), minval=-1.0, maxval=1.0) * self.config.reset_noise
         qpos = jnp.stack([s[2], s[0]])  # model order: slider x, hinge theta
         qvel = jnp.stack([s[3], s[1]])
-        scheme = COLOUR_SCHEMES[jax.random.randint(k_colour, (), 0, 4)]
+        scheme = jnp.asarray(COLOUR_SCHEMES)[jax.random.randint(k_colour, (), 0, 4)]
         rgba = self._rgba_with_scheme(
             self._slots, jnp.stack([scheme[BASE], scheme[POLE]]), self.config.multicolor
         )

@@ -51,8 +51,14 @@ INCLINE_COLOURS = np.array(
 # Flat stand-ins for the paired ground textures red_marble, blue_bright, purple_squares,
 # wood_stripes, dark_pattern, orange_pattern.
 GROUND_COLOURS = np.array(
-    [[0.6, 0.25, 0.25], [0.2, 0.45, 0.95], [0.5, 0.3, 0.65], [0.6, 0.45, 0.3], [0.15, 0.15, 0.15],
-     [0.9, 0.55, 0.2]],
+    [
+        [0.6, 0.25, 0.25],
+        [0.2, 0.45, 0.95],
+        [0.5, 0.3, 0.65],
+        [0.6, 0.45, 0.3],
+        [0.15, 0.15, 0.15],
+        [0.9, 0.55, 0.2],
+    ],
     np.float32,
 )
 # Geom objects v0-5 at the incline's 2.5x scale: (type, size, nominal mass kg, rgb).
@@ -156,7 +162,8 @@ class GeomOnIncline(Env):
         body_mass = jnp.asarray(self.mj_model.body_mass, jnp.float32).at[self._object].set(mass)
         body_inertia = jnp.asarray(self.mj_model.body_inertia, jnp.float32)
         body_inertia = body_inertia.at[self._object].set(self._inertia0 * (mass / self._mass0))
-        mu = jnp.asarray(info["friction"], jnp.float32) ** 2
+        # Floor at C MuJoCo's mjMINMU (1e-5): MJX's pyramidal cone turns exact zero into NaN.
+        mu = jnp.maximum(jnp.asarray(info["friction"], jnp.float32) ** 2, 1e-5)
         pair_friction = jnp.asarray(self._pair_friction0).at[:, :2].set(mu)
         return {
             "body_quat": body_quat,

@@ -46,7 +46,7 @@ class InvertedPendulum(Env):
         noise = self.config.reset_noise
         theta = jax.random.uniform(k_theta, (), minval=-noise, maxval=noise)
         qpos = jnp.stack([jnp.zeros(()), theta])
-        scheme = COLOUR_SCHEMES[jax.random.randint(k_colour, (), 0, 4)]
+        scheme = jnp.asarray(COLOUR_SCHEMES)[jax.random.randint(k_colour, (), 0, 4)]
         rgba = self._rgba_with_scheme(
             self._slots, jnp.stack([scheme[BASE], scheme[POLE]]), self.config.multicolor
         )
@@ -54,9 +54,7 @@ class InvertedPendulum(Env):
 
     def _ld_state(self, data, info):
         x, theta = data.qpos[0], data.qpos[1]
-        return jnp.stack(
-            [x, data.qvel[0], jnp.cos(theta), jnp.sin(theta), data.qvel[1]]
-        )
+        return jnp.stack([x, data.qvel[0], jnp.cos(theta), jnp.sin(theta), data.qvel[1]])
 
     def _reward_done(self, prev, data, action, info):
         return jnp.ones(()), jnp.abs(data.qpos[1]) > self.config.theta_threshold, {}

@@ -48,6 +48,7 @@ class LocomotionConfig(EnvConfig):
 class Locomotion(Env):
     """A walker on the checker floor, with a tracking camera ("pixels", mode trackcom)."""
 
+    reset_contacts = True
     xml: str
     joints: tuple[str, ...]  # actuated joints, in action order
     feet: tuple[str, ...]  # geoms whose floor contact enters the LD state
@@ -97,10 +98,8 @@ class Locomotion(Env):
         qpos = jnp.asarray(self.mj_model.qpos0, jnp.float32)
         dq = jax.random.uniform(k_q, (len(self.joints),), minval=-noise, maxval=noise)
         qpos = qpos.at[self._qadr].add(dq)
-        scheme = COLOUR_SCHEMES[jax.random.randint(k_colour, (), 0, 4)]
-        rgba = self._rgba_with_scheme(
-            self._slots, scheme[self._slot_index], self.config.multicolor
-        )
+        scheme = jnp.asarray(COLOUR_SCHEMES)[jax.random.randint(k_colour, (), 0, 4)]
+        rgba = self._rgba_with_scheme(self._slots, scheme[self._slot_index], self.config.multicolor)
         return qpos, jnp.zeros(self.mj_model.nv), {"geom_rgba": rgba}
 
     def _after_reset(self, data, info):

@@ -4,6 +4,7 @@ One object (a block, or a cylinder variant) slides on a 4 m plank tilted about +
 surface through (0, 0, 0.55) runs downhill along +x. Every reset draws, per env:
   theta ~U(theta_range) rad, mass ~U(mass_range) kg (inertia rescaled to match),
   f ~U(friction_range) with contact friction f^2 (pybullet multiplied object x plank friction),
+  floored at 0.01 (MJX gives NaN for near-frictionless pyramidal contacts),
   texture_id ~U{0..5}: plank colour INCLINE_COLOURS[id], ground colour GROUND_COLOURS[id].
 These live in `info` ("theta", "mass", "friction", "texture_id", "geom_rgba") and become batched
 mjx.Model fields (plank body_quat, object body_mass / body_inertia, pair_friction) each step.
@@ -71,6 +72,7 @@ OBJECTS = (
     (_CYL, (0.15, 0.1625, 0), 0.2, (0, 0.5, 1)),
     (_CYL, (0.075, 0.04375, 0), 0.2, (0, 0, 1)),
 )
+MIN_CONTACT_FRICTION = 0.01
 PLANK_ORIGIN = np.array([0.0, 0.0, 0.55], np.float32)
 
 
@@ -162,8 +164,9 @@ class GeomOnIncline(Env):
         body_mass = jnp.asarray(self.mj_model.body_mass, jnp.float32).at[self._object].set(mass)
         body_inertia = jnp.asarray(self.mj_model.body_inertia, jnp.float32)
         body_inertia = body_inertia.at[self._object].set(self._inertia0 * (mass / self._mass0))
-        # Floor at C MuJoCo's mjMINMU (1e-5): MJX's pyramidal cone turns exact zero into NaN.
-        mu = jnp.maximum(jnp.asarray(info["friction"], jnp.float32) ** 2, 1e-5)
+        # Floored at 0.01 (f = 0.1, the reference's smallest draw): MJX 3.17's pyramidal cone
+        # returns NaN states for contact friction below about 1e-3 (measured), exact 0 included.
+        mu = jnp.maximum(jnp.asarray(info["friction"], jnp.float32) ** 2, MIN_CONTACT_FRICTION)
         pair_friction = jnp.asarray(self._pair_friction0).at[:, :2].set(mu)
         return {
             "body_quat": body_quat,

@@ -247,10 +247,10 @@ def test_locomotion_foot_contacts(name, min_feet):
 # (float64) mj_step from the same state with the same ctrl / xfrc_applied.
 K = 5
 C_TOL = {
-    "CartPole": (1e-5, 1e-4),
-    "InvertedPendulum": (1e-5, 1e-4),
-    "HalfCheetah": (2e-3, 5e-2),
-    "Ant": (2e-3, 5e-2),
+    "CartPole": (1e-6, 1e-5),
+    "InvertedPendulum": (1e-6, 1e-5),
+    "HalfCheetah": (1e-4, 1e-3),
+    "Ant": (1e-4, 1e-3),
     "GeomOnIncline": (1e-3, 2e-2),
 }
 

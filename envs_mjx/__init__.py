@@ -1,1 +1,6 @@
-"""The evaluation suite's domains: MJCF models stepped in MJX, drawn by a JAX software renderer."""
+"""The evaluation suite's domains: MJCF models stepped in MJX, with LD state and pixels."""
+
+from envs_mjx.base import Env, EnvConfig, State
+from envs_mjx.registry import ALL_ENVS, default_config, make
+
+__all__ = ["ALL_ENVS", "Env", "EnvConfig", "State", "default_config", "make"]

@@ -1,0 +1,75 @@
+"""CartPole (suite_reference.md §2): a pole on a cart, pushed by a +-10 N slider force.
+
+Action: a continuous a in [-1, 1] (Brax convention) stands in for the reference's Discrete(2).
+With `action_mode="sign"` (default, the reference's bang-bang control) the force is
+10 N * sign(a): a > 0 is the reference's action 1 (+10 N), a < 0 its action 0 (-10 N); a == 0
+exactly gives no force. With `action_mode="linear"` the force is 10 N * clip(a, -1, 1).
+LD state: [theta, theta_dot, x, x_dot]. Done when |x| > 0.4 m or |theta| > 12 degrees; reward 1
+per step (times reward_scale). Reset: all four state entries ~U(+-0.05).
+Multicolor: cart = scheme's base colour, pole = its pole colour; otherwise yellow cart, blue pole.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+
+from envs_mjx.base import BASE, COLOUR_SCHEMES, POLE, Env, EnvConfig, geom_ids
+from envs_mjx.domains._assets import asset
+
+
+@dataclasses.dataclass(frozen=True)
+class CartPoleConfig(EnvConfig):
+    episode_length: int | None = 200
+    reward_scale: float = 1.0 / 200
+    n_frames: int = 1
+    multicolor: bool = False
+    action_mode: str = "sign"
+    reset_noise: float = 0.05
+    x_threshold: float = 0.4
+    theta_threshold: float = 12.0 * 3.141592653589793 / 180.0
+
+
+def default_config() -> CartPoleConfig:
+    return CartPoleConfig()
+
+
+class CartPole(Env):
+    """Cart-pole with the reference's slow-falling pole (inertia diag(1,1,1))."""
+
+    def __init__(self, config: CartPoleConfig | None = None, pixels_fn=None):
+        config = config or default_config()
+        if config.action_mode not in ("sign", "linear"):
+            raise ValueError(f"action_mode must be 'sign' or 'linear', got {config.action_mode!r}")
+        mj_model = mujoco.MjModel.from_xml_path(asset("cartpole.xml"))
+        self._slots = [geom_ids(mj_model, ["cart"]), geom_ids(mj_model, ["pole"])]
+        super().__init__(config, mj_model, ("theta", "theta_dot", "x", "x_dot"), pixels_fn)
+
+    def _sample_reset(self, rng):
+        k_state, k_colour = jax.random.split(rng)
+        s = jax.random.uniform(k_state, (4,), minval=-1.0, maxval=1.0) * self.config.reset_noise
+        qpos = jnp.stack([s[2], s[0]])  # model order: slider x, hinge theta
+        qvel = jnp.stack([s[3], s[1]])
+        scheme = jnp.asarray(COLOUR_SCHEMES)[jax.random.randint(k_colour, (), 0, 4)]
+        rgba = self._rgba_with_scheme(
+            self._slots, jnp.stack([scheme[BASE], scheme[POLE]]), self.config.multicolor
+        )
+        return qpos, qvel, {"geom_rgba": rgba}
+
+    def _apply_action(self, data, action, info):
+        a = action[0]
+        ctrl = jnp.sign(a) if self.config.action_mode == "sign" else jnp.clip(a, -1.0, 1.0)
+        return data.replace(ctrl=ctrl[None])
+
+    def _ld_state(self, data, info):
+        return jnp.stack([data.qpos[1], data.qvel[1], data.qpos[0], data.qvel[0]])
+
+    def _reward_done(self, prev, data, action, info):
+        x, theta = data.qpos[0], data.qpos[1]
+        terminated = (jnp.abs(x) > self.config.x_threshold) | (
+            jnp.abs(theta) > self.config.theta_threshold
+        )
+        return jnp.ones(()), terminated, {}

@@ -1,0 +1,220 @@
+"""Geom-on-incline (suite_reference.md §1 "Geom-/YCB-on-incline", §2 "BlockOnIncline", §6).
+
+One object (a block, or a cylinder variant) slides on a 4 m plank tilted about +y by theta, so the
+surface through (0, 0, 0.55) runs downhill along +x. Every reset draws, per env:
+  theta ~U(theta_range) rad, mass ~U(mass_range) kg (inertia rescaled to match),
+  f ~U(friction_range) with contact friction f^2 (pybullet multiplied object x plank friction),
+  floored at 0.01 (MJX gives NaN for near-frictionless pyramidal contacts),
+  texture_id ~U{0..5}: plank colour INCLINE_COLOURS[id], ground colour GROUND_COLOURS[id].
+These live in `info` ("theta", "mass", "friction", "texture_id", "geom_rgba") and become batched
+mjx.Model fields (plank body_quat, object body_mass / body_inertia, pair_friction) each step.
+
+Action a in [-1, 1]: a force force_scale * clip(a) N (2 N by default) along the incline's downhill
+direction, applied at the object's centre of mass (xfrc_applied), held over 8 substeps of 5 ms.
+Reward: 1 - |x - 0.5| (x: world x of the object). Terminates when x >= 1, x <= 0 or |y| >= 0.1.
+Episodes last 50 steps.
+
+LD state: [texture_id, object_id, (friction f if ld_friction), theta, position, velocity] where
+position is the object's displacement along the plank from the plank origin and velocity its
+signed velocity along the plank. With normalize_ld (default) these are mapped like the reference's
+min-max normalization: id/6, (f - 0.1)/0.4, (theta - 0.25)/0.25, position/1.27 clipped to [0, 1],
+velocity/3.1 clipped to [-1, 1]; otherwise they are raw (rad, m, m/s).
+
+Deviations from the reference (recorded here on purpose):
+- The force acts along the incline, not along the object's local z axis (which the reference
+  aligned with the slope at reset, so the two agree until the object rotates).
+- Reset places the object at rest on the plank at position ~U(start_range) m instead of dropping
+  it from (-0.05, 0, 0.7) and stepping until it passes x ~U(0.05, 0.15), and without the
+  reference's small random yaw.
+- The reference's position was the distance from the drop point and its velocity the unsigned
+  speed; here both are measured along the plank and the velocity is signed.
+- Ground colours are flat stand-ins for the YCB variant's paired ground textures (the reference's
+  Geom variant kept a black ground: `ground="black"`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from envs_mjx.base import Env, EnvConfig, geom_ids
+from envs_mjx.domains._assets import asset
+
+# Plank colours per texture id (reference INCLINE_COLORS).
+INCLINE_COLOURS = np.array(
+    [[1, 0.5, 0], [0.8, 0.8, 0.8], [0.9, 0.4, 0.4], [0, 1, 0], [0.5, 0.15, 0.15], [1, 0.6, 0]],
+    np.float32,
+)
+# Flat stand-ins for the paired ground textures red_marble, blue_bright, purple_squares,
+# wood_stripes, dark_pattern, orange_pattern.
+GROUND_COLOURS = np.array(
+    [
+        [0.6, 0.25, 0.25],
+        [0.2, 0.45, 0.95],
+        [0.5, 0.3, 0.65],
+        [0.6, 0.45, 0.3],
+        [0.15, 0.15, 0.15],
+        [0.9, 0.55, 0.2],
+    ],
+    np.float32,
+)
+# Geom objects v0-5 at the incline's 2.5x scale: (type, size, nominal mass kg, rgb).
+_BOX, _CYL = mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_CYLINDER
+OBJECTS = (
+    (_BOX, (0.0625, 0.125, 0.1875), 0.05, (1, 1, 0.5)),
+    (_BOX, (0.0625, 0.125, 0.1875), 0.05, (0.2, 0.2, 0.2)),
+    (_BOX, (0.0625, 0.125, 0.1875), 0.05, (1, 0, 0)),
+    (_CYL, (0.075, 0.1625, 0), 0.2, (1, 0, 1)),
+    (_CYL, (0.15, 0.1625, 0), 0.2, (0, 0.5, 1)),
+    (_CYL, (0.075, 0.04375, 0), 0.2, (0, 0, 1)),
+)
+MIN_CONTACT_FRICTION = 0.01
+PLANK_ORIGIN = np.array([0.0, 0.0, 0.55], np.float32)
+
+
+@dataclasses.dataclass(frozen=True)
+class InclineConfig(EnvConfig):
+    episode_length: int | None = 50
+    reward_scale: float = 1.0
+    n_frames: int = 8
+    object_id: int = 0
+    theta_range: tuple[float, float] = (0.25, 0.50)
+    mass_range: tuple[float, float] = (0.05, 0.5)
+    friction_range: tuple[float, float] = (0.10, 0.50)
+    start_range: tuple[float, float] = (0.05, 0.15)
+    force_scale: float = 2.0
+    ground: str = "paired"
+    ld_friction: bool = False
+    normalize_ld: bool = True
+
+
+def default_config() -> InclineConfig:
+    return InclineConfig()
+
+
+class GeomOnIncline(Env):
+    """A block or cylinder sliding on a randomly tilted plank, pushed along the slope."""
+
+    def __init__(self, config: InclineConfig | None = None, pixels_fn=None):
+        config = config or default_config()
+        if not 0 <= config.object_id < len(OBJECTS):
+            raise ValueError(f"object_id must be in 0..{len(OBJECTS) - 1}, got {config.object_id}")
+        if config.ground not in ("paired", "black"):
+            raise ValueError(f"ground must be 'paired' or 'black', got {config.ground!r}")
+        spec = mujoco.MjSpec.from_file(asset("geom_on_incline.xml"))
+        gtype, size, mass, rgb = OBJECTS[config.object_id]
+        obj = spec.geom("object")
+        obj.type, obj.size, obj.mass, obj.rgba = gtype, list(size), mass, [*rgb, 1.0]
+        mj_model = spec.compile()
+        # The object's half-thickness normal to the plank: box local x / cylinder radius.
+        self._half_height = float(size[0])
+        self._object = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_BODY, "object")
+        self._plank = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_BODY, "plank")
+        self._plank_geom = geom_ids(mj_model, ["plank"])
+        self._ground_geom = geom_ids(mj_model, ["ground"])
+        self._inertia0 = np.asarray(mj_model.body_inertia[self._object], np.float32)
+        self._mass0 = float(mj_model.body_mass[self._object])
+        self._pair_friction0 = np.asarray(mj_model.pair_friction, np.float32)
+        names = ["texture_id", "object_id"]
+        names += ["friction"] if config.ld_friction else []
+        names += ["theta", "position", "velocity"]
+        super().__init__(config, mj_model, tuple(names), pixels_fn)
+
+    @property
+    def action_size(self) -> int:
+        return 1
+
+    def _sample_reset(self, rng):
+        c = self.config
+        keys = jax.random.split(rng, 5)
+        theta = jax.random.uniform(keys[0], (), minval=c.theta_range[0], maxval=c.theta_range[1])
+        mass = jax.random.uniform(keys[1], (), minval=c.mass_range[0], maxval=c.mass_range[1])
+        friction = jax.random.uniform(
+            keys[2], (), minval=c.friction_range[0], maxval=c.friction_range[1]
+        )
+        texture_id = jax.random.randint(keys[3], (), 0, len(INCLINE_COLOURS))
+        s0 = jax.random.uniform(keys[4], (), minval=c.start_range[0], maxval=c.start_range[1])
+        u, n = _downhill(theta), _normal(theta)
+        pos = jnp.asarray(PLANK_ORIGIN) + s0 * u + self._half_height * n
+        # Object frame: local z downhill, local x into the plank = plank rotation, then +90 deg
+        # about y. Both are rotations about y, so the angles add.
+        quat = _quat_y(theta + jnp.pi / 2)
+        qpos = jnp.concatenate([pos, quat])
+        rgba = jnp.asarray(self._base_rgba)
+        rgba = rgba.at[self._plank_geom, :3].set(jnp.asarray(INCLINE_COLOURS)[texture_id])
+        if c.ground == "paired":
+            rgba = rgba.at[self._ground_geom, :3].set(jnp.asarray(GROUND_COLOURS)[texture_id])
+        info = {
+            "geom_rgba": rgba,
+            "theta": theta,
+            "mass": mass,
+            "friction": friction,
+            "texture_id": texture_id,
+        }
+        return qpos, jnp.zeros(6), info
+
+    def _model_fields(self, info):
+        mass = jnp.asarray(info["mass"], jnp.float32)
+        body_quat = jnp.asarray(self.mj_model.body_quat, jnp.float32)
+        body_quat = body_quat.at[self._plank].set(_quat_y(info["theta"]))
+        body_mass = jnp.asarray(self.mj_model.body_mass, jnp.float32).at[self._object].set(mass)
+        body_inertia = jnp.asarray(self.mj_model.body_inertia, jnp.float32)
+        body_inertia = body_inertia.at[self._object].set(self._inertia0 * (mass / self._mass0))
+        # Floored at 0.01 (f = 0.1, the reference's smallest draw): MJX 3.17's pyramidal cone
+        # returns NaN states for contact friction below about 1e-3 (measured), exact 0 included.
+        mu = jnp.maximum(jnp.asarray(info["friction"], jnp.float32) ** 2, MIN_CONTACT_FRICTION)
+        pair_friction = jnp.asarray(self._pair_friction0).at[:, :2].set(mu)
+        return {
+            "body_quat": body_quat,
+            "body_mass": body_mass,
+            "body_inertia": body_inertia,
+            "pair_friction": pair_friction,
+        }
+
+    def _apply_action(self, data, action, info):
+        force = self.config.force_scale * jnp.clip(action[0], -1.0, 1.0) * _downhill(info["theta"])
+        xfrc = data.xfrc_applied.at[self._object].set(jnp.concatenate([force, jnp.zeros(3)]))
+        return data.replace(xfrc_applied=xfrc)
+
+    def along_plank(self, qpos, qvel, theta) -> tuple[jax.Array, jax.Array]:
+        """(position from the plank origin, signed velocity), both along the downhill axis."""
+        u = _downhill(theta)
+        return jnp.dot(qpos[:3] - PLANK_ORIGIN, u), jnp.dot(qvel[:3], u)
+
+    def _ld_state(self, data, info):
+        c = self.config
+        s, v = self.along_plank(data.qpos, data.qvel, info["theta"])
+        tid = info["texture_id"].astype(jnp.float32)
+        oid = jnp.asarray(float(c.object_id))
+        f, theta = info["friction"], info["theta"]
+        if c.normalize_ld:
+            tid, oid = tid / 6.0, oid / 6.0
+            f = jnp.clip((f - 0.1) / 0.4, 0.0, 1.0)
+            theta = jnp.clip((theta - 0.25) / 0.25, 0.0, 1.0)
+            s = jnp.clip(s / 1.27, 0.0, 1.0)
+            v = jnp.clip(v / 3.1, -1.0, 1.0)
+        parts = [tid, oid] + ([f] if c.ld_friction else []) + [theta, s, v]
+        return jnp.stack(parts).astype(jnp.float32)
+
+    def _reward_done(self, prev, data, action, info):
+        x, y = data.qpos[0], data.qpos[1]
+        terminated = (x >= 1.0) | (x <= 0.0) | (jnp.abs(y) >= 0.1)
+        return 1.0 - jnp.abs(x - 0.5), terminated, {}
+
+
+def _downhill(theta):
+    return jnp.stack([jnp.cos(theta), jnp.zeros_like(theta), -jnp.sin(theta)])
+
+
+def _normal(theta):
+    return jnp.stack([jnp.sin(theta), jnp.zeros_like(theta), jnp.cos(theta)])
+
+
+def _quat_y(angle):
+    """(w, x, y, z) quaternion of a rotation by `angle` about +y."""
+    z = jnp.zeros_like(angle)
+    return jnp.stack([jnp.cos(angle / 2), z, jnp.sin(angle / 2), z])

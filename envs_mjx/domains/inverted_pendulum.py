@@ -1,0 +1,60 @@
+"""InvertedPendulum (suite_reference.md §2): balance a capsule pole on a cart.
+
+Action a in [-1, 1]: force 100 N * clip(a). LD state: [x, x_dot, cos theta, sin theta,
+theta_dot]. Done when |theta| > 0.2 rad; reward 1 per step (times reward_scale). Reset:
+theta ~U(+-0.1), everything else 0. Multicolor: cart = base colour, pole = pole colour.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+
+from envs_mjx.base import BASE, COLOUR_SCHEMES, POLE, Env, EnvConfig, geom_ids
+from envs_mjx.domains._assets import asset
+
+
+@dataclasses.dataclass(frozen=True)
+class InvertedPendulumConfig(EnvConfig):
+    episode_length: int | None = 1000
+    reward_scale: float = 1.0 / 1000
+    n_frames: int = 1
+    multicolor: bool = False
+    reset_noise: float = 0.1
+    theta_threshold: float = 0.2
+
+
+def default_config() -> InvertedPendulumConfig:
+    return InvertedPendulumConfig()
+
+
+class InvertedPendulum(Env):
+    """Cart + capsule pole at density 1000 (about 15.5 kg), 100 N slider motor."""
+
+    def __init__(self, config: InvertedPendulumConfig | None = None, pixels_fn=None):
+        config = config or default_config()
+        mj_model = mujoco.MjModel.from_xml_path(asset("inverted_pendulum.xml"))
+        self._slots = [geom_ids(mj_model, ["cart"]), geom_ids(mj_model, ["pole"])]
+        names = ("x", "x_dot", "cos_theta", "sin_theta", "theta_dot")
+        super().__init__(config, mj_model, names, pixels_fn)
+
+    def _sample_reset(self, rng):
+        k_theta, k_colour = jax.random.split(rng)
+        noise = self.config.reset_noise
+        theta = jax.random.uniform(k_theta, (), minval=-noise, maxval=noise)
+        qpos = jnp.stack([jnp.zeros(()), theta])
+        scheme = jnp.asarray(COLOUR_SCHEMES)[jax.random.randint(k_colour, (), 0, 4)]
+        rgba = self._rgba_with_scheme(
+            self._slots, jnp.stack([scheme[BASE], scheme[POLE]]), self.config.multicolor
+        )
+        return qpos, jnp.zeros(2), {"geom_rgba": rgba}
+
+    def _ld_state(self, data, info):
+        x, theta = data.qpos[0], data.qpos[1]
+        return jnp.stack([x, data.qvel[0], jnp.cos(theta), jnp.sin(theta), data.qvel[1]])
+
+    def _reward_done(self, prev, data, action, info):
+        return jnp.ones(()), jnp.abs(data.qpos[1]) > self.config.theta_threshold, {}

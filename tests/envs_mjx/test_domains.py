@@ -1,0 +1,360 @@
+"""envs_mjx domains: a contract sweep over every env, and physics checks against independent
+references (closed forms, C MuJoCo). Each env is compiled once (reset + a 200-step rollout) and
+shared by the tests below through module-level caches; physics checks reuse those programs by
+editing the state they start from."""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from brax.envs.wrappers.training import AutoResetWrapper, EpisodeWrapper, VmapWrapper
+
+import envs_mjx
+from envs_mjx.base import PixelsUnavailableWarning
+
+B, T = 4, 200
+# Tests run a few hundred steps, so LLVM's backend optimizations cost far more (compile time on
+# 2 CPU cores) than they save; this roughly halves each MJX compile. Applied per jit, not globally.
+FAST_COMPILE = {"xla_backend_optimization_level": 0}
+
+
+class Harness:
+    """One env with a jitted batched reset and a jitted batched T-step rollout."""
+
+    def __init__(self, name):
+        self.env = envs_mjx.make(name, pixels="off")
+        env = self.env
+        self.reset = jax.jit(jax.vmap(env.reset), compiler_options=FAST_COMPILE)
+
+        def rollout(state, actions):
+            def body(s, a):
+                s = env.step(s, a)
+                d = s.pipeline_state
+                rec = {
+                    "ld_state": s.ld_state,
+                    "obs": s.obs,
+                    "reward": s.reward,
+                    "done": s.done,
+                    "truncation": s.info["truncation"],
+                    "qpos": d.qpos,
+                    "qvel": d.qvel,
+                    "ctrl": d.ctrl,
+                    "xfrc_applied": d.xfrc_applied,
+                    "nonfinite": s.metrics["nonfinite_action"],
+                }
+                return s, rec
+
+            return jax.lax.scan(body, state, actions)
+
+        self.rollout = jax.jit(
+            jax.vmap(rollout, in_axes=(0, 1), out_axes=(0, 1)), compiler_options=FAST_COMPILE
+        )
+
+    @functools.cached_property
+    def random_run(self):
+        """(initial state, actions [T, B, A], final state, trajectory [T, B, ...])."""
+        state0 = self.reset(jax.random.split(jax.random.key(0), B))
+        shape = (T, B, self.env.action_size)
+        actions = jax.random.uniform(jax.random.key(1), shape, minval=-1.0, maxval=1.0)
+        final, traj = self.rollout(state0, actions)
+        return state0, actions, final, jax.tree.map(np.asarray, traj)
+
+
+@functools.cache
+def harness(name) -> Harness:
+    return Harness(name)
+
+
+def _row(tree, i):
+    return jax.tree.map(lambda x: x[i], tree)
+
+
+# -- registry -------------------------------------------------------------------------------------
+
+
+def test_registry_names_and_overrides():
+    assert set(envs_mjx.ALL_ENVS) == {
+        "CartPole",
+        "InvertedPendulum",
+        "HalfCheetah",
+        "Ant",
+        "GeomOnIncline",
+    }
+    with pytest.raises(ValueError, match=r"valid names.*CartPole"):
+        envs_mjx.make("NoSuchEnv")
+    with pytest.raises(ValueError, match="unknown config overrides \\['bogus'\\]"):
+        envs_mjx.make("CartPole", bogus=1)
+    env = envs_mjx.make("CartPole", episode_length=7, pixels="off")
+    assert env.config.episode_length == 7
+    assert envs_mjx.default_config("GeomOnIncline").n_frames == 8
+
+
+def test_pixels_placeholder_is_marked(monkeypatch):
+    monkeypatch.setattr(envs_mjx.base, "renderer_available", lambda: False)
+    with pytest.warns(PixelsUnavailableWarning, match="ZERO"):
+        env = envs_mjx.make("CartPole")
+    assert not env.pixels_valid
+    with pytest.raises(ImportError, match="required"):
+        envs_mjx.make("CartPole", pixels="required")
+    custom = envs_mjx.make(
+        "CartPole", pixels_fn=lambda d, info: jnp.full((64, 64, 3), 7, jnp.uint8)
+    )
+    assert custom.pixels_valid
+
+
+def test_multicolor_draws_the_four_schemes():
+    env = envs_mjx.make("HalfCheetah", multicolor=True, pixels="off")
+    torso = mujoco.mj_name2id(env.mj_model, mujoco.mjtObj.mjOBJ_GEOM, "torso")
+    seen = set()
+    for k in range(24):
+        _, _, info = env._sample_reset(jax.random.key(k))  # no physics: cheap
+        seen.add(tuple(np.round(np.asarray(info["geom_rgba"][torso, :3]), 2)))
+    # The torso takes the "pole" slot: (0,0,1), (0,0,0), (0,1,0), (1,0,0).
+    assert seen == {(0, 0, 1), (0, 0, 0), (0, 1, 0), (1, 0, 0)}
+    plain = envs_mjx.make("HalfCheetah", pixels="off")
+    _, _, info = plain._sample_reset(jax.random.key(0))
+    np.testing.assert_array_equal(info["geom_rgba"], plain.mj_model.geom_rgba)
+
+
+# -- contract sweep ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", envs_mjx.ALL_ENVS)
+def test_sweep_reset_and_random_rollout(name):
+    h = harness(name)
+    env = h.env
+    state0, _, final, traj = h.random_run
+    d = len(env.ld_state_names)
+    assert d == env.observation_size
+    for s in (state0, final):
+        assert s.ld_state.shape == (B, d) and s.ld_state.dtype == jnp.float32
+        assert s.obs.shape == (B, d)
+        assert s.pixels.shape == (B, 64, 64, 3) and s.pixels.dtype == jnp.uint8
+        assert s.reward.shape == (B,) and s.done.shape == (B,)
+        assert s.info["truncation"].shape == (B,)
+        assert s.info["geom_rgba"].shape == (B, env.mj_model.ngeom, 4)
+    assert traj["ld_state"].shape == (T, B, d)
+    for key in ("ld_state", "reward", "qpos", "qvel"):
+        assert np.isfinite(traj[key]).all(), key
+    assert np.isin(traj["done"], [0.0, 1.0]).all()
+    assert not traj["nonfinite"].any()
+    # The state moves: random actions change the LD state.
+    assert np.abs(traj["ld_state"][-1] - np.asarray(state0.ld_state)).max() > 1e-3
+
+
+# -- physics against independent references -------------------------------------------------------
+
+
+def test_incline_slide_matches_closed_form():
+    """Zero action, contact friction mu = 0.01 (the smallest the env allows; exact zero makes MJX
+    return NaN): s(t) = s0 + g (sin(theta) - mu cos(theta)) t^2 / 2 along the plank, the
+    analytic block-on-incline law (without friction this is g sin(theta) t^2 / 2).
+
+    Tolerance: 3% of the travelled distance + 2 mm (semi-implicit Euler over n substeps
+    overshoots by 1/n, 2.5% at the first compared step; the soft contact's sink is normal to the
+    plank and does not move s)."""
+    h = harness("GeomOnIncline")
+    env = h.env
+    state = h.reset(jax.random.split(jax.random.key(3), B))
+    theta = jnp.array([0.25, 0.33, 0.41, 0.50])
+    s0 = 0.1
+    u = jnp.stack([jnp.cos(theta), 0 * theta, -jnp.sin(theta)], 1)
+    n = jnp.stack([jnp.sin(theta), 0 * theta, jnp.cos(theta)], 1)
+    pos = jnp.array([0.0, 0.0, 0.55]) + s0 * u + env._half_height * n
+    quat = jnp.stack(
+        [
+            jnp.cos((theta + jnp.pi / 2) / 2),
+            0 * theta,
+            jnp.sin((theta + jnp.pi / 2) / 2),
+            0 * theta,
+        ],
+        1,
+    )
+    data = state.pipeline_state.replace(
+        qpos=jnp.concatenate([pos, quat], 1), qvel=jnp.zeros((B, 6))
+    )
+    info = {**state.info, "theta": theta, "friction": jnp.full(B, 0.1)}  # mu = f^2 = 0.01
+    state = state.replace(pipeline_state=data, info=info)
+    _, traj = h.rollout(state, jnp.zeros((T, B, 1)))
+    k = np.arange(5, 16)  # steps 5..15: t = 0.2 .. 0.6 s
+    t = (k + 1) * env.dt
+    s, v = jax.vmap(jax.vmap(env.along_plank, (0, 0, 0)), (0, 0, None))(
+        traj["qpos"][k], traj["qvel"][k], theta
+    )
+    th = np.asarray(theta)
+    g = 9.81 * (np.sin(th) - 0.01 * np.cos(th))
+    expected = s0 + 0.5 * g[None] * t[:, None] ** 2
+    travel = expected - s0
+    assert np.all(np.abs(np.asarray(s) - expected) <= 0.03 * travel + 2e-3), (s, expected)
+    np.testing.assert_allclose(np.asarray(v), g[None] * t[:, None], rtol=0.04)
+    # It stays on the plank's centre line.
+    assert np.abs(traj["qpos"][k, :, 1]).max() < 1e-3
+
+
+def test_cartpole_pole_falls_the_way_it_leans():
+    """Unforced cart-pole from rest: theta(t) = theta0 cosh(w t) (linearized), with
+    w^2 = m g l (M + m) / ((I + m l^2)(M + m) - m^2 l^2) for M = 1, m = 0.1, l = 0.5, I = 1.
+    Tolerance 2% over 1 s at |theta0| <= 0.1 (nonlinearity and Euler error are far smaller)."""
+    h = harness("CartPole")
+    state = h.reset(jax.random.split(jax.random.key(4), B))
+    theta0 = jnp.array([0.05, -0.05, 0.1, -0.1])
+    data = state.pipeline_state.replace(
+        qpos=jnp.stack([jnp.zeros(B), theta0], 1), qvel=jnp.zeros((B, 2))
+    )
+    _, traj = h.rollout(state.replace(pipeline_state=data), jnp.zeros((T, B, 1)))
+    theta = traj["qpos"][:, :, 1]
+    assert np.all(np.sign(theta[-1]) == np.sign(theta0))
+    assert np.all(np.abs(theta[-1]) > np.abs(np.asarray(theta0)))
+    M, m, l, inertia, g = 1.0, 0.1, 0.5, 1.0, 9.8
+    w = np.sqrt(m * g * l * (M + m) / ((inertia + m * l**2) * (M + m) - (m * l) ** 2))
+    t = np.arange(1, 51) * 0.02
+    expected = np.asarray(theta0)[None] * np.cosh(w * t)[:, None]
+    np.testing.assert_allclose(theta[:50], expected, rtol=0.02)
+
+
+@pytest.mark.parametrize("name,min_feet", [("Ant", 2), ("HalfCheetah", 1)])
+def test_locomotion_foot_contacts(name, min_feet):
+    """Feet start in the air (flags 0); after settling under zero action the robot stands on
+    the floor with feet flagged, and every flag agrees with C MuJoCo's geom distance to the floor
+    at the final state (within 1 mm: flags come from the last substep's collision pass)."""
+    h = harness(name)
+    env = h.env
+    state0 = h.reset(jax.random.split(jax.random.key(5), B))
+    nf = len(env.feet)
+    assert not np.asarray(state0.ld_state[:, -nf:]).any()
+    final, _ = h.rollout(state0, jnp.zeros((T, B, env.action_size)))
+    flags = np.asarray(final.ld_state[:, -nf:])
+    assert (flags.sum(1) >= min_feet).all(), flags
+    m = env.mj_model
+    d = mujoco.MjData(m)
+    floor = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+    for i in range(B):
+        d.qpos[:], d.qvel[:] = np.asarray(final.pipeline_state.qpos[i]), 0
+        mujoco.mj_forward(m, d)
+        for j, foot in enumerate(env.feet):
+            gid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, foot)
+            dist = mujoco.mj_geomDistance(m, d, floor, gid, 1.0, None)
+            if flags[i, j]:
+                assert dist < 1e-3, (i, foot, dist)
+            else:
+                assert dist > -1e-3, (i, foot, dist)
+
+
+# Max |qpos| / |qvel| difference after K env steps of random actions, MJX (float32) vs C MuJoCo
+# (float64) mj_step from the same state with the same ctrl / xfrc_applied.
+K = 5
+C_TOL = {
+    "CartPole": (1e-6, 1e-5),
+    "InvertedPendulum": (1e-6, 1e-5),
+    "HalfCheetah": (1e-4, 1e-3),
+    "Ant": (1e-4, 1e-3),
+    "GeomOnIncline": (1e-3, 2e-2),
+}
+
+
+_INCLINE_XFAIL = pytest.mark.xfail(
+    strict=True,
+    reason="open: MJX and C MuJoCo disagree on the incline's sliding box-plane contact (measured "
+    "max |dqpos| 0.14 after 5 random-force steps; ~2 mm after 4 zero-action steps)",
+)
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        pytest.param(n, marks=_INCLINE_XFAIL) if n == "GeomOnIncline" else n
+        for n in envs_mjx.ALL_ENVS
+    ],
+)
+def test_mjx_step_matches_c_mujoco(name):
+    h = harness(name)
+    env = h.env
+    state0, _, _, traj = h.random_run
+    qtol, vtol = C_TOL[name]
+    errs = []
+    for i in range(2):
+        info = jax.tree.map(np.asarray, _row(state0.info, i))
+        m = env.mj_model_for(info)
+        d = mujoco.MjData(m)
+        d.qpos[:] = np.asarray(state0.pipeline_state.qpos[i])
+        d.qvel[:] = np.asarray(state0.pipeline_state.qvel[i])
+        for k in range(K):
+            d.ctrl[:] = traj["ctrl"][k, i]
+            d.xfrc_applied[:] = traj["xfrc_applied"][k, i]
+            mujoco.mj_step(m, d, env.n_frames)
+            errs.append(
+                (
+                    np.abs(d.qpos - traj["qpos"][k, i]).max(),
+                    np.abs(d.qvel - traj["qvel"][k, i]).max(),
+                )
+            )
+    qerr, verr = np.max(errs, axis=0)
+    print(f"{name}: max |dqpos| {qerr:.2e}, max |dqvel| {verr:.2e} over {K} steps")
+    assert qerr < qtol and verr < vtol, (qerr, verr)
+
+
+# -- Brax interoperability ------------------------------------------------------------------------
+
+
+def test_brax_training_wrappers_drive_the_env():
+    env = envs_mjx.make("CartPole", episode_length=None, pixels="off")
+    wrapped = VmapWrapper(AutoResetWrapper(EpisodeWrapper(env, episode_length=10, action_repeat=1)))
+    state = jax.jit(wrapped.reset, compiler_options=FAST_COMPILE)(
+        jax.random.split(jax.random.key(6), 2)
+    )
+
+    @functools.partial(jax.jit, compiler_options=FAST_COMPILE)
+    def run(state):
+        def body(s, _):
+            s = wrapped.step(s, jnp.full((2, 1), 1.0))
+            return s, (s.done, s.info["truncation"], s.info["steps"], s.pipeline_state.qpos)
+
+        return jax.lax.scan(body, state, None, length=25)
+
+    final, (done, trunc, steps, qpos) = run(state)
+    assert isinstance(final, envs_mjx.State) and final.pixels.shape == (2, 64, 64, 3)
+    # A +10 N push for 10 steps drives the cart off; the wrapper truncates at 10 unless the
+    # pole or cart terminated first, then resets to the first state.
+    assert done.any(axis=0).all()
+    first = np.asarray(state.pipeline_state.qpos)
+    t_done = np.argmax(np.asarray(done), axis=0)
+    for i in range(2):
+        np.testing.assert_allclose(np.asarray(qpos)[t_done[i], i], first[i], atol=1e-6)
+    assert np.asarray(steps).max() <= 10
+    assert set(np.unique(np.asarray(trunc))) <= {0.0, 1.0}
+
+
+# -- bad input ------------------------------------------------------------------------------------
+
+
+def test_bad_action_shape_and_dtype_raise_outside_jit():
+    h = harness("CartPole")
+    state0, *_ = h.random_run
+    one = _row(state0, 0)
+    with pytest.raises(ValueError, match="shape \\(1,\\)"):
+        h.env.step(one, jnp.zeros((2,)))
+    with pytest.raises(ValueError, match="vmap"):
+        h.env.step(one, jnp.zeros((3, 1)))
+    with pytest.raises(TypeError, match="floating"):
+        h.env.step(one, jnp.zeros((1,), jnp.int32))
+    with pytest.raises(ValueError):
+        jax.jit(h.env.step)(one, jnp.zeros((2,)))
+
+
+def test_nonfinite_action_skips_the_step_and_is_flagged():
+    h = harness("CartPole")
+    state0, actions, _, _ = h.random_run
+    actions = actions.at[3, 1].set(jnp.nan).at[5, 2].set(jnp.inf)
+    _, traj = h.rollout(state0, actions)
+    flagged = traj["nonfinite"]
+    assert flagged[3, 1] == 1 and flagged[5, 2] == 1 and flagged.sum() == 2
+    for k, i in ((3, 1), (5, 2)):
+        np.testing.assert_array_equal(traj["qpos"][k, i], traj["qpos"][k - 1, i])
+        np.testing.assert_array_equal(traj["ld_state"][k, i], traj["ld_state"][k - 1, i])
+        assert traj["reward"][k, i] == 0
+    # The next finite action steps again from the kept state.
+    assert np.abs(traj["qpos"][4, 1] - traj["qpos"][3, 1]).max() > 0
+    assert np.isfinite(traj["qpos"]).all()

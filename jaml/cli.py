@@ -46,7 +46,7 @@ def _add_config_options(parser: argparse.ArgumentParser) -> None:
             dest=field.name,
             type=_field_type(field),
             default=None,
-            help=f"{described} (default: {field.default})",
+            help=f"{described} (default: {field.default})".replace("%", "%%"),
         )
 
 

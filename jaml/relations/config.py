@@ -36,8 +36,9 @@ class Config:
       separation_ratio: stop when mean |g| off-manifold > ratio × on-manifold (App. B.3.1: 5).
       separation_top_fraction: the on-manifold statistic is the mean of the largest fraction of
         |g| values (reference: 0.2, stricter than the paper's plain mean, which is 1.0).
-      stop_patience: the stopping rule must hold on this many consecutive steps (fresh batches
-        each) before a relation is done; 1 stops on the first batch that passes (the reference).
+      stop_patience: a relation is done once the stopping rule holds on ≥ 90% of recent steps
+        (fresh batches each), averaged over about this many steps; 1 stops on the first batch
+        that passes (the reference).
       min_angle: transversality mode also waits for the mean angle between ∇g_k and earlier
         gradients to exceed this (radians; reference 0.4·π/2).
       tolerance: `holds` accepts τ when every |g_k(τ)| < tolerance × its recorded on-manifold mean.

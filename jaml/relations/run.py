@@ -91,6 +91,23 @@ class _Recorder:
         self.tb.close()
 
 
+def _restored_summary(rs: RelationSet, k: int) -> dict:
+    """A summary entry rebuilt from a checkpoint whose summary.json was lost."""
+    on, off = float(rs.on_means[k]), float(rs.off_means[k])
+    return {
+        "index": k + 1,
+        "width": rs.widths[k],
+        "steps": 0,
+        "seconds": 0.0,
+        "status": "restored",
+        "on_mean": on,
+        "off_mean": off,
+        "syzygies_found": rs.syzygies[k],
+        "syzygy_rounds": [],
+        "ratio": off / max(on, 1e-30),
+    }
+
+
 def run(source_name: str, cfg: Config, out, *, progress: bool = True, figures: bool = True) -> dict:
     """Learn relations on a preset source into the run directory `out`; returns the summary."""
     source = sources.make(source_name)
@@ -111,7 +128,12 @@ def run(source_name: str, cfg: Config, out, *, progress: bool = True, figures: b
             )
         if ckpt_path.exists():
             start = checkpoint.load(ckpt_path)
-            done = json.loads(summary_path.read_text())["relations"][: start.num_relations]
+            recorded = []
+            if summary_path.exists():
+                recorded = json.loads(summary_path.read_text())["relations"]
+            done = recorded[: start.num_relations] + [
+                _restored_summary(start, k) for k in range(len(recorded), start.num_relations)
+            ]
             log.info("resuming %s after %d relations", out, start.num_relations)
     out.mkdir(parents=True, exist_ok=True)
     _write_json(config_path, resolved)
@@ -134,9 +156,12 @@ def run(source_name: str, cfg: Config, out, *, progress: bool = True, figures: b
 
     def on_relation(rs: RelationSet, summary: RelationSummary):
         recorder.relation_done(summary.steps)
-        checkpoint.save(rs, ckpt_path)  # atomic: Orbax renames a finished temporary directory
         summaries.append(dataclasses.asdict(summary) | {"ratio": summary.ratio})
+        # Summary first, then the checkpoint (atomic: Orbax renames a finished temporary
+        # directory): a run killed in between resumes from the checkpoint it has, and the
+        # summary is cut back to it.
         write_summary(rs, "running")
+        checkpoint.save(rs, ckpt_path)
 
     try:
         rs = fit(source, cfg, start=start, callback=recorder, on_relation=on_relation)

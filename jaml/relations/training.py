@@ -285,6 +285,8 @@ def record_means(cfg, batches: Batches, g: Callable, key):
 
 def _pretrain(cfg, batches: Batches, module, params, prior: Callable, key):
     """Supervised warm start: regress g to tanh(prior(τ)) on on- and off-manifold rows (L1)."""
+    # Plain supervised regression tolerates (and needs, within pretrain_steps) a larger step
+    # than the relation losses, whose input-gradient terms are sensitive to it.
     optimizer = optax.adam(cfg.learning_rate * 10)
 
     def objective(p, tau):

@@ -1,0 +1,112 @@
+"""The shared networks (reference §4): conv encoder, deconv decoder, MLP/RNN trunks, Gaussian heads.
+
+Shapes: N frames (B·T flattened), B batch, T time, F conv feature, Z latent.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+# PyTorch BatchNorm2d defaults (momentum 0.1 on the new statistic, eps 1e-5), as in the reference.
+_BN = {"momentum": 0.9, "epsilon": 1e-5}
+# PyTorch's k4 s2 p1 convolution halves the size; its transpose doubles it. For a transposed
+# convolution lax pads the dilated input by k − 1 − p = 2 on each side.
+_HALVE = ((1, 1), (1, 1))
+_DOUBLE = ((2, 2), (2, 2))
+
+
+class ConvEncoder(nn.Module):
+    """[N, 64, 64, C] float → [N, F]: conv(k4 s2 p1) → BN → ELU per filter, then k4 s1 p0 to 1×1.
+
+    No biases (each conv feeds a BatchNorm). Default filters 64, 128, 128, 256 → F = 128: the
+    reference code's sizes, not the paper's "[64, 64, 128, 256]".
+    """
+
+    filters: Sequence[int] = (64, 128, 128, 256)
+    features: int = 128
+
+    @nn.compact
+    def __call__(self, x: jax.Array, train: bool) -> jax.Array:
+        if x.shape[-3:-1] != (64, 64):
+            raise ValueError(f"ConvEncoder expects 64×64 frames, got {tuple(x.shape)}")
+        for i, f in enumerate(self.filters):
+            x = nn.Conv(f, (4, 4), strides=2, padding=_HALVE, use_bias=False, name=f"conv{i}")(x)
+            x = nn.elu(nn.BatchNorm(use_running_average=not train, name=f"bn{i}", **_BN)(x))
+        x = nn.Conv(self.features, (4, 4), padding="VALID", use_bias=False, name="conv_out")(x)
+        x = nn.elu(nn.BatchNorm(use_running_average=not train, name="bn_out", **_BN)(x))
+        return x.reshape(x.shape[0], self.features)
+
+
+class ConvDecoder(nn.Module):
+    """[N, Z] → [N, 64, 64, C] in (0, 1): the latent as a 1×1 image, transposed convolutions up.
+
+    1×1 → 4 (k4 s1 p0) → 8 → 16, each deconv → ELU → BN; → 32 (+ ELU); → 64 (+ Sigmoid): the
+    mean of the unit-variance Gaussian likelihood.
+    """
+
+    filters: Sequence[int] = (256, 128, 128, 64)
+    channels: int = 3
+
+    @nn.compact
+    def __call__(self, z: jax.Array, train: bool) -> jax.Array:
+        x = z.reshape(z.shape[0], 1, 1, z.shape[-1])
+        *normed, last = self.filters
+        for i, f in enumerate(normed):
+            pad = "VALID" if i == 0 else _DOUBLE
+            stride = 1 if i == 0 else 2
+            x = nn.elu(nn.ConvTranspose(f, (4, 4), strides=(stride, stride), padding=pad,
+                                        name=f"deconv{i}")(x))
+            x = nn.BatchNorm(use_running_average=not train, name=f"bn{i}", **_BN)(x)
+        x = nn.elu(nn.ConvTranspose(last, (4, 4), strides=(2, 2), padding=_DOUBLE,
+                                    name=f"deconv{len(normed)}")(x))
+        x = nn.ConvTranspose(self.channels, (4, 4), strides=(2, 2), padding=_DOUBLE,
+                             name="deconv_out")(x)
+        return nn.sigmoid(x)
+
+
+class MLP(nn.Module):
+    """[..., I] → [..., widths[-1]]: Dense + ELU per width (the reference's 1024 → 512 trunk)."""
+
+    widths: Sequence[int] = (1024, 512)
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for i, w in enumerate(self.widths):
+            x = nn.elu(nn.Dense(w, name=f"dense{i}")(x))
+        return x
+
+
+class RNNEncoder(nn.Module):
+    """[B, T, I] → [B, T, H]: bidirectional LSTM(H) then a unidirectional tanh RNN(H) (SVAE, DSA)."""
+
+    hidden: int = 512
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        x = nn.Bidirectional(nn.RNN(nn.OptimizedLSTMCell(self.hidden)),
+                             nn.RNN(nn.OptimizedLSTMCell(self.hidden)), name="bilstm")(x)
+        return nn.RNN(nn.SimpleCell(self.hidden), name="rnn")(x)
+
+
+class GaussianHead(nn.Module):
+    """[..., I] → (μ, logvar) each [..., size]; logvar is clipped to ±logvar_limit (Hardtanh).
+
+    mu_activation: "none", "elu" (the reference's EncoderDynamic quirk when mu_nl is set) or
+    "sigmoid" (DSA's static posterior and dynamic prior).
+    """
+
+    size: int
+    mu_activation: str = "none"
+    logvar_limit: float = 6.0
+
+    @nn.compact
+    def __call__(self, h: jax.Array) -> tuple[jax.Array, jax.Array]:
+        act = {"none": lambda v: v, "elu": nn.elu, "sigmoid": nn.sigmoid}[self.mu_activation]
+        mu = act(nn.Dense(self.size, name="mu")(h))
+        logvar = jnp.clip(nn.Dense(self.size, name="logvar")(h), -self.logvar_limit,
+                          self.logvar_limit)
+        return mu, logvar

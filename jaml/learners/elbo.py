@@ -10,7 +10,7 @@ import jax.numpy as jnp
 
 
 def frames_to_float(frames: jax.Array) -> jax.Array:
-    """uint8 [..., H, W, C] in 0..255 → float32 in [0, 1]; floating frames pass through as float32."""
+    """uint8 [..., H, W, C] in 0..255 → float32 in [0, 1]; floating frames pass as float32."""
     if frames.dtype == jnp.uint8:
         return frames.astype(jnp.float32) / 255.0
     if not jnp.issubdtype(frames.dtype, jnp.floating):
@@ -37,10 +37,8 @@ def gaussian_kl(mu_q, logvar_q, mu_p, logvar_p) -> jax.Array:
 
     ½ Σ_Z (logvar_p − logvar_q + (σ_q² + (μ_q − μ_p)²) / σ_p² − 1); used for DSA's learned priors.
     """
-    return 0.5 * jnp.sum(
-        logvar_p - logvar_q + (jnp.exp(logvar_q) + jnp.square(mu_q - mu_p)) * jnp.exp(-logvar_p) - 1.0,
-        axis=-1,
-    )
+    ratio = (jnp.exp(logvar_q) + jnp.square(mu_q - mu_p)) * jnp.exp(-logvar_p)
+    return 0.5 * jnp.sum(logvar_p - logvar_q + ratio - 1.0, axis=-1)
 
 
 def gaussian_loglik(x: jax.Array, x_hat: jax.Array) -> jax.Array:

@@ -121,7 +121,7 @@ class Learner:
         return self.config.latent_size
 
     def check_batch(self, frames, actions) -> tuple[jax.Array, jax.Array]:
-        """uint8 [B, T, 64, 64, 3] (or float in [0, 1]) and [B, T, A] → float arrays; raise if bad."""
+        """uint8 [B, T, 64, 64, 3] (or float in [0, 1]), [B, T, A] → float arrays; raise if bad."""
         frames, actions = jnp.asarray(frames), jnp.asarray(actions)
         if frames.ndim != 5 or tuple(frames.shape[2:]) != FRAME_SHAPE:
             raise ValueError(f"{self.name}: frames must be [B, T, 64, 64, 3], got "
@@ -134,16 +134,16 @@ class Learner:
                              f"{frames.shape[1]}, A] to match frames, got {tuple(actions.shape)}")
         return elbo.frames_to_float(frames), actions.astype(jnp.float32)
 
+    def module_init(self, key: jax.Array, x: jax.Array, a: jax.Array) -> dict[str, Any]:
+        """Flax variables from checked float inputs (traceable; `init` jits it)."""
+        params_key, sample_key = jax.random.split(key)
+        return dict(self.module.init({"params": params_key}, x, a, sample_key, train=True))
+
     def init(self, key: jax.Array, frames, actions) -> dict[str, Any]:
         """Flax variables for batches shaped like (frames, actions)."""
         x, a = self.check_batch(frames, actions)
-
-        def init(key, x, a):
-            params_key, sample_key = jax.random.split(key)
-            return self.module.init({"params": params_key}, x, a, sample_key, train=True)
-
         # Jitted: op-by-op initialisation of the conv stacks is several times slower on CPU.
-        return dict(jax.jit(init)(key, x, a))
+        return jax.jit(self.module_init)(key, x, a)
 
     def loss_and_stats(self, variables, key, frames, actions,
                        latent_penalty: LatentPenalty | None = None):
@@ -181,7 +181,7 @@ class Learner:
         return loss, metrics
 
     def encode(self, variables, frames, actions) -> jax.Array:
-        """[B, Z]: the posterior mean (pre-sigmoid), flattened over steps; BatchNorm in eval mode."""
+        """[B, Z]: the posterior mean (pre-sigmoid) flattened over steps; BatchNorm in eval mode."""
         x, a = self.check_batch(frames, actions)
         return self.module.apply(variables, x, a, method="encode")
 

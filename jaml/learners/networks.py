@@ -5,6 +5,7 @@ Shapes: N frames (B·T flattened), B batch, T time, F conv feature, Z latent.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import flax.linen as nn
@@ -80,16 +81,38 @@ class MLP(nn.Module):
         return x
 
 
+def torch_rnn_init(hidden: int):
+    """U(±1/√hidden), PyTorch's LSTM/RNN weight init (the reference's framework).
+
+    Also cheaper than Flax's orthogonal recurrent init: no QR to compile per cell.
+    """
+    bound = 1.0 / math.sqrt(hidden)
+
+    def init(key, shape, dtype=jnp.float32):
+        return jax.random.uniform(key, shape, dtype, -bound, bound)
+
+    return init
+
+
+def lstm(hidden: int, name: str | None = None) -> nn.RNN:
+    """[B, T, I] → [B, T, hidden]: an LSTM over time with PyTorch-style init, zero initial state."""
+    init = torch_rnn_init(hidden)
+    return nn.RNN(nn.OptimizedLSTMCell(hidden, kernel_init=init, recurrent_kernel_init=init,
+                                       bias_init=init), name=name)
+
+
 class RNNEncoder(nn.Module):
-    """[B, T, I] → [B, T, H]: bidirectional LSTM(H) then a unidirectional tanh RNN(H) (SVAE, DSA)."""
+    """[B, T, I] → [B, T, H]: bidirectional LSTM(H), then a one-way tanh RNN(H) (SVAE, DSA)."""
 
     hidden: int = 512
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        x = nn.Bidirectional(nn.RNN(nn.OptimizedLSTMCell(self.hidden)),
-                             nn.RNN(nn.OptimizedLSTMCell(self.hidden)), name="bilstm")(x)
-        return nn.RNN(nn.SimpleCell(self.hidden), name="rnn")(x)
+        x = nn.Bidirectional(lstm(self.hidden), lstm(self.hidden), name="bilstm")(x)
+        init = torch_rnn_init(self.hidden)
+        cell = nn.SimpleCell(self.hidden, kernel_init=init, recurrent_kernel_init=init,
+                             bias_init=init)
+        return nn.RNN(cell, name="rnn")(x)
 
 
 class GaussianHead(nn.Module):

@@ -41,12 +41,18 @@ def default_optimizer(learner: Learner) -> optax.GradientTransformation:
 def init_train_state(learner: Learner, optimizer: optax.GradientTransformation, key: jax.Array,
                      batch) -> TrainState:
     """A fresh TrainState for batches shaped like `batch` (frames, actions)."""
-    frames, actions = batch
-    variables = learner.init(key, frames, actions)
-    params = variables["params"]
-    return TrainState(step=jax.numpy.zeros((), jax.numpy.int32), params=params,
-                      batch_stats=variables.get("batch_stats", {}),
-                      opt_state=optimizer.init(params))
+    frames, actions = learner.check_batch(*batch)
+
+    # One jitted program: op-by-op initialisation dispatches (and compiles) per parameter shape.
+    @jax.jit
+    def init(key, frames, actions):
+        variables = learner.module_init(key, frames, actions)
+        params = variables["params"]
+        return TrainState(step=jax.numpy.zeros((), jax.numpy.int32), params=params,
+                          batch_stats=variables.get("batch_stats", {}),
+                          opt_state=optimizer.init(params))
+
+    return init(key, frames, actions)
 
 
 def make_train_step(learner: Learner, optimizer: optax.GradientTransformation,
@@ -70,6 +76,6 @@ def make_train_step(learner: Learner, optimizer: optax.GradientTransformation,
         params = optax.apply_updates(state.params, updates)
         new_state = TrainState(step=state.step + 1, params=params, batch_stats=batch_stats,
                                opt_state=opt_state)
-        return new_state, {**metrics, "grad_norm": optax.global_norm(grads)}
+        return new_state, {**metrics, "grad_norm": optax.tree.norm(grads)}
 
     return step

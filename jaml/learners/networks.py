@@ -11,13 +11,12 @@ from collections.abc import Sequence
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 # PyTorch BatchNorm2d defaults (momentum 0.1 on the new statistic, eps 1e-5), as in the reference.
 _BN = {"momentum": 0.9, "epsilon": 1e-5}
-# PyTorch's k4 s2 p1 convolution halves the size; its transpose doubles it. For a transposed
-# convolution lax pads the dilated input by k − 1 − p = 2 on each side.
+# PyTorch's k4 s2 p1 convolution halves the size.
 _HALVE = ((1, 1), (1, 1))
-_DOUBLE = ((2, 2), (2, 2))
 
 
 class ConvEncoder(nn.Module):
@@ -42,6 +41,44 @@ class ConvEncoder(nn.Module):
         return x.reshape(x.shape[0], self.features)
 
 
+# For a k4 s2 p1 transposed convolution, output 2m + r sums input m − 1 + j times kernel tap
+# _TAPS[r][j] (4 = no tap): out[2m] = x[m−1]·w3 + x[m]·w1, out[2m+1] = x[m]·w2 + x[m+1]·w0.
+_TAPS = np.array([[3, 1, 4], [4, 2, 0]])
+
+
+def upsample2x(x: jax.Array, kernel: jax.Array) -> jax.Array:
+    """[N, H, W, I] → [N, 2H, 2W, O]: PyTorch's ConvTranspose2d(k=4, s=2, p=1), kernel [4, 4, I, O].
+
+    out[s·i − p + k] += x[i]·w[k] per axis, computed as a stride-1 3×3 convolution onto the four
+    output phases followed by depth-to-space. Same result as a transposed convolution, but XLA's
+    CPU backend runs input-dilated convolutions (its transposed-conv lowering and their
+    gradients) on a slow generic path: the decoder's backward pass was ~10× slower that way.
+    """
+    n, h, w, i = x.shape
+    o = kernel.shape[-1]
+    padded = jnp.pad(kernel, ((0, 1), (0, 1), (0, 0), (0, 0)))  # tap index 4 reads zeros
+    taps = _TAPS.T  # [j, r]
+    k3 = padded[taps[:, None, :, None], taps[None, :, None, :]]  # [jh, jw, rh, rw, I, O]
+    k3 = k3.transpose(0, 1, 4, 2, 3, 5).reshape(3, 3, i, 4 * o)
+    y = jax.lax.conv_general_dilated(x, k3, (1, 1), ((1, 1), (1, 1)),
+                                     dimension_numbers=("NHWC", "HWIO", "NHWC"))
+    y = y.reshape(n, h, w, 2, 2, o).transpose(0, 1, 3, 2, 4, 5)
+    return y.reshape(n, 2 * h, 2 * w, o)
+
+
+class Upsample2x(nn.Module):
+    """ConvTranspose2d(k=4, s=2, p=1) with bias, PyTorch semantics; see `upsample2x`."""
+
+    features: int
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        kernel = self.param("kernel", nn.initializers.lecun_normal(),
+                            (4, 4, x.shape[-1], self.features))
+        bias = self.param("bias", nn.initializers.zeros, (self.features,))
+        return upsample2x(x, kernel) + bias
+
+
 class ConvDecoder(nn.Module):
     """[N, Z] → [N, 64, 64, C] in (0, 1): the latent as a 1×1 image, transposed convolutions up.
 
@@ -54,19 +91,16 @@ class ConvDecoder(nn.Module):
 
     @nn.compact
     def __call__(self, z: jax.Array, train: bool) -> jax.Array:
-        x = z.reshape(z.shape[0], 1, 1, z.shape[-1])
-        *normed, last = self.filters
-        for i, f in enumerate(normed):
-            pad = "VALID" if i == 0 else _DOUBLE
-            stride = 1 if i == 0 else 2
-            x = nn.elu(nn.ConvTranspose(f, (4, 4), strides=(stride, stride), padding=pad,
-                                        name=f"deconv{i}")(x))
+        first, *middle, last = self.filters
+        # k4 s1 p0 on a 1×1 input is a dense layer onto a 4×4 map (no input dilation).
+        x = nn.ConvTranspose(first, (4, 4), padding="VALID", name="deconv0")(
+            z.reshape(z.shape[0], 1, 1, z.shape[-1]))
+        x = nn.BatchNorm(use_running_average=not train, name="bn0", **_BN)(nn.elu(x))
+        for i, f in enumerate(middle, start=1):
+            x = nn.elu(Upsample2x(f, name=f"deconv{i}")(x))
             x = nn.BatchNorm(use_running_average=not train, name=f"bn{i}", **_BN)(x)
-        x = nn.elu(nn.ConvTranspose(last, (4, 4), strides=(2, 2), padding=_DOUBLE,
-                                    name=f"deconv{len(normed)}")(x))
-        x = nn.ConvTranspose(self.channels, (4, 4), strides=(2, 2), padding=_DOUBLE,
-                             name="deconv_out")(x)
-        return nn.sigmoid(x)
+        x = nn.elu(Upsample2x(last, name=f"deconv{len(middle) + 1}")(x))
+        return nn.sigmoid(Upsample2x(self.channels, name="deconv_out")(x))
 
 
 class MLP(nn.Module):

@@ -59,6 +59,9 @@ def make(name: str, config: LearnerConfig | None = None, **overrides) -> Learner
         config = default_config(name, **overrides)
     elif name not in _REGISTRY:
         raise ValueError(f"unknown learner {name!r}; valid names: {', '.join(ALL_LEARNERS)}")
+    elif not isinstance(config, _REGISTRY[name][0]):
+        raise ValueError(f"{name} needs a {_REGISTRY[name][0].__name__}, got "
+                         f"{type(config).__name__}")
     elif overrides:
         config = config.replace(**overrides)
     return _REGISTRY[name][2](name, config)

@@ -1,0 +1,143 @@
+"""Training throughput (frames/s) of the VAE train step, jaml vs a PyTorch port of the same net.
+
+    python benchmarks/learner_throughput.py [--batches 64 256] [--reps 5] [--steps 3]
+
+Compile time is reported apart; steady state is the median over `reps` blocked repetitions of
+`steps` train steps each. If torch imports, the reference's network (suite_reference.md §4),
+written here in PyTorch, is timed the same way in the same run and the ratio printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import statistics
+import time
+
+import jax
+import numpy as np
+
+from jaml import learners
+
+LD_DIM, ACTION_DIM = 4, 1  # CartPole: D = 4, latent 2·D = 8
+
+
+def _batch(b: int, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    frames = rng.integers(0, 256, (b, 1, 64, 64, 3), dtype=np.uint8)
+    return frames, rng.normal(size=(b, 1, ACTION_DIM)).astype(np.float32)
+
+
+def _median_rate(run_steps, frames_per_step: int, reps: int, steps: int) -> float:
+    times = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        run_steps(steps)
+        times.append(time.perf_counter() - t0)
+    return frames_per_step * steps / statistics.median(times)
+
+
+def bench_jax(b: int, reps: int, steps: int) -> dict:
+    learner = learners.make("VAE_rpl", ld_dim=LD_DIM)
+    opt = learners.default_optimizer(learner)
+    batch = tuple(jax.device_put(x) for x in _batch(b))
+    state = learners.init_train_state(learner, opt, jax.random.key(0), batch)
+    t0 = time.perf_counter()
+    step = jax.jit(learners.make_train_step(learner, opt), donate_argnums=0).lower(
+        state, batch, jax.random.key(0)).compile()
+    compile_s = time.perf_counter() - t0
+    holder = {"state": state, "i": 0}
+
+    def run_steps(n):
+        for _ in range(n):
+            holder["i"] += 1
+            holder["state"], metrics = step(holder["state"], batch, jax.random.key(holder["i"]))
+        jax.block_until_ready((holder["state"], metrics))
+
+    run_steps(1)  # warm-up
+    return {"compile_s": compile_s, "fps": _median_rate(run_steps, b, reps, steps)}
+
+
+def bench_torch(b: int, reps: int, steps: int) -> dict | None:
+    try:
+        import torch
+        from torch import nn
+    except ImportError:
+        return None
+
+    def enc_block(i, o, k, s, p):
+        return [nn.Conv2d(i, o, k, s, p, bias=False), nn.BatchNorm2d(o), nn.ELU()]
+
+    class VAE(nn.Module):
+        """The reference VAE: ConvStack → EncoderDynamic (MLP 1024, 512) → heads → ConvDecoder."""
+
+        def __init__(self, z: int, a: int):
+            super().__init__()
+            self.conv = nn.Sequential(*enc_block(3, 64, 4, 2, 1), *enc_block(64, 128, 4, 2, 1),
+                                      *enc_block(128, 128, 4, 2, 1),
+                                      *enc_block(128, 256, 4, 2, 1),
+                                      *enc_block(256, 128, 4, 1, 0))
+            self.mlp = nn.Sequential(nn.Linear(128 + a, 1024), nn.ELU(), nn.Linear(1024, 512),
+                                     nn.ELU())
+            self.mu, self.logvar = nn.Linear(512, z), nn.Linear(512, z)
+            self.dec = nn.Sequential(
+                nn.ConvTranspose2d(z, 256, 4, 1, 0), nn.ELU(), nn.BatchNorm2d(256),
+                nn.ConvTranspose2d(256, 128, 4, 2, 1), nn.ELU(), nn.BatchNorm2d(128),
+                nn.ConvTranspose2d(128, 128, 4, 2, 1), nn.ELU(), nn.BatchNorm2d(128),
+                nn.ConvTranspose2d(128, 64, 4, 2, 1), nn.ELU(),
+                nn.ConvTranspose2d(64, 3, 4, 2, 1), nn.Sigmoid())
+
+        def loss(self, frames, actions):
+            x = frames.float() / 255.0
+            h = self.mlp(torch.cat([self.conv(x).flatten(1), actions], dim=1))
+            mu = nn.functional.elu(self.mu(h))
+            logvar = torch.clamp(self.logvar(h), -6.0, 6.0)
+            z = mu + torch.randn_like(mu) * torch.exp(0.5 * logvar)
+            recon = self.dec(torch.sigmoid(z)[:, :, None, None])
+            nll = 0.5 * (x - recon).square().sum(dim=(1, 2, 3))
+            kl = 0.5 * (logvar.exp() + mu.square() - 1.0 - logvar).sum(dim=1)
+            return (nll + kl).mean()
+
+    torch.manual_seed(0)
+    model = VAE(2 * LD_DIM, ACTION_DIM)
+    opt = torch.optim.Adam(model.parameters(), lr=1e-4)
+    frames, actions = _batch(b)
+    frames = torch.from_numpy(frames[:, 0]).permute(0, 3, 1, 2).contiguous()  # NCHW
+    actions = torch.from_numpy(actions[:, 0])
+
+    def run_steps(n):
+        for _ in range(n):
+            opt.zero_grad(set_to_none=True)
+            model.loss(frames, actions).backward()
+            opt.step()
+
+    t0 = time.perf_counter()
+    run_steps(1)  # warm-up (eager: no compilation, first-call allocation only)
+    first_s = time.perf_counter() - t0
+    return {"first_step_s": first_s, "fps": _median_rate(run_steps, b, reps, steps),
+            "version": torch.__version__, "threads": torch.get_num_threads()}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--batches", type=int, nargs="+", default=[64, 256])
+    parser.add_argument("--reps", type=int, default=5)
+    parser.add_argument("--steps", type=int, default=3)
+    args = parser.parse_args()
+    print(f"device: {jax.devices()[0].device_kind} ({jax.default_backend()}), "
+          f"jax {jax.__version__}, python {platform.python_version()}, {platform.processor()}")
+    print(f"VAE_rpl train step (ld_dim {LD_DIM}, latent {2 * LD_DIM}, Adam), median of "
+          f"{args.reps} reps × {args.steps} steps")
+    for b in args.batches:
+        j = bench_jax(b, args.reps, args.steps)
+        line = f"batch {b:4d}: jaml {j['fps']:8.1f} frames/s (compile {j['compile_s']:.1f} s)"
+        t = bench_torch(b, args.reps, args.steps)
+        if t is not None:
+            line += (f" | torch {t['version']} ({t['threads']} threads) {t['fps']:8.1f} frames/s "
+                     f"(first step {t['first_step_s']:.2f} s) | jaml/torch "
+                     f"{j['fps'] / t['fps']:.2f}×")
+        print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,49 @@
+"""ELBO pieces (paper §4 eq. 4, reference §4): Gaussian KLs, reparameterised samples, likelihood.
+
+Shapes: B batch, T time, H, W, C image, Z latent. Every function maps over leading axes.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+
+def frames_to_float(frames: jax.Array) -> jax.Array:
+    """uint8 [..., H, W, C] in 0..255 → float32 in [0, 1]; floating frames pass as float32."""
+    if frames.dtype == jnp.uint8:
+        return frames.astype(jnp.float32) / 255.0
+    if not jnp.issubdtype(frames.dtype, jnp.floating):
+        raise TypeError(f"frames must be uint8 or floating, got dtype {frames.dtype}")
+    return frames.astype(jnp.float32)
+
+
+def reparameterize(key: jax.Array, mu: jax.Array, logvar: jax.Array) -> jax.Array:
+    """[..., Z]: z = μ + ε·exp(½ logvar), ε ~ N(0, I); logvar is log σ²."""
+    return mu + jax.random.normal(key, mu.shape, mu.dtype) * jnp.exp(0.5 * logvar)
+
+
+def kl_to_standard_normal(mu: jax.Array, logvar: jax.Array) -> jax.Array:
+    """[...]: KL(N(μ, diag σ²) ‖ N(0, I)) = ½ Σ_Z (σ² + μ² − 1 − log σ²), for μ, logvar [..., Z].
+
+    This is the standard KL; the reference code reads logvar as log σ here (−½(1 + 2 logvar − μ² −
+    exp(logvar)²)) while sampling with log σ² — see docs/learners.md.
+    """
+    return 0.5 * jnp.sum(jnp.exp(logvar) + jnp.square(mu) - 1.0 - logvar, axis=-1)
+
+
+def gaussian_kl(mu_q, logvar_q, mu_p, logvar_p) -> jax.Array:
+    """[...]: KL(N(μ_q, σ_q²) ‖ N(μ_p, σ_p²)) summed over the last axis Z of [..., Z] inputs.
+
+    ½ Σ_Z (logvar_p − logvar_q + (σ_q² + (μ_q − μ_p)²) / σ_p² − 1); used for DSA's learned priors.
+    """
+    ratio = (jnp.exp(logvar_q) + jnp.square(mu_q - mu_p)) * jnp.exp(-logvar_p)
+    return 0.5 * jnp.sum(logvar_p - logvar_q + ratio - 1.0, axis=-1)
+
+
+def gaussian_loglik(x: jax.Array, x_hat: jax.Array) -> jax.Array:
+    """[...]: log p(x | x̂) = −½ Σ_{H,W,C} (x − x̂)² for x, x̂ [..., H, W, C] (reference §4).
+
+    A unit-variance Gaussian without its constant −½ HWC log 2π, which carries no gradient.
+    """
+    return -0.5 * jnp.sum(jnp.square(x - x_hat), axis=(-3, -2, -1))

@@ -1,0 +1,191 @@
+"""The one interface every learner shares: config base, model outputs, `Learner` (init/loss/encode).
+
+Shapes: B batch, T time (the learner's `seq_len`), H = W = 64, C = 3, A action, S latent steps,
+P per-step latent passed to a penalty, Z flattened latent code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from jaml.learners import elbo
+
+FRAME_SHAPE = (64, 64, 3)
+
+# latent_penalty(z [B, S, P], actions [B, S, A]) -> [B]   (paper eq. 4: Σ_k |g_k(τ̃, a)|)
+LatentPenalty = Callable[[jax.Array, jax.Array], jax.Array]
+
+
+@dataclasses.dataclass(frozen=True)
+class LearnerConfig:
+    """What every learner shares; defaults reproduce the reference (suite_reference.md §4).
+
+    ld_dim: size D of the true low-dimensional state; the per-step latent defaults to 2·D.
+    latent_dim: per-step latent size; None means 2·ld_dim (DSA: the dynamic part, None → D).
+    beta: weight of the KL term (β-VAE; DSA weighs only the dynamic KL with it).
+    mu_nl: the reference's `mu_nl=Sigmoid`: ELU on the posterior mean and a sigmoid on the
+      sample before decoding.
+    replay_keep_fraction: read by the stream's replay, not by the model: the share of replay
+      slots kept from the initial policy (VAE_rpl; 0 for VAE_v0).
+    """
+
+    ld_dim: int
+    latent_dim: int | None = None
+    beta: float = 1.0
+    learning_rate: float = 1e-4
+    logvar_limit: float = 6.0
+    mu_nl: bool = True
+    conv_filters: tuple[int, ...] = (64, 128, 128, 256)
+    conv_features: int = 128
+    deconv_filters: tuple[int, ...] = (256, 128, 128, 64)
+    replay_keep_fraction: float = 0.5
+
+    def __post_init__(self):
+        if int(self.ld_dim) < 1:
+            raise ValueError(f"ld_dim must be ≥ 1, got {self.ld_dim}")
+        if self.latent_dim is not None and int(self.latent_dim) < 1:
+            raise ValueError(f"latent_dim must be ≥ 1 or None, got {self.latent_dim}")
+        if not 0.0 <= self.replay_keep_fraction < 1.0:
+            raise ValueError(f"replay_keep_fraction must be in [0, 1), got "
+                             f"{self.replay_keep_fraction}")
+
+    def replace(self, **changes) -> LearnerConfig:
+        return dataclasses.replace(self, **changes)
+
+    @property
+    def z_step(self) -> int:
+        """Per-step latent size."""
+        return self.latent_dim or 2 * self.ld_dim
+
+    # Overridden per family.
+    @property
+    def seq_len(self) -> int:
+        """T: frames per batch sequence."""
+        raise NotImplementedError
+
+    @property
+    def latent_steps(self) -> int:
+        """S: latent steps, one decoded frame each (the last S frames of the sequence)."""
+        raise NotImplementedError
+
+    @property
+    def penalty_dim(self) -> int:
+        """P: per-step size of the sampled latent handed to a latent penalty."""
+        return self.z_step
+
+    @property
+    def latent_size(self) -> int:
+        """Z: size of `encode`'s flattened posterior mean."""
+        return self.latent_steps * self.z_step
+
+
+@struct.dataclass
+class Outputs:
+    """What a learner's model returns for a batch in training mode.
+
+    recon: [B, S, H, W, C] decoded means for the last S frames.
+    kl: name → [B] KL terms (summed over latent dims and steps), before weighting.
+    z: [B, S, P] the sampled latent τ̃ (pre-sigmoid) handed to a latent penalty.
+    """
+
+    recon: jax.Array
+    kl: Mapping[str, jax.Array]
+    z: jax.Array
+
+
+@dataclasses.dataclass(frozen=True)
+class Learner:
+    """A learner: a Flax model with the reference's loss, behind pure functions of arrays.
+
+    `variables` are Flax variables {"params", "batch_stats"} (the conv stacks use BatchNorm).
+    """
+
+    name: str
+    config: LearnerConfig
+    module: nn.Module
+    kl_weights: Mapping[str, float]
+
+    @property
+    def seq_len(self) -> int:
+        return self.config.seq_len
+
+    @property
+    def latent_size(self) -> int:
+        return self.config.latent_size
+
+    def check_batch(self, frames, actions) -> tuple[jax.Array, jax.Array]:
+        """uint8 [B, T, 64, 64, 3] (or float in [0, 1]), [B, T, A] → float arrays; raise if bad."""
+        frames, actions = jnp.asarray(frames), jnp.asarray(actions)
+        if frames.ndim != 5 or tuple(frames.shape[2:]) != FRAME_SHAPE:
+            raise ValueError(f"{self.name}: frames must be [B, T, 64, 64, 3], got "
+                             f"{tuple(frames.shape)}")
+        if frames.shape[1] != self.seq_len:
+            raise ValueError(f"{self.name}: sequence length must be T = {self.seq_len}, got "
+                             f"frames {tuple(frames.shape)}")
+        if actions.ndim != 3 or tuple(actions.shape[:2]) != tuple(frames.shape[:2]):
+            raise ValueError(f"{self.name}: actions must be [B, T, A] = [{frames.shape[0]}, "
+                             f"{frames.shape[1]}, A] to match frames, got {tuple(actions.shape)}")
+        return elbo.frames_to_float(frames), actions.astype(jnp.float32)
+
+    def module_init(self, key: jax.Array, x: jax.Array, a: jax.Array) -> dict[str, Any]:
+        """Flax variables from checked float inputs (traceable; `init` jits it)."""
+        params_key, sample_key = jax.random.split(key)
+        return dict(self.module.init({"params": params_key}, x, a, sample_key, train=True))
+
+    def init(self, key: jax.Array, frames, actions) -> dict[str, Any]:
+        """Flax variables for batches shaped like (frames, actions)."""
+        x, a = self.check_batch(frames, actions)
+        # Jitted: op-by-op initialisation of the conv stacks is several times slower on CPU.
+        return jax.jit(self.module_init)(key, x, a)
+
+    def loss_and_stats(self, variables, key, frames, actions,
+                       latent_penalty: LatentPenalty | None = None):
+        """(loss, (metrics, new batch_stats)): `loss` plus the BatchNorm statistics it updated."""
+        x, a = self.check_batch(frames, actions)
+        out, updates = self.module.apply(variables, x, a, key, train=True,
+                                         mutable=["batch_stats"])
+        steps = out.recon.shape[1]
+        # Unit-variance Gaussian log-likelihood averaged over the decoded frames (reference §4).
+        nll = -jnp.mean(elbo.gaussian_loglik(x[:, x.shape[1] - steps:], out.recon), axis=1)
+        kl = sum(self.kl_weights[k] * v for k, v in out.kl.items())
+        if latent_penalty is None:
+            penalty = jnp.zeros_like(nll)
+        else:
+            penalty = latent_penalty(out.z, a[:, a.shape[1] - steps:])
+            if jnp.shape(penalty) != nll.shape:
+                raise ValueError(f"latent_penalty must return [B] = {nll.shape}, got "
+                                 f"{jnp.shape(penalty)}")
+        loss = jnp.mean(nll + kl + penalty)
+        metrics = {"loss": loss, "nll": jnp.mean(nll), "kl": jnp.mean(sum(out.kl.values())),
+                   "penalty": jnp.mean(penalty)}
+        if len(out.kl) > 1:
+            metrics.update({k: jnp.mean(v) for k, v in out.kl.items()})
+        return loss, (metrics, updates["batch_stats"])
+
+    def loss(self, variables, key, frames, actions,
+             latent_penalty: LatentPenalty | None = None) -> tuple[jax.Array, dict]:
+        """(scalar loss, metrics): −ELBO (β-weighted KL) + mean latent penalty (paper eq. 4).
+
+        frames uint8 [B, T, 64, 64, 3], actions [B, T, A]. `latent_penalty(z, a)` receives the
+        sampled latent z [B, S, P] and the actions of those steps [B, S, A] and returns [B]; see
+        docs/learners.md for S and P per learner. BatchNorm runs on batch statistics.
+        """
+        loss, (metrics, _) = self.loss_and_stats(variables, key, frames, actions, latent_penalty)
+        return loss, metrics
+
+    def encode(self, variables, frames, actions) -> jax.Array:
+        """[B, Z]: the posterior mean (pre-sigmoid) flattened over steps; BatchNorm in eval mode."""
+        x, a = self.check_batch(frames, actions)
+        return self.module.apply(variables, x, a, method="encode")
+
+    def reconstruct(self, variables, frames, actions) -> jax.Array:
+        """[B, S, 64, 64, 3] in (0, 1): frames decoded from the posterior mean, eval mode."""
+        x, a = self.check_batch(frames, actions)
+        return self.module.apply(variables, x, a, method="reconstruct")

@@ -1,0 +1,169 @@
+"""The shared networks (reference §4): conv encoder, deconv decoder, MLP/RNN trunks, Gaussian heads.
+
+Shapes: N frames (B·T flattened), B batch, T time, F conv feature, Z latent.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+# PyTorch BatchNorm2d defaults (momentum 0.1 on the new statistic, eps 1e-5), as in the reference.
+_BN = {"momentum": 0.9, "epsilon": 1e-5}
+# PyTorch's k4 s2 p1 convolution halves the size.
+_HALVE = ((1, 1), (1, 1))
+
+
+class ConvEncoder(nn.Module):
+    """[N, 64, 64, C] float → [N, F]: conv(k4 s2 p1) → BN → ELU per filter, then k4 s1 p0 to 1×1.
+
+    No biases (each conv feeds a BatchNorm). Default filters 64, 128, 128, 256 → F = 128: the
+    reference code's sizes, not the paper's "[64, 64, 128, 256]".
+    """
+
+    filters: Sequence[int] = (64, 128, 128, 256)
+    features: int = 128
+
+    @nn.compact
+    def __call__(self, x: jax.Array, train: bool) -> jax.Array:
+        if x.shape[-3:-1] != (64, 64):
+            raise ValueError(f"ConvEncoder expects 64×64 frames, got {tuple(x.shape)}")
+        for i, f in enumerate(self.filters):
+            x = nn.Conv(f, (4, 4), strides=2, padding=_HALVE, use_bias=False, name=f"conv{i}")(x)
+            x = nn.elu(nn.BatchNorm(use_running_average=not train, name=f"bn{i}", **_BN)(x))
+        x = nn.Conv(self.features, (4, 4), padding="VALID", use_bias=False, name="conv_out")(x)
+        x = nn.elu(nn.BatchNorm(use_running_average=not train, name="bn_out", **_BN)(x))
+        return x.reshape(x.shape[0], self.features)
+
+
+# For a k4 s2 p1 transposed convolution, output 2m + r sums input m − 1 + j times kernel tap
+# _TAPS[r][j] (4 = no tap): out[2m] = x[m−1]·w3 + x[m]·w1, out[2m+1] = x[m]·w2 + x[m+1]·w0.
+_TAPS = np.array([[3, 1, 4], [4, 2, 0]])
+
+
+def upsample2x(x: jax.Array, kernel: jax.Array) -> jax.Array:
+    """[N, H, W, I] → [N, 2H, 2W, O]: PyTorch's ConvTranspose2d(k=4, s=2, p=1), kernel [4, 4, I, O].
+
+    out[s·i − p + k] += x[i]·w[k] per axis, computed as a stride-1 3×3 convolution onto the four
+    output phases followed by depth-to-space. Same result as a transposed convolution, but XLA's
+    CPU backend runs input-dilated convolutions (its transposed-conv lowering and their
+    gradients) on a slow generic path: the decoder's backward pass was ~10× slower that way.
+    """
+    n, h, w, i = x.shape
+    o = kernel.shape[-1]
+    padded = jnp.pad(kernel, ((0, 1), (0, 1), (0, 0), (0, 0)))  # tap index 4 reads zeros
+    taps = _TAPS.T  # [j, r]
+    k3 = padded[taps[:, None, :, None], taps[None, :, None, :]]  # [jh, jw, rh, rw, I, O]
+    k3 = k3.transpose(0, 1, 4, 2, 3, 5).reshape(3, 3, i, 4 * o)
+    y = jax.lax.conv_general_dilated(x, k3, (1, 1), ((1, 1), (1, 1)),
+                                     dimension_numbers=("NHWC", "HWIO", "NHWC"))
+    y = y.reshape(n, h, w, 2, 2, o).transpose(0, 1, 3, 2, 4, 5)
+    return y.reshape(n, 2 * h, 2 * w, o)
+
+
+class Upsample2x(nn.Module):
+    """ConvTranspose2d(k=4, s=2, p=1) with bias, PyTorch semantics; see `upsample2x`."""
+
+    features: int
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        kernel = self.param("kernel", nn.initializers.lecun_normal(),
+                            (4, 4, x.shape[-1], self.features))
+        bias = self.param("bias", nn.initializers.zeros, (self.features,))
+        return upsample2x(x, kernel) + bias
+
+
+class ConvDecoder(nn.Module):
+    """[N, Z] → [N, 64, 64, C] in (0, 1): the latent as a 1×1 image, transposed convolutions up.
+
+    1×1 → 4 (k4 s1 p0) → 8 → 16, each deconv → ELU → BN; → 32 (+ ELU); → 64 (+ Sigmoid): the
+    mean of the unit-variance Gaussian likelihood.
+    """
+
+    filters: Sequence[int] = (256, 128, 128, 64)
+    channels: int = 3
+
+    @nn.compact
+    def __call__(self, z: jax.Array, train: bool) -> jax.Array:
+        first, *middle, last = self.filters
+        # k4 s1 p0 on a 1×1 input is a dense layer onto a 4×4 map (no input dilation).
+        x = nn.ConvTranspose(first, (4, 4), padding="VALID", name="deconv0")(
+            z.reshape(z.shape[0], 1, 1, z.shape[-1]))
+        x = nn.BatchNorm(use_running_average=not train, name="bn0", **_BN)(nn.elu(x))
+        for i, f in enumerate(middle, start=1):
+            x = nn.elu(Upsample2x(f, name=f"deconv{i}")(x))
+            x = nn.BatchNorm(use_running_average=not train, name=f"bn{i}", **_BN)(x)
+        x = nn.elu(Upsample2x(last, name=f"deconv{len(middle) + 1}")(x))
+        return nn.sigmoid(Upsample2x(self.channels, name="deconv_out")(x))
+
+
+class MLP(nn.Module):
+    """[..., I] → [..., widths[-1]]: Dense + ELU per width (the reference's 1024 → 512 trunk)."""
+
+    widths: Sequence[int] = (1024, 512)
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for i, w in enumerate(self.widths):
+            x = nn.elu(nn.Dense(w, name=f"dense{i}")(x))
+        return x
+
+
+def torch_rnn_init(hidden: int):
+    """U(±1/√hidden), PyTorch's LSTM/RNN weight init (the reference's framework).
+
+    Also cheaper than Flax's orthogonal recurrent init: no QR to compile per cell.
+    """
+    bound = 1.0 / math.sqrt(hidden)
+
+    def init(key, shape, dtype=jnp.float32):
+        return jax.random.uniform(key, shape, dtype, -bound, bound)
+
+    return init
+
+
+def lstm(hidden: int, name: str | None = None) -> nn.RNN:
+    """[B, T, I] → [B, T, hidden]: an LSTM over time with PyTorch-style init, zero initial state."""
+    init = torch_rnn_init(hidden)
+    return nn.RNN(nn.OptimizedLSTMCell(hidden, kernel_init=init, recurrent_kernel_init=init,
+                                       bias_init=init), name=name)
+
+
+class RNNEncoder(nn.Module):
+    """[B, T, I] → [B, T, H]: bidirectional LSTM(H), then a one-way tanh RNN(H) (SVAE, DSA)."""
+
+    hidden: int = 512
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        x = nn.Bidirectional(lstm(self.hidden), lstm(self.hidden), name="bilstm")(x)
+        init = torch_rnn_init(self.hidden)
+        cell = nn.SimpleCell(self.hidden, kernel_init=init, recurrent_kernel_init=init,
+                             bias_init=init)
+        return nn.RNN(cell, name="rnn")(x)
+
+
+class GaussianHead(nn.Module):
+    """[..., I] → (μ, logvar) each [..., size]; logvar is clipped to ±logvar_limit (Hardtanh).
+
+    mu_activation: "none", "elu" (the reference's EncoderDynamic quirk when mu_nl is set) or
+    "sigmoid" (DSA's static posterior and dynamic prior).
+    """
+
+    size: int
+    mu_activation: str = "none"
+    logvar_limit: float = 6.0
+
+    @nn.compact
+    def __call__(self, h: jax.Array) -> tuple[jax.Array, jax.Array]:
+        act = {"none": lambda v: v, "elu": nn.elu, "sigmoid": nn.sigmoid}[self.mu_activation]
+        mu = act(nn.Dense(self.size, name="mu")(h))
+        logvar = jnp.clip(nn.Dense(self.size, name="logvar")(h), -self.logvar_limit,
+                          self.logvar_limit)
+        return mu, logvar

@@ -1,0 +1,80 @@
+"""SVAE (paper §2.1): per-frame conv features ⊕ actions → bi-LSTM → RNN → a latent per step.
+
+Shapes: B batch, T time, Z per-step latent.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from jaml.learners import elbo
+from jaml.learners.learner import FRAME_SHAPE, Learner, LearnerConfig, Outputs
+from jaml.learners.networks import ConvDecoder, ConvEncoder, GaussianHead, RNNEncoder
+
+
+@dataclasses.dataclass(frozen=True)
+class SVAEConfig(LearnerConfig):
+    """SVAE_SEQ24 by default (hist = past = 24, pred 0); SEQ16 / SEQ8 / PARAMS_SVAE: 16 / 8 / 32."""
+
+    hist: int = 24
+    rnn_hidden: int = 512
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.hist < 1:
+            raise ValueError(f"SVAE needs hist ≥ 1, got {self.hist}")
+
+    @property
+    def seq_len(self) -> int:
+        return self.hist
+
+    @property
+    def latent_steps(self) -> int:
+        return self.hist
+
+
+class SequenceVAE(nn.Module):
+    """The reference's EncoderDynamicRNN with a per-step ConvDecoder."""
+
+    config: SVAEConfig
+
+    def setup(self):
+        c = self.config
+        self.conv = ConvEncoder(c.conv_filters, c.conv_features)
+        self.rnn = RNNEncoder(c.rnn_hidden)
+        self.head = GaussianHead(c.z_step, "elu" if c.mu_nl else "none", c.logvar_limit)
+        self.decoder = ConvDecoder(c.deconv_filters)
+
+    def posterior(self, x, a, train: bool):
+        """x [B, T, H, W, C], a [B, T, A] → μ, logvar [B, T, Z]."""
+        b, t = x.shape[:2]
+        feats = self.conv(x.reshape(b * t, *FRAME_SHAPE), train).reshape(b, t, -1)
+        return self.head(self.rnn(jnp.concatenate([feats, a], axis=-1)))
+
+    def decode(self, z, train: bool):
+        b, t = z.shape[:2]
+        if self.config.mu_nl:
+            z = nn.sigmoid(z)
+        return self.decoder(z.reshape(b * t, -1), train).reshape(b, t, *FRAME_SHAPE)
+
+    def __call__(self, x, a, key, train: bool = True) -> Outputs:
+        mu, logvar = self.posterior(x, a, train)
+        z = elbo.reparameterize(key, mu, logvar)
+        kl = elbo.kl_to_standard_normal(mu, logvar).sum(axis=-1)
+        return Outputs(recon=self.decode(z, train), kl={"kl": kl}, z=z)
+
+    def encode(self, x, a) -> jax.Array:
+        mu, _ = self.posterior(x, a, False)
+        return mu.reshape(mu.shape[0], -1)
+
+    def reconstruct(self, x, a) -> jax.Array:
+        mu, _ = self.posterior(x, a, False)
+        return self.decode(mu, False)
+
+
+def make_svae(name: str, config: SVAEConfig) -> Learner:
+    return Learner(name, config, SequenceVAE(config), {"kl": config.beta})

@@ -1,0 +1,94 @@
+"""VAE_v0, VAE_rpl and β-VAE (paper §2.1): one frame → conv → MLP → Gaussian latent → deconv.
+
+The feed-forward model here is the reference's EncoderDynamic + ConvDecoder, which PRED reuses
+with several input frames and several decoded steps (pred.py). Shapes: B batch, T time, S
+decoded steps, Z per-step latent.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from jaml.learners import elbo
+from jaml.learners.learner import FRAME_SHAPE, Learner, LearnerConfig, Outputs
+from jaml.learners.networks import MLP, ConvDecoder, ConvEncoder, GaussianHead
+
+
+@dataclasses.dataclass(frozen=True)
+class VAEConfig(LearnerConfig):
+    """VAE on single frames (PARAMS_VAE: hist 1, past 1, pred 0; latent 2·D).
+
+    VAE_v0 sets replay_keep_fraction 0; VAE_rpl keeps 0.5; β-VAE defaults to β = 5, the best of
+    the paper's {100, 20, 10, 5, 0.5}.
+    """
+
+    mlp_widths: tuple[int, ...] = (1024, 512)
+
+    @property
+    def hist(self) -> int:
+        return 1
+
+    @property
+    def seq_len(self) -> int:
+        return 1
+
+    @property
+    def latent_steps(self) -> int:
+        return 1
+
+
+class FeedForwardVAE(nn.Module):
+    """Conv features ⊕ actions of the first `hist` frames → MLP → posterior over S steps → decode.
+
+    config needs hist, latent_steps, z_step, mlp_widths and the LearnerConfig fields.
+    """
+
+    config: Any
+
+    def setup(self):
+        c = self.config
+        self.conv = ConvEncoder(c.conv_filters, c.conv_features)
+        self.trunk = MLP(c.mlp_widths)
+        self.head = GaussianHead(c.latent_steps * c.z_step, "elu" if c.mu_nl else "none",
+                                 c.logvar_limit)
+        self.decoder = ConvDecoder(c.deconv_filters)
+
+    def posterior(self, x, a, train: bool):
+        """x [B, T, H, W, C], a [B, T, A] → μ, logvar [B, S, Z] from the first `hist` frames."""
+        c = self.config
+        b, h = x.shape[0], c.hist
+        feats = self.conv(x[:, :h].reshape(b * h, *FRAME_SHAPE), train).reshape(b, h, -1)
+        inputs = jnp.concatenate([feats, a[:, :h]], axis=-1).reshape(b, -1)
+        mu, logvar = self.head(self.trunk(inputs))
+        shape = (b, c.latent_steps, c.z_step)
+        return mu.reshape(shape), logvar.reshape(shape)
+
+    def decode(self, z, train: bool):
+        """z [B, S, Z] → [B, S, H, W, C]; each step decoded on its own."""
+        b, s = z.shape[:2]
+        if self.config.mu_nl:
+            z = nn.sigmoid(z)
+        return self.decoder(z.reshape(b * s, -1), train).reshape(b, s, *FRAME_SHAPE)
+
+    def __call__(self, x, a, key, train: bool = True) -> Outputs:
+        mu, logvar = self.posterior(x, a, train)
+        z = elbo.reparameterize(key, mu, logvar)
+        kl = elbo.kl_to_standard_normal(mu, logvar).sum(axis=-1)
+        return Outputs(recon=self.decode(z, train), kl={"kl": kl}, z=z)
+
+    def encode(self, x, a) -> jax.Array:
+        mu, _ = self.posterior(x, a, False)
+        return mu.reshape(mu.shape[0], -1)
+
+    def reconstruct(self, x, a) -> jax.Array:
+        mu, _ = self.posterior(x, a, False)
+        return self.decode(mu, False)
+
+
+def make_vae(name: str, config: VAEConfig) -> Learner:
+    return Learner(name, config, FeedForwardVAE(config), {"kl": config.beta})

@@ -109,14 +109,21 @@ def _mesh_hits(ctx, geom_xpos, geom_xmat, cam_xpos, cam_xmat, x, y, best: _Hit) 
     coef = coef.reshape(-1, 3, 3)  # [Gm*T, 3, 3]
     n_tri = coef.shape[0]
 
-    cx, cy, c1 = (coef[:, :, k][..., None] for k in range(3))  # [Gm*T, 3, 1]
-    w = cx * x + cy * y + c1  # [Gm*T, 3, P]
-    inv_t = w[:, 0] + w[:, 1] + w[:, 2]
-    inside = ((jnp.minimum(jnp.minimum(w[:, 0], w[:, 1]), w[:, 2]) >= 0.0) & (inv_t > 0.0)
-              & (inv_t * ctx.znear < 1.0))
-    key = jnp.where(inside, inv_t, -1.0)  # [Gm*T, P]
-    tri = jnp.argmax(key, axis=0)  # [P]
-    hit_inv_t = jnp.max(key, axis=0)
+    # A scan over triangles carrying the per-pixel best 1/t and its index: each step is an
+    # elementwise loop with pixels contiguous. (A max/argmax reduction over a [T, P] array ran
+    # 3-4x slower on XLA:CPU: its reduction loops do not vectorise across pixels.)
+    inv_znear = 1.0 / ctx.znear
+
+    def step(carry, c):
+        best_inv_t, best_tri, i = carry
+        w0, w1, w2 = (c[k, 0] * x + c[k, 1] * y + c[k, 2] for k in range(3))
+        inv_t = w0 + w1 + w2
+        better = ((jnp.minimum(jnp.minimum(w0, w1), w2) >= 0.0) & (inv_t > best_inv_t)
+                  & (inv_t < inv_znear))
+        return (jnp.where(better, inv_t, best_inv_t), jnp.where(better, i, best_tri), i + 1), None
+
+    init = (jnp.zeros_like(x), jnp.zeros(x.shape, jnp.int32), jnp.int32(0))
+    (hit_inv_t, tri, _), _ = lax.scan(step, init, coef, unroll=min(16, n_tri))
     found = hit_inv_t > 0.0
     t = jnp.where(found, 1.0 / jnp.where(found, hit_inv_t, 1.0), jnp.inf)
     closer = t < best.t

@@ -80,16 +80,9 @@ def _primitive(ctx, gtype, size, g, m, o_l, x, y, best: _Hit) -> _Hit:
     return _select(closer, new, best)
 
 
-def _mesh_hits(ctx, geom_xpos, geom_xmat, cam_xpos, cam_xmat, x, y, best: _Hit) -> _Hit:
-    """Nearest triangle of every mesh geom by camera-space edge functions.
-
-    With the camera at the origin and triangle corners A, B, C in the camera frame, the ray
-    r = (x, y, -1) meets the triangle's plane at t = det(A, B, C) / (N·r), N = (B-A)×(C-A), and
-    w_A = (B×C)·r / det, w_B = (C×A)·r / det, w_C = (A×B)·r / det are affine in (x, y), sum to
-    1/t, and are all >= 0 exactly when the ray passes through the triangle in front of the
-    camera (either side facing it). Per triangle-pixel pair that is 6 multiply-adds and a few
-    compares, no division: the nearest hit is the largest 1/t. Barycentrics are w / (1/t).
-    """
+def _mesh_tables(ctx, geom_xpos, geom_xmat, cam_xpos, cam_xmat):
+    """Per-frame triangle data for `_mesh_hits`: edge-function coefficients and a per-triangle
+    table (coefficients, camera-frame normal, corner uv, geom id, texture)."""
     mesh = ctx.mesh
     ids = jnp.asarray(mesh.geom)  # [Gm]
     rot = jnp.einsum("ji,gjk->gik", cam_xmat, geom_xmat[ids])  # [Gm, 3, 3] local -> camera
@@ -106,9 +99,28 @@ def _mesh_hits(ctx, geom_xpos, geom_xmat, cam_xpos, cam_xmat, x, y, best: _Hit) 
     sign_z = jnp.array([1.0, 1.0, -1.0], jnp.float32)
     coef = jnp.stack([jnp.cross(b, c), jnp.cross(c, a), jnp.cross(a, b)], axis=-2)
     coef = coef * (inv_det[..., None, None] * sign_z)  # [Gm, T, 3 corners, (cx, cy, c1)]
-    coef = coef.reshape(-1, 3, 3)  # [Gm*T, 3, 3]
-    n_tri = coef.shape[0]
+    n_tri = coef.shape[0] * coef.shape[1]
+    coef = coef.reshape(n_tri, 3, 3)
+    geom_of_tri = jnp.repeat(ids, mesh.valid.shape[1])
+    tex_of_tri = jnp.where(jnp.repeat(mesh.has_uv, mesh.valid.shape[1]),
+                           ctx.geom_tex[geom_of_tri], -1)
+    table = jnp.concatenate([
+        coef.reshape(n_tri, 9), normal.reshape(n_tri, 3), mesh.uv.reshape(n_tri, 6),
+        geom_of_tri[:, None].astype(jnp.float32), tex_of_tri[:, None].astype(jnp.float32)],
+        axis=1)  # [Gm*T, 20]
+    return coef, table
 
+
+def _mesh_hits(ctx, coef, table, x, y, best: _Hit) -> _Hit:
+    """Nearest triangle of every mesh geom by camera-space edge functions.
+
+    With the camera at the origin and triangle corners A, B, C in the camera frame, the ray
+    r = (x, y, -1) meets the triangle's plane at t = det(A, B, C) / (N·r), N = (B-A)×(C-A), and
+    w_A = (B×C)·r / det, w_B = (C×A)·r / det, w_C = (A×B)·r / det are affine in (x, y), sum to
+    1/t, and are all >= 0 exactly when the ray passes through the triangle in front of the
+    camera (either side facing it). Per triangle-pixel pair that is 6 multiply-adds and a few
+    compares, no division: the nearest hit is the largest 1/t. Barycentrics are w / (1/t).
+    """
     # A scan over triangles carrying the per-pixel best 1/t and its index: each step is an
     # elementwise loop with pixels contiguous. (A max/argmax reduction over a [T, P] array ran
     # 3-4x slower on XLA:CPU: its reduction loops do not vectorise across pixels.)
@@ -123,20 +135,12 @@ def _mesh_hits(ctx, geom_xpos, geom_xmat, cam_xpos, cam_xmat, x, y, best: _Hit) 
         return (jnp.where(better, inv_t, best_inv_t), jnp.where(better, i, best_tri), i + 1), None
 
     init = (jnp.zeros_like(x), jnp.zeros(x.shape, jnp.int32), jnp.int32(0))
-    (hit_inv_t, tri, _), _ = lax.scan(step, init, coef, unroll=min(16, n_tri))
+    (hit_inv_t, tri, _), _ = lax.scan(step, init, coef, unroll=min(16, coef.shape[0]))
     found = hit_inv_t > 0.0
     t = jnp.where(found, 1.0 / jnp.where(found, hit_inv_t, 1.0), jnp.inf)
     closer = t < best.t
 
-    # Per-pixel data of the winning triangle: one gather of a small per-triangle table.
-    geom_of_tri = jnp.repeat(ids, mesh.valid.shape[1])
-    tex_of_tri = jnp.where(jnp.repeat(mesh.has_uv, mesh.valid.shape[1]),
-                           ctx.geom_tex[geom_of_tri], -1)
-    table = jnp.concatenate([
-        coef.reshape(n_tri, 9), normal.reshape(n_tri, 3), mesh.uv.reshape(n_tri, 6),
-        geom_of_tri[:, None].astype(jnp.float32), tex_of_tri[:, None].astype(jnp.float32)],
-        axis=1)  # [Gm*T, 20]
-    row = table[tri]  # [P, 20]
+    row = table[tri]  # [P, 20]: one gather of the winning triangles' data
     bary = [(row[:, 3 * k] * x + row[:, 3 * k + 1] * y + row[:, 3 * k + 2]) * t
             for k in range(3)]
     u = bary[0] * row[:, 12] + bary[1] * row[:, 14] + bary[2] * row[:, 16]
@@ -153,41 +157,49 @@ def render(ctx: RenderContext, data) -> RenderOutput:
     geom_xmat = jnp.asarray(data.geom_xmat, jnp.float32).reshape(-1, 3, 3)
     cam_xpos = jnp.asarray(data.cam_xpos, jnp.float32)[ctx.cam_id]
     cam_xmat = jnp.asarray(data.cam_xmat, jnp.float32).reshape(-1, 3, 3)[ctx.cam_id]
-    x, y = ctx.rays[0], ctx.rays[1]  # [P] camera-frame ray direction (x, y, -1)
-
-    n_pix = x.shape[0]
-    inf = jnp.full((n_pix,), jnp.inf, jnp.float32)
-    zero = jnp.zeros((n_pix,), jnp.float32)
-    best = _Hit(inf, jnp.full((n_pix,), -1, jnp.int32), zero, zero, zero, zero, zero,
-                jnp.full((n_pix,), -1, jnp.int32))
+    frames = []  # per primitive geom: (type, group index, index in group, id, m, o_l)
     for gi, (gtype, ids) in enumerate(zip(ctx.group_types, ctx.group_geoms, strict=True)):
         if gtype == int(_G.mjGEOM_MESH):
             continue
         for k, g in enumerate(ids):
             rot, pos = geom_xmat[g], geom_xpos[g]
             m = cam_xmat.T @ rot  # camera frame -> local frame is m.T
-            o_l = rot.T @ (cam_xpos - pos)
-            best = _primitive(ctx, gtype, ctx.group_size[gi][k], g, m, o_l, x, y, best)
+            frames.append((gtype, gi, k, g, m, rot.T @ (cam_xpos - pos)))
+    mesh = None
     if ctx.mesh is not None:
-        best = _mesh_hits(ctx, geom_xpos, geom_xmat, cam_xpos, cam_xmat, x, y, best)
-
-    found = best.t <= ctx.zfar
-    geom = jnp.where(found, best.geom, -1)
+        mesh = _mesh_tables(ctx, geom_xpos, geom_xmat, cam_xpos, cam_xmat)
     light_dirs = [None]  # None: the headlight, which travels along the camera's view axis
     if ctx.light_id >= 0:
         xdir = getattr(data, "light_xdir", None)  # MjData has it; mjx.Data does not
         ldir = (ctx.light_dir if xdir is None
                 else jnp.asarray(xdir, jnp.float32).reshape(-1, 3)[ctx.light_id])
         light_dirs.append(cam_xmat.T @ ldir)
-    rgb = shading.shade(ctx, best, geom, x, y, light_dirs)
-    rgb8 = [jnp.round(jnp.where(found, rgb[i], ctx.background[i]) * 255.0).astype(jnp.uint32)
-            for i in range(3)]
-    # Interleave channels through one packed uint32 per pixel: a [P, 3] stack fused with shading
-    # runs unvectorised and recomputes shading per channel.
-    packed = rgb8[0] | (rgb8[1] << 8) | (rgb8[2] << 16)
+
+    def pixels(rays):
+        """Everything per pixel: rays [8, P] -> packed rgb, depth, geom, each [P]."""
+        x, y = rays[0], rays[1]  # camera-frame ray direction (x, y, -1)
+        inf = jnp.full(x.shape, jnp.inf, jnp.float32)
+        zero = jnp.zeros(x.shape, jnp.float32)
+        none = jnp.full(x.shape, -1, jnp.int32)
+        best = _Hit(inf, none, zero, zero, zero, zero, zero, none)
+        for gtype, gi, k, g, m, o_l in frames:
+            best = _primitive(ctx, gtype, ctx.group_size[gi][k], g, m, o_l, x, y, best)
+        if mesh is not None:
+            best = _mesh_hits(ctx, *mesh, x, y, best)
+        found = best.t <= ctx.zfar
+        geom = jnp.where(found, best.geom, -1)
+        rgb = shading.shade(ctx, best, geom, rays, light_dirs)
+        rgb8 = [jnp.round(jnp.where(found, rgb[i], ctx.background[i]) * 255.0)
+                .astype(jnp.uint32) for i in range(3)]
+        # Channels leave as one packed uint32 per pixel: a [P, 3] stack fused with shading
+        # ran unvectorised and recomputed shading per channel (10x slower).
+        packed = rgb8[0] | (rgb8[1] << 8) | (rgb8[2] << 16)
+        return packed, jnp.where(found, best.t, ctx.zfar), geom
+
+    # (Running pixels through in chunks with lax.map, to keep a chunk's intermediates in cache
+    # between XLA's fused loops, measured 5x slower on XLA:CPU.)
+    packed, depth, geom = pixels(ctx.rays)
     rgb8 = lax.bitcast_convert_type(packed, jnp.uint8)[:, :3]  # little-endian byte order
     shape = (ctx.height, ctx.width)
-    return RenderOutput(
-        rgb=rgb8.reshape(*shape, 3),
-        depth=jnp.where(found, best.t, ctx.zfar).astype(jnp.float32).reshape(shape),
-        segmentation=geom.astype(jnp.int32).reshape(shape))
+    return RenderOutput(rgb=rgb8.reshape(*shape, 3), depth=depth.reshape(shape),
+                        segmentation=geom.reshape(shape))

@@ -241,3 +241,15 @@ def test_primitive_hits_closed_form():
     tri = intersect.hit_triangles(o, d, jnp.array([-1.0, -1.0, 1.0]), jnp.array([3.0, 0, 0]),
                                   jnp.array([0, 3.0, 0]), jnp.array(True), 0.0)
     assert np.isclose(tri[0], 2.0) and np.isclose(tri[1] + tri[2], 2 / 3)
+
+
+def test_fast_shading_math_matches_numpy():
+    from envs_mjx.render import shading
+
+    base = np.concatenate([np.linspace(1e-6, 1.0, 20001), np.geomspace(1e-30, 1.0, 500)])
+    for expo in (1.0, 3.7, 64.0, 128.0):
+        got = np.asarray(shading.spec_pow(jnp.asarray(base, jnp.float32), jnp.float32(expo)))
+        np.testing.assert_allclose(got, base ** expo, rtol=3e-4, atol=1e-30)
+    v = np.geomspace(1e-12, 1e6, 20001)
+    got = np.asarray(shading.rsqrt(jnp.asarray(v, jnp.float32)))
+    np.testing.assert_allclose(got, 1.0 / np.sqrt(v), rtol=5e-7)

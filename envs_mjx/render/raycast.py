@@ -104,10 +104,12 @@ def _mesh_tables(ctx, geom_xpos, geom_xmat, cam_xpos, cam_xmat):
     geom_of_tri = jnp.repeat(ids, mesh.valid.shape[1])
     tex_of_tri = jnp.where(jnp.repeat(mesh.has_uv, mesh.valid.shape[1]),
                            ctx.geom_tex[geom_of_tri], -1)
-    table = jnp.concatenate([
-        coef.reshape(n_tri, 9), normal.reshape(n_tri, 3), mesh.uv.reshape(n_tri, 6),
-        geom_of_tri[:, None].astype(jnp.float32), tex_of_tri[:, None].astype(jnp.float32)],
-        axis=1)  # [Gm*T, 20]
+    columns = [normal.reshape(n_tri, 3), geom_of_tri[:, None].astype(jnp.float32)]
+    if any(g in ctx.textured_geoms for g in mesh.geom):  # uv only where a texture is drawn
+        columns += [coef.reshape(n_tri, 9), mesh.uv.reshape(n_tri, 6),
+                    tex_of_tri[:, None].astype(jnp.float32)]
+    # [Gm*T, 4 or 20]: normal, geom id, then edge coefficients, corner uv, texture
+    table = jnp.concatenate(columns, axis=1)
     return coef, table
 
 
@@ -140,13 +142,16 @@ def _mesh_hits(ctx, coef, table, x, y, best: _Hit) -> _Hit:
     t = jnp.where(found, 1.0 / jnp.where(found, hit_inv_t, 1.0), jnp.inf)
     closer = t < best.t
 
-    row = table[tri]  # [P, 20]: one gather of the winning triangles' data
-    bary = [(row[:, 3 * k] * x + row[:, 3 * k + 1] * y + row[:, 3 * k + 2]) * t
-            for k in range(3)]
-    u = bary[0] * row[:, 12] + bary[1] * row[:, 14] + bary[2] * row[:, 16]
-    v = bary[0] * row[:, 13] + bary[1] * row[:, 15] + bary[2] * row[:, 17]
-    new = _Hit(t, row[:, 18].astype(jnp.int32), row[:, 9], row[:, 10], row[:, 11], u, v,
-               row[:, 19].astype(jnp.int32))
+    row = table[tri]  # [P, 4 or 20]: one gather of the winning triangles' data
+    u = v = best.u
+    tex = jnp.int32(-1)
+    if table.shape[1] > 4:
+        bary = [(row[:, 4 + 3 * k] * x + row[:, 5 + 3 * k] * y + row[:, 6 + 3 * k]) * t
+                for k in range(3)]
+        u = bary[0] * row[:, 13] + bary[1] * row[:, 15] + bary[2] * row[:, 17]
+        v = bary[0] * row[:, 14] + bary[1] * row[:, 16] + bary[2] * row[:, 18]
+        tex = row[:, 19].astype(jnp.int32)
+    new = _Hit(t, row[:, 3].astype(jnp.int32), row[:, 0], row[:, 1], row[:, 2], u, v, tex)
     return _select(closer, new, best)
 
 

@@ -106,9 +106,8 @@ def _mesh_tables(ctx, geom_xpos, geom_xmat, cam_xpos, cam_xmat):
                            ctx.geom_tex[geom_of_tri], -1)
     columns = [normal.reshape(n_tri, 3), geom_of_tri[:, None].astype(jnp.float32)]
     if any(g in ctx.textured_geoms for g in mesh.geom):  # uv only where a texture is drawn
-        columns += [coef.reshape(n_tri, 9), mesh.uv.reshape(n_tri, 6),
-                    tex_of_tri[:, None].astype(jnp.float32)]
-    # [Gm*T, 4 or 20]: normal, geom id, then edge coefficients, corner uv, texture
+        columns += [mesh.uv.reshape(n_tri, 6), tex_of_tri[:, None].astype(jnp.float32)]
+    # [Gm*T, 4 or 11]: normal, geom id, then corner uv, texture
     table = jnp.concatenate(columns, axis=1)
     return coef, table
 
@@ -123,34 +122,44 @@ def _mesh_hits(ctx, coef, table, x, y, best: _Hit) -> _Hit:
     camera (either side facing it). Per triangle-pixel pair that is 6 multiply-adds and a few
     compares, no division: the nearest hit is the largest 1/t. Barycentrics are w / (1/t).
     """
-    # A scan over triangles carrying the per-pixel best 1/t and its index: each step is an
-    # elementwise loop with pixels contiguous. (A max/argmax reduction over a [T, P] array ran
-    # 3-4x slower on XLA:CPU: its reduction loops do not vectorise across pixels.)
+    # A scan over triangles carrying, per pixel, one int32: the bits of the best 1/t (positive
+    # floats order like their bit patterns) with the low bits replaced by the triangle index.
+    # One carry keeps each step a single fused elementwise loop with pixels contiguous; two
+    # carries (1/t and index) made XLA evaluate the edge functions twice, and a max/argmax
+    # reduction over a [T, P] array did not vectorise across pixels (3-4x slower). Triangles
+    # closer than 2^-(23 - index bits) relative depth tie-break by index; the winner's exact
+    # 1/t is recomputed below.
+    n_tri = coef.shape[0]
+    bits = max(1, (n_tri - 1).bit_length())
+    low = jnp.int32((1 << bits) - 1)
     inv_znear = 1.0 / ctx.znear
 
     def step(carry, c):
-        best_inv_t, best_tri, i = carry
+        best_key, i = carry
         w0, w1, w2 = (c[k, 0] * x + c[k, 1] * y + c[k, 2] for k in range(3))
         inv_t = w0 + w1 + w2
-        better = ((jnp.minimum(jnp.minimum(w0, w1), w2) >= 0.0) & (inv_t > best_inv_t)
-                  & (inv_t < inv_znear))
-        return (jnp.where(better, inv_t, best_inv_t), jnp.where(better, i, best_tri), i + 1), None
+        key = (lax.bitcast_convert_type(inv_t, jnp.int32) & ~low) | i
+        better = ((jnp.minimum(jnp.minimum(w0, w1), w2) >= 0.0) & (inv_t > 0.0)
+                  & (inv_t < inv_znear) & (key > best_key))
+        return (jnp.where(better, key, best_key), i + 1), None
 
-    init = (jnp.zeros_like(x), jnp.zeros(x.shape, jnp.int32), jnp.int32(0))
-    (hit_inv_t, tri, _), _ = lax.scan(step, init, coef, unroll=min(16, coef.shape[0]))
-    found = hit_inv_t > 0.0
-    t = jnp.where(found, 1.0 / jnp.where(found, hit_inv_t, 1.0), jnp.inf)
+    init = (jnp.full(x.shape, -1, jnp.int32), jnp.int32(0))
+    (best_key, _), _ = lax.scan(step, init, coef, unroll=min(16, n_tri))
+    found = best_key >= 0
+    tri = jnp.where(found, best_key & low, 0)
+    c = coef.reshape(n_tri, 9)[tri]  # [P, 9] the winner's edge coefficients
+    inv_t = sum(c[:, 3 * k] * x + c[:, 3 * k + 1] * y + c[:, 3 * k + 2] for k in range(3))
+    t = jnp.where(found, 1.0 / jnp.where(found, inv_t, 1.0), jnp.inf)
     closer = t < best.t
 
-    row = table[tri]  # [P, 4 or 20]: one gather of the winning triangles' data
+    row = table[tri]  # [P, 4 or 11]: one gather of the winning triangles' data
     u = v = best.u
     tex = jnp.int32(-1)
     if table.shape[1] > 4:
-        bary = [(row[:, 4 + 3 * k] * x + row[:, 5 + 3 * k] * y + row[:, 6 + 3 * k]) * t
-                for k in range(3)]
-        u = bary[0] * row[:, 13] + bary[1] * row[:, 15] + bary[2] * row[:, 17]
-        v = bary[0] * row[:, 14] + bary[1] * row[:, 16] + bary[2] * row[:, 18]
-        tex = row[:, 19].astype(jnp.int32)
+        bary = [(c[:, 3 * k] * x + c[:, 3 * k + 1] * y + c[:, 3 * k + 2]) * t for k in range(3)]
+        u = bary[0] * row[:, 4] + bary[1] * row[:, 6] + bary[2] * row[:, 8]
+        v = bary[0] * row[:, 5] + bary[1] * row[:, 7] + bary[2] * row[:, 9]
+        tex = row[:, 10].astype(jnp.int32)
     new = _Hit(t, row[:, 3].astype(jnp.int32), row[:, 0], row[:, 1], row[:, 2], u, v, tex)
     return _select(closer, new, best)
 

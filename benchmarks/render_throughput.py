@@ -1,8 +1,13 @@
 """Frames per second of the JAX ray caster at 64×64, batch 1/64/256, on the default JAX device.
 
 Run from the repo root: PYTHONPATH=. python benchmarks/render_throughput.py [--reps 5]
-[--batches 1 64 256].
-Compile time is reported apart; throughput is the median over blocked repetitions.
+[--batches 1 64 256] [--large] [--outputs all seg].
+`--large` adds batches 1024 and 4096 (for a GPU). `--outputs seg` also times a jitted function
+that returns only the segmentation (XLA drops the unused shading). Compile time is reported
+apart; throughput is the median over blocked repetitions, and for the CPU the frames per
+second of process CPU time as well (less sensitive to other load on a shared machine). The
+"before" column is the renderer before the rewrite (commit 2c4fecd), measured on the project's
+2-core CPU machine; compare it only with CPU runs there.
 """
 
 from __future__ import annotations
@@ -69,39 +74,60 @@ def batch_of_poses(m: mujoco.MjModel, n: int, rng: np.random.Generator) -> Poses
     return Poses(*(np.stack(col) for col in zip(*rows, strict=True)))
 
 
-def bench(xml: str, batches, reps: int):
+# Frames/s of the renderer before the rewrite (commit 2c4fecd, all outputs), median of 5 reps
+# on the 2-core AMD EPYC machine (JAX 0.10.2 CPU), keyed by (scene, batch).
+BEFORE_2CORE = {("cartpole", 1): 279, ("cartpole", 64): 229, ("cartpole", 256): 203,
+                ("mesh", 1): 34, ("mesh", 64): 40, ("mesh", 256): 32}
+
+OUTPUTS = {"all": lambda out: out, "seg": lambda out: out.segmentation}
+
+
+def bench(name: str, xml: str, batches, reps: int, outputs):
     m = mujoco.MjModel.from_xml_string(xml)
     ctx = render.make_context(m, "cam", 64, 64)
-    fn = jax.jit(jax.vmap(render.render, in_axes=(None, 0)))
     rng = np.random.default_rng(0)
+    cpu = jax.devices()[0].platform == "cpu"
     for b in batches:
         data = jax.device_put(batch_of_poses(m, b, rng))
-        t0 = time.perf_counter()
-        compiled = fn.lower(ctx, data).compile()
-        compile_s = time.perf_counter() - t0
-        jax.block_until_ready(compiled(ctx, data))  # warm-up
-        times = []
-        for _ in range(reps):
+        for which in outputs:
+            pick = OUTPUTS[which]
+            fn = jax.jit(jax.vmap(lambda c, d, pick=pick: pick(render.render(c, d)),
+                                  in_axes=(None, 0)))
             t0 = time.perf_counter()
-            jax.block_until_ready(compiled(ctx, data))
-            times.append(time.perf_counter() - t0)
-        med = statistics.median(times)
-        print(f"  batch {b:4d}: {b / med:10.1f} frames/s  (median {med * 1e3:8.2f} ms over {reps}"
-              f" reps; compile {compile_s:5.2f} s)")
+            compiled = fn.lower(ctx, data).compile()
+            compile_s = time.perf_counter() - t0
+            jax.block_until_ready(compiled(ctx, data))  # warm-up
+            times, cpu_times = [], []
+            for _ in range(reps):
+                t0, c0 = time.perf_counter(), time.process_time()
+                jax.block_until_ready(compiled(ctx, data))
+                times.append(time.perf_counter() - t0)
+                cpu_times.append(time.process_time() - c0)
+            med = statistics.median(times)
+            line = (f"  batch {b:4d} {which:>3}: {b / med:10.1f} frames/s  (median"
+                    f" {med * 1e3:8.2f} ms over {reps} reps; compile {compile_s:5.2f} s)")
+            if cpu:
+                line += f"; {b / statistics.median(cpu_times):8.1f} frames/cpu-s"
+                if which == "all" and (name, b) in BEFORE_2CORE:
+                    line += f"; before {BEFORE_2CORE[name, b]}"
+            print(line)
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--reps", type=int, default=5)
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 64, 256])
+    parser.add_argument("--large", action="store_true", help="add batches 1024 and 4096")
+    parser.add_argument("--outputs", nargs="+", default=["all"], choices=sorted(OUTPUTS))
     args = parser.parse_args()
+    batches = list(args.batches) + ([1024, 4096] if args.large else [])
     dev = jax.devices()[0]
     print(f"jax {jax.__version__}, mujoco {mujoco.__version__}, device {dev.platform}:"
           f" {dev.device_kind}, host {platform.processor() or platform.machine()}")
     print("cartpole (3 boxes + plane), 64x64:")
-    bench(CARTPOLE, args.batches, args.reps)
+    bench("cartpole", CARTPOLE, batches, args.reps, args.outputs)
     print("mesh (256-triangle torus + plane), 64x64:")
-    bench(mesh_scene(), args.batches, args.reps)
+    bench("mesh", mesh_scene(), batches, args.reps, args.outputs)
 
 
 if __name__ == "__main__":

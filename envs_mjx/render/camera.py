@@ -1,8 +1,7 @@
-"""MuJoCo cameras: resolve a camera by name or id, precompute per-pixel rays, move them to world."""
+"""MuJoCo cameras: resolve a camera by name or id, precompute per-pixel rays."""
 
 from __future__ import annotations
 
-import jax.numpy as jnp
 import mujoco
 import numpy as np
 
@@ -37,10 +36,14 @@ def camera_rays(fovy_deg: float, height: int, width: int) -> np.ndarray:
     return rays.reshape(-1, 3).astype(np.float32)
 
 
-def world_rays(rays_cam, cam_xpos, cam_xmat):
-    """Rotate camera-frame rays into the world. rays_cam: [P, 3]; cam_xpos: [3]; cam_xmat: [3, 3].
+def ray_table(fovy_deg: float, height: int, width: int) -> np.ndarray:
+    """Per-pixel constants the renderer reads, feature-major: [8, H*W] float32.
 
-    Returns (origin [3], directions [P, 3]); directions keep their length (see camera_rays).
+    Rows: x, y of the camera-frame ray (x, y, -1); its unit direction (3 rows); the unit half
+    vector between the headlight (towards +z in the camera frame) and the view (3 rows).
     """
-    # A broadcast sum rather than a [P, 3] x [3, 3] matmul, which XLA:CPU runs unfused.
-    return cam_xpos, jnp.sum(rays_cam[:, None, :] * cam_xmat[None], axis=-1)
+    rays = camera_rays(fovy_deg, height, width).astype(np.float64)
+    view = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    half = np.array([0.0, 0.0, 1.0]) - view
+    half /= np.linalg.norm(half, axis=1, keepdims=True)
+    return np.concatenate([rays[:, :2], view, half], axis=1).T.astype(np.float32)

@@ -28,13 +28,14 @@ class MeshSet:
     valid: jnp.ndarray  # [Gm, T] bool, False on padding
     uv: jnp.ndarray  # [Gm, T, 3, 2] per-corner texture coordinates (zeros when absent)
     has_uv: jnp.ndarray  # [Gm] bool
+    geom: tuple = struct.field(pytree_node=False)  # [Gm] the mesh geoms' ids
 
 
 @struct.dataclass
 class RenderContext:
     """What `render` needs besides the data. Static fields select the compiled program."""
 
-    rays: jnp.ndarray  # [H*W, 3] camera-frame ray directions, z = -1
+    rays: jnp.ndarray  # [8, H*W] per-pixel constants, see camera.ray_table
     group_size: tuple  # per group [G, 3] geom_size
     mesh: MeshSet | None
     geom_rgb: jnp.ndarray  # [ngeom, 3] material colour in [0, 1]
@@ -61,6 +62,8 @@ class RenderContext:
     group_types: tuple = struct.field(pytree_node=False)  # per group, the mjtGeom int
     group_geoms: tuple = struct.field(pytree_node=False)  # per group, tuple of geom ids
     light_id: int = struct.field(pytree_node=False)  # the model light's id, -1 for none
+    # Geoms whose texture is drawn (planes and meshes with uv that have a 2-D texture).
+    textured_geoms: tuple = struct.field(pytree_node=False, default=())
 
 
 def decimate(verts: np.ndarray, faces: np.ndarray, max_faces: int):
@@ -126,7 +129,8 @@ def _mesh_set(m: mujoco.MjModel, geoms: Sequence[int], max_faces: int) -> MeshSe
     return MeshSet(
         v0=jnp.asarray(pad[:, :, 0], f32), e1=jnp.asarray(pad[:, :, 1] - pad[:, :, 0], f32),
         e2=jnp.asarray(pad[:, :, 2] - pad[:, :, 0], f32), valid=jnp.asarray(valid),
-        uv=jnp.asarray(pad_uv, f32), has_uv=jnp.asarray(np.array(has_uv)))
+        uv=jnp.asarray(pad_uv, f32), has_uv=jnp.asarray(np.array(has_uv)),
+        geom=tuple(int(g) for g in geoms))
 
 
 def _textures(m: mujoco.MjModel):
@@ -201,6 +205,11 @@ def make_context(mj_model: mujoco.MjModel, camera: str | int, height: int = 64, 
     geom_tex = -np.ones(m.ngeom, np.int32)
     if m.ntex:
         geom_tex = np.where(tex_of_geom >= 0, tex_index[np.maximum(tex_of_geom, 0)], -1)
+    # Textures are drawn on planes and on meshes with texture coordinates.
+    with_uv = [g for t, ids in zip(types, groups, strict=True) for g in ids
+               if t == _G.mjGEOM_PLANE
+               or (t == _G.mjGEOM_MESH and m.mesh_texcoordadr[m.geom_dataid[g]] >= 0)]
+    textured = tuple(g for g in with_uv if geom_tex[g] >= 0)
     extent = m.stat.extent
     zfar = m.vis.map.zfar * extent
     if m.nmat:
@@ -239,7 +248,7 @@ def make_context(mj_model: mujoco.MjModel, camera: str | int, height: int = 64, 
 
     f32 = jnp.float32
     return RenderContext(
-        rays=jnp.asarray(camera_lib.camera_rays(m.cam_fovy[cam], height, width)),
+        rays=jnp.asarray(camera_lib.ray_table(m.cam_fovy[cam], height, width)),
         group_size=tuple(sizes), mesh=mesh,
         geom_rgb=jnp.asarray(rgba[:, :3], f32), geom_tex=jnp.asarray(geom_tex, jnp.int32),
         geom_uvscale=jnp.asarray(uvscale, f32), geom_uvorigin=jnp.asarray(plane_size, f32),
@@ -252,4 +261,4 @@ def make_context(mj_model: mujoco.MjModel, camera: str | int, height: int = 64, 
         ambient=jnp.asarray(ambient, f32), background=jnp.asarray(background, f32),
         znear=float(m.vis.map.znear * extent), zfar=float(zfar),
         cam_id=jnp.asarray(cam, jnp.int32), height=height, width=width, group_types=tuple(types),
-        group_geoms=tuple(groups), light_id=light_id)
+        group_geoms=tuple(groups), light_id=light_id, textured_geoms=textured)

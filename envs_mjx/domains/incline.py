@@ -177,7 +177,7 @@ class GeomOnIncline(Env):
         body_inertia = body_inertia.at[self._object].set(self._inertia0 * scale)
         # The compiler's mass-derived constants must follow the mass: C MuJoCo builds the free
         # body's mass matrix from dof_M0 (a stale dof_M0 made C accelerate the object as if it
-        # weighed the nominal 0.05 kg, the whole of the MJX-vs-C gap), and both engines scale
+        # weighed the nominal 0.05 kg: the bulk of the MJX-vs-C gap), and both engines scale
         # contact softness by body_invweight0. The object is one free body with inertia
         # proportional to its mass, so each constant scales by mass / mass0 (or its inverse).
         m = self.mj_model

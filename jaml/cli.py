@@ -1,4 +1,5 @@
-"""The `jaml` command line: `jaml relations …`, `jaml demo`. Entry points stay thin."""
+"""The `jaml` command line: `jaml relations …`, `jaml demo`, `jaml envs list|show`. Entry points
+stay thin."""
 
 from __future__ import annotations
 
@@ -93,6 +94,22 @@ def _cmd_demo(args) -> int:
     return 0
 
 
+def _cmd_envs_list(args) -> int:
+    from envs_mjx.show import format_list, list_envs
+
+    print(format_list(list_envs()))
+    return 0
+
+
+def _cmd_envs_show(args) -> int:
+    from envs_mjx.show import show
+
+    out = args.out or Path(f"{args.name}.png")
+    path = show(args.name, out, resets=args.resets, steps=args.steps, seed=args.seed)
+    print(f"{args.name}: {args.resets} resets x {args.steps} frames -> {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from jaml.sources import PRESETS
 
@@ -122,6 +139,24 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", type=Path, default=Path("runs/demo"), help="parent run directory")
     demo.add_argument("--no-progress", action="store_true", help="no progress bars")
     demo.set_defaults(func=_cmd_demo)
+
+    envs = sub.add_parser("envs", help="the MJX domains (envs_mjx): list them, look at them")
+    envs_sub = envs.add_subparsers(dest="envs_command", required=True)
+    envs_sub.add_parser(
+        "list", help="each env with its action size and LD state (size and names)"
+    ).set_defaults(func=_cmd_envs_list)
+    show = envs_sub.add_parser(
+        "show",
+        help="PNG grid of rendered frames from random-action rollouts",
+        description="Rows are resets (so per-episode colours show), columns are time; "
+        "frames come from the env's own pixels path (envs_mjx.render).",
+    )
+    show.add_argument("name", help="env name (see `jaml envs list`)")
+    show.add_argument("--out", type=Path, default=None, help="PNG path (default: NAME.png)")
+    show.add_argument("--resets", type=int, default=4, help="rows: independent resets")
+    show.add_argument("--steps", type=int, default=8, help="columns: frames per reset")
+    show.add_argument("--seed", type=int, default=0, help="PRNG seed")
+    show.set_defaults(func=_cmd_envs_show)
     return parser
 
 

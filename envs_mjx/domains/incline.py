@@ -3,11 +3,13 @@
 One object (a block, or a cylinder variant) slides on a 4 m plank tilted about +y by theta, so the
 surface through (0, 0, 0.55) runs downhill along +x. Every reset draws, per env:
   theta ~U(theta_range) rad, mass ~U(mass_range) kg (inertia rescaled to match),
-  f ~U(friction_range) with contact friction f^2 (pybullet multiplied object x plank friction),
-  floored at 0.01 (MJX gives NaN for near-frictionless pyramidal contacts),
+  f ~U(friction_range) with contact friction f^2 (pybullet multiplied object x plank friction;
+  f = 0 is a frictionless plank),
   texture_id ~U{0..5}: plank colour INCLINE_COLOURS[id], ground colour GROUND_COLOURS[id].
 These live in `info` ("theta", "mass", "friction", "texture_id", "geom_rgba") and become batched
-mjx.Model fields (plank body_quat, object body_mass / body_inertia, pair_friction) each step.
+mjx.Model fields each step: plank body_quat; object body_mass / body_inertia and the compiler's
+mass-derived constants (dof_M0, body_subtreemass, body_invweight0, dof_invweight0); pair_friction
+and pair_margin (which of the frictional / frictionless contact pairs is on).
 
 Action a in [-1, 1]: a force force_scale * clip(a) N (2 N by default) along the incline's downhill
 direction, applied at the object's centre of mass (xfrc_applied), held over 8 substeps of 5 ms.
@@ -72,7 +74,13 @@ OBJECTS = (
     (_CYL, (0.15, 0.1625, 0), 0.2, (0, 0.5, 1)),
     (_CYL, (0.075, 0.04375, 0), 0.2, (0, 0, 1)),
 )
-MIN_CONTACT_FRICTION = 0.01
+# Reset places the object this far into the plank (m), inside the soft contact's rest depth
+# (~0.1-0.3 mm here): at exactly zero distance float32 MJX and float64 C MuJoCo disagree on whether
+# the contact is active, and C lets the object fall freely for one substep.
+RESET_SINK = 2e-4
+# Contact friction below this is treated as exactly zero (the frictionless contact pair): MJX's
+# pyramidal cone returns NaN below about 1e-3 (measured with MJX 3.17, float32).
+FRICTIONLESS_BELOW = 1e-3
 PLANK_ORIGIN = np.array([0.0, 0.0, 0.55], np.float32)
 
 
@@ -113,6 +121,8 @@ class GeomOnIncline(Env):
         # The object's half-thickness normal to the plank: box local x / cylinder radius.
         self._half_height = float(size[0])
         self._object = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_BODY, "object")
+        adr, num = mj_model.body_dofadr[self._object], mj_model.body_dofnum[self._object]
+        self._object_dofs = np.arange(adr, adr + num)
         self._plank = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_BODY, "plank")
         self._plank_geom = geom_ids(mj_model, ["plank"])
         self._ground_geom = geom_ids(mj_model, ["ground"])
@@ -139,7 +149,7 @@ class GeomOnIncline(Env):
         texture_id = jax.random.randint(keys[3], (), 0, len(INCLINE_COLOURS))
         s0 = jax.random.uniform(keys[4], (), minval=c.start_range[0], maxval=c.start_range[1])
         u, n = _downhill(theta), _normal(theta)
-        pos = jnp.asarray(PLANK_ORIGIN) + s0 * u + self._half_height * n
+        pos = jnp.asarray(PLANK_ORIGIN) + s0 * u + (self._half_height - RESET_SINK) * n
         # Object frame: local z downhill, local x into the plank = plank rotation, then +90 deg
         # about y. Both are rotations about y, so the angles add.
         quat = _quat_y(theta + jnp.pi / 2)
@@ -162,17 +172,44 @@ class GeomOnIncline(Env):
         body_quat = jnp.asarray(self.mj_model.body_quat, jnp.float32)
         body_quat = body_quat.at[self._plank].set(_quat_y(info["theta"]))
         body_mass = jnp.asarray(self.mj_model.body_mass, jnp.float32).at[self._object].set(mass)
+        scale = mass / self._mass0
         body_inertia = jnp.asarray(self.mj_model.body_inertia, jnp.float32)
-        body_inertia = body_inertia.at[self._object].set(self._inertia0 * (mass / self._mass0))
-        # Floored at 0.01 (f = 0.1, the reference's smallest draw): MJX 3.17's pyramidal cone
-        # returns NaN states for contact friction below about 1e-3 (measured), exact 0 included.
-        mu = jnp.maximum(jnp.asarray(info["friction"], jnp.float32) ** 2, MIN_CONTACT_FRICTION)
-        pair_friction = jnp.asarray(self._pair_friction0).at[:, :2].set(mu)
+        body_inertia = body_inertia.at[self._object].set(self._inertia0 * scale)
+        # The compiler's mass-derived constants must follow the mass: C MuJoCo builds the free
+        # body's mass matrix from dof_M0 (a stale dof_M0 made C accelerate the object as if it
+        # weighed the nominal 0.05 kg: the bulk of the MJX-vs-C gap), and both engines scale
+        # contact softness by body_invweight0. The object is one free body with inertia
+        # proportional to its mass, so each constant scales by mass / mass0 (or its inverse).
+        m = self.mj_model
+        dofs = self._object_dofs
+        body_subtreemass = jnp.asarray(m.body_subtreemass, jnp.float32)
+        body_subtreemass = body_subtreemass.at[self._object].set(mass)
+        body_subtreemass = body_subtreemass.at[0].add(mass - self._mass0)
+        body_invweight0 = jnp.asarray(m.body_invweight0, jnp.float32)
+        body_invweight0 = body_invweight0.at[self._object].divide(scale)
+        dof_invweight0 = jnp.asarray(m.dof_invweight0, jnp.float32).at[dofs].divide(scale)
+        dof_m0 = jnp.asarray(m.dof_M0, jnp.float32).at[dofs].multiply(scale)
+        # Contact friction mu = f^2. Below FRICTIONLESS_BELOW the frictionless pair (condim 1)
+        # carries the contact and the frictional one is switched off by a -1 m margin (its mu is
+        # then left at 1: a pyramidal row with mu = 0 has D = inf even when inactive).
+        mu = jnp.asarray(info["friction"], jnp.float32) ** 2
+        frictionless = mu < FRICTIONLESS_BELOW
+        pair_friction = jnp.asarray(self._pair_friction0)
+        pair_friction = pair_friction.at[0, :2].set(jnp.where(frictionless, 1.0, mu))
+        off = jnp.asarray(-1.0, jnp.float32)
+        pair_margin = jnp.stack(
+            [jnp.where(frictionless, off, 0.0), jnp.where(frictionless, 0.0, off)]
+        )
         return {
             "body_quat": body_quat,
             "body_mass": body_mass,
             "body_inertia": body_inertia,
+            "body_subtreemass": body_subtreemass,
+            "body_invweight0": body_invweight0,
+            "dof_invweight0": dof_invweight0,
+            "dof_M0": dof_m0,
             "pair_friction": pair_friction,
+            "pair_margin": pair_margin,
         }
 
     def _apply_action(self, data, action, info):

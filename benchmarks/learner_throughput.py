@@ -98,24 +98,29 @@ def bench_torch(b: int, reps: int, steps: int) -> dict | None:
             kl = 0.5 * (logvar.exp() + mu.square() - 1.0 - logvar).sum(dim=1)
             return (nll + kl).mean()
 
+    # The peer runs where jaml runs: on the GPU when there is one.
+    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
     torch.manual_seed(0)
-    model = VAE(2 * LD_DIM, ACTION_DIM)
+    model = VAE(2 * LD_DIM, ACTION_DIM).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
     frames, actions = _batch(b)
-    frames = torch.from_numpy(frames[:, 0]).permute(0, 3, 1, 2).contiguous()  # NCHW
-    actions = torch.from_numpy(actions[:, 0])
+    frames = torch.from_numpy(frames[:, 0]).permute(0, 3, 1, 2).contiguous().to(device)  # NCHW
+    actions = torch.from_numpy(actions[:, 0]).to(device)
 
     def run_steps(n):
         for _ in range(n):
             opt.zero_grad(set_to_none=True)
             model.loss(frames, actions).backward()
             opt.step()
+        if device.type == "cuda":
+            torch.cuda.synchronize()  # time the work, not the launches
 
     t0 = time.perf_counter()
     run_steps(1)  # warm-up (eager: no compilation, first-call allocation only)
     first_s = time.perf_counter() - t0
     return {"first_step_s": first_s, "fps": _median_rate(run_steps, b, reps, steps),
-            "version": torch.__version__, "threads": torch.get_num_threads()}
+            "version": torch.__version__, "threads": torch.get_num_threads(),
+            "device": str(device)}
 
 
 def main():
@@ -133,7 +138,8 @@ def main():
         line = f"batch {b:4d}: jaml {j['fps']:8.1f} frames/s (compile {j['compile_s']:.1f} s)"
         t = bench_torch(b, args.reps, args.steps)
         if t is not None:
-            line += (f" | torch {t['version']} ({t['threads']} threads) {t['fps']:8.1f} frames/s "
+            line += (f" | torch {t['version']} on {t['device']} ({t['threads']} threads) "
+                     f"{t['fps']:8.1f} frames/s "
                      f"(first step {t['first_step_s']:.2f} s) | jaml/torch "
                      f"{j['fps'] / t['fps']:.2f}×")
         print(line, flush=True)

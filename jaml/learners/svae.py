@@ -7,13 +7,11 @@ from __future__ import annotations
 
 import dataclasses
 
-import flax.linen as nn
-import jax
 import jax.numpy as jnp
 
-from jaml.learners import elbo
-from jaml.learners.learner import FRAME_SHAPE, Learner, LearnerConfig, Outputs
+from jaml.learners.learner import FRAME_SHAPE, Learner, LearnerConfig
 from jaml.learners.networks import ConvDecoder, ConvEncoder, GaussianHead, RNNEncoder
+from jaml.learners.vae import StepwiseGaussianVAE
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,7 +35,7 @@ class SVAEConfig(LearnerConfig):
         return self.hist
 
 
-class SequenceVAE(nn.Module):
+class SequenceVAE(StepwiseGaussianVAE):
     """The reference's EncoderDynamicRNN with a per-step ConvDecoder."""
 
     config: SVAEConfig
@@ -54,26 +52,6 @@ class SequenceVAE(nn.Module):
         b, t = x.shape[:2]
         feats = self.conv(x.reshape(b * t, *FRAME_SHAPE), train).reshape(b, t, -1)
         return self.head(self.rnn(jnp.concatenate([feats, a], axis=-1)))
-
-    def decode(self, z, train: bool):
-        b, t = z.shape[:2]
-        if self.config.mu_nl:
-            z = nn.sigmoid(z)
-        return self.decoder(z.reshape(b * t, -1), train).reshape(b, t, *FRAME_SHAPE)
-
-    def __call__(self, x, a, key, train: bool = True) -> Outputs:
-        mu, logvar = self.posterior(x, a, train)
-        z = elbo.reparameterize(key, mu, logvar)
-        kl = elbo.kl_to_standard_normal(mu, logvar).sum(axis=-1)
-        return Outputs(recon=self.decode(z, train), kl={"kl": kl}, z=z)
-
-    def encode(self, x, a) -> jax.Array:
-        mu, _ = self.posterior(x, a, False)
-        return mu.reshape(mu.shape[0], -1)
-
-    def reconstruct(self, x, a) -> jax.Array:
-        mu, _ = self.posterior(x, a, False)
-        return self.decode(mu, False)
 
 
 def make_svae(name: str, config: SVAEConfig) -> Learner:

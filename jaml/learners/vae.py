@@ -42,31 +42,15 @@ class VAEConfig(LearnerConfig):
         return 1
 
 
-class FeedForwardVAE(nn.Module):
-    """Conv features ⊕ actions of the first `hist` frames → MLP → posterior over S steps → decode.
-
-    config needs hist, latent_steps, z_step, mlp_widths and the LearnerConfig fields.
-    """
+class StepwiseGaussianVAE(nn.Module):
+    """A Gaussian posterior per decoded step (`posterior`, defined by subclasses), sampled with
+    the reparameterisation trick and decoded frame by frame; shared by the VAE, PRED and SVAE."""
 
     config: Any
 
-    def setup(self):
-        c = self.config
-        self.conv = ConvEncoder(c.conv_filters, c.conv_features)
-        self.trunk = MLP(c.mlp_widths)
-        self.head = GaussianHead(c.latent_steps * c.z_step, "elu" if c.mu_nl else "none",
-                                 c.logvar_limit)
-        self.decoder = ConvDecoder(c.deconv_filters)
-
     def posterior(self, x, a, train: bool):
-        """x [B, T, H, W, C], a [B, T, A] → μ, logvar [B, S, Z] from the first `hist` frames."""
-        c = self.config
-        b, h = x.shape[0], c.hist
-        feats = self.conv(x[:, :h].reshape(b * h, *FRAME_SHAPE), train).reshape(b, h, -1)
-        inputs = jnp.concatenate([feats, a[:, :h]], axis=-1).reshape(b, -1)
-        mu, logvar = self.head(self.trunk(inputs))
-        shape = (b, c.latent_steps, c.z_step)
-        return mu.reshape(shape), logvar.reshape(shape)
+        """x [B, T, H, W, C], a [B, T, A] → μ, logvar [B, S, Z]."""
+        raise NotImplementedError
 
     def decode(self, z, train: bool):
         """z [B, S, Z] → [B, S, H, W, C]; each step decoded on its own."""
@@ -88,6 +72,34 @@ class FeedForwardVAE(nn.Module):
     def reconstruct(self, x, a) -> jax.Array:
         mu, _ = self.posterior(x, a, False)
         return self.decode(mu, False)
+
+
+class FeedForwardVAE(StepwiseGaussianVAE):
+    """Conv features ⊕ actions of the first `hist` frames → MLP → posterior over S steps → decode.
+
+    config needs hist, latent_steps, z_step, mlp_widths and the LearnerConfig fields.
+    """
+
+    config: Any
+
+    def setup(self):
+        c = self.config
+        self.conv = ConvEncoder(c.conv_filters, c.conv_features)
+        self.trunk = MLP(c.mlp_widths)
+        self.head = GaussianHead(
+            c.latent_steps * c.z_step, "elu" if c.mu_nl else "none", c.logvar_limit
+        )
+        self.decoder = ConvDecoder(c.deconv_filters)
+
+    def posterior(self, x, a, train: bool):
+        """x [B, T, H, W, C], a [B, T, A] → μ, logvar [B, S, Z] from the first `hist` frames."""
+        c = self.config
+        b, h = x.shape[0], c.hist
+        feats = self.conv(x[:, :h].reshape(b * h, *FRAME_SHAPE), train).reshape(b, h, -1)
+        inputs = jnp.concatenate([feats, a[:, :h]], axis=-1).reshape(b, -1)
+        mu, logvar = self.head(self.trunk(inputs))
+        shape = (b, c.latent_steps, c.z_step)
+        return mu.reshape(shape), logvar.reshape(shape)
 
 
 def make_vae(name: str, config: VAEConfig) -> Learner:

@@ -6,7 +6,14 @@ import dataclasses
 from collections.abc import Callable
 
 from envs_mjx.base import Env, EnvConfig, PixelsFn
-from envs_mjx.domains import ant, cartpole, half_cheetah, incline, inverted_pendulum
+from envs_mjx.domains import (
+    ant,
+    cartpole,
+    half_cheetah,
+    incline,
+    inverted_pendulum,
+    mesh_incline,
+)
 
 # name -> (env class, default_config)
 _REGISTRY: dict[str, tuple[type[Env], Callable[[], EnvConfig]]] = {
@@ -15,6 +22,7 @@ _REGISTRY: dict[str, tuple[type[Env], Callable[[], EnvConfig]]] = {
     "HalfCheetah": (half_cheetah.HalfCheetah, half_cheetah.default_config),
     "Ant": (ant.Ant, ant.default_config),
     "GeomOnIncline": (incline.GeomOnIncline, incline.default_config),
+    "MeshOnIncline": (mesh_incline.MeshOnIncline, mesh_incline.default_config),
 }
 ALL_ENVS: tuple[str, ...] = tuple(_REGISTRY)
 

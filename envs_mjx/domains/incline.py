@@ -109,17 +109,11 @@ class GeomOnIncline(Env):
 
     def __init__(self, config: InclineConfig | None = None, pixels_fn=None):
         config = config or default_config()
-        if not 0 <= config.object_id < len(OBJECTS):
-            raise ValueError(f"object_id must be in 0..{len(OBJECTS) - 1}, got {config.object_id}")
         if config.ground not in ("paired", "black"):
             raise ValueError(f"ground must be 'paired' or 'black', got {config.ground!r}")
         spec = mujoco.MjSpec.from_file(asset("geom_on_incline.xml"))
-        gtype, size, mass, rgb = OBJECTS[config.object_id]
-        obj = spec.geom("object")
-        obj.type, obj.size, obj.mass, obj.rgba = gtype, list(size), mass, [*rgb, 1.0]
+        self._half_height = self._add_object(spec, config)
         mj_model = spec.compile()
-        # The object's half-thickness normal to the plank: box local x / cylinder radius.
-        self._half_height = float(size[0])
         self._object = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_BODY, "object")
         adr, num = mj_model.body_dofadr[self._object], mj_model.body_dofnum[self._object]
         self._object_dofs = np.arange(adr, adr + num)
@@ -133,6 +127,17 @@ class GeomOnIncline(Env):
         names += ["friction"] if config.ld_friction else []
         names += ["theta", "position", "velocity"]
         super().__init__(config, mj_model, tuple(names), pixels_fn)
+
+    def _add_object(self, spec: mujoco.MjSpec, config: InclineConfig) -> float:
+        """Shapes the spec's "object" geom (the collision geom the contact pairs name) and
+        returns the object's extent along its local +x, which reset points into the plank."""
+        if not 0 <= config.object_id < len(OBJECTS):
+            raise ValueError(f"object_id must be in 0..{len(OBJECTS) - 1}, got {config.object_id}")
+        self._object_index = config.object_id
+        gtype, size, mass, rgb = OBJECTS[config.object_id]
+        obj = spec.geom("object")
+        obj.type, obj.size, obj.mass, obj.rgba = gtype, list(size), mass, [*rgb, 1.0]
+        return float(size[0])  # box local x half-size / cylinder radius
 
     @property
     def action_size(self) -> int:
@@ -226,7 +231,7 @@ class GeomOnIncline(Env):
         c = self.config
         s, v = self.along_plank(data.qpos, data.qvel, info["theta"])
         tid = info["texture_id"].astype(jnp.float32)
-        oid = jnp.asarray(float(c.object_id))
+        oid = jnp.asarray(float(self._object_index))
         f, theta = info["friction"], info["theta"]
         if c.normalize_ld:
             tid, oid = tid / 6.0, oid / 6.0

@@ -87,9 +87,25 @@ def load_object(
     uv = uv[kept]
     lo, hi = verts.min(0), verts.max(0)
     verts = (verts - (lo + hi) / 2) * (size / float(np.max(hi - lo)))
-    image = Image.open(png).convert("RGB")
+    image, uv = crop_to_uv(Image.open(png).convert("RGB"), uv)
     image.thumbnail((max_texture, max_texture), Image.Resampling.LANCZOS)
     return TexturedMesh(verts, faces, uv, np.asarray(image, np.uint8))
+
+
+def crop_to_uv(image, uv: np.ndarray):
+    """(image cropped to the texels the faces use, uv remapped to it), so that shrinking keeps
+    detail when a texture is an atlas (the domino's image holds a whole set of tiles). Tiling
+    uvs (outside [0, 1]) leave both unchanged. image: a PIL image; uv [F, 3, 2], OBJ convention."""
+    if uv.min() < 0.0 or uv.max() > 1.0:
+        return image, uv
+    w, h = image.size
+    u, v = uv[..., 0], uv[..., 1]
+    left, right = int(np.floor(u.min() * w)), int(np.ceil(u.max() * w))
+    top, bottom = int(np.floor((1.0 - v.max()) * h)), int(np.ceil((1.0 - v.min()) * h))
+    right, bottom = max(right, left + 1), max(bottom, top + 1)
+    new_u = (u * w - left) / (right - left)
+    new_v = 1.0 - ((1.0 - v) * h - top) / (bottom - top)
+    return image.crop((left, top, right, bottom)), np.stack([new_u, new_v], axis=-1)
 
 
 def write_object(mesh: TexturedMesh, folder: str | Path) -> None:

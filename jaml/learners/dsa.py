@@ -8,33 +8,28 @@ Z dynamic size per step, A action.
 from __future__ import annotations
 
 import dataclasses
+import typing
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
 from jaml.learners import elbo
-from jaml.learners.learner import FRAME_SHAPE, Learner, LearnerConfig, Outputs
+from jaml.learners.learner import FRAME_SHAPE, Learner, Outputs, RecurrentConfig
 from jaml.learners.networks import ConvDecoder, ConvEncoder, GaussianHead, RNNEncoder, lstm
 
 
 @dataclasses.dataclass(frozen=True)
-class DSAConfig(LearnerConfig):
+class DSAConfig(RecurrentConfig):
     """DSA_SEQ24 by default: static F = D and dynamic Z = D per step (2·D in all), hist 24.
 
     latent_dim is the dynamic size (None → ld_dim); static_dim None → ld_dim. β weighs only
     the dynamic KL: loss = −(recon − (KL_f + β Σ_t KL_z)).
     """
 
-    hist: int = 24
     static_dim: int | None = None
-    rnn_hidden: int = 512
     prior_hidden: int = 512
-
-    def __post_init__(self):
-        super().__post_init__()
-        if self.hist < 2:
-            raise ValueError(f"DSA needs hist ≥ 2 (its static encoder sees half), got {self.hist}")
+    min_hist: typing.ClassVar[int] = 2  # its static encoder sees half the frames
 
     @property
     def z_step(self) -> int:
@@ -43,14 +38,6 @@ class DSAConfig(LearnerConfig):
     @property
     def f_size(self) -> int:
         return self.static_dim or self.ld_dim
-
-    @property
-    def seq_len(self) -> int:
-        return self.hist
-
-    @property
-    def latent_steps(self) -> int:
-        return self.hist
 
     @property
     def penalty_dim(self) -> int:
@@ -142,8 +129,9 @@ class DisentangledSequentialAE(nn.Module):
         }
         # The penalty sees the whole per-step latent [f ⊕ z_t] (pre-sigmoid samples).
         f_seq = jnp.broadcast_to(f_sample[:, None], (b, t, f_sample.shape[-1]))
-        return Outputs(recon=self.decode(f, z, train), kl=kl,
-                       z=jnp.concatenate([f_seq, z], axis=-1))
+        return Outputs(
+            recon=self.decode(f, z, train), kl=kl, z=jnp.concatenate([f_seq, z], axis=-1)
+        )
 
     def _posterior_means(self, x, a):
         b, t = x.shape[:2]
@@ -162,5 +150,9 @@ class DisentangledSequentialAE(nn.Module):
 
 
 def make_dsa(name: str, config: DSAConfig) -> Learner:
-    return Learner(name, config, DisentangledSequentialAE(config),
-                   {"kl_static": 1.0, "kl_dynamic": config.beta})
+    return Learner(
+        name,
+        config,
+        DisentangledSequentialAE(config),
+        {"kl_static": 1.0, "kl_dynamic": config.beta},
+    )

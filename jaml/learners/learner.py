@@ -7,6 +7,7 @@ P per-step latent passed to a penalty, Z flattened latent code.
 from __future__ import annotations
 
 import dataclasses
+import typing
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -53,8 +54,9 @@ class LearnerConfig:
         if self.latent_dim is not None and int(self.latent_dim) < 1:
             raise ValueError(f"latent_dim must be ≥ 1 or None, got {self.latent_dim}")
         if not 0.0 <= self.replay_keep_fraction < 1.0:
-            raise ValueError(f"replay_keep_fraction must be in [0, 1), got "
-                             f"{self.replay_keep_fraction}")
+            raise ValueError(
+                f"replay_keep_fraction must be in [0, 1), got {self.replay_keep_fraction}"
+            )
 
     def replace(self, **changes) -> LearnerConfig:
         return dataclasses.replace(self, **changes)
@@ -84,6 +86,31 @@ class LearnerConfig:
     def latent_size(self) -> int:
         """Z: size of `encode`'s flattened posterior mean."""
         return self.latent_steps * self.z_step
+
+
+@dataclasses.dataclass(frozen=True)
+class RecurrentConfig(LearnerConfig):
+    """Learners that encode all `hist` frames with an RNN and keep one latent per frame.
+
+    min_hist: the fewest frames the model can work with (a class constant, not a field).
+    """
+
+    hist: int = 24
+    rnn_hidden: int = 512
+    min_hist: typing.ClassVar[int] = 1
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.hist < self.min_hist:
+            raise ValueError(f"{type(self).__name__} needs hist ≥ {self.min_hist}, got {self.hist}")
+
+    @property
+    def seq_len(self) -> int:
+        return self.hist
+
+    @property
+    def latent_steps(self) -> int:
+        return self.hist
 
 
 @struct.dataclass
@@ -124,14 +151,19 @@ class Learner:
         """uint8 [B, T, 64, 64, 3] (or float in [0, 1]), [B, T, A] → float arrays; raise if bad."""
         frames, actions = jnp.asarray(frames), jnp.asarray(actions)
         if frames.ndim != 5 or tuple(frames.shape[2:]) != FRAME_SHAPE:
-            raise ValueError(f"{self.name}: frames must be [B, T, 64, 64, 3], got "
-                             f"{tuple(frames.shape)}")
+            raise ValueError(
+                f"{self.name}: frames must be [B, T, 64, 64, 3], got {tuple(frames.shape)}"
+            )
         if frames.shape[1] != self.seq_len:
-            raise ValueError(f"{self.name}: sequence length must be T = {self.seq_len}, got "
-                             f"frames {tuple(frames.shape)}")
+            raise ValueError(
+                f"{self.name}: sequence length must be T = {self.seq_len}, got "
+                f"frames {tuple(frames.shape)}"
+            )
         if actions.ndim != 3 or tuple(actions.shape[:2]) != tuple(frames.shape[:2]):
-            raise ValueError(f"{self.name}: actions must be [B, T, A] = [{frames.shape[0]}, "
-                             f"{frames.shape[1]}, A] to match frames, got {tuple(actions.shape)}")
+            raise ValueError(
+                f"{self.name}: actions must be [B, T, A] = [{frames.shape[0]}, "
+                f"{frames.shape[1]}, A] to match frames, got {tuple(actions.shape)}"
+            )
         return elbo.frames_to_float(frames), actions.astype(jnp.float32)
 
     def module_init(self, key: jax.Array, x: jax.Array, a: jax.Array) -> dict[str, Any]:
@@ -145,32 +177,38 @@ class Learner:
         # Jitted: op-by-op initialisation of the conv stacks is several times slower on CPU.
         return jax.jit(self.module_init)(key, x, a)
 
-    def loss_and_stats(self, variables, key, frames, actions,
-                       latent_penalty: LatentPenalty | None = None):
+    def loss_and_stats(
+        self, variables, key, frames, actions, latent_penalty: LatentPenalty | None = None
+    ):
         """(loss, (metrics, new batch_stats)): `loss` plus the BatchNorm statistics it updated."""
         x, a = self.check_batch(frames, actions)
-        out, updates = self.module.apply(variables, x, a, key, train=True,
-                                         mutable=["batch_stats"])
+        out, updates = self.module.apply(variables, x, a, key, train=True, mutable=["batch_stats"])
         steps = out.recon.shape[1]
         # Unit-variance Gaussian log-likelihood averaged over the decoded frames (reference §4).
-        nll = -jnp.mean(elbo.gaussian_loglik(x[:, x.shape[1] - steps:], out.recon), axis=1)
+        nll = -jnp.mean(elbo.gaussian_loglik(x[:, x.shape[1] - steps :], out.recon), axis=1)
         kl = sum(self.kl_weights[k] * v for k, v in out.kl.items())
         if latent_penalty is None:
             penalty = jnp.zeros_like(nll)
         else:
-            penalty = latent_penalty(out.z, a[:, a.shape[1] - steps:])
+            penalty = latent_penalty(out.z, a[:, a.shape[1] - steps :])
             if jnp.shape(penalty) != nll.shape:
-                raise ValueError(f"latent_penalty must return [B] = {nll.shape}, got "
-                                 f"{jnp.shape(penalty)}")
+                raise ValueError(
+                    f"latent_penalty must return [B] = {nll.shape}, got {jnp.shape(penalty)}"
+                )
         loss = jnp.mean(nll + kl + penalty)
-        metrics = {"loss": loss, "nll": jnp.mean(nll), "kl": jnp.mean(sum(out.kl.values())),
-                   "penalty": jnp.mean(penalty)}
+        metrics = {
+            "loss": loss,
+            "nll": jnp.mean(nll),
+            "kl": jnp.mean(sum(out.kl.values())),
+            "penalty": jnp.mean(penalty),
+        }
         if len(out.kl) > 1:
             metrics.update({k: jnp.mean(v) for k, v in out.kl.items()})
         return loss, (metrics, updates["batch_stats"])
 
-    def loss(self, variables, key, frames, actions,
-             latent_penalty: LatentPenalty | None = None) -> tuple[jax.Array, dict]:
+    def loss(
+        self, variables, key, frames, actions, latent_penalty: LatentPenalty | None = None
+    ) -> tuple[jax.Array, dict]:
         """(scalar loss, metrics): −ELBO (β-weighted KL) + mean latent penalty (paper eq. 4).
 
         frames uint8 [B, T, 64, 64, 3], actions [B, T, A]. `latent_penalty(z, a)` receives the

@@ -9,30 +9,14 @@ import dataclasses
 
 import jax.numpy as jnp
 
-from jaml.learners.learner import FRAME_SHAPE, Learner, LearnerConfig
+from jaml.learners.learner import FRAME_SHAPE, Learner, RecurrentConfig
 from jaml.learners.networks import ConvDecoder, ConvEncoder, GaussianHead, RNNEncoder
 from jaml.learners.vae import StepwiseGaussianVAE
 
 
 @dataclasses.dataclass(frozen=True)
-class SVAEConfig(LearnerConfig):
+class SVAEConfig(RecurrentConfig):
     """SVAE_SEQ24 by default (hist = past = 24, pred 0); SEQ16 / SEQ8 / PARAMS_SVAE: 16 / 8 / 32."""
-
-    hist: int = 24
-    rnn_hidden: int = 512
-
-    def __post_init__(self):
-        super().__post_init__()
-        if self.hist < 1:
-            raise ValueError(f"SVAE needs hist ≥ 1, got {self.hist}")
-
-    @property
-    def seq_len(self) -> int:
-        return self.hist
-
-    @property
-    def latent_steps(self) -> int:
-        return self.hist
 
 
 class SequenceVAE(StepwiseGaussianVAE):

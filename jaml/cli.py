@@ -1,5 +1,5 @@
-"""The `jaml` command line: `jaml relations …`, `jaml demo`, `jaml envs list|show`. Entry points
-stay thin."""
+"""The `jaml` command line: `jaml relations …`, `jaml suite …`, `jaml demo`, `jaml envs list|show`.
+Entry points stay thin."""
 
 from __future__ import annotations
 
@@ -94,6 +94,94 @@ def _cmd_demo(args) -> int:
     return 0
 
 
+_SUITE_FIELDS = ("seed", "num_envs", "rollout_len", "replay_slots", "replay_keep_fraction",
+                 "learner_steps", "frames_per_batch", "epochs", "eval_every", "eval_train",
+                 "eval_rand", "eval_curr", "eval_transient", "regressor_iterations")
+
+
+def _key_value(text: str) -> tuple[str, object]:
+    """KEY=VALUE with VALUE read as JSON where it parses (numbers, true, lists), else a string."""
+    import json
+
+    if "=" not in text:
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    key, value = text.split("=", 1)
+    try:
+        return key, json.loads(value)
+    except json.JSONDecodeError:
+        return key, value
+
+
+def _field_docs(doc: str) -> dict[str, str]:
+    """`name: text` entries of a docstring, continuation lines (indented deeper) joined."""
+    docs, current, indent = {}, None, None
+    for line in doc.splitlines():
+        stripped = line.strip()
+        depth = len(line) - len(stripped)
+        head = stripped.split(":", 1)[0]
+        if ":" in stripped and head.isidentifier() and (indent is None or depth <= indent):
+            current, indent = head, depth
+            docs[current] = stripped.split(":", 1)[1].strip()
+        elif current and stripped and depth > indent:
+            docs[current] += " " + stripped
+        else:
+            current = None
+    return docs
+
+
+def _cmd_suite(args) -> int:
+    from jaml.stream import for_env
+    from jaml.stream.run import run
+
+    overrides = {f: getattr(args, f) for f in _SUITE_FIELDS if getattr(args, f) is not None}
+    learner_overrides = dict(args.learner_opt or [])
+    config = for_env(args.env, args.learner, policy=args.policy,
+                     learner_overrides=learner_overrides,
+                     env_overrides=dict(args.env_opt or []), **overrides)
+    summary = run(config, args.out, progress=not args.no_progress, stop_after=args.stop_after)
+    print(f"{args.env} {args.learner} ({args.policy}): {summary['status']} at epoch "
+          f"{summary['epoch']}, checkpoint {summary['checkpoint_epoch']} -> {args.out}")
+    for r in summary["final"]:
+        errs = " ".join(f"{k}={v:.3f}" for k, v in r["errors"].items())
+        print(f"  {r['test_set']}: {errs}")
+    return 0
+
+
+def _add_suite_parser(sub) -> None:
+    import envs_mjx
+    from jaml import learners
+    from jaml.stream import POLICIES, StreamConfig
+
+    suite = sub.add_parser(
+        "suite",
+        help="the evaluation suite's learning loop (paper §2.1): PPO frames → replay → learner",
+        description="PPO (or a random policy) acts in NUM_ENVS MJX envs; their 64×64 frames fill "
+        "a replay that keeps its initial half; a learner trains on replay sequences and is "
+        "analysed every EVAL_EVERY epochs by the alignment of its latents with the true state "
+        "on π_rand and π_curr. Writes a run directory; re-running with the same --out and "
+        "options resumes from the last checkpoint. Defaults per env follow the reference suite.",
+    )
+    suite.add_argument("--env", required=True, choices=envs_mjx.ALL_ENVS)
+    suite.add_argument("--learner", required=True, choices=learners.ALL_LEARNERS)
+    suite.add_argument("--policy", default="ppo", choices=POLICIES)
+    suite.add_argument("--out", required=True, type=Path, help="run directory")
+    docs = _field_docs(StreamConfig.__doc__ or "")
+    hints = typing.get_type_hints(StreamConfig)
+    for name in _SUITE_FIELDS:
+        described = docs.get(name, "")
+        kind = float if "float" in str(hints[name]) else int
+        suite.add_argument("--" + name.replace("_", "-"), dest=name, type=kind, default=None,
+                           help=described.replace("%", "%%"))
+    suite.add_argument("--learner-opt", type=_key_value, action="append", metavar="KEY=VALUE",
+                       help="learner config field, e.g. beta=20 or hist=16 (repeatable)")
+    suite.add_argument("--env-opt", type=_key_value, action="append", metavar="KEY=VALUE",
+                       help="env config field, e.g. multicolor=false (repeatable)")
+    suite.add_argument("--stop-after", type=int, default=None,
+                       help="stop after this many epochs in this call (resume later)")
+    suite.add_argument("--no-progress", action="store_true", help="no progress bar")
+    suite.set_defaults(func=_cmd_suite)
+
+
 def _cmd_envs_list(args) -> int:
     from envs_mjx.show import format_list, list_envs
 
@@ -129,6 +217,8 @@ def build_parser() -> argparse.ArgumentParser:
     rel.add_argument("--no-progress", action="store_true", help="no progress bars")
     _add_config_options(rel)
     rel.set_defaults(func=_cmd_relations)
+
+    _add_suite_parser(sub)
 
     demo = sub.add_parser(
         "demo",

@@ -1,0 +1,139 @@
+"""`StreamConfig`: one learning-loop run (env, learner, policy, replay, schedule, evaluation).
+
+Defaults follow the reference suite (suite_reference.md §3, §5) where they are not sizes; the
+sizes of the paper (5000 replay columns, 10 000-row regressor sets, 100 000 epochs) are fields,
+and `for_env` fills the per-domain ones (rollout length, learner steps per epoch, PPO network,
+sequence-learner window).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from typing import Any
+
+from jaml.stream.ppo import PPOConfig
+
+POLICIES = ("ppo", "random")
+_PENDULUMS = ("CartPole", "InvertedPendulum")
+_INCLINES = ("GeomOnIncline", "MeshOnIncline")
+
+
+@dataclasses.dataclass(frozen=True)
+class StreamConfig:
+    """A learning-loop run.
+
+    env / learner: registry names (`envs_mjx.ALL_ENVS`, `jaml.learners.ALL_LEARNERS`).
+    policy: "ppo" (PPO on the true LD state) or "random" (uniform actions).
+    num_envs: envs stepped in parallel; each epoch adds one replay column per env.
+    rollout_len: steps per env per epoch (a column holds rollout_len + 1 frames).
+    replay_slots: replay columns (the reference's 5000); a multiple of num_envs.
+    replay_keep_fraction: share of slots kept from the start; default: the learner's (VAE_v0
+      0, others 0.5).
+    learner_steps: learner gradient steps per epoch once the replay is full.
+    frames_per_batch: frames per learner step; the batch has frames_per_batch // L sequences.
+    epochs: total epochs of the run.
+    eval_every: epochs between alignment analyses and checkpoints (the first analysis runs when
+      the replay is full and the learner starts).
+    eval_train: sequences in the regressor's training set, sampled from the replay.
+    eval_rand: sequences in the π_rand test set (random policy, the same set at every analysis).
+    eval_curr: sequences in the π_curr test set (current policy; PPO runs only).
+    eval_transient: steps after reset before the test sequences are cut (reference 120).
+    regressor_iterations: alignment regressor steps (reference 10 000).
+    learner_overrides: learner config fields (e.g. beta, hist).
+    env_overrides: env config fields (e.g. multicolor).
+    """
+
+    env: str = "CartPole"
+    learner: str = "VAE_rpl"
+    policy: str = "ppo"
+    seed: int = 0
+    num_envs: int = 64
+    rollout_len: int = 32
+    replay_slots: int = 5000 // 64 * 64
+    replay_keep_fraction: float | None = None
+    learner_steps: int = 10
+    frames_per_batch: int = 1024
+    epochs: int = 1000
+    eval_every: int = 100
+    eval_train: int = 10_000
+    eval_rand: int = 10_048
+    eval_curr: int = 2_500
+    eval_transient: int = 120
+    regressor_iterations: int = 10_000
+    ppo: PPOConfig = dataclasses.field(default_factory=PPOConfig)
+    learner_overrides: dict[str, Any] = dataclasses.field(default_factory=dict)
+    env_overrides: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self):
+        problems = []
+        if self.policy not in POLICIES:
+            problems.append(f"policy must be one of {POLICIES}, got {self.policy!r}")
+        for name in ("num_envs", "rollout_len", "replay_slots", "learner_steps",
+                     "frames_per_batch", "epochs", "eval_every", "eval_train", "eval_rand",
+                     "regressor_iterations"):
+            if getattr(self, name) < 1:
+                problems.append(f"{name} must be ≥ 1, got {getattr(self, name)}")
+        if self.eval_curr < 0 or self.eval_transient < 0:
+            problems.append("eval_curr and eval_transient must be ≥ 0")
+        if self.num_envs >= 1 and self.replay_slots % self.num_envs:
+            problems.append(
+                f"replay_slots ({self.replay_slots}) must be a multiple of num_envs "
+                f"({self.num_envs}): each epoch adds num_envs columns"
+            )
+        if self.replay_keep_fraction is not None and not 0 <= self.replay_keep_fraction < 1:
+            problems.append(f"replay_keep_fraction must be in [0, 1), got "
+                            f"{self.replay_keep_fraction}")
+        if self.policy == "ppo" and self.num_envs % self.ppo.num_minibatches:
+            problems.append(f"num_envs ({self.num_envs}) must split into ppo.num_minibatches "
+                            f"({self.ppo.num_minibatches})")
+        if problems:
+            raise ValueError("; ".join(problems))
+
+    def replace(self, **changes) -> StreamConfig:
+        return dataclasses.replace(self, **changes)
+
+    @property
+    def fill_epochs(self) -> int:
+        """Epochs until the replay is full and the learner starts (reference §3)."""
+        return self.replay_slots // self.num_envs
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        return json.loads(json.dumps(d))  # tuples → lists: what a JSON round trip gives
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> StreamConfig:
+        d = dict(d)
+        ppo = d.pop("ppo", {})
+        ppo = PPOConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in ppo.items()})
+        return cls(ppo=ppo, **d)
+
+
+def for_env(env: str, learner: str = "VAE_rpl", **overrides) -> StreamConfig:
+    """The reference's per-domain settings for `env`, then `overrides`.
+
+    Pendulums: rollout 32, 10 learner steps per epoch, PPO MLP 64 with 3 × 8 minibatches,
+    sequence learners on 24-frame windows (the learners' defaults). Incline domains: rollout 10
+    (the reference forces it), PRED sees 1 frame and predicts 1, SVAE/DSA 8-frame windows.
+    Locomotion: rollout 64, 50 learner steps, PPO MLP 256 with 50 passes × 4 minibatches, 16-frame
+    windows (SEQ16: PRED 4 in, 12 predicted).
+    """
+    learner_defaults: dict[str, Any] = {}
+    if env in _PENDULUMS:
+        base = dict(rollout_len=32, learner_steps=10, ppo=PPOConfig())
+    elif env in _INCLINES:
+        base = dict(rollout_len=10, learner_steps=10, ppo=PPOConfig(hidden=(256, 256),
+                                                                    num_updates=10,
+                                                                    num_minibatches=4))
+        learner_defaults = {"PRED": {"hist": 1, "pred": 1}, "SVAE": {"hist": 8},
+                            "DSA": {"hist": 8}}.get(learner, {})
+    else:
+        base = dict(rollout_len=64, learner_steps=50, ppo=PPOConfig(hidden=(256, 256),
+                                                                    num_updates=50,
+                                                                    num_minibatches=4))
+        learner_defaults = {"PRED": {"hist": 4, "pred": 12}, "SVAE": {"hist": 16},
+                            "DSA": {"hist": 16}}.get(learner, {})
+    learner_overrides = {**learner_defaults, **overrides.pop("learner_overrides", {})}
+    return StreamConfig(env=env, learner=learner, **{**base, **overrides},
+                        learner_overrides=learner_overrides)

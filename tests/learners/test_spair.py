@@ -159,14 +159,15 @@ def run():
             history.append(jax.device_get(metrics))
         return state, history
 
-    state, history = train(0, 30)
+    state, history = train(0, 40)
     return dict(learner=learner, data=data, train=train, state=state, history=history)
 
 
 def test_a_few_steps_on_coloured_squares_reduce_the_loss(run):
     losses = np.array([float(m["loss"]) for m in run["history"]])
     assert np.all(np.isfinite(losses)), losses
-    assert losses[-5:].mean() < 0.8 * losses[0], losses
+    # Mostly the background at first: ~815 → ~600 after 30 steps, ~480 after 40 (lr 1e-3).
+    assert losses[-5:].mean() < 0.75 * losses[0], losses
     metrics = run["history"][-1]
     assert set(metrics) >= {"where", "what", "depth", "pres", "bg", "nll", "kl"}
     kl_sum = sum(float(metrics[k]) for k in ("where", "what", "depth", "pres", "bg"))
@@ -177,12 +178,14 @@ def test_a_few_steps_on_coloured_squares_reduce_the_loss(run):
 def test_encode_is_the_per_cell_layout_and_reconstruct_a_frame(run):
     learner, (frames, actions) = run["learner"], run["data"]
     variables = run["state"].variables
-    z = np.asarray(jax.jit(learner.encode)(variables, frames, actions))
+    # One program for both: they share the backbone and the what encoder.
+    z, recon = map(np.asarray, jax.jit(lambda v: (learner.encode(v, frames, actions),
+                                                   learner.reconstruct(v, frames, actions)))(
+        variables))
     assert z.shape == (B, 16 * (4 + 1 + 1 + K) + Q) == (B, learner.latent_size)
     assert learner.config.penalty_dim == learner.latent_size
     cells = z[:, :-Q].reshape(B, 16, 4 + 1 + 1 + K)
     assert np.all((cells[..., 4] > 0) & (cells[..., 4] < 1))  # presence probabilities
-    recon = np.asarray(jax.jit(learner.reconstruct)(variables, frames, actions))
     assert recon.shape == (B, 1, 64, 64, 3)
     assert np.all(np.isfinite(recon)) and recon.min() >= 0.0 and recon.max() <= 1.0
 

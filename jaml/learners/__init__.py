@@ -1,4 +1,4 @@
-"""Unsupervised learners on 64×64 frames (paper §2.1, §4): VAE, β-VAE, SVAE, PRED, DSA.
+"""Unsupervised learners on 64×64 frames (paper §2.1, §4): VAE, β-VAE, SVAE, PRED, DSA, SPAIR.
 
     from jaml import learners
     learner = learners.make("PRED", ld_dim=4)              # any of learners.ALL_LEARNERS
@@ -16,6 +16,7 @@ import dataclasses
 from jaml.learners.dsa import DSAConfig, make_dsa
 from jaml.learners.learner import LatentPenalty, Learner, LearnerConfig, Outputs
 from jaml.learners.pred import PREDConfig, make_pred
+from jaml.learners.spair import SPAIRConfig, make_spair
 from jaml.learners.svae import SVAEConfig, make_svae
 from jaml.learners.train import (
     Batch,
@@ -35,6 +36,8 @@ _REGISTRY = {
     "SVAE": (SVAEConfig, {}, make_svae),
     "PRED": (PREDConfig, {}, make_pred),
     "DSA": (DSAConfig, {}, make_dsa),
+    # 4×4 grid by default; make("SPAIR", ld_dim=D, grid_size=6) for the paper's 6×6 variant.
+    "SPAIR": (SPAIRConfig, {}, make_spair),
 }
 ALL_LEARNERS = tuple(_REGISTRY)
 
@@ -76,6 +79,7 @@ __all__ = [
     "LearnerConfig",
     "Outputs",
     "PREDConfig",
+    "SPAIRConfig",
     "SVAEConfig",
     "TrainState",
     "VAEConfig",

@@ -24,6 +24,10 @@ TINY = {
     "PRED": ({"hist": 2, "pred": 1, "mlp_widths": (32, 32)}, 3 * 4),
     # static LD + 3 steps × dynamic LD
     "DSA": ({"hist": 3, "rnn_hidden": 16, "prior_hidden": 16}, 2 + 3 * 2),
+    # 4×4 cells × (where 4 + presence + depth + what 2) + background 2
+    "SPAIR": ({"backbone_filters": (8, 8, 8), "cell_widths": (16,), "glimpse_size": 8,
+               "what_dim": 2, "bg_dim": 2, "object_filters": (8, 8), "object_hidden": 16,
+               "bg_hidden": 16}, 16 * (4 + 1 + 1 + 2) + 2),
 }
 
 
@@ -75,7 +79,8 @@ def runs():
 
 
 def test_registry_lists_every_learner_and_the_sweep_covers_it():
-    assert set(learners.ALL_LEARNERS) == {"VAE_v0", "VAE_rpl", "beta-VAE", "SVAE", "PRED", "DSA"}
+    assert set(learners.ALL_LEARNERS) == {"VAE_v0", "VAE_rpl", "beta-VAE", "SVAE", "PRED", "DSA",
+                                      "SPAIR"}
     assert set(TINY) == set(learners.ALL_LEARNERS)
 
 
@@ -190,8 +195,10 @@ def test_penalty_receives_the_documented_shapes(name):
     seen = {}
     aml = _relation_penalty(learner.config.penalty_dim + A, seen)
     jax.eval_shape(lambda v: learner.loss(v, jax.random.key(0), frames, actions, aml), variables)
-    # S = decoded steps (PRED: T + L); P = per-step latent (DSA: static ⊕ dynamic).
-    steps, width = {"SVAE": (3, 4), "PRED": (2 + 1, 4), "DSA": (3, 2 + 2)}.get(name, (1, 4))
+    # S = decoded steps (PRED: T + L); P = per-step latent (DSA: static ⊕ dynamic; SPAIR: the
+    # whole sampled latent, laid out as `encode`).
+    steps, width = {"SVAE": (3, 4), "PRED": (2 + 1, 4), "DSA": (3, 2 + 2),
+                    "SPAIR": (1, TINY["SPAIR"][1])}.get(name, (1, 4))
     assert seen["shapes"] == ((B, steps, width), (B, steps, A))
 
 

@@ -34,7 +34,7 @@ Deviations from the reference (recorded here on purpose):
   1.15 m instead of at (0.5, 0.2, 0.1) from 0.8 m, which cut the 2.5x-scale object at the frame's
   top-left (near x = 0) and right edge (near x = 1). The object now stays inside the 64 x 64 frame
   over every angle and position an episode reaches (tests/envs_mjx/test_domains.py), at the cost
-  of size: the block covers ~80 pixels at 64 x 64 (150-1000 before, where not cut off).
+  of size: the block covers ~80 pixels at 64 x 64 (150-1000 before, mostly cut off).
 - Ground colours are flat stand-ins for the YCB variant's paired ground textures (the reference's
   Geom variant kept a black ground: `ground="black"`).
 """

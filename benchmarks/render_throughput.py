@@ -1,7 +1,7 @@
 """Frames per second of the JAX ray caster at 64×64, batch 1/64/256, on the default JAX device.
 
 Run from the repo root: PYTHONPATH=. python benchmarks/render_throughput.py [--reps 5]
-[--batches 1 64 256] [--large] [--outputs all seg].
+[--batches 1 64 256] [--large] [--outputs all seg] [--scenes cartpole mesh half_cheetah].
 `--large` adds batches 1024 and 4096 (for a GPU). `--outputs seg` also times a jitted function
 that returns only the segmentation (XLA drops the unused shading). Compile time is reported
 apart; throughput is the median over blocked repetitions, and for the CPU the frames per
@@ -16,6 +16,7 @@ import argparse
 import platform
 import statistics
 import time
+from pathlib import Path
 from typing import NamedTuple
 
 import jax
@@ -82,9 +83,9 @@ BEFORE_2CORE = {("cartpole", 1): 279, ("cartpole", 64): 229, ("cartpole", 256): 
 OUTPUTS = {"all": lambda out: out, "seg": lambda out: out.segmentation}
 
 
-def bench(name: str, xml: str, batches, reps: int, outputs):
+def bench(name: str, xml: str, batches, reps: int, outputs, camera: str = "cam"):
     m = mujoco.MjModel.from_xml_string(xml)
-    ctx = render.make_context(m, "cam", 64, 64)
+    ctx = render.make_context(m, camera, 64, 64)
     rng = np.random.default_rng(0)
     cpu = jax.devices()[0].platform == "cpu"
     for b in batches:
@@ -119,15 +120,23 @@ def main():
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 64, 256])
     parser.add_argument("--large", action="store_true", help="add batches 1024 and 4096")
     parser.add_argument("--outputs", nargs="+", default=["all"], choices=sorted(OUTPUTS))
+    parser.add_argument("--scenes", nargs="+", default=["cartpole", "mesh"],
+                        choices=["cartpole", "mesh", "half_cheetah"])
     args = parser.parse_args()
     batches = list(args.batches) + ([1024, 4096] if args.large else [])
     dev = jax.devices()[0]
     print(f"jax {jax.__version__}, mujoco {mujoco.__version__}, device {dev.platform}:"
           f" {dev.device_kind}, host {platform.processor() or platform.machine()}")
-    print("cartpole (3 boxes + plane), 64x64:")
-    bench("cartpole", CARTPOLE, batches, args.reps, args.outputs)
-    print("mesh (256-triangle torus + plane), 64x64:")
-    bench("mesh", mesh_scene(), batches, args.reps, args.outputs)
+    if "cartpole" in args.scenes:
+        print("cartpole (3 boxes + plane), 64x64:")
+        bench("cartpole", CARTPOLE, batches, args.reps, args.outputs)
+    if "mesh" in args.scenes:
+        print("mesh (256-triangle torus + plane), 64x64:")
+        bench("mesh", mesh_scene(), batches, args.reps, args.outputs)
+    if "half_cheetah" in args.scenes:
+        print("half_cheetah (assets/half_cheetah.xml: 9 capsules + checker floor), 64x64:")
+        xml = (Path(__file__).resolve().parents[1] / "assets" / "half_cheetah.xml").read_text()
+        bench("half_cheetah", xml, batches, args.reps, args.outputs, camera="pixels")
 
 
 if __name__ == "__main__":

@@ -30,6 +30,11 @@ Deviations from the reference (recorded here on purpose):
   reference's small random yaw.
 - The reference's position was the distance from the drop point and its velocity the unsigned
   speed; here both are measured along the plank and the velocity is signed.
+- The camera keeps the reference's yaw 35, pitch -45 and fov 90 but looks at (0.6, 0, 0.4) from
+  1.15 m instead of at (0.5, 0.2, 0.1) from 0.8 m, which cut the 2.5x-scale object at the frame's
+  top-left (near x = 0) and right edge (near x = 1). The object now stays inside the 64 x 64 frame
+  over every angle and position an episode reaches (tests/envs_mjx/test_domains.py), at the cost
+  of size: the block covers ~80 pixels at 64 x 64 (150-1000 before, mostly cut off).
 - Ground colours are flat stand-ins for the YCB variant's paired ground textures (the reference's
   Geom variant kept a black ground: `ground="black"`).
 """

@@ -57,6 +57,8 @@ class RenderContext:
     znear: float
     zfar: float
     cam_id: jnp.ndarray  # int32 scalar; data, not static, so cameras share one compile
+    pixel_pitch: jnp.ndarray  # float32 scalar: pixel spacing on the camera-frame plane z = -1
+    geom_checker: jnp.ndarray  # [ngeom, 2, 3] checker planes' (c1 + c2) / 2 and (c1 - c2) / 2
     height: int = struct.field(pytree_node=False)
     width: int = struct.field(pytree_node=False)
     group_types: tuple = struct.field(pytree_node=False)  # per group, the mjtGeom int
@@ -64,6 +66,9 @@ class RenderContext:
     light_id: int = struct.field(pytree_node=False)  # the model light's id, -1 for none
     # Geoms whose texture is drawn (planes and meshes with uv that have a 2-D texture).
     textured_geoms: tuple = struct.field(pytree_node=False, default=())
+    # Textured planes whose texture is a two-colour checker (MuJoCo's builtin="checker"): drawn
+    # box-filtered over each pixel's footprint instead of by nearest texel (see raycast).
+    checker_geoms: tuple = struct.field(pytree_node=False, default=())
 
 
 def decimate(verts: np.ndarray, faces: np.ndarray, max_faces: int):
@@ -157,6 +162,21 @@ def _textures(m: mujoco.MjModel):
             np.array(hs, i32))
 
 
+def checker_colours(rgb: np.ndarray, w: int, h: int):
+    """(c1, c2) if the [h * w, 3] texels are MuJoCo's builtin 2-D checker (c1 in the top-left and
+    bottom-right quadrants, c2 in the others, no marks), else None."""
+    if w < 2 or h < 2 or w % 2 or h % 2:
+        return None
+    img = rgb.reshape(h, w, 3)
+    c1, c2 = img[0, 0], img[0, w // 2]
+    if np.array_equal(c1, c2):
+        return None
+    want = np.empty_like(img)
+    want[: h // 2, : w // 2] = want[h // 2:, w // 2:] = c1
+    want[: h // 2, w // 2:] = want[h // 2:, : w // 2] = c2
+    return (c1, c2) if np.array_equal(img, want) else None
+
+
 def make_context(mj_model: mujoco.MjModel, camera: str | int, height: int = 64, width: int = 64,
                  *, background: Sequence[float] = (1.0, 1.0, 1.0), max_mesh_faces: int = 300,
                  geom_groups: Sequence[int] = (0, 1, 2)) -> RenderContext:
@@ -210,6 +230,15 @@ def make_context(mj_model: mujoco.MjModel, camera: str | int, height: int = 64, 
                if t == _G.mjGEOM_PLANE
                or (t == _G.mjGEOM_MESH and m.mesh_texcoordadr[m.geom_dataid[g]] >= 0)]
     textured = tuple(g for g in with_uv if geom_tex[g] >= 0)
+    geom_checker = np.zeros((m.ngeom, 2, 3), np.float32)
+    checker = []
+    for g in textured:
+        t = int(geom_tex[g])
+        a, w, h = int(tex_adr[t]), int(tex_w[t]), int(tex_h[t])
+        colours = checker_colours(tex_rgb[a:a + w * h], w, h)
+        if colours is not None and m.geom_type[g] == _G.mjGEOM_PLANE:
+            geom_checker[g] = [(colours[0] + colours[1]) / 2, (colours[0] - colours[1]) / 2]
+            checker.append(g)
     extent = m.stat.extent
     zfar = m.vis.map.zfar * extent
     if m.nmat:
@@ -260,5 +289,8 @@ def make_context(mj_model: mujoco.MjModel, camera: str | int, height: int = 64, 
         light_specular=jnp.asarray(np.array(specular), f32),
         ambient=jnp.asarray(ambient, f32), background=jnp.asarray(background, f32),
         znear=float(m.vis.map.znear * extent), zfar=float(zfar),
-        cam_id=jnp.asarray(cam, jnp.int32), height=height, width=width, group_types=tuple(types),
-        group_geoms=tuple(groups), light_id=light_id, textured_geoms=textured)
+        cam_id=jnp.asarray(cam, jnp.int32),
+        pixel_pitch=jnp.asarray(2.0 * np.tan(np.deg2rad(m.cam_fovy[cam]) / 2.0) / height, f32),
+        geom_checker=jnp.asarray(geom_checker), height=height, width=width,
+        group_types=tuple(types), group_geoms=tuple(groups), light_id=light_id,
+        textured_geoms=textured, checker_geoms=tuple(checker))

@@ -76,6 +76,19 @@ def _primitive(ctx, gtype, size, g, m, o_l, x, y, best: _Hit) -> _Hit:
         u = (p_l[0] + corner[0]) * scale[0]
         v = (corner[1] - p_l[1]) * scale[1]
         tex = ctx.geom_tex[g]
+        if g in ctx.checker_geoms:
+            # One texel per pixel aliases a checker into moire at 64 x 64 (MuJoCo mipmaps it);
+            # instead average it over the pixel's footprint in uv. The ray (x, y, -1) meets
+            # local z = 0 at t = -o_z / d_z, so d p_l / dx = t (m[0, :] - m[0, 2] d_l / d_z) (m[1]
+            # for y), with 1 / d_z = -t / o_z; the footprint's extent along u is
+            # pitch (|du/dx| + |du/dy|), likewise v. The filtered value goes in u (v unused).
+            neg_inv_oz = -1.0 / jnp.where(jnp.abs(o[2]) > 1e-9, o[2], 1e-9)
+            k = ctx.pixel_pitch * t_safe
+            a0 = d_l[0] * (t_safe * neg_inv_oz)
+            a1 = d_l[1] * (t_safe * neg_inv_oz)
+            wu = scale[0] * k * (jnp.abs(m[0, 0] - m[0, 2] * a0) + jnp.abs(m[1, 0] - m[1, 2] * a0))
+            wv = scale[1] * k * (jnp.abs(m[0, 1] - m[0, 2] * a1) + jnp.abs(m[1, 1] - m[1, 2] * a1))
+            u = v = shading.square_wave_mean(u, wu) * shading.square_wave_mean(v, wv)
     new = _Hit(t, jnp.int32(g), *n_c, u, v, tex)
     return _select(closer, new, best)
 

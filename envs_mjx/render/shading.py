@@ -1,4 +1,5 @@
-"""Surface colour: material colour times texture (nearest texel), directional lights, ambient."""
+"""Surface colour: material colour times texture (nearest texel, or a box-filtered checker),
+directional lights, ambient."""
 
 from __future__ import annotations
 
@@ -19,6 +20,21 @@ def sample_texture(tex_rgb, tex_adr, tex_w, tex_h, tex_id, u, v):
     col = jnp.clip(((u - jnp.floor(u)) * w).astype(jnp.int32), 0, w - 1)
     row = jnp.clip(((v - jnp.floor(v)) * h).astype(jnp.int32), 0, h - 1)
     return tex_rgb[tex_adr[tid] + row * w + col]
+
+
+def square_wave_mean(u, width, min_width=1e-2):
+    """Mean of the period-1 square wave (+1 on [0, 1/2), -1 on [1/2, 1)) over
+    [u - width / 2, u + width / 2]: one axis of a box-filtered checker. Its integral is the
+    triangle wave 1/2 - |frac(x) - 1/2|, so the mean is a difference of two of those over width.
+    Below min_width (a hundredth of a period) it is the point sample, where float32 u (up to a
+    few hundred periods) would leave the difference mostly rounding error."""
+    def ramp(x):
+        return 0.5 - jnp.abs(x - jnp.floor(x) - 0.5)
+
+    w = jnp.maximum(width, min_width)
+    box = (ramp(u + 0.5 * w) - ramp(u - 0.5 * w)) / w
+    point = jnp.where(u - jnp.floor(u) < 0.5, 1.0, -1.0)
+    return jnp.where(width > min_width, box, point)
 
 
 def rsqrt(v):
@@ -101,10 +117,17 @@ def shade(ctx, hit, geom, rays, light_dirs):
     nx, ny, nz = nx * flip, ny * flip, nz * flip
     r, g, b, specular, expo, emission = _materials(ctx, geom)
     if ctx.textured_geoms:
-        texel = sample_texture(ctx.tex_rgb, ctx.tex_adr, ctx.tex_w, ctx.tex_h, hit.tex, hit.u,
-                               hit.v)
+        texel = [jnp.ones_like(r)] * 3
+        if any(g not in ctx.checker_geoms for g in ctx.textured_geoms):
+            rgb = sample_texture(ctx.tex_rgb, ctx.tex_adr, ctx.tex_w, ctx.tex_h, hit.tex, hit.u,
+                                 hit.v)
+            texel = [rgb[:, i] for i in range(3)]
+        for gid in ctx.checker_geoms:  # u carries the filtered checker value in [-1, 1]
+            mask = geom == gid
+            mid, half = ctx.geom_checker[gid, 0], ctx.geom_checker[gid, 1]
+            texel = [jnp.where(mask, mid[i] + half[i] * hit.u, t) for i, t in enumerate(texel)]
         use = hit.tex >= 0
-        r, g, b = (jnp.where(use, c * texel[:, i], c) for i, c in enumerate((r, g, b)))
+        r, g, b = (jnp.where(use, c * texel[i], c) for i, c in enumerate((r, g, b)))
     diffuse = [ctx.ambient[i] + emission for i in range(3)]
     highlight = [0.0, 0.0, 0.0]
     for i, ldir in enumerate(light_dirs):

@@ -4,6 +4,7 @@ shared by the tests below through module-level caches; physics checks reuse thos
 editing the state they start from."""
 
 import functools
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -70,6 +71,15 @@ class Harness:
         actions = jax.random.uniform(jax.random.key(1), shape, minval=-1.0, maxval=1.0)
         final, traj = self.rollout(state0, actions)
         return state0, actions, final, jax.tree.map(np.asarray, traj)
+
+
+class Poses(NamedTuple):
+    """What the renderer reads from data (a pytree jit and vmap accept)."""
+
+    geom_xpos: np.ndarray
+    geom_xmat: np.ndarray
+    cam_xpos: np.ndarray
+    cam_xmat: np.ndarray
 
 
 @functools.cache
@@ -227,6 +237,63 @@ def test_incline_mass_constants_match_mj_setconst():
         mujoco.mj_setConst(ref, mujoco.MjData(ref))
         for field in ("dof_M0", "body_subtreemass", "body_invweight0", "dof_invweight0"):
             np.testing.assert_allclose(getattr(m, field), getattr(ref, field), rtol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "name,overrides",
+    [
+        ("GeomOnIncline", {"object_id": 0}),  # the block: the longest primitive
+        ("GeomOnIncline", {"object_id": 4}),  # cylinder_large: the widest
+        ("MeshOnIncline", {"object": "duck"}),
+        ("MeshOnIncline", {"object": "domino"}),
+    ],
+)
+def test_incline_camera_keeps_the_object_in_frame(name, overrides):
+    """The object's segmentation pixels never touch the 64 x 64 frame's border over the extremes
+    the episodes reach: theta at both ends of its range, the object's world x from -0.1 to 1.15
+    (episodes end at x <= 0 or x >= 1, and the terminal frame overshoots by one step), y = +-0.1
+    (the side termination), resting, turned on the plank, or tumbled (centre raised to its
+    bounding radius). The reference camera (dist 0.8 to (0.5, 0.2, 0.1)) cut it at both ends."""
+    from envs_mjx import render
+
+    env = envs_mjx.make(name, pixels="off", **overrides)
+    _, _, info = env._sample_reset(jax.random.key(0))
+    info = jax.tree.map(np.asarray, info)
+    ctx = render.make_context(env.mj_model, "pixels", 64, 64)
+    obj = [g for g in range(env.mj_model.ngeom) if env.mj_model.geom_bodyid[g] == env._object]
+    rbound = float(env.mj_model.geom_rbound[obj].max())
+    rng = np.random.default_rng(0)
+    frames, inside = [], []  # inside: 0 <= x <= 1, where the object must also be seen
+    for theta in (0.25, 0.5):
+        m = env.mj_model_for({**info, "theta": np.float32(theta)})
+        d = mujoco.MjData(m)
+        u = np.array([np.cos(theta), 0.0, -np.sin(theta)])
+        n = np.array([np.sin(theta), 0.0, np.cos(theta)])
+        rest = np.array([np.cos((theta + np.pi / 2) / 2), 0.0, np.sin((theta + np.pi / 2) / 2), 0])
+        turned = np.zeros(4)  # rest, then 0.8 rad about the plank normal (the object's local x)
+        mujoco.mju_mulQuat(turned, rest, np.array([np.cos(0.4), np.sin(0.4), 0.0, 0.0]))
+        tumbled = [q / np.linalg.norm(q) for q in rng.normal(size=(2, 4))]
+        poses = [(rest, env._half_height), (turned, env._half_height)]
+        poses += [(q, rbound) for q in tumbled]
+        for x in (-0.1, 0.0, 0.5, 1.0, 1.15):
+            for y in (-0.1, 0.1):
+                for quat, height in poses:
+                    s = (x - height * np.sin(theta)) / np.cos(theta)  # centre's world x = x
+                    pos = incline.PLANK_ORIGIN + s * u + height * n + [0.0, y, 0.0]
+                    d.qpos[:] = np.concatenate([pos, quat])
+                    mujoco.mj_kinematics(m, d)
+                    mujoco.mj_camlight(m, d)
+                    frames.append([np.array(getattr(d, k), np.float32) for k in Poses._fields])
+                    inside.append(0.0 <= x <= 1.0)
+    batch = Poses(*(np.stack(col) for col in zip(*frames, strict=True)))
+    seg = np.asarray(jax.jit(jax.vmap(lambda d: render.render(ctx, d).segmentation))(batch))
+    mask = np.isin(seg, obj)
+    border = mask[:, 0].any(1) | mask[:, -1].any(1) | mask[:, :, 0].any(1) | mask[:, :, -1].any(1)
+    assert not border.any(), np.flatnonzero(border)
+    # And it is in view. (Past x = 1 at theta = 0.5 the plank runs below the ground plane, which
+    # then hides the object: z = 0.55 - x tan(theta) < 0 for x > 1.007.)
+    seen = mask.sum((1, 2))[np.array(inside)]
+    assert seen.min() >= 5, seen  # the domino seen edge-on covers ~9 pixels
 
 
 def test_cartpole_pole_falls_the_way_it_leans():

@@ -67,7 +67,9 @@ def test_frame_shows_the_textured_object(env, states):
     hull = envs_mjx.base.geom_ids(env.mj_model, ["object"])[0]
     seg, rgb = np.asarray(out.segmentation), np.asarray(out.rgb)
     mask = seg == visual
-    assert mask.sum() > 40, mask.sum()  # the object is in view
+    # The object is in view (~28 pixels at 48 x 48 since the camera was pulled back to keep it
+    # whole over the plank's extent; test_domains checks that).
+    assert mask.sum() > 15, mask.sum()
     assert not np.any(seg == hull)  # the collision hull is not drawn
     np.testing.assert_array_equal(rgb, np.asarray(state0.pixels))  # what the env returns
     # Texture: the object's pixels take many colours, and its hue varies beyond what shading alone

@@ -83,6 +83,11 @@ class SPAIRConfig(LearnerConfig):
                 raise ValueError(f"SPAIRConfig.{name} must be {what}, got {getattr(self, name)!r}")
 
     @property
+    def hist(self) -> int:
+        """Frames the encoder reads (one), as for the VAE."""
+        return 1
+
+    @property
     def seq_len(self) -> int:
         return 1
 

@@ -1,0 +1,143 @@
+"""The learning loop and its run directory: config errors, checkpoints, resume, non-finite loss.
+
+The end-to-end runs compile a learner, PPO and the renderer on CPU (minutes), so they are
+marked slow; the config checks and the checkpoint round trip run by default.
+"""
+
+import dataclasses
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import orbax.checkpoint as ocp
+import pytest
+
+from jaml import stream
+from jaml.stream import loop, run as run_lib
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _fast_compiling_prng():
+    with jax.threefry_partitionable(False):  # see tests/learners/conftest.py
+        yield
+
+
+def tiny(**overrides):
+    """Two fill epochs, then training; analyses at epochs 2, 4, 6."""
+    settings = dict(num_envs=8, rollout_len=4, replay_slots=16, frames_per_batch=8,
+                    learner_steps=2, epochs=6, eval_every=2, eval_train=16, eval_rand=16,
+                    eval_curr=16, eval_transient=3, regressor_iterations=20,
+                    ppo=stream.PPOConfig(num_minibatches=4))
+    return stream.for_env("CartPole", "VAE_rpl", **{**settings, **overrides})
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (dict(env="Pendulum"), "unknown env 'Pendulum'; valid names"),
+        (dict(learner="AE"), "unknown learner 'AE'; valid names"),
+        (dict(learner="SVAE"), "needs sequences of 24 frames but replay columns hold"),
+        (dict(learner="PRED", learner_overrides={"hist": 2, "pred": 2}, frames_per_batch=3),
+         "frames_per_batch \\(3\\) holds no 4-frame sequence"),
+        (dict(replay_slots=20), "must be a multiple of num_envs"),
+        (dict(epochs=1), "end before the replay fills"),
+        (dict(replay_slots=8, replay_keep_fraction=0.5), "only 4 replay slots are replaceable"),
+    ],
+)
+def test_bad_configs_raise_before_anything_runs(change, message, tmp_path):
+    with pytest.raises(ValueError, match=message):
+        run_lib.run(tiny().replace(**change), tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()  # nothing written for a config that cannot run
+
+
+def test_bad_policy_and_sizes_are_named():
+    with pytest.raises(ValueError, match="policy must be one of"):
+        tiny(policy="greedy")
+    with pytest.raises(ValueError, match="must split into ppo.num_minibatches"):
+        tiny(num_envs=8, ppo=stream.PPOConfig(num_minibatches=3), replay_slots=16)
+
+
+def test_a_run_directory_refuses_another_config(tmp_path):
+    (tmp_path / "config.json").write_text(json.dumps(tiny(seed=1).to_dict()))
+    with pytest.raises(ValueError, match="different configuration"):
+        run_lib.run(tiny(), tmp_path, progress=False)
+
+
+def test_checkpoint_round_trip_keeps_every_leaf(tmp_path):
+    s = stream.build(tiny())
+    state = s.init(jax.random.PRNGKey(0))
+    empty = [x for x in jax.tree.leaves(state) if x.size == 0]
+    assert empty, "mjx.Data carries zero-size fields; the checkpoint must handle them"
+    manager = run_lib._checkpointer(tmp_path)
+    manager.save(0, args=ocp.args.StandardSave(run_lib._flat(state)))
+    manager.wait_until_finished()
+    abstract = jax.eval_shape(s.init, jax.random.PRNGKey(0))
+    flat = manager.restore(0, args=ocp.args.StandardRestore(run_lib._flat(abstract)))
+    restored = run_lib._unflat(abstract, flat)
+    assert jax.tree.structure(restored) == jax.tree.structure(state)
+    for a, b in zip(jax.tree.leaves(state), jax.tree.leaves(restored), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    manager.close()
+
+
+def test_analysis_epochs_start_when_the_replay_is_full():
+    assert run_lib.analysis_epochs(tiny()) == [2, 4, 6]
+    assert run_lib.analysis_epochs(tiny(epochs=7, eval_every=4)) == [2, 6, 7]
+
+
+def _records(path):
+    return [json.loads(line) for line in path.read_text().splitlines()]
+
+
+def _learner_params(out, config):
+    s = stream.build(config)
+    abstract = jax.eval_shape(s.init, jax.random.PRNGKey(config.seed))
+    manager = run_lib._checkpointer(out)
+    flat = manager.restore(manager.latest_step(),
+                           args=ocp.args.StandardRestore(run_lib._flat(abstract)))
+    manager.close()
+    return run_lib._unflat(abstract, flat).learner.params
+
+
+@pytest.mark.slow
+def test_a_killed_run_resumes_to_the_result_of_an_uninterrupted_one(tmp_path):
+    config = tiny()
+    first = run_lib.run(config, tmp_path / "a", progress=False, stop_after=3)
+    assert first["status"] == "interrupted" and first["checkpoint_epoch"] == 2
+    # The epoch after the checkpoint was logged, then lost with the process: resume drops it.
+    assert [r["epoch"] for r in _records(tmp_path / "a" / "metrics.jsonl")] == [0, 1, 2]
+    resumed = run_lib.run(config, tmp_path / "a", progress=False)
+    straight = run_lib.run(config, tmp_path / "b", progress=False)
+    assert resumed["status"] == straight["status"] == "finished"
+    metrics_a = _records(tmp_path / "a" / "metrics.jsonl")
+    metrics_b = _records(tmp_path / "b" / "metrics.jsonl")
+    assert [r["epoch"] for r in metrics_a] == list(range(6))
+    assert json.dumps(metrics_a) == json.dumps(metrics_b)  # NaN-safe exact comparison
+    assert _records(tmp_path / "a" / "history.jsonl") == _records(tmp_path / "b" / "history.jsonl")
+    assert [r["step"] for r in _records(tmp_path / "a" / "history.jsonl")] == [2, 2, 4, 4, 6, 6]
+    jax.tree.map(np.testing.assert_array_equal, _learner_params(tmp_path / "a", config),
+                 _learner_params(tmp_path / "b", config))
+    for name in ("alignment.png", "distortion.png", "recon/epoch_000006.png", "summary.json"):
+        assert (tmp_path / "a" / name).exists(), name
+
+
+@pytest.mark.slow
+def test_a_non_finite_loss_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
+    config = tiny(seed=3)
+    run_lib.run(config, tmp_path, progress=False, stop_after=2)  # checkpoint at epoch 2
+    good = stream.build(config)
+
+    def poisoned(state, batch, key):
+        state, metrics = good.train_step(state, batch, key)
+        return state, {**metrics, "loss": jnp.full_like(metrics["loss"], jnp.nan)}
+
+    cache_key = next(k for k, v in loop._BUILT.items() if v is good)
+    loop._BUILT[cache_key] = dataclasses.replace(good, train_step=poisoned)
+    try:
+        with pytest.raises(run_lib.NonFiniteLoss, match="non-finite at epoch 3"):
+            run_lib.run(config, tmp_path, progress=False)
+    finally:
+        loop._BUILT[cache_key] = good
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["status"] == "nonfinite" and summary["checkpoint_epoch"] == 2

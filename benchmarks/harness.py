@@ -145,6 +145,9 @@ def write_markdown() -> None:
         "device). Times are medians of blocked repetitions, compile time apart. Absolute "
         "numbers hold only for the device named.",
         "",
+        "Experiment results (not timings): [Fig. 2 at a reduced scale](../docs/results/fig2.md); "
+        "learning-loop throughput on an H100: [docs/stream.md](../docs/stream.md#speed).",
+        "",
     ]
     env_keys = {
         "benchmark",

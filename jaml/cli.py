@@ -177,7 +177,9 @@ def _add_suite_parser(sub) -> None:
     suite.add_argument("--env-opt", type=_key_value, action="append", metavar="KEY=VALUE",
                        help="env config field, e.g. multicolor=false (repeatable)")
     suite.add_argument("--stop-after", type=int, default=None,
-                       help="stop after this many epochs in this call (resume later)")
+                       help="stop after this many epochs in this call; the next call resumes "
+                       "from the last checkpoint (written with each analysis), redoing the "
+                       "epochs after it")
     suite.add_argument("--no-progress", action="store_true", help="no progress bar")
     suite.set_defaults(func=_cmd_suite)
 

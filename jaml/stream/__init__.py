@@ -4,7 +4,7 @@
     cfg = stream.for_env("CartPole", "VAE_rpl", epochs=200, replay_slots=1024)
     s = stream.build(cfg)
     state = s.init(jax.random.PRNGKey(0))
-    state, metrics = s.run_epochs(state, 10)       # 10 epochs in one lax.scan
+    state, metrics = s.run_epochs(state, 10)       # 10 epochs, metrics stacked [10]
     report = s.evaluate(state, key, pi_rand_key)   # alignment errors on π_rand / π_curr
 
 `jaml suite` (jaml.stream.run) wraps this with a run directory and resumable checkpoints.

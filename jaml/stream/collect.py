@@ -7,9 +7,10 @@ This keeps one reset per env per rollout instead of one per step (Brax's AutoRes
 the *first* reset state forever, which would freeze the per-reset randomisation).
 
 The transition for a step is built by Brax's `acting.actor_step` before the swap, so its
-`next_observation` is the true final observation, which PPO needs to bootstrap truncated
-episodes. The replay records the frame seen *before* each action (act[t] is executed after frame
-t, reference §3); the final frame of an episode is not recorded, the next episode's first is.
+`next_observation` is the step's true observation, not the next episode's first (Brax's loss
+masks truncated steps and bootstraps only from the rollout's last `next_observation`). The
+replay records the frame seen *before* each action (act[t] is executed after frame t, reference
+§3); the final frame of an episode is not recorded, the next episode's first is.
 
 Shapes: E envs, T steps, H×W×3 frames, A actions, D LD state.
 """

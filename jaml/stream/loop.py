@@ -7,7 +7,8 @@ One epoch, a pure jitted function of `StreamState`:
   3. the rollout's columns go into the replay;
   4. once the replay is full (reference §3), the learner takes `learner_steps` gradient steps,
      each on `frames_per_batch // L` sequences of L frames sampled from the replay.
-`Stream.run_epochs(state, n)` runs n epochs as one `lax.scan`. `Stream.evaluate` is the
+`Stream.run_epochs(state, n)` runs n epochs: device loops of up to 32 epochs on GPU/TPU, a host
+loop of jitted pieces on CPU. `Stream.evaluate` is the
 periodic analysis (reference §5): encode sequences from the replay (regressor training set) and
 from fresh rollouts of a random policy (π_rand, the same set every time: a fixed key) and of the
 current policy (π_curr), then fit a fresh regressor latents → LD state of each sequence's last
@@ -334,14 +335,15 @@ def _rollout_start(stream: Stream, s: StreamState, key: jax.Array, random: bool)
 
 def _steps(env: Env, state: State, policy, key: jax.Array, n: int) -> State:
     """n steps with auto-reset, recording nothing (transients before test sequences)."""
-    fresh = collect.reset(env, jax.random.fold_in(key, 1), state.reward.shape[0])
+    k_reset, k_steps = jax.random.split(key)
+    fresh = collect.reset(env, k_reset, state.reward.shape[0])
 
     def body(state, k):
         actions, _ = policy(state.obs, k)
         nstate = jax.vmap(env.step)(state, actions)
         return collect._swap_in(nstate.done > 0, fresh, nstate), None
 
-    return jax.lax.scan(body, state, jax.random.split(key, n))[0]
+    return jax.lax.scan(body, state, jax.random.split(k_steps, n))[0]
 
 
 _BUILT: dict = {}

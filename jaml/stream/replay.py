@@ -7,9 +7,10 @@ order; once full, each new column overwrites a random slot in [keep·N, N), so t
 0 is VAE_v0's replay: every slot is replaceable.
 
 Sequences of L frames are drawn as the reference draws them: a random filled column, a random
-start t ∈ [0, column_len − L]; when an episode begins at k inside the window (t < k), the frames and
-LD states from k − 1 on repeat frame k − 1, and the actions from k − 1 on repeat action k − 2, so a
-sequence never crosses into the next episode.
+start t ∈ [0, column_len − L) (so a window never ends on the column's last frame, whose action is
+the unknown dummy 0; t = 0 when L = column_len); when an episode begins at k inside the window
+(t < k), the frames and LD states from k − 1 on repeat frame k − 1, and the actions from k − 1
+on repeat action k − 2, so a sequence never crosses into the next episode.
 
 Shapes: N slots, C = column_len, L sequence length, A action size, D LD-state size.
 """
@@ -111,7 +112,7 @@ def sample(replay: Replay, key: jax.Array, batch: int, seq_len: int) -> Columns:
         )
     k_col, k_start = jax.random.split(key)
     cols = jax.random.randint(k_col, (batch,), 0, jnp.maximum(replay.size, 1))
-    starts = jax.random.randint(k_start, (batch,), 0, replay.column_len - seq_len + 1)
+    starts = jax.random.randint(k_start, (batch,), 0, max(replay.column_len - seq_len, 1))
     return jax.vmap(lambda c, t: window(jax.tree.map(lambda x: x[c], replay.data), t, seq_len))(
         cols, starts
     )

@@ -1,15 +1,17 @@
 """A `jaml suite` run directory: the learning loop with logs, figures and resumable checkpoints.
 
     OUT/config.json       resolved StreamConfig (a different config in the same OUT is refused)
-    OUT/metrics.jsonl     one line per epoch (episode return, PPO and learner losses)
+    OUT/metrics.jsonl     one line per epoch (episode return, PPO and learner losses); "epoch"
+                          counts epochs completed, as an analysis's "step" does
     OUT/history.jsonl     one record per analysis and test set (`jaml.evaluation.plots` format)
     OUT/tensorboard/      the same scalars
     OUT/checkpoints/      Orbax: the whole StreamState (envs, PPO, learner, optimiser states,
                           replay, RNG key), written atomically after every analysis
     OUT/alignment.png, distortion.png, recon/epoch_XXXXXX.png, summary.json
 
-Restarted with the same config, a run resumes from its newest checkpoint and drops the log
-lines written after it, so the logs and the state agree and nothing is counted twice. A
+Restarted with the same config, a run resumes from its newest checkpoint and drops the JSON-lines
+records written after it, so the logs and the state agree and nothing is counted twice
+(TensorBoard event files are append-only: a resumed run's scalars overlap the lost ones). A
 non-finite learner loss stops the run with a message; the last good checkpoint stays.
 """
 
@@ -86,7 +88,7 @@ class _Logs:
     def epochs(self, first_epoch: int, metrics: dict[str, np.ndarray]) -> None:
         n = len(next(iter(metrics.values())))
         for i in range(n):
-            epoch = first_epoch + i
+            epoch = first_epoch + i + 1  # epochs completed, like an analysis's step
             row = {k: float(v[i]) for k, v in metrics.items()}
             self.jsonl.write(json.dumps({"epoch": epoch, **row}) + "\n")
             for k, v in row.items():
@@ -158,7 +160,7 @@ def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | N
     if state is None:
         state = stream.init(k_init)
     epoch = int(state.epoch)
-    _truncate_jsonl(out / "metrics.jsonl", lambda r: r["epoch"] < epoch)
+    _truncate_jsonl(out / "metrics.jsonl", lambda r: r["epoch"] <= epoch)
     history = _truncate_jsonl(out / "history.jsonl", lambda r: r["step"] <= epoch)
 
     logs = _Logs(out)
@@ -167,7 +169,7 @@ def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | N
                unit="epoch", disable=not progress)
     status, started, budget = "running", time.perf_counter(), stop_after
     try:
-        for target in analysis_epochs(config):
+        for target in [t for t in analysis_epochs(config) if t > epoch]:
             while epoch < target:
                 n = target - epoch if budget is None else min(target - epoch, budget)
                 if n == 0:
@@ -197,6 +199,12 @@ def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | N
             status = "finished"
     except NonFiniteLoss:
         status = "nonfinite"
+        raise
+    except KeyboardInterrupt:
+        status = "interrupted"
+        raise
+    except BaseException:
+        status = "failed"
         raise
     finally:
         bar.close()

@@ -14,7 +14,8 @@ import orbax.checkpoint as ocp
 import pytest
 
 from jaml import stream
-from jaml.stream import loop, run as run_lib
+from jaml.stream import loop
+from jaml.stream import run as run_lib
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -54,7 +55,7 @@ def test_bad_configs_raise_before_anything_runs(change, message, tmp_path):
 def test_bad_policy_and_sizes_are_named():
     with pytest.raises(ValueError, match="policy must be one of"):
         tiny(policy="greedy")
-    with pytest.raises(ValueError, match="must split into ppo.num_minibatches"):
+    with pytest.raises(ValueError, match=r"must split into ppo\.num_minibatches"):
         tiny(num_envs=8, ppo=stream.PPOConfig(num_minibatches=3), replay_slots=16)
 
 
@@ -106,13 +107,15 @@ def test_a_killed_run_resumes_to_the_result_of_an_uninterrupted_one(tmp_path):
     first = run_lib.run(config, tmp_path / "a", progress=False, stop_after=3)
     assert first["status"] == "interrupted" and first["checkpoint_epoch"] == 2
     # The epoch after the checkpoint was logged, then lost with the process: resume drops it.
-    assert [r["epoch"] for r in _records(tmp_path / "a" / "metrics.jsonl")] == [0, 1, 2]
+    assert [r["epoch"] for r in _records(tmp_path / "a" / "metrics.jsonl")] == [1, 2, 3]
     resumed = run_lib.run(config, tmp_path / "a", progress=False)
     straight = run_lib.run(config, tmp_path / "b", progress=False)
     assert resumed["status"] == straight["status"] == "finished"
+    again = run_lib.run(config, tmp_path / "a", progress=False)  # a finished run stays finished
+    assert again["status"] == "finished" and again["epoch"] == 6
     metrics_a = _records(tmp_path / "a" / "metrics.jsonl")
     metrics_b = _records(tmp_path / "b" / "metrics.jsonl")
-    assert [r["epoch"] for r in metrics_a] == list(range(6))
+    assert [r["epoch"] for r in metrics_a] == list(range(1, 7))
     assert json.dumps(metrics_a) == json.dumps(metrics_b)  # NaN-safe exact comparison
     assert _records(tmp_path / "a" / "history.jsonl") == _records(tmp_path / "b" / "history.jsonl")
     assert [r["step"] for r in _records(tmp_path / "a" / "history.jsonl")] == [2, 2, 4, 4, 6, 6]
@@ -141,3 +144,23 @@ def test_a_non_finite_loss_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_
         loop._BUILT[cache_key] = good
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["status"] == "nonfinite" and summary["checkpoint_epoch"] == 2
+
+
+def test_suite_cli_has_help_and_reports_bad_input(tmp_path, capsys):
+    from jaml import cli
+
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["suite", "--help"])
+    out = capsys.readouterr().out
+    assert exit_info.value.code == 0 and "resumes from the last checkpoint" in out
+    with pytest.raises(SystemExit):
+        cli.main(["suite", "--env", "Pendulum", "--learner", "PRED", "--out", str(tmp_path)])
+    assert "invalid choice: 'Pendulum'" in capsys.readouterr().err
+    code = cli.main(["suite", "--env", "CartPole", "--learner", "SVAE", "--rollout-len", "8",
+                     "--out", str(tmp_path / "svae")])
+    assert code == 2 and "needs sequences of 24 frames" in capsys.readouterr().err
+    code = cli.main(["suite", "--env", "CartPole", "--learner", "beta-VAE", "--learner-opt",
+                     "gamma=2", "--out", str(tmp_path / "beta")])
+    assert code == 2 and "unknown config fields ['gamma']" in capsys.readouterr().err
+    assert cli._key_value("beta=20") == ("beta", 20)
+    assert cli._key_value("object=duck") == ("object", "duck")

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 import envs_mjx
-from jaml.stream import collect, ppo as ppo_lib
+from jaml.stream import collect
+from jaml.stream import ppo as ppo_lib
 
 # A uniform random policy keeps CartPole up for ≈ 48 steps on average (64 envs × 200 steps,
 # measured with `ppo_lib.random_policy`); an episode lasts at most 200.

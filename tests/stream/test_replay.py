@@ -94,7 +94,7 @@ def test_sample_draws_valid_windows_from_filled_slots_only():
     tags = np.asarray(seqs.ld[..., 0]).astype(int)
     assert set(np.unique(tags // 100)) == {3, 9}
     np.testing.assert_array_equal(np.diff(tags, axis=1), 1)  # consecutive steps, no boundary here
-    assert set(np.unique(tags[:, 0] % 100)) == {0, 1, 2, 3}  # every start in [0, C − L]
+    assert set(np.unique(tags[:, 0] % 100)) == {0, 1, 2}  # every start in [0, C − L)
 
 
 def test_bad_sizes_raise_named_errors():

@@ -139,8 +139,9 @@ def main(argv=None):
         phys_batch, phys_steps, reps = 1024, 50, 5
         pix_batches, pix_steps = (1, 64, 256 if cpu else 1024), 10
     print(f"jax {jax.__version__}, mujoco {mujoco.__version__}, device {jax.devices()[0]}")
-    rows = []
+    all_rows = []
     for name in args.envs:
+        rows = []  # recorded per env, so a run cut short keeps the domains it finished
         print(f"== {name} ==", flush=True)
         env_r = bench_env_physics(name, phys_batch, phys_steps, reps)
         mjx_r = bench_raw_mjx(name, phys_batch, phys_steps, reps)
@@ -181,9 +182,10 @@ def main(argv=None):
                     "compile_s": p["compile_s"],
                 }
             )
-    if not args.no_record:
-        record("envs_throughput", rows, notes="quick" if args.quick else "")
-    return rows
+        if not args.no_record:
+            record("envs_throughput", rows, notes="quick" if args.quick else "")
+        all_rows += rows
+    return all_rows
 
 
 if __name__ == "__main__":

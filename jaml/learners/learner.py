@@ -89,6 +89,23 @@ class LearnerConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class SingleFrameConfig(LearnerConfig):
+    """Learners that see one frame and decode it (VAE, SPAIR): hist = T = S = 1."""
+
+    @property
+    def hist(self) -> int:
+        return 1
+
+    @property
+    def seq_len(self) -> int:
+        return 1
+
+    @property
+    def latent_steps(self) -> int:
+        return 1
+
+
+@dataclasses.dataclass(frozen=True)
 class RecurrentConfig(LearnerConfig):
     """Learners that encode all `hist` frames with an RNN and keep one latent per frame.
 

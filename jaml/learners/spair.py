@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 
 from jaml.learners import elbo
-from jaml.learners.learner import FRAME_SHAPE, Learner, LearnerConfig, Outputs
+from jaml.learners.learner import FRAME_SHAPE, Learner, Outputs, SingleFrameConfig
 from jaml.learners.networks import _BN, _HALVE, MLP, Upsample2x
 
 WHERE = 4  # per cell: x, y offset of the box centre in its cell; x, y size (pre-sigmoid)
@@ -28,7 +28,7 @@ CELL_FIXED = WHERE + 2
 
 
 @dataclasses.dataclass(frozen=True)
-class SPAIRConfig(LearnerConfig):
+class SPAIRConfig(SingleFrameConfig):
     """SPAIR on single frames (seq_len 1, one latent step); ld_dim / latent_dim are unused.
 
     grid_size: G, cells per side (4; the paper's other grid is 6); any of 1..8.
@@ -82,18 +82,6 @@ class SPAIRConfig(LearnerConfig):
             if not ok:
                 raise ValueError(f"SPAIRConfig.{name} must be {what}, got {getattr(self, name)!r}")
 
-    @property
-    def hist(self) -> int:
-        """Frames the encoder reads (one), as for the VAE."""
-        return 1
-
-    @property
-    def seq_len(self) -> int:
-        return 1
-
-    @property
-    def latent_steps(self) -> int:
-        return 1
 
     @property
     def cells(self) -> int:

@@ -15,12 +15,12 @@ import jax
 import jax.numpy as jnp
 
 from jaml.learners import elbo
-from jaml.learners.learner import FRAME_SHAPE, Learner, LearnerConfig, Outputs
+from jaml.learners.learner import FRAME_SHAPE, Learner, Outputs, SingleFrameConfig
 from jaml.learners.networks import MLP, ConvDecoder, ConvEncoder, GaussianHead
 
 
 @dataclasses.dataclass(frozen=True)
-class VAEConfig(LearnerConfig):
+class VAEConfig(SingleFrameConfig):
     """VAE on single frames (PARAMS_VAE: hist 1, past 1, pred 0; latent 2·D).
 
     VAE_v0 sets replay_keep_fraction 0; VAE_rpl keeps 0.5; β-VAE defaults to β = 5, the best of
@@ -28,18 +28,6 @@ class VAEConfig(LearnerConfig):
     """
 
     mlp_widths: tuple[int, ...] = (1024, 512)
-
-    @property
-    def hist(self) -> int:
-        return 1
-
-    @property
-    def seq_len(self) -> int:
-        return 1
-
-    @property
-    def latent_steps(self) -> int:
-        return 1
 
 
 class StepwiseGaussianVAE(nn.Module):

@@ -7,7 +7,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import os
 import time
 from pathlib import Path
 
@@ -16,19 +15,13 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaml import sources
+from jaml._files import write_json
 from jaml.relations import checkpoint, plots
 from jaml.relations.config import Config
 from jaml.relations.relation_set import RelationSet
 from jaml.relations.training import RelationSummary, fit
 
 log = logging.getLogger("jaml.relations")
-
-
-def _write_json(path: Path, value) -> None:
-    """Write JSON atomically: a reader never sees a half-written file."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(value, indent=2, default=float) + "\n")
-    os.replace(tmp, path)
 
 
 class _Recorder:
@@ -136,14 +129,14 @@ def run(source_name: str, cfg: Config, out, *, progress: bool = True, figures: b
             ]
             log.info("resuming %s after %d relations", out, start.num_relations)
     out.mkdir(parents=True, exist_ok=True)
-    _write_json(config_path, resolved)
+    write_json(config_path, resolved)
 
     started = time.perf_counter()
     recorder = _Recorder(out, cfg, sum(r["steps"] for r in done), progress)
     summaries = list(done)
 
     def write_summary(rs: RelationSet | None, status: str):
-        _write_json(
+        write_json(
             summary_path,
             {
                 "source": source_name,

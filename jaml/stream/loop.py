@@ -229,7 +229,7 @@ class Stream:
     def reconstructions(self, s: StreamState, key: jax.Array, num: int = 8):
         """(true, decoded) last frames of `num` replay sequences, uint8 [num, 64, 64, 3] each."""
         seqs = replay_lib.sample(s.replay, key, num, self.seq_len)
-        recon = jax.jit(self.learner.reconstruct)(s.learner.variables, seqs.frames, seqs.actions)
+        recon = _reconstruct(self, s.learner.variables, seqs.frames, seqs.actions)
         return (np.asarray(seqs.frames[:, -1]),
                 np.asarray(jnp.round(recon[:, -1] * 255)).astype(np.uint8))
 
@@ -287,6 +287,12 @@ def _map_chunks(producer, stream: Stream, s: StreamState, carry, keys):
             outs.append(_encode(stream, s.learner.variables, seqs))
         return carry, tuple(jnp.concatenate(x) for x in zip(*outs, strict=True))
     return _scan_chunks(producer, stream, s, carry, keys)
+
+
+@jax.jit(static_argnums=0)
+def _reconstruct(stream: Stream, variables, frames, actions):
+    # Module level, keyed on the Stream: a `jax.jit` made per call would recompile per analysis.
+    return stream.learner.reconstruct(variables, frames, actions)
 
 
 @jax.jit(static_argnums=0)

@@ -28,6 +28,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 from tqdm.auto import tqdm
 
+from jaml._files import write_json
 from jaml.evaluation import plots
 from jaml.stream.config import StreamConfig
 from jaml.stream.loop import Stream, StreamState, build
@@ -37,12 +38,6 @@ log = logging.getLogger("jaml.stream")
 
 class NonFiniteLoss(RuntimeError):
     """The learner's loss became NaN/inf; the run stopped at its last good checkpoint."""
-
-
-def _write_json(path: Path, value) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(value, indent=2, default=float) + "\n")
-    os.replace(tmp, path)
 
 
 def _truncate_jsonl(path: Path, keep) -> list[dict]:
@@ -144,7 +139,7 @@ def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | N
         raise ValueError(f"{out} holds a run with a different configuration ({config_path}); "
                          "resume with the same options or choose a new --out")
     out.mkdir(parents=True, exist_ok=True)
-    _write_json(config_path, resolved)
+    write_json(config_path, resolved)
     (out / "recon").mkdir(exist_ok=True)
 
     key = jax.random.PRNGKey(config.seed)
@@ -218,7 +213,7 @@ def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | N
             "final": [r for r in history if r["step"] == max((h["step"] for h in history),
                                                             default=-1)],
         }
-        _write_json(out / "summary.json", summary)
+        write_json(out / "summary.json", summary)
     return summary
 
 

@@ -95,8 +95,9 @@ def main(argv=None) -> int:
                 started = time.perf_counter()
                 config = for_env(env, learner, seed=args.seed, **SCALE)
                 summary = run(config, args.out / env / learner, progress=False)
+                phases = ", ".join(f"{k} {v:.0f}s" for k, v in summary["seconds_by_phase"].items())
                 print(f"{env} {learner}: {summary['status']} in "
-                      f"{time.perf_counter() - started:.0f}s", flush=True)
+                      f"{time.perf_counter() - started:.0f}s ({phases})", flush=True)
     print(report(args.out, args.envs, args.learners))
     return 0
 

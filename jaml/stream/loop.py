@@ -109,6 +109,19 @@ class Stream:
             return ppo_lib.random_policy(self.env.action_size)
         return self.ppo.policy(ppo_state)
 
+    def test_policy(self, ppo_state: ppo_lib.PPOState, random: jax.Array):
+        """π_rand where the traced flag `random` is set, else the current policy (π_curr).
+
+        A traced choice, so both test sets share one compilation of the rollout code."""
+        if self.config.policy == "random":
+            return self.policy(ppo_state)
+        current, uniform = self.policy(ppo_state), self.policy(ppo_state, random=True)
+
+        def policy(obs, key):
+            return jnp.where(random, uniform(obs, key)[0], current(obs, key)[0]), {}
+
+        return policy
+
     # -- one epoch ----------------------------------------------------------------------------
 
     def act(self, s: StreamState) -> tuple[StreamState, jax.Array, dict[str, jax.Array]]:
@@ -196,16 +209,16 @@ class Stream:
     def encoded_replay(self, s: StreamState, key: jax.Array, num: int):
         """(latents [N, Z], LD targets [N, D]) of N ≈ num sequences sampled from the replay."""
         keys = jax.random.split(key, _chunks(num, self.config.num_envs))
-        return _map_chunks(_replay_chunk, self, s, None, keys)[1]
+        return _map_chunks(_replay_chunk, self, s, None, keys)
 
     def encoded_rollouts(self, s: StreamState, key: jax.Array, num: int, random: bool):
         """(latents, LD targets) of sequences cut from fresh rollouts: reset, `eval_transient`
         steps, then consecutive L-step rollouts per env (reference §5, start t = 0)."""
         k_start, k_chunks = jax.random.split(key)
+        random = jnp.asarray(random)
         env_state = _rollout_start(self, s, k_start, random)
         keys = jax.random.split(k_chunks, _chunks(num, self.config.num_envs))
-        chunk = _rollout_chunk_random if random else _rollout_chunk_policy
-        return _map_chunks(chunk, self, s, env_state, keys)[1]
+        return _map_chunks(_rollout_chunk, self, s, (env_state, random), keys)
 
     def evaluate(self, s: StreamState, key: jax.Array, pi_rand_key: jax.Array) -> dict:
         """Alignment errors [D] on π_rand (and π_curr under PPO), the held-out validation error,
@@ -276,17 +289,17 @@ def _learn_step(stream: Stream, learner_state, replay, key):
 
 def _map_chunks(producer, stream: Stream, s: StreamState, carry, keys):
     """For each key, `producer(stream, s, carry, key) -> (carry, Columns [E, L])`, encoded;
-    returns (carry, (latents [N, Z], LD targets [N, D]) with N = E · len(keys)).
+    returns (latents [N, Z], LD targets [N, D]) with N = E · len(keys).
 
-    One jitted `lax.scan` on GPU/TPU; on CPU a host loop of the jitted producer and one jitted
-    encoder (see `Stream.run_epochs`), so the encoder compiles once for all three data sets."""
-    if _loops_on_host():
-        outs = []
-        for k in keys:
-            carry, seqs = producer(stream, s, carry, k)
-            outs.append(_encode(stream, s.learner.variables, seqs))
-        return carry, tuple(jnp.concatenate(x) for x in zip(*outs, strict=True))
-    return _scan_chunks(producer, stream, s, carry, keys)
+    A host loop over one jitted producer and one jitted encoder on every backend: a scan over
+    the chunks would compile the encoder once per data set (its length is static), and the
+    per-chunk dispatch costs milliseconds against seconds of compilation (and XLA:CPU runs
+    convolutions inside loops slowly, see `Stream.run_epochs`)."""
+    outs = []
+    for k in keys:
+        carry, seqs = producer(stream, s, carry, k)
+        outs.append(_encode(stream, s.learner.variables, seqs))
+    return tuple(jnp.concatenate(x) for x in zip(*outs, strict=True))
 
 
 @jax.jit(static_argnums=0)
@@ -301,40 +314,27 @@ def _encode(stream: Stream, variables, seqs: replay_lib.Columns):
     return z, seqs.ld[:, stream.hist - 1]
 
 
-@jax.jit(static_argnums=(0, 1))
-def _scan_chunks(producer, stream, s, carry, keys):
-    def body(c, k):
-        c, seqs = producer.__wrapped__(stream, s, c, k)
-        return c, _encode.__wrapped__(stream, s.learner.variables, seqs)
-
-    carry, (z, ld) = jax.lax.scan(body, carry, keys)
-    return carry, (z.reshape(-1, z.shape[-1]), ld.reshape(-1, ld.shape[-1]))
-
-
 @jax.jit(static_argnums=0)
 def _replay_chunk(stream: Stream, s: StreamState, carry, key):
     return carry, replay_lib.sample(s.replay, key, stream.config.num_envs, stream.seq_len)
 
 
-def _rollout_chunk(stream: Stream, s: StreamState, env_state: State, key, random: bool):
+@jax.jit(static_argnums=0)
+def _rollout_chunk(stream: Stream, s: StreamState, carry, key):
+    """carry (env state, traced π_rand flag) → L steps, one test sequence per env."""
+    env_state, random = carry
     L = stream.seq_len
     env_state, _, columns, _ = collect.rollout(stream.env, env_state,
-                                               stream.policy(s.ppo, random), key, L)
-    return env_state, jax.vmap(replay_lib.window, (0, None, None))(columns, 0, L)
+                                               stream.test_policy(s.ppo, random), key, L)
+    return (env_state, random), jax.vmap(replay_lib.window, (0, None, None))(columns, 0, L)
 
 
-_rollout_chunk_random = jax.jit(lambda stream, s, c, k: _rollout_chunk(stream, s, c, k, True),
-                                static_argnums=0)
-_rollout_chunk_policy = jax.jit(lambda stream, s, c, k: _rollout_chunk(stream, s, c, k, False),
-                                static_argnums=0)
-
-
-@jax.jit(static_argnums=(0, 3))
-def _rollout_start(stream: Stream, s: StreamState, key: jax.Array, random: bool) -> State:
+@jax.jit(static_argnums=0)
+def _rollout_start(stream: Stream, s: StreamState, key: jax.Array, random: jax.Array) -> State:
     k_reset, k_transient = jax.random.split(key)
     env_state = collect.reset(stream.env, k_reset, stream.config.num_envs)
     if stream.config.eval_transient:
-        env_state = _steps(stream.env, env_state, stream.policy(s.ppo, random), k_transient,
+        env_state = _steps(stream.env, env_state, stream.test_policy(s.ppo, random), k_transient,
                            stream.config.eval_transient)
     return env_state
 

@@ -163,6 +163,8 @@ def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | N
     bar = tqdm(total=config.epochs, initial=epoch, desc=f"{config.env} {config.learner}",
                unit="epoch", disable=not progress)
     status, started, budget = "running", time.perf_counter(), stop_after
+    # Wall seconds of this call by phase (first calls include compilation).
+    seconds = {"epochs": 0.0, "analysis": 0.0, "checkpoint": 0.0}
     try:
         for target in [t for t in analysis_epochs(config) if t > epoch]:
             while epoch < target:
@@ -170,8 +172,10 @@ def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | N
                 if n == 0:
                     status = "interrupted"
                     break
+                tic = time.perf_counter()
                 state, metrics = stream.run_epochs(state, n)
                 metrics = jax.tree.map(np.asarray, metrics)
+                seconds["epochs"] += time.perf_counter() - tic
                 _check_finite(metrics, epoch)
                 logs.epochs(epoch, metrics)
                 epoch += n
@@ -181,15 +185,19 @@ def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | N
                                 loss=f"{_last_finite(metrics['learner/loss']):.4g}")
             if status == "interrupted":
                 break
+            tic = time.perf_counter()
             records = _analyse(stream, state, jax.random.fold_in(k_eval, epoch), pi_rand_key,
                                names, out, epoch)
+            seconds["analysis"] += time.perf_counter() - tic
             history += records
             with (out / "history.jsonl").open("a") as f:
                 f.writelines(json.dumps(r) + "\n" for r in records)
             logs.analysis(epoch, records)
             _figures(history, out)
+            tic = time.perf_counter()
             manager.save(epoch, args=ocp.args.StandardSave(_flat(state)))
             manager.wait_until_finished()
+            seconds["checkpoint"] += time.perf_counter() - tic
         else:
             status = "finished"
     except NonFiniteLoss:
@@ -209,6 +217,7 @@ def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | N
             "status": status,
             "epoch": epoch,
             "seconds_this_call": time.perf_counter() - started,
+            "seconds_by_phase": seconds,
             "checkpoint_epoch": manager.latest_step(),
             "final": [r for r in history if r["step"] == max((h["step"] for h in history),
                                                             default=-1)],

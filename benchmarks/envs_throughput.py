@@ -13,8 +13,8 @@ Quoted anchors (not measured here; perf_anchors.md §2, "[2-core]" rows, 1 core,
 PyBullet TinyRenderer 64x64 + stepSimulation, cartpole 698 frames/s; r2d2 455 frames/s.
 
 Run from the repo root: PYTHONPATH=. python benchmarks/envs_throughput.py [--quick]
-[--envs CartPole Ant] [--no-record]. Results go to benchmarks/results.jsonl unless --no-record
-(use it on a loaded or shared machine).
+[--envs CartPole Ant] [--pixel-batches 1024 4096] [--no-record]. Results go to
+benchmarks/results.jsonl unless --no-record (use it on a loaded or shared machine).
 """
 
 from __future__ import annotations
@@ -128,6 +128,9 @@ def main(argv=None):
     parser.add_argument("--envs", nargs="+", default=list(envs_mjx.ALL_ENVS))
     parser.add_argument("--quick", action="store_true", help="small batches, few steps, 2 reps")
     parser.add_argument("--no-record", action="store_true", help="print only")
+    parser.add_argument("--pixel-batches", type=int, nargs="+",
+                        help="batches of the physics + rendering case (default 1 64 1024; "
+                             "256 in place of 1024 on CPU)")
     args = parser.parse_args(argv)
     for name in args.envs:
         if name not in envs_mjx.ALL_ENVS:
@@ -138,6 +141,7 @@ def main(argv=None):
     else:
         phys_batch, phys_steps, reps = 1024, 50, 5
         pix_batches, pix_steps = (1, 64, 256 if cpu else 1024), 10
+    pix_batches = tuple(args.pixel_batches or pix_batches)
     print(f"jax {jax.__version__}, mujoco {mujoco.__version__}, device {jax.devices()[0]}")
     all_rows = []
     for name in args.envs:

@@ -85,8 +85,11 @@ def environment() -> dict:
         with contextlib.suppress(metadata.PackageNotFoundError):
             versions[name] = metadata.version(name)
     device = jax.devices()[0]
+    # JAML_COMMIT names the commit where the checkout's git does not (a copied working tree on a
+    # remote machine can carry a stale .git).
+    commit = os.environ.get("JAML_COMMIT", "")
     try:
-        commit = subprocess.run(
+        commit = commit or subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"],
             cwd=HERE,
             text=True,
@@ -146,7 +149,7 @@ def write_markdown() -> None:
         "numbers hold only for the device named.",
         "",
         "Experiment results (not timings): [Fig. 2 at a reduced scale](../docs/results/fig2.md); "
-        "learning-loop throughput on an H100: [docs/stream.md](../docs/stream.md#speed).",
+        "what the learning-loop figures mean: [docs/stream.md](../docs/stream.md#speed).",
         "",
     ]
     env_keys = {

@@ -35,6 +35,10 @@ class LearnerConfig:
       sample before decoding.
     replay_keep_fraction: read by the stream's replay, not by the model: the share of replay
       slots kept from the initial policy (VAE_rpl; 0 for VAE_v0).
+    frame_nll: how the decoded frames' log-likelihoods combine: "sum" is the sequence ELBO of
+      paper eq. 4 (log p(x_{1:S} | τ) = Σ_t log p(x_t | τ_t)); "mean" is the reference code's
+      average over frames, which weighs the KL S times more per frame and collapsed the
+      posteriors of PRED and SVAE (S = 24) in our runs (docs/learners.md). Same for S = 1.
     """
 
     ld_dim: int
@@ -47,8 +51,12 @@ class LearnerConfig:
     conv_features: int = 128
     deconv_filters: tuple[int, ...] = (256, 128, 128, 64)
     replay_keep_fraction: float = 0.5
+    frame_nll: str = "sum"
 
     def __post_init__(self):
+        if self.frame_nll not in ("sum", "mean"):
+            raise ValueError(f"frame_nll must be 'sum' (paper) or 'mean' (reference), got "
+                             f"{self.frame_nll!r}")
         if int(self.ld_dim) < 1:
             raise ValueError(f"ld_dim must be ≥ 1, got {self.ld_dim}")
         if self.latent_dim is not None and int(self.latent_dim) < 1:
@@ -201,8 +209,10 @@ class Learner:
         x, a = self.check_batch(frames, actions)
         out, updates = self.module.apply(variables, x, a, key, train=True, mutable=["batch_stats"])
         steps = out.recon.shape[1]
-        # Unit-variance Gaussian log-likelihood averaged over the decoded frames (reference §4).
-        nll = -jnp.mean(elbo.gaussian_loglik(x[:, x.shape[1] - steps :], out.recon), axis=1)
+        # Unit-variance Gaussian log-likelihood of the decoded frames (reference §4), summed over
+        # them as in the paper's ELBO, or averaged as in the reference code (`frame_nll`).
+        loglik = elbo.gaussian_loglik(x[:, x.shape[1] - steps :], out.recon)  # [B, S]
+        nll = -(jnp.sum if self.config.frame_nll == "sum" else jnp.mean)(loglik, axis=1)
         kl = sum(self.kl_weights[k] * v for k, v in out.kl.items())
         if latent_penalty is None:
             penalty = jnp.zeros_like(nll)

@@ -139,6 +139,28 @@ def test_pred_decodes_t_plus_l_frames_from_the_first_t(runs):
     assert not np.allclose(encode(variables, early_frames, actions), changed)
 
 
+@pytest.mark.parametrize("frame_nll", ["sum", "mean"])
+def test_sequence_nll_combines_the_decoded_frames(runs, frame_nll):
+    """PRED's NLL is −Σ_t log p(x_t | τ_t) over its T + L frames (paper eq. 4), or the mean over
+    them with frame_nll="mean" (the reference code), written out here from the decoded means."""
+    run = runs("PRED")
+    learner = tiny("PRED", frame_nll=frame_nll)
+    (frames, actions), variables = run["data"], run["state0"].variables
+    key = jax.random.key(3)
+    _, metrics = jax.jit(learner.loss)(variables, key, frames, actions)
+    x = frames.astype(np.float64) / 255.0
+    out, _ = learner.module.apply(variables, jnp.asarray(x, jnp.float32), jnp.asarray(actions),
+                                  key, train=True, mutable=["batch_stats"])
+    per_frame = 0.5 * np.sum((x - np.asarray(out.recon, np.float64)) ** 2, axis=(2, 3, 4))
+    combine = np.sum if frame_nll == "sum" else np.mean
+    np.testing.assert_allclose(metrics["nll"], np.mean(combine(per_frame, axis=1)), rtol=1e-4)
+
+
+def test_frame_nll_is_checked():
+    with pytest.raises(ValueError, match="frame_nll"):
+        tiny("PRED", frame_nll="max")
+
+
 def _relation_penalty(dim, seen=None):
     """Σ_k |g_k([z_t ⊕ a_t])| summed over steps, from a random relation, as a caller imposes it."""
     relation = Relation(8, 2)

@@ -82,6 +82,28 @@ def test_checkpoint_round_trip_keeps_every_leaf(tmp_path):
     manager.close()
 
 
+def test_test_policy_is_uniform_or_current_by_a_traced_flag():
+    """π_rand and π_curr share one compiled policy; each flag value gives that policy's actions."""
+    st = loop.build(tiny())
+    ppo_state = jax.jit(st.ppo.init)(jax.random.PRNGKey(1))
+    obs = jax.random.normal(jax.random.PRNGKey(2), (8, 4))
+    key = jax.random.PRNGKey(3)
+    traces = []
+
+    def act(random):
+        traces.append(1)
+        return st.test_policy(ppo_state, random)(obs, key)[0]
+
+    act = jax.jit(act)
+    uniform = st.policy(ppo_state, random=True)(obs, key)[0]
+    current = st.policy(ppo_state)(obs, key)[0]
+    assert not np.allclose(uniform, current)
+    np.testing.assert_array_equal(act(jnp.asarray(True)), uniform)
+    # (jit may fuse the policy network differently from eager: float rounding only)
+    np.testing.assert_allclose(act(jnp.asarray(False)), current, rtol=1e-5, atol=1e-6)
+    assert len(traces) == 1
+
+
 def test_analysis_epochs_start_when_the_replay_is_full():
     assert run_lib.analysis_epochs(tiny()) == [2, 4, 6]
     assert run_lib.analysis_epochs(tiny(epochs=7, eval_every=4)) == [2, 6, 7]

@@ -1,14 +1,17 @@
 """Paper Fig. 2 at a reduced scale: alignment of each learner's latents with the true state.
 
-Runs `jaml.stream.run` for every (env, learner) into OUT/ENV/LEARNER (each run resumable), then
-writes OUT/fig2.md (final per-dimension errors on π_rand and π_curr, with position and velocity
-means) and OUT/ENV_alignment.png (all learners' curves). The paper's findings it checks:
+Runs `jaml.stream.run` for every (env, learner, seed) into OUT/ENV/LEARNER/seed_N (each run
+resumable), then writes OUT/fig2.md (final per-dimension errors on π_rand and π_curr, with
+position and velocity means; over several seeds the mean and its 90 % confidence interval, as
+the paper's Fig. 2 shows over 6 runs) and OUT/ENV_alignment.png (all learners' curves, bands over
+seeds). The paper's findings it checks:
   (a) VAE_rpl aligns better than VAE_v0 on π_rand (the replay keeps early, diverse frames);
   (b) PRED and the sequential learners (SVAE, DSA) align velocities better than the VAE, which
       sees one frame and cannot tell velocity.
 
-    python -m jaml.experiments.fig2 --out runs/fig2                  # GPU-sized defaults
-    python -m jaml.experiments.fig2 --out runs/fig2 --report-only    # tables from finished runs
+    python -m jaml.experiments.fig2 --out runs/fig2 --seeds 0 1 2     # GPU-sized defaults
+    python -m jaml.experiments.fig2 --out runs/fig2 --report-only     # tables from finished runs
+    python -m jaml.experiments.fig2 --out runs/ref --learner-opt frame_nll=mean   # reference loss
 """
 
 from __future__ import annotations
@@ -34,53 +37,78 @@ def _velocity(name: str) -> bool:
 
 
 def final_errors(history: list[dict]) -> dict[str, dict[str, float]]:
-    """test set → {dim: error} at the last analysed step."""
+    """test set → {dim: error} at the last analysed step of one run."""
     last = max(r["step"] for r in history)
     return {r["test_set"]: r["errors"] for r in history if r["step"] == last}
 
 
+def _read_history(path: Path) -> list[dict]:
+    text = path.read_text() if path.exists() else ""
+    return [json.loads(x) for x in text.splitlines() if x.strip()]
+
+
+def _cell(values: list[float]) -> str:
+    """'0.123' for one run, '0.123 ± 0.045' (90 % confidence half-width) for several."""
+    from jaml.evaluation.plots import mean_interval
+
+    mean, low, high = mean_interval(values)
+    return f"{mean:.3f}" if len(values) < 2 else f"{mean:.3f} ± {(high - low) / 2:.3f}"
+
+
 def report(out: Path, envs, learners) -> str:
+    """fig2.md from every finished seed_N run under OUT/ENV/LEARNER; returns its text."""
+    from jaml.evaluation import plots
+
     lines = ["# Fig. 2 at reduced scale: alignment error (training-std units; lower is better)",
-             ""]
+             "", "Several seeds: mean ± the half-width of its 90 % confidence interval.", ""]
     for env in envs:
-        histories = {}
+        runs = {}  # learner → [history per seed]
         for learner in learners:
-            path = out / env / learner / "history.jsonl"
-            if path.exists() and path.read_text().strip():
-                histories[learner] = [json.loads(x) for x in path.read_text().splitlines()]
-        if not histories:
+            seed_dirs = sorted((out / env / learner).glob("seed_*"))
+            histories = [h for h in (_read_history(d / "history.jsonl") for d in seed_dirs) if h]
+            if histories:
+                runs[learner] = histories
+        if not runs:
             continue
-        names = list(next(iter(histories.values()))[0]["errors"])
-        config = json.loads((out / env / next(iter(histories)) / "config.json").read_text())
+        first = next(iter(runs.values()))[0]
+        names = list(first[0]["errors"])
+        config_path = next((out / env / next(iter(runs))).glob("seed_*/config.json"))
+        config = json.loads(config_path.read_text())
         settings = {k: config[k] for k in SCALE}
         lines += [f"## {env}", "", f"Settings: {json.dumps(settings)}", "",
                   "| learner | test set | " + " | ".join(names) + " | position mean | "
-                  "velocity mean | epoch |",
-                  "|---" * (len(names) + 5) + "|"]
-        for learner, history in histories.items():
-            last = max(r["step"] for r in history)
-            for test_set, errs in final_errors(history).items():
-                pos = np.mean([v for k, v in errs.items() if not _velocity(k)])
-                vel = np.mean([v for k, v in errs.items() if _velocity(k)])
+                  "velocity mean | epoch | seeds |",
+                  "|---" * (len(names) + 6) + "|"]
+        for learner, histories in runs.items():
+            finals = [final_errors(h) for h in histories]
+            last = min(max(r["step"] for r in h) for h in histories)
+            for test_set in finals[0]:
+                per_seed = [f[test_set] for f in finals if test_set in f]
+                dims = {n: [e[n] for e in per_seed] for n in names}
+                pos = [np.mean([e[k] for k in names if not _velocity(k)]) for e in per_seed]
+                vel = [np.mean([e[k] for k in names if _velocity(k)]) for e in per_seed]
                 lines.append(f"| {learner} | {test_set} | "
-                             + " | ".join(f"{errs[n]:.3f}" for n in names)
-                             + f" | {pos:.3f} | {vel:.3f} | {last} |")
+                             + " | ".join(_cell(dims[n]) for n in names)
+                             + f" | {_cell(pos)} | {_cell(vel)} | {last} | {len(per_seed)} |")
         lines.append("")
-        from jaml.evaluation import plots
-
-        merged = [r for h in histories.values() for r in h]
-        plots.plot_alignment(merged, out / f"{env}_alignment.png")
+        plots.plot_alignment([r for hs in runs.values() for h in hs for r in h],
+                             out / f"{env}_alignment.png")
     text = "\n".join(lines) + "\n"
     (out / "fig2.md").write_text(text)
     return text
 
 
 def main(argv=None) -> int:
+    from jaml.cli import _key_value
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--envs", nargs="+", default=list(ENVS))
     parser.add_argument("--learners", nargs="+", default=list(LEARNERS))
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0])
+    parser.add_argument("--learner-opt", type=_key_value, action="append", metavar="KEY=VALUE",
+                        default=[], help="a learner config field for every run, e.g. "
+                                         "frame_nll=mean (the reference code's likelihood)")
     parser.add_argument("--report-only", action="store_true")
     for k, v in SCALE.items():
         parser.add_argument("--" + k.replace("_", "-"), type=int, default=v)
@@ -92,12 +120,16 @@ def main(argv=None) -> int:
 
         for env in args.envs:
             for learner in args.learners:
-                started = time.perf_counter()
-                config = for_env(env, learner, seed=args.seed, **SCALE)
-                summary = run(config, args.out / env / learner, progress=False)
-                phases = ", ".join(f"{k} {v:.0f}s" for k, v in summary["seconds_by_phase"].items())
-                print(f"{env} {learner}: {summary['status']} in "
-                      f"{time.perf_counter() - started:.0f}s ({phases})", flush=True)
+                for seed in args.seeds:
+                    started = time.perf_counter()
+                    config = for_env(env, learner, seed=seed, **SCALE,
+                                     learner_overrides=dict(args.learner_opt))
+                    summary = run(config, args.out / env / learner / f"seed_{seed}",
+                                  progress=False)
+                    phases = ", ".join(f"{k} {v:.0f}s"
+                                       for k, v in summary["seconds_by_phase"].items())
+                    print(f"{env} {learner} seed {seed}: {summary['status']} in "
+                          f"{time.perf_counter() - started:.0f}s ({phases})", flush=True)
     print(report(args.out, args.envs, args.learners))
     return 0
 

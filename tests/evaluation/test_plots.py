@@ -71,7 +71,7 @@ def test_distortion_plot_band_is_a_90_percent_interval(tmp_path):
     runs = np.array([0.6, 0.61, 0.62])
     np.testing.assert_allclose(ax.lines[0].get_ydata(), runs.mean())
     band = ax.collections[0].get_paths()[0].vertices[:, 1]
-    half = 1.6448536 * runs.std(ddof=1) / math.sqrt(3)
+    half = 2.9199856 * runs.std(ddof=1) / math.sqrt(3)  # Student t, 2 dof, 95th percentile
     assert band.max() == pytest.approx(runs.mean() + half, rel=1e-6)
     assert band.min() == pytest.approx(runs.mean() - half, rel=1e-6)
 

@@ -52,9 +52,15 @@ class StreamState:
     replay: replay_lib.Replay
 
 
-@dataclasses.dataclass(frozen=True, eq=False)  # hashed by identity: a static jit argument
+@dataclasses.dataclass(frozen=True, eq=False)
 class Stream:
-    """A configured loop: env, learner, PPO and replay geometry, with pure epoch functions."""
+    """A configured loop: env, learner, PPO and replay geometry, with pure epoch functions.
+
+    A static argument of the module's jitted functions, so it hashes by what the traced code
+    depends on: its parts by identity and its config without the seed, which only the run's
+    keys use. Streams that `build` makes for configs differing only in the seed share their
+    parts, hence one compilation for all seeds of an experiment.
+    """
 
     config: StreamConfig
     env: Env
@@ -63,6 +69,17 @@ class Stream:
     optimizer: Any
     train_step: Any
     keep_fraction: float
+
+    def __post_init__(self):
+        seedless = json.dumps(self.config.replace(seed=0).to_dict(), sort_keys=True)
+        parts = (self.env, self.learner, self.ppo, self.optimizer, self.train_step)
+        object.__setattr__(self, "_key", (seedless, *map(id, parts), self.keep_fraction))
+
+    def __hash__(self) -> int:
+        return hash(self._key)
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Stream) and self._key == other._key
 
     @property
     def seq_len(self) -> int:
@@ -358,12 +375,15 @@ _BUILT: dict = {}
 def build(config: StreamConfig, latent_penalty=None) -> Stream:
     """A Stream for `config`; every size problem is reported here, before anything compiles.
 
-    Building the same config (and penalty) again in one process returns the same Stream, so its
-    compiled functions are reused (jit caches key on the Stream's identity)."""
-    cache_key = (json.dumps(config.to_dict(), sort_keys=True), latent_penalty)
+    Building a config again in one process, or one that differs only in its seed, reuses the
+    same env, learner and PPO, so jitted functions compiled for one serve the other (see
+    `Stream`)."""
+    seedless = config.replace(seed=0)
+    cache_key = (json.dumps(seedless.to_dict(), sort_keys=True), latent_penalty)
     if cache_key not in _BUILT:
-        _BUILT[cache_key] = _build(config, latent_penalty)
-    return _BUILT[cache_key]
+        _BUILT[cache_key] = _build(seedless, latent_penalty)
+    base = _BUILT[cache_key]
+    return base if config == seedless else dataclasses.replace(base, config=config)
 
 
 def _build(config: StreamConfig, latent_penalty) -> Stream:

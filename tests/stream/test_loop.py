@@ -104,6 +104,24 @@ def test_test_policy_is_uniform_or_current_by_a_traced_flag():
     assert len(traces) == 1
 
 
+def test_streams_of_other_seeds_share_compiled_code_not_their_seed():
+    a, b, other = loop.build(tiny()), loop.build(tiny(seed=7)), loop.build(tiny(learner_steps=3))
+    assert (a.config.seed, b.config.seed) == (0, 7)
+    assert a == b and hash(a) == hash(b) and a.learner is b.learner
+    assert other != a
+    traces = []
+
+    @jax.jit(static_argnums=0)
+    def f(st, x):
+        traces.append(st.config.seed)
+        return x + st.config.learner_steps
+
+    assert int(f(a, 1)) == int(f(b, 1)) == 3 and int(f(other, 1)) == 4
+    assert len(traces) == 2  # a and b: one trace; other: its own
+    # A Stream with a replaced part is another program, whatever its config.
+    assert dataclasses.replace(a, train_step=lambda *x: x) != a
+
+
 def test_analysis_epochs_start_when_the_replay_is_full():
     assert run_lib.analysis_epochs(tiny()) == [2, 4, 6]
     assert run_lib.analysis_epochs(tiny(epochs=7, eval_every=4)) == [2, 6, 7]

@@ -169,13 +169,14 @@ def test_a_killed_run_resumes_to_the_result_of_an_uninterrupted_one(tmp_path):
 def test_a_non_finite_loss_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
     config = tiny(seed=3)
     run_lib.run(config, tmp_path, progress=False, stop_after=2)  # checkpoint at epoch 2
-    good = stream.build(config)
+    # The seed-independent Stream that build() keeps for this config (see Stream's hashing).
+    cache_key = next(k for k, v in loop._BUILT.items() if v == stream.build(config))
+    good = loop._BUILT[cache_key]
 
     def poisoned(state, batch, key):
         state, metrics = good.train_step(state, batch, key)
         return state, {**metrics, "loss": jnp.full_like(metrics["loss"], jnp.nan)}
 
-    cache_key = next(k for k, v in loop._BUILT.items() if v is good)
     loop._BUILT[cache_key] = dataclasses.replace(good, train_step=poisoned)
     try:
         with pytest.raises(run_lib.NonFiniteLoss, match="non-finite at epoch 3"):

@@ -99,7 +99,7 @@ _SUITE_FIELDS = ("seed", "num_envs", "rollout_len", "replay_slots", "replay_keep
                  "eval_rand", "eval_curr", "eval_transient", "regressor_iterations")
 
 
-def _key_value(text: str) -> tuple[str, object]:
+def key_value(text: str) -> tuple[str, object]:
     """KEY=VALUE with VALUE read as JSON where it parses (numbers, true, lists), else a string."""
     import json
 
@@ -172,9 +172,9 @@ def _add_suite_parser(sub) -> None:
         kind = float if "float" in str(hints[name]) else int
         suite.add_argument("--" + name.replace("_", "-"), dest=name, type=kind, default=None,
                            help=described.replace("%", "%%"))
-    suite.add_argument("--learner-opt", type=_key_value, action="append", metavar="KEY=VALUE",
+    suite.add_argument("--learner-opt", type=key_value, action="append", metavar="KEY=VALUE",
                        help="learner config field, e.g. beta=20 or hist=16 (repeatable)")
-    suite.add_argument("--env-opt", type=_key_value, action="append", metavar="KEY=VALUE",
+    suite.add_argument("--env-opt", type=key_value, action="append", metavar="KEY=VALUE",
                        help="env config field, e.g. multicolor=false (repeatable)")
     suite.add_argument("--stop-after", type=int, default=None,
                        help="stop after this many epochs in this call; the next call resumes "

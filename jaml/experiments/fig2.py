@@ -24,6 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+from jaml.evaluation import plots
+from jaml.evaluation.plots import mean_interval
+
 LEARNERS = ("VAE_v0", "VAE_rpl", "PRED", "SVAE", "DSA")
 ENVS = ("CartPole", "InvertedPendulum")
 # Reduced scale: 1/5 of the reference replay, 200 learner epochs instead of tens of thousands,
@@ -49,16 +52,12 @@ def _read_history(path: Path) -> list[dict]:
 
 def _cell(values: list[float]) -> str:
     """'0.123' for one run, '0.123 ± 0.045' (90 % confidence half-width) for several."""
-    from jaml.evaluation.plots import mean_interval
-
     mean, low, high = mean_interval(values)
     return f"{mean:.3f}" if len(values) < 2 else f"{mean:.3f} ± {(high - low) / 2:.3f}"
 
 
 def report(out: Path, envs, learners) -> str:
     """fig2.md from every finished seed_N run under OUT/ENV/LEARNER; returns its text."""
-    from jaml.evaluation import plots
-
     lines = ["# Fig. 2 at reduced scale: alignment error (training-std units; lower is better)",
              "", "Several seeds: mean ± the half-width of its 90 % confidence interval.", ""]
     for env in envs:
@@ -87,9 +86,9 @@ def report(out: Path, envs, learners) -> str:
                 dims = {n: [e[n] for e in per_seed] for n in names}
                 pos = [np.mean([e[k] for k in names if not _velocity(k)]) for e in per_seed]
                 vel = [np.mean([e[k] for k in names if _velocity(k)]) for e in per_seed]
-                lines.append(f"| {learner} | {test_set} | "
-                             + " | ".join(_cell(dims[n]) for n in names)
-                             + f" | {_cell(pos)} | {_cell(vel)} | {last} | {len(per_seed)} |")
+                cells = [_cell(v) for v in (*dims.values(), pos, vel)]
+                lines.append(f"| {learner} | {test_set} | " + " | ".join(cells)
+                             + f" | {last} | {len(per_seed)} |")
         lines.append("")
         plots.plot_alignment([r for hs in runs.values() for h in hs for r in h],
                              out / f"{env}_alignment.png")
@@ -99,14 +98,14 @@ def report(out: Path, envs, learners) -> str:
 
 
 def main(argv=None) -> int:
-    from jaml.cli import _key_value
+    from jaml.cli import key_value
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--envs", nargs="+", default=list(ENVS))
     parser.add_argument("--learners", nargs="+", default=list(LEARNERS))
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
-    parser.add_argument("--learner-opt", type=_key_value, action="append", metavar="KEY=VALUE",
+    parser.add_argument("--learner-opt", type=key_value, action="append", metavar="KEY=VALUE",
                         default=[], help="a learner config field for every run, e.g. "
                                          "frame_nll=mean (the reference code's likelihood)")
     parser.add_argument("--report-only", action="store_true")

@@ -98,6 +98,11 @@ class StreamConfig:
         """Epochs until the replay is full and the learner starts (reference §3)."""
         return self.replay_slots // self.num_envs
 
+    def program_key(self) -> str:
+        """The config without its seed, as canonical JSON: what the compiled loop depends on
+        (the seed only picks the run's keys)."""
+        return json.dumps(self.replace(seed=0).to_dict(), sort_keys=True)
+
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
         return json.loads(json.dumps(d))  # tuples → lists: what a JSON round trip gives

@@ -20,7 +20,6 @@ Shapes: E envs, T rollout_len, L = learner.seq_len, B sequences per learner batc
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from typing import Any
 
@@ -71,9 +70,9 @@ class Stream:
     keep_fraction: float
 
     def __post_init__(self):
-        seedless = json.dumps(self.config.replace(seed=0).to_dict(), sort_keys=True)
         parts = (self.env, self.learner, self.ppo, self.optimizer, self.train_step)
-        object.__setattr__(self, "_key", (seedless, *map(id, parts), self.keep_fraction))
+        object.__setattr__(self, "_key", (self.config.program_key(), *map(id, parts),
+                                          self.keep_fraction))
 
     def __hash__(self) -> int:
         return hash(self._key)
@@ -120,9 +119,9 @@ class Stream:
         # by two leaves (one zeros array, say) cannot be donated twice.
         return jax.tree.map(lambda x: jnp.array(x, copy=True), state)
 
-    def policy(self, ppo_state: ppo_lib.PPOState, random: bool = False):
+    def policy(self, ppo_state: ppo_lib.PPOState):
         """The behaviour policy: PPO's stochastic policy, or uniform actions."""
-        if random or self.config.policy == "random":
+        if self.config.policy == "random":
             return ppo_lib.random_policy(self.env.action_size)
         return self.ppo.policy(ppo_state)
 
@@ -132,7 +131,7 @@ class Stream:
         A traced choice, so both test sets share one compilation of the rollout code."""
         if self.config.policy == "random":
             return self.policy(ppo_state)
-        current, uniform = self.policy(ppo_state), self.policy(ppo_state, random=True)
+        current, uniform = self.policy(ppo_state), ppo_lib.random_policy(self.env.action_size)
 
         def policy(obs, key):
             return jnp.where(random, uniform(obs, key)[0], current(obs, key)[0]), {}
@@ -378,12 +377,11 @@ def build(config: StreamConfig, latent_penalty=None) -> Stream:
     Building a config again in one process, or one that differs only in its seed, reuses the
     same env, learner and PPO, so jitted functions compiled for one serve the other (see
     `Stream`)."""
-    seedless = config.replace(seed=0)
-    cache_key = (json.dumps(seedless.to_dict(), sort_keys=True), latent_penalty)
+    cache_key = (config.program_key(), latent_penalty)
     if cache_key not in _BUILT:
-        _BUILT[cache_key] = _build(seedless, latent_penalty)
+        _BUILT[cache_key] = _build(config.replace(seed=0), latent_penalty)
     base = _BUILT[cache_key]
-    return base if config == seedless else dataclasses.replace(base, config=config)
+    return base if base.config == config else dataclasses.replace(base, config=config)
 
 
 def _build(config: StreamConfig, latent_penalty) -> Stream:

@@ -17,6 +17,7 @@ non-finite learner loss stops the run with a message; the last good checkpoint s
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -172,10 +173,9 @@ def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | N
                 if n == 0:
                     status = "interrupted"
                     break
-                tic = time.perf_counter()
-                state, metrics = stream.run_epochs(state, n)
-                metrics = jax.tree.map(np.asarray, metrics)
-                seconds["epochs"] += time.perf_counter() - tic
+                with _timed(seconds, "epochs"):
+                    state, metrics = stream.run_epochs(state, n)
+                    metrics = jax.tree.map(np.asarray, metrics)
                 _check_finite(metrics, epoch)
                 logs.epochs(epoch, metrics)
                 epoch += n
@@ -185,19 +185,17 @@ def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | N
                                 loss=f"{_last_finite(metrics['learner/loss']):.4g}")
             if status == "interrupted":
                 break
-            tic = time.perf_counter()
-            records = _analyse(stream, state, jax.random.fold_in(k_eval, epoch), pi_rand_key,
-                               names, out, epoch)
-            seconds["analysis"] += time.perf_counter() - tic
+            with _timed(seconds, "analysis"):
+                records = _analyse(stream, state, jax.random.fold_in(k_eval, epoch),
+                                   pi_rand_key, names, out, epoch)
             history += records
             with (out / "history.jsonl").open("a") as f:
                 f.writelines(json.dumps(r) + "\n" for r in records)
             logs.analysis(epoch, records)
             _figures(history, out)
-            tic = time.perf_counter()
-            manager.save(epoch, args=ocp.args.StandardSave(_flat(state)))
-            manager.wait_until_finished()
-            seconds["checkpoint"] += time.perf_counter() - tic
+            with _timed(seconds, "checkpoint"):
+                manager.save(epoch, args=ocp.args.StandardSave(_flat(state)))
+                manager.wait_until_finished()
         else:
             status = "finished"
     except NonFiniteLoss:
@@ -224,6 +222,16 @@ def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | N
         }
         write_json(out / "summary.json", summary)
     return summary
+
+
+@contextlib.contextmanager
+def _timed(seconds: dict[str, float], phase: str):
+    """Adds the wall time of the block to seconds[phase]."""
+    tic = time.perf_counter()
+    try:
+        yield
+    finally:
+        seconds[phase] += time.perf_counter() - tic
 
 
 def _last_finite(values: np.ndarray) -> float:

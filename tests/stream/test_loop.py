@@ -95,7 +95,7 @@ def test_test_policy_is_uniform_or_current_by_a_traced_flag():
         return st.test_policy(ppo_state, random)(obs, key)[0]
 
     act = jax.jit(act)
-    uniform = st.policy(ppo_state, random=True)(obs, key)[0]
+    uniform = stream.random_policy(st.env.action_size)(obs, key)[0]
     current = st.policy(ppo_state)(obs, key)[0]
     assert not np.allclose(uniform, current)
     np.testing.assert_array_equal(act(jnp.asarray(True)), uniform)
@@ -203,5 +203,5 @@ def test_suite_cli_has_help_and_reports_bad_input(tmp_path, capsys):
     code = cli.main(["suite", "--env", "CartPole", "--learner", "beta-VAE", "--learner-opt",
                      "gamma=2", "--out", str(tmp_path / "beta")])
     assert code == 2 and "unknown config fields ['gamma']" in capsys.readouterr().err
-    assert cli._key_value("beta=20") == ("beta", 20)
-    assert cli._key_value("object=duck") == ("object", "duck")
+    assert cli.key_value("beta=20") == ("beta", 20)
+    assert cli.key_value("object=duck") == ("object", "duck")

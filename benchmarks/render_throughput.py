@@ -1,7 +1,7 @@
 """Frames per second of the JAX ray caster at 64×64, batch 1/64/256, on the default JAX device.
 
 Run from the repo root: PYTHONPATH=. python benchmarks/render_throughput.py [--reps 5]
-[--batches 1 64 256] [--large] [--outputs all seg] [--scenes cartpole mesh half_cheetah].
+[--batches 1 64 256] [--large] [--outputs all seg] [--scenes cartpole mesh half_cheetah ant].
 `--large` adds batches 1024 and 4096 (for a GPU). `--outputs seg` also times a jitted function
 that returns only the segmentation (XLA drops the unused shading). Compile time is reported
 apart; throughput is the median over blocked repetitions, and for the CPU the frames per
@@ -121,7 +121,7 @@ def main():
     parser.add_argument("--large", action="store_true", help="add batches 1024 and 4096")
     parser.add_argument("--outputs", nargs="+", default=["all"], choices=sorted(OUTPUTS))
     parser.add_argument("--scenes", nargs="+", default=["cartpole", "mesh"],
-                        choices=["cartpole", "mesh", "half_cheetah"])
+                        choices=["cartpole", "mesh", "half_cheetah", "ant"])
     args = parser.parse_args()
     batches = list(args.batches) + ([1024, 4096] if args.large else [])
     dev = jax.devices()[0]
@@ -137,6 +137,10 @@ def main():
         print("half_cheetah (assets/half_cheetah.xml: 9 capsules + checker floor), 64x64:")
         xml = (Path(__file__).resolve().parents[1] / "assets" / "half_cheetah.xml").read_text()
         bench("half_cheetah", xml, batches, args.reps, args.outputs, camera="pixels")
+    if "ant" in args.scenes:
+        print("ant (assets/ant.xml: sphere + 12 capsules + checker floor), 64x64:")
+        xml = (Path(__file__).resolve().parents[1] / "assets" / "ant.xml").read_text()
+        bench("ant", xml, batches, args.reps, args.outputs, camera="pixels")
 
 
 if __name__ == "__main__":

@@ -2,19 +2,22 @@
 
 Everything runs in the camera frame on component arrays with pixels as the contiguous axis
 (feature-major): a pixel's ray is (x, y, -1), so a geom's local ray direction is affine in
-(x, y) and each primitive test is one fused elementwise loop over pixels. The nearest hit and
-its material are carried through a static loop over geoms with selects (no gathers, no
-argmin over a small minor axis). Meshes are tested with camera-space edge functions (see
-`_mesh_hits`), a max-reduction over triangles with pixels contiguous.
+(x, y) and each primitive test is one fused elementwise loop over pixels. Primitives take two
+passes: the first carries only the nearest distance and geom index through a static loop over
+geoms (one packed int32, see `_nearest_primitive`), the second selects the winner's frame and
+computes its normal once (`_primitive_hit`); no gathers, no argmin over a small minor axis.
+Meshes are tested with camera-space edge functions (see `_mesh_hits`), a max-reduction over
+triangles with pixels contiguous. Under vmap on the CPU, frames go in chunks (`_render_batch`).
 """
 
 from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import mujoco
-from jax import lax
+from jax import custom_batching, lax
 
 from envs_mjx.render import intersect, shading
 from envs_mjx.render.context import RenderContext
@@ -56,41 +59,118 @@ def _select(mask, new: _Hit, old: _Hit) -> _Hit:
     return _Hit(*(jnp.where(mask, a, b) for a, b in zip(new, old, strict=True)))
 
 
-def _primitive(ctx, gtype, size, g, m, o_l, x, y, best: _Hit) -> _Hit:
-    """Test geom g (local frame: camera-to-local rotation m [3, 3], ray origin o_l [3])."""
-    hit_fn, normal_fn = _PRIMITIVES[gtype]
-    # Local direction of the ray (x, y, -1): affine in the pixel coordinates.
+def _nearest_primitive(ctx, frames, x, y):
+    """Pass 1: distance and index (into `frames`) of the nearest primitive per pixel, -1 if none.
+
+    The chain over geoms carries one int32 per pixel: the bits of t (positive floats order like
+    their bit patterns) with the low bits replaced by the geom's index, so the whole chain is a
+    single fused loop with one output. Carrying normals and uv as well made XLA:CPU fuse the
+    chain into every carried field's loop and re-run it per field (Ant's 12 capsules: 14x the
+    cost of this pass alone); carrying t and the index as two arrays made it split the chain
+    into a buffer per geom. The cost: t loses its low bits (relative 2^-(23 - index bits)), and
+    surfaces that close in depth tie-break by index."""
+    bits = max(1, (len(frames) - 1).bit_length())
+    low = jnp.int32((1 << bits) - 1)
+    key = jnp.full(x.shape, jnp.iinfo(jnp.int32).max, jnp.int32)  # above any t, +inf included
+    for i, (gtype, size, _, m, o_l) in enumerate(frames):
+        d_l = tuple(m[0, j] * x + m[1, j] * y - m[2, j] for j in range(3))
+        t = _PRIMITIVES[gtype][0]((o_l[0], o_l[1], o_l[2]), d_l, (size[0], size[1], size[2]),
+                                  ctx.znear)
+        key = jnp.minimum(key, (lax.bitcast_convert_type(t, jnp.int32) & ~low) | i)
+    # Into a buffer: pass 2 and shading read the winner many times, and would otherwise each
+    # re-run the whole chain. cam_id >= 0 always, but XLA cannot know it (see _materialise).
+    key = _materialise(key, ctx.cam_id < 0)
+    t = lax.bitcast_convert_type(key & ~low, jnp.float32)
+    found = t < jnp.inf
+    return jnp.where(found, t, jnp.inf), jnp.where(found, key & low, -1)
+
+
+def _materialise(a, never):
+    """`a`, forced into a buffer: a one-trip loop XLA cannot prove to be one trip (nor its body
+    the identity) stops consumers from fusing (and so re-running) its producers. `never`: a
+    bool scalar that is always False but not known to be at compile time; it must not be
+    batched (under vmap a batched trip count turns the loop into selects over the buffer)."""
+    trips = 1 + never.astype(jnp.int32)
+    return lax.fori_loop(0, trips, lambda i, v: v | (i < 0).astype(v.dtype), a)
+
+
+def _primitive_hit(ctx, frames, t, idx, x, y) -> _Hit:
+    """Pass 2: normal (and checker / texture coordinates) of each pixel's nearest primitive.
+
+    The winner's frame (m, o_l, size) and geom id reach each pixel by a select chain over the
+    primitives (a gather of table rows measured ~1.5x slower on XLA:CPU); its normal is then
+    computed once per type present, and chosen by the index range the type occupies."""
+    found = idx >= 0
+    fields = [jnp.zeros_like(x)] * 15
+    geom = jnp.full(x.shape, -1, jnp.int32)
+    for i, (_, size_i, g, m_i, o_i) in enumerate(frames):
+        here = idx == i
+        vals = [m_i[a, b] for a in range(3) for b in range(3)] + [o_i[j] for j in range(3)] + [
+            size_i[j] for j in range(3)]
+        fields = [jnp.where(here, val, f) for val, f in zip(vals, fields, strict=True)]
+        geom = jnp.where(here, jnp.int32(g), geom)
+    m = [[fields[3 * a + b] for b in range(3)] for a in range(3)]
+    t_safe = jnp.where(found, t, 0.0)
+    d_l = [m[0][j] * x + m[1][j] * y - m[2][j] for j in range(3)]
+    p_l = tuple(fields[9 + j] + t_safe * d_l[j] for j in range(3))
+    size = (fields[12], fields[13], fields[14])
+    n_l = None
+    start = 0
+    for gtype, count in _type_runs(frames):
+        n = _PRIMITIVES[gtype][1](p_l, size)
+        if n_l is None:
+            n_l = n
+        else:
+            here = idx >= start
+            n_l = tuple(jnp.where(here, a, b) for a, b in zip(n, n_l, strict=True))
+        start += count
+    n_c = [m[i][0] * n_l[0] + m[i][1] * n_l[1] + m[i][2] * n_l[2] for i in range(3)]
+    u = v = jnp.zeros_like(x)
+    tex = jnp.full(x.shape, -1, jnp.int32)
+    for gtype, _, g, m_g, o_g in frames:
+        if gtype == int(_G.mjGEOM_PLANE) and g in ctx.textured_geoms:
+            on = geom == g
+            u_g, v_g = _plane_uv(ctx, g, m_g, o_g, t_safe, x, y)
+            u, v = jnp.where(on, u_g, u), jnp.where(on, v_g, v)
+            tex = jnp.where(on, ctx.geom_tex[g], tex)
+    t = jnp.where(found, t, jnp.inf)
+    return _Hit(t, geom, *n_c, u, v, tex)
+
+
+def _plane_uv(ctx, g, m, o, t, x, y):
+    """Texture coordinates where the rays meet textured plane g (frame m, o_l) at distance t.
+    For a checker texture, u carries the checker's value box-filtered over the pixel (v unused).
+    """
     d_l = tuple(m[0, j] * x + m[1, j] * y - m[2, j] for j in range(3))
-    o = (o_l[0], o_l[1], o_l[2])
-    s = (size[0], size[1], size[2])
-    t = hit_fn(o, d_l, s, ctx.znear)
-    closer = t < best.t
-    t_safe = jnp.where(closer, t, 0.0)
-    p_l = tuple(o[j] + t_safe * d_l[j] for j in range(3))
-    n_l = normal_fn(p_l, s)
-    n_c = [m[i, 0] * n_l[0] + m[i, 1] * n_l[1] + m[i, 2] * n_l[2] for i in range(3)]
-    u = v = best.u
-    tex = jnp.int32(-1)
-    if gtype == int(_G.mjGEOM_PLANE) and g in ctx.textured_geoms:
-        corner, scale = ctx.geom_uvorigin[g], ctx.geom_uvscale[g]
-        u = (p_l[0] + corner[0]) * scale[0]
-        v = (corner[1] - p_l[1]) * scale[1]
-        tex = ctx.geom_tex[g]
-        if g in ctx.checker_geoms:
-            # One texel per pixel aliases a checker into moire at 64 x 64 (MuJoCo mipmaps it);
-            # instead average it over the pixel's footprint in uv. The ray (x, y, -1) meets
-            # local z = 0 at t = -o_z / d_z, so d p_l / dx = t (m[0, :] - m[0, 2] d_l / d_z) (m[1]
-            # for y), with 1 / d_z = -t / o_z; the footprint's extent along u is
-            # pitch (|du/dx| + |du/dy|), likewise v. The filtered value goes in u (v unused).
-            neg_inv_oz = -1.0 / jnp.where(jnp.abs(o[2]) > 1e-9, o[2], 1e-9)
-            k = ctx.pixel_pitch * t_safe
-            a0 = d_l[0] * (t_safe * neg_inv_oz)
-            a1 = d_l[1] * (t_safe * neg_inv_oz)
-            wu = scale[0] * k * (jnp.abs(m[0, 0] - m[0, 2] * a0) + jnp.abs(m[1, 0] - m[1, 2] * a0))
-            wv = scale[1] * k * (jnp.abs(m[0, 1] - m[0, 2] * a1) + jnp.abs(m[1, 1] - m[1, 2] * a1))
-            u = v = shading.square_wave_mean(u, wu) * shading.square_wave_mean(v, wv)
-    new = _Hit(t, jnp.int32(g), *n_c, u, v, tex)
-    return _select(closer, new, best)
+    p_l = tuple(o[j] + t * d_l[j] for j in range(3))
+    corner, scale = ctx.geom_uvorigin[g], ctx.geom_uvscale[g]
+    u = (p_l[0] + corner[0]) * scale[0]
+    v = (corner[1] - p_l[1]) * scale[1]
+    if g not in ctx.checker_geoms:
+        return u, v
+    # One texel per pixel aliases a checker into moire at 64 x 64 (MuJoCo mipmaps it); instead
+    # average it over the pixel's footprint in uv. The ray (x, y, -1) meets local z = 0 at
+    # t = -o_z / d_z, so d p_l / dx = t (m[0, :] - m[0, 2] d_l / d_z) (m[1] for y), with
+    # 1 / d_z = -t / o_z; the footprint's extent along u is pitch (|du/dx| + |du/dy|), likewise v.
+    neg_inv_oz = -1.0 / jnp.where(jnp.abs(o[2]) > 1e-9, o[2], 1e-9)
+    k = ctx.pixel_pitch * t
+    a0 = d_l[0] * (t * neg_inv_oz)
+    a1 = d_l[1] * (t * neg_inv_oz)
+    wu = scale[0] * k * (jnp.abs(m[0, 0] - m[0, 2] * a0) + jnp.abs(m[1, 0] - m[1, 2] * a0))
+    wv = scale[1] * k * (jnp.abs(m[0, 1] - m[0, 2] * a1) + jnp.abs(m[1, 1] - m[1, 2] * a1))
+    filtered = shading.square_wave_mean(u, wu) * shading.square_wave_mean(v, wv)
+    return filtered, filtered
+
+
+def _type_runs(frames):
+    """(geom type, count) for each run of equal types in `frames` (grouped by type)."""
+    runs = []
+    for gtype, *_ in frames:
+        if runs and runs[-1][0] == gtype:
+            runs[-1][1] += 1
+        else:
+            runs.append([gtype, 1])
+    return runs
 
 
 def _mesh_tables(ctx, geom_xpos, geom_xmat, cam_xpos, cam_xmat):
@@ -177,30 +257,86 @@ def _mesh_hits(ctx, coef, table, x, y, best: _Hit) -> _Hit:
     return _select(closer, new, best)
 
 
+class _Pose(NamedTuple):
+    """What the renderer reads from the data, float32, world frame."""
+
+    geom_xpos: jnp.ndarray  # [ngeom, 3]
+    geom_xmat: jnp.ndarray  # [ngeom, 3, 3]
+    cam_xpos: jnp.ndarray  # [3] the rendering camera's
+    cam_xmat: jnp.ndarray  # [3, 3]
+    light_dir: jnp.ndarray | None  # [3] direction the model light travels; None: no light
+
+
 def render(ctx: RenderContext, data) -> RenderOutput:
     """Render one frame from `data` (mjx.Data, mujoco.MjData or anything with geom_xpos,
-    geom_xmat, cam_xpos, cam_xmat). Jittable and vmappable over data."""
-    geom_xpos = jnp.asarray(data.geom_xpos, jnp.float32)
-    geom_xmat = jnp.asarray(data.geom_xmat, jnp.float32).reshape(-1, 3, 3)
-    cam_xpos = jnp.asarray(data.cam_xpos, jnp.float32)[ctx.cam_id]
-    cam_xmat = jnp.asarray(data.cam_xmat, jnp.float32).reshape(-1, 3, 3)[ctx.cam_id]
-    frames = []  # per primitive geom: (type, group index, index in group, id, m, o_l)
+    geom_xmat, cam_xpos, cam_xmat). Jittable and vmappable over data (and over ctx's arrays).
+
+    Under vmap on the CPU, frames are rendered in chunks of `CPU_BATCH_CHUNK` (see
+    `_render_batch`)."""
+    light_dir = None
+    if ctx.light_id >= 0:
+        xdir = getattr(data, "light_xdir", None)  # MjData has it; mjx.Data does not
+        light_dir = (ctx.light_dir if xdir is None
+                     else jnp.asarray(xdir, jnp.float32).reshape(-1, 3)[ctx.light_id])
+    pose = _Pose(geom_xpos=jnp.asarray(data.geom_xpos, jnp.float32),
+                 geom_xmat=jnp.asarray(data.geom_xmat, jnp.float32).reshape(-1, 3, 3),
+                 cam_xpos=jnp.asarray(data.cam_xpos, jnp.float32)[ctx.cam_id],
+                 cam_xmat=jnp.asarray(data.cam_xmat, jnp.float32).reshape(-1, 3, 3)[ctx.cam_id],
+                 light_dir=light_dir)
+    return _render_pose(ctx, pose)
+
+
+# Frames per chunk when a batch is rendered on the CPU. XLA:CPU runs each fused loop over the
+# whole batch before the next, so a large batch streams every intermediate [B, H*W] buffer
+# through memory; in chunks they stay in cache. 2-core EPYC, batch 256, CPU time per frame:
+# cartpole 260 -> 133 us, Ant 450 -> 311 us (chunks of 16 or 64 did about as well).
+CPU_BATCH_CHUNK = 32
+
+
+@custom_batching.custom_vmap
+def _render_pose(ctx: RenderContext, pose: _Pose) -> RenderOutput:
+    return _render_frame(ctx, pose)
+
+
+@_render_pose.def_vmap
+def _render_batch(axis_size, in_batched, ctx, pose):
+    """vmap rule: the batch in chunks of CPU_BATCH_CHUNK on the CPU (lax.map over vmapped
+    chunks), all at once elsewhere (a GPU wants every frame in flight)."""
+    leaves, treedef = jax.tree.flatten((ctx, pose))
+    flags = jax.tree.leaves(in_batched)
+    batched = [leaf for leaf, b in zip(leaves, flags, strict=True) if b]
+
+    def one(xs):
+        it = iter(xs)
+        return _render_frame(*treedef.unflatten(
+            [next(it) if b else leaf for leaf, b in zip(leaves, flags, strict=True)]))
+
+    if not batched:
+        out = one([])
+        return out, jax.tree.map(lambda _: False, out)
+    if jax.default_backend() == "cpu" and axis_size > CPU_BATCH_CHUNK:
+        out = lax.map(one, batched, batch_size=CPU_BATCH_CHUNK)
+    else:
+        out = jax.vmap(one)(batched)
+    return out, jax.tree.map(lambda _: True, out)
+
+
+def _render_frame(ctx: RenderContext, pose: _Pose) -> RenderOutput:
+    geom_xpos, geom_xmat, cam_xpos, cam_xmat = pose[:4]
+    frames = []  # per primitive geom: (type, size, id, m, o_l)
     for gi, (gtype, ids) in enumerate(zip(ctx.group_types, ctx.group_geoms, strict=True)):
         if gtype == int(_G.mjGEOM_MESH):
             continue
         for k, g in enumerate(ids):
             rot, pos = geom_xmat[g], geom_xpos[g]
             m = cam_xmat.T @ rot  # camera frame -> local frame is m.T
-            frames.append((gtype, gi, k, g, m, rot.T @ (cam_xpos - pos)))
+            frames.append((gtype, ctx.group_size[gi][k], g, m, rot.T @ (cam_xpos - pos)))
     mesh = None
     if ctx.mesh is not None:
         mesh = _mesh_tables(ctx, geom_xpos, geom_xmat, cam_xpos, cam_xmat)
     light_dirs = [None]  # None: the headlight, which travels along the camera's view axis
-    if ctx.light_id >= 0:
-        xdir = getattr(data, "light_xdir", None)  # MjData has it; mjx.Data does not
-        ldir = (ctx.light_dir if xdir is None
-                else jnp.asarray(xdir, jnp.float32).reshape(-1, 3)[ctx.light_id])
-        light_dirs.append(cam_xmat.T @ ldir)
+    if pose.light_dir is not None:
+        light_dirs.append(cam_xmat.T @ pose.light_dir)
 
     def pixels(rays):
         """Everything per pixel: rays [8, P] -> packed rgb, depth, geom, each [P]."""
@@ -209,8 +345,8 @@ def render(ctx: RenderContext, data) -> RenderOutput:
         zero = jnp.zeros(x.shape, jnp.float32)
         none = jnp.full(x.shape, -1, jnp.int32)
         best = _Hit(inf, none, zero, zero, zero, zero, zero, none)
-        for gtype, gi, k, g, m, o_l in frames:
-            best = _primitive(ctx, gtype, ctx.group_size[gi][k], g, m, o_l, x, y, best)
+        if frames:
+            best = _primitive_hit(ctx, frames, *_nearest_primitive(ctx, frames, x, y), x, y)
         if mesh is not None:
             best = _mesh_hits(ctx, *mesh, x, y, best)
         found = best.t <= ctx.zfar
@@ -223,17 +359,10 @@ def render(ctx: RenderContext, data) -> RenderOutput:
         packed = rgb8[0] | (rgb8[1] << 8) | (rgb8[2] << 16)
         return packed, jnp.where(found, best.t, ctx.zfar), geom
 
-    # (Running pixels through in chunks with lax.map, to keep a chunk's intermediates in cache
-    # between XLA's fused loops, measured 5x slower on XLA:CPU.)
+    # (Running one frame's pixels through in chunks with lax.map, to keep a chunk's
+    # intermediates in cache between XLA's fused loops, measured 5x slower on XLA:CPU; chunks
+    # of whole frames, in _render_batch, pay.)
     packed, depth, geom = pixels(ctx.rays)
-    if ctx.mesh is None:
-        # A one-trip loop that XLA cannot prove to be one trip (nor its body the identity)
-        # makes `packed` a materialised buffer; otherwise the byte slice below fuses with
-        # shading, which then runs unvectorised once per channel. Measured on the 2-core CPU:
-        # 1.1-1.2x at batch 64 and ~3x at batch 256 on the primitive-only cartpole, but 1.3-1.5x
-        # slower on the mesh scene (and ~20% slower at batch 1), hence primitives only.
-        trips = 1 + (ctx.cam_id < 0).astype(jnp.int32)  # cam_id >= 0: always 1
-        packed = lax.fori_loop(0, trips, lambda i, p: p | (i < 0).astype(jnp.uint32), packed)
     rgb8 = lax.bitcast_convert_type(packed, jnp.uint8)[:, :3]  # little-endian byte order
     shape = (ctx.height, ctx.width)
     return RenderOutput(rgb=rgb8.reshape(*shape, 3), depth=depth.reshape(shape),

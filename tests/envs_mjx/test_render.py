@@ -197,6 +197,38 @@ def test_dtypes_shapes_jit_vmap_and_no_recompile():
     assert f._cache_size() == 1
 
 
+def test_large_batches_render_in_chunks_like_single_frames():
+    # 37 frames: on the CPU the vmap rule renders chunks of 32 plus a remainder of 5. Colours
+    # are batched too (as the envs' per-episode schemes are), and a second vmap on top must
+    # agree with the first.
+    chunk = render.raycast.CPU_BATCH_CHUNK
+    assert chunk < 37 and 37 % chunk
+    m = mujoco.MjModel.from_xml_string(CARTPOLE_XML)
+    ctx = render.make_context(m, "side", 24, 16)
+    d = mujoco.MjData(m)
+    rng = np.random.default_rng(0)
+    frames, rgbs = [], rng.uniform(0, 1, (37, m.ngeom, 3)).astype(np.float32)
+    for _ in range(37):
+        d.qpos[:] = rng.uniform(-1, 1, m.nq)
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_camlight(m, d)
+        frames.append(poses(d))
+    batch = Poses(*(np.stack(col) for col in zip(*frames, strict=True)))
+
+    def draw(rgb, p):
+        return render.render(ctx.replace(geom_rgb=rgb), p)
+
+    out = jax.jit(jax.vmap(draw))(rgbs, batch)
+    twice = jax.jit(jax.vmap(jax.vmap(draw)))(
+        rgbs[None].repeat(2, 0), jax.tree.map(lambda x: np.stack([x, x]), batch))
+    one = jax.jit(draw)
+    for i in (0, 31, 32, 36):
+        single = one(rgbs[i], jax.tree.map(lambda x, i=i: x[i], batch))
+        for field in ("rgb", "depth", "segmentation"):
+            np.testing.assert_array_equal(getattr(out, field)[i], getattr(single, field))
+            np.testing.assert_array_equal(getattr(twice, field)[1, i], getattr(single, field))
+
+
 def test_background_and_colours(jit_render):
     m = mujoco.MjModel.from_xml_string(CARTPOLE_XML)
     d = mujoco.MjData(m)

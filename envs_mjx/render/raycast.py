@@ -59,7 +59,7 @@ def _select(mask, new: _Hit, old: _Hit) -> _Hit:
     return _Hit(*(jnp.where(mask, a, b) for a, b in zip(new, old, strict=True)))
 
 
-def _nearest_primitive(ctx, frames, x, y):
+def _nearest_primitive(ctx, frames, x, y, never):
     """Pass 1: distance and index (into `frames`) of the nearest primitive per pixel, -1 if none.
 
     The chain over geoms carries one int32 per pixel: the bits of t (positive floats order like
@@ -78,8 +78,8 @@ def _nearest_primitive(ctx, frames, x, y):
                                   ctx.znear)
         key = jnp.minimum(key, (lax.bitcast_convert_type(t, jnp.int32) & ~low) | i)
     # Into a buffer: pass 2 and shading read the winner many times, and would otherwise each
-    # re-run the whole chain. cam_id >= 0 always, but XLA cannot know it (see _materialise).
-    key = _materialise(key, ctx.cam_id < 0)
+    # re-run the whole chain.
+    key = _materialise(key, never)
     t = lax.bitcast_convert_type(key & ~low, jnp.float32)
     found = t < jnp.inf
     return jnp.where(found, t, jnp.inf), jnp.where(found, key & low, -1)
@@ -87,9 +87,12 @@ def _nearest_primitive(ctx, frames, x, y):
 
 def _materialise(a, never):
     """`a`, forced into a buffer: a one-trip loop XLA cannot prove to be one trip (nor its body
-    the identity) stops consumers from fusing (and so re-running) its producers. `never`: a
-    bool scalar that is always False but not known to be at compile time; it must not be
-    batched (under vmap a batched trip count turns the loop into selects over the buffer)."""
+    the identity) stops consumers from fusing (and so re-running) its producers.
+
+    `never` is a bool scalar that is always False but must not be known at compile time, so it
+    comes from the data: the context is often a compile-time constant (the envs close over it),
+    and a trip count XLA can fold removes the loop (Ant through env.step, 2-core CPU: 550
+    frames/s with the count from ctx.cam_id, 1,430 with it from the camera's position)."""
     trips = 1 + never.astype(jnp.int32)
     return lax.fori_loop(0, trips, lambda i, v: v | (i < 0).astype(v.dtype), a)
 
@@ -323,6 +326,7 @@ def _render_batch(axis_size, in_batched, ctx, pose):
 
 def _render_frame(ctx: RenderContext, pose: _Pose) -> RenderOutput:
     geom_xpos, geom_xmat, cam_xpos, cam_xmat = pose[:4]
+    never = jnp.isnan(cam_xpos[0])  # False, but only the data says so (see _materialise)
     frames = []  # per primitive geom: (type, size, id, m, o_l)
     for gi, (gtype, ids) in enumerate(zip(ctx.group_types, ctx.group_geoms, strict=True)):
         if gtype == int(_G.mjGEOM_MESH):
@@ -346,7 +350,8 @@ def _render_frame(ctx: RenderContext, pose: _Pose) -> RenderOutput:
         none = jnp.full(x.shape, -1, jnp.int32)
         best = _Hit(inf, none, zero, zero, zero, zero, zero, none)
         if frames:
-            best = _primitive_hit(ctx, frames, *_nearest_primitive(ctx, frames, x, y), x, y)
+            t, idx = _nearest_primitive(ctx, frames, x, y, never)
+            best = _primitive_hit(ctx, frames, t, idx, x, y)
         if mesh is not None:
             best = _mesh_hits(ctx, *mesh, x, y, best)
         found = best.t <= ctx.zfar

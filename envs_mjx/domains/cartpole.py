@@ -26,7 +26,9 @@ class CartPoleConfig(EnvConfig):
     episode_length: int | None = 200
     reward_scale: float = 1.0 / 200
     n_frames: int = 1
-    multicolor: bool = False
+    # The suite's (and the paper's Fig. 2) multicolor version: one of 4 colour schemes drawn per
+    # reset, so a learner cannot key on a fixed colour. False: the plain, fixed-colour version.
+    multicolor: bool = True
     action_mode: str = "sign"
     reset_noise: float = 0.05
     x_threshold: float = 0.4

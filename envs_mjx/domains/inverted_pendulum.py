@@ -22,7 +22,9 @@ class InvertedPendulumConfig(EnvConfig):
     episode_length: int | None = 1000
     reward_scale: float = 1.0 / 1000
     n_frames: int = 1
-    multicolor: bool = False
+    # The suite's (and the paper's Fig. 2) multicolor version: one of 4 colour schemes drawn per
+    # reset, so a learner cannot key on a fixed colour. False: the plain, fixed-colour version.
+    multicolor: bool = True
     reset_noise: float = 0.1
     theta_threshold: float = 0.2
 

@@ -35,7 +35,9 @@ class LocomotionConfig(EnvConfig):
     episode_length: int | None = 1000
     reward_scale: float = 1.0 / 1000
     n_frames: int = 4
-    multicolor: bool = False
+    # The suite's (and the paper's Fig. 2) multicolor version: one of 4 colour schemes drawn per
+    # reset, so a learner cannot key on a fixed colour. False: the plain, fixed-colour version.
+    multicolor: bool = True
     reset_noise: float = 0.1
     target_x: float = 1000.0
     target_y: float = 0.0

@@ -126,7 +126,7 @@ def test_pixels_placeholder_is_marked(monkeypatch):
 
 
 def test_multicolor_draws_the_four_schemes():
-    env = envs_mjx.make("HalfCheetah", multicolor=True, pixels="off")
+    env = envs_mjx.make("HalfCheetah", pixels="off")  # the registry's default: multicolor
     torso = mujoco.mj_name2id(env.mj_model, mujoco.mjtObj.mjOBJ_GEOM, "torso")
     seen = set()
     for k in range(24):
@@ -134,7 +134,7 @@ def test_multicolor_draws_the_four_schemes():
         seen.add(tuple(np.round(np.asarray(info["geom_rgba"][torso, :3]), 2)))
     # The torso takes the "pole" slot: (0,0,1), (0,0,0), (0,1,0), (1,0,0).
     assert seen == {(0, 0, 1), (0, 0, 0), (0, 1, 0), (1, 0, 0)}
-    plain = envs_mjx.make("HalfCheetah", pixels="off")
+    plain = envs_mjx.make("HalfCheetah", multicolor=False, pixels="off")
     _, _, info = plain._sample_reset(jax.random.key(0))
     np.testing.assert_array_equal(info["geom_rgba"], plain.mj_model.geom_rgba)
 

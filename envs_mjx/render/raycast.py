@@ -119,7 +119,10 @@ def _primitive_hit(ctx, frames, t, idx, x, y) -> _Hit:
     size = (fields[12], fields[13], fields[14])
     n_l = None
     start = 0
-    for gtype, count in _type_runs(frames):
+    for gtype, ids in zip(ctx.group_types, ctx.group_geoms, strict=True):
+        if gtype == int(_G.mjGEOM_MESH):
+            continue  # frames list the primitive groups in this order (see _render_frame)
+        count = len(ids)
         n = _PRIMITIVES[gtype][1](p_l, size)
         if n_l is None:
             n_l = n
@@ -136,7 +139,6 @@ def _primitive_hit(ctx, frames, t, idx, x, y) -> _Hit:
             u_g, v_g = _plane_uv(ctx, g, m_g, o_g, t_safe, x, y)
             u, v = jnp.where(on, u_g, u), jnp.where(on, v_g, v)
             tex = jnp.where(on, ctx.geom_tex[g], tex)
-    t = jnp.where(found, t, jnp.inf)
     return _Hit(t, geom, *n_c, u, v, tex)
 
 
@@ -144,6 +146,8 @@ def _plane_uv(ctx, g, m, o, t, x, y):
     """Texture coordinates where the rays meet textured plane g (frame m, o_l) at distance t.
     For a checker texture, u carries the checker's value box-filtered over the pixel (v unused).
     """
+    # Recomputed from the plane's own (scalar) frame: reusing pass 2's per-pixel d_l and p_l,
+    # equal where the plane wins, measured 4-8 % slower on the CPU (HalfCheetah, Ant).
     d_l = tuple(m[0, j] * x + m[1, j] * y - m[2, j] for j in range(3))
     p_l = tuple(o[j] + t * d_l[j] for j in range(3))
     corner, scale = ctx.geom_uvorigin[g], ctx.geom_uvscale[g]
@@ -163,17 +167,6 @@ def _plane_uv(ctx, g, m, o, t, x, y):
     wv = scale[1] * k * (jnp.abs(m[0, 1] - m[0, 2] * a1) + jnp.abs(m[1, 1] - m[1, 2] * a1))
     filtered = shading.square_wave_mean(u, wu) * shading.square_wave_mean(v, wv)
     return filtered, filtered
-
-
-def _type_runs(frames):
-    """(geom type, count) for each run of equal types in `frames` (grouped by type)."""
-    runs = []
-    for gtype, *_ in frames:
-        if runs and runs[-1][0] == gtype:
-            runs[-1][1] += 1
-        else:
-            runs.append([gtype, 1])
-    return runs
 
 
 def _mesh_tables(ctx, geom_xpos, geom_xmat, cam_xpos, cam_xmat):

@@ -25,7 +25,6 @@ from pathlib import Path
 import numpy as np
 
 from jaml.evaluation import plots
-from jaml.evaluation.plots import mean_interval
 
 LEARNERS = ("VAE_v0", "VAE_rpl", "PRED", "SVAE", "DSA")
 ENVS = ("CartPole", "InvertedPendulum")
@@ -52,7 +51,7 @@ def _read_history(path: Path) -> list[dict]:
 
 def _cell(values: list[float]) -> str:
     """'0.123' for one run, '0.123 ± 0.045' (90 % confidence half-width) for several."""
-    mean, low, high = mean_interval(values)
+    mean, low, high = plots.mean_interval(values)
     return f"{mean:.3f}" if len(values) < 2 else f"{mean:.3f} ± {(high - low) / 2:.3f}"
 
 

@@ -19,8 +19,10 @@ Episodes last 50 steps.
 LD state: [texture_id, object_id, (friction f if ld_friction), theta, position, velocity] where
 position is the object's displacement along the plank from the plank origin and velocity its
 signed velocity along the plank. With normalize_ld (default) these are mapped like the reference's
-min-max normalization: id/6, (f - 0.1)/0.4, (theta - 0.25)/0.25, position/1.27 clipped to [0, 1],
-velocity/3.1 clipped to [-1, 1]; otherwise they are raw (rad, m, m/s).
+min-max normalization: id/6; f and theta min-max over the config's friction_range / theta_range
+(the defaults give the reference's (f - 0.1)/0.4 and (theta - 0.25)/0.25; a zero-width range maps
+to 0), clipped to [0, 1]; position/POSITION_SCALE clipped to [0, 1] and velocity/VELOCITY_SCALE
+clipped to [-1, 1] (the reference's 1.27 m and 3.1 m/s); otherwise they are raw (rad, m, m/s).
 
 Deviations from the reference (recorded here on purpose):
 - The force acts along the incline, not along the object's local z axis (which the reference
@@ -87,6 +89,12 @@ RESET_SINK = 2e-4
 # pyramidal cone returns NaN below about 1e-3 (measured with MJX 3.17, float32).
 FRICTIONLESS_BELOW = 1e-3
 PLANK_ORIGIN = np.array([0.0, 0.0, 0.55], np.float32)
+# LD-state scales of position (m) and velocity (m/s): the reference's min-max normalization
+# constants, kept so normalised states compare with its data. They are not config ranges: an
+# episode ends at world x = 1 (position ~1.03-1.14 m over the default angles) and velocity is
+# whatever the slide and pushes reach (up to ~3 m/s under uniform actions before x = 1).
+POSITION_SCALE = 1.27
+VELOCITY_SCALE = 3.1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -240,10 +248,10 @@ class GeomOnIncline(Env):
         f, theta = info["friction"], info["theta"]
         if c.normalize_ld:
             tid, oid = tid / 6.0, oid / 6.0
-            f = jnp.clip((f - 0.1) / 0.4, 0.0, 1.0)
-            theta = jnp.clip((theta - 0.25) / 0.25, 0.0, 1.0)
-            s = jnp.clip(s / 1.27, 0.0, 1.0)
-            v = jnp.clip(v / 3.1, -1.0, 1.0)
+            f = min_max(f, c.friction_range)
+            theta = min_max(theta, c.theta_range)
+            s = jnp.clip(s / POSITION_SCALE, 0.0, 1.0)
+            v = jnp.clip(v / VELOCITY_SCALE, -1.0, 1.0)
         parts = [tid, oid] + ([f] if c.ld_friction else []) + [theta, s, v]
         return jnp.stack(parts).astype(jnp.float32)
 
@@ -251,6 +259,13 @@ class GeomOnIncline(Env):
         x, y = data.qpos[0], data.qpos[1]
         terminated = (x >= 1.0) | (x <= 0.0) | (jnp.abs(y) >= 0.1)
         return 1.0 - jnp.abs(x - 0.5), terminated, {}
+
+
+def min_max(value, value_range: tuple[float, float]):
+    """(value - lo) / (hi - lo) clipped to [0, 1]; 0 for a zero-width range (a constant)."""
+    lo, hi = value_range
+    span = hi - lo if hi > lo else 1.0
+    return jnp.clip((value - lo) / span, 0.0, 1.0)
 
 
 def _downhill(theta):

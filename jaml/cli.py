@@ -63,7 +63,15 @@ def _config_from(args):
 def _cmd_relations(args) -> int:
     from jaml.relations.run import run
 
-    summary = run(args.source, _config_from(args), args.out, progress=not args.no_progress)
+    # JSON lists become tuples: config ranges are (lo, hi) tuples.
+    options = {k: tuple(v) if isinstance(v, list) else v for k, v in (args.source_opt or [])}
+    summary = run(
+        args.source,
+        _config_from(args),
+        args.out,
+        source_options=options or None,
+        progress=not args.no_progress,
+    )
     _print_summary(args.out, summary)
     return 0
 
@@ -215,6 +223,15 @@ def build_parser() -> argparse.ArgumentParser:
         "Re-running with the same --out and options resumes.",
     )
     rel.add_argument("--source", required=True, choices=sorted(PRESETS), help="data source")
+    rel.add_argument(
+        "--source-opt",
+        type=key_value,
+        action="append",
+        metavar="KEY=VALUE",
+        help="source option or override (repeatable), e.g. for geom-on-incline / "
+        "mesh-on-incline pool_size=65536, action_range=[0,0], friction_range=[0,0] (any field "
+        "of the env's config); for the block presets a BlockOnIncline field, e.g. friction=0.1",
+    )
     rel.add_argument("--out", required=True, type=Path, help="run directory")
     rel.add_argument("--no-progress", action="store_true", help="no progress bars")
     _add_config_options(rel)

@@ -6,6 +6,8 @@ empty or constant data raise a ValueError/TypeError that names the problem.
 
 from __future__ import annotations
 
+import logging
+import time
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -14,6 +16,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaml.sources.off_manifold import bounding_box, uniform_in_box
+
+log = logging.getLogger(__name__)
 
 
 class Batches(NamedTuple):
@@ -109,16 +113,52 @@ def _check_rows(rows, what: str) -> np.ndarray:
     return host
 
 
+def _pool_size(on_manifold) -> int | None:
+    """A Source's `pool_size` (draw that many rows once, then treat them as rows), or None."""
+    pool_size = getattr(on_manifold, "pool_size", None)
+    if pool_size is None or not hasattr(on_manifold, "sample"):
+        return None
+    if not isinstance(pool_size, int) or isinstance(pool_size, bool) or pool_size < 2:
+        raise ValueError(f"a source's pool_size must be None or an integer ≥ 2, got {pool_size!r}")
+    return pool_size
+
+
 def prepare(on_manifold, batch_size: int, noise_scale: float, key, calibration_batches: int):
-    """Validate the user's data and build its `Batches`."""
+    """Validate the user's data and build its `Batches`.
+
+    A Source with a `pool_size` is sampled once here (`pool_size` rows) and then behaves as rows.
+    """
     sampler, names = _as_sampler(on_manifold)
-    if sampler is None:
-        host = _check_rows(on_manifold, "on_manifold data")
+    pool_size = _pool_size(on_manifold)
+    if sampler is None or pool_size is not None:
+        if pool_size is None:
+            host = _check_rows(on_manifold, "on_manifold data")
+        else:
+            started = time.perf_counter()
+            pool = _call_sampler(sampler, key, pool_size)
+            host = _check_rows(pool, f"the on_manifold source's pool of {pool_size} rows")
+            log.info(
+                "drew a pool of %d rows from %s in %.1f s",
+                pool_size,
+                getattr(on_manifold, "name", type(on_manifold).__name__),
+                time.perf_counter() - started,
+            )
+            if names and len(names) != host.shape[1]:
+                names = ()
         rows = jnp.asarray(host, jnp.float32)
         low, high = bounding_box(rows)
         return Batches(rows, None, low, high, batch_size, noise_scale, names)
+    sample = _call_sampler(sampler, key, batch_size * calibration_batches)
+    host = _check_rows(sample, "the on_manifold sampler's output")
+    low, high = bounding_box(jnp.asarray(host, jnp.float32))
+    if names and len(names) != host.shape[1]:
+        names = ()
+    return Batches(None, sampler, low, high, batch_size, noise_scale, names)
+
+
+def _call_sampler(sampler, key, n: int):
     try:
-        sample = sampler(key, batch_size * calibration_batches)
+        return sampler(key, n)
     except ValueError as error:
         if "sampler's output" in str(error):
             raise
@@ -129,8 +169,3 @@ def prepare(on_manifold, batch_size: int, noise_scale: float, key, calibration_b
         raise ValueError(
             f"the on_manifold sampler failed when called with a PRNG key: {error}"
         ) from error
-    host = _check_rows(sample, "the on_manifold sampler's output")
-    low, high = bounding_box(jnp.asarray(host, jnp.float32))
-    if names and len(names) != host.shape[1]:
-        names = ()
-    return Batches(None, sampler, low, high, batch_size, noise_scale, names)

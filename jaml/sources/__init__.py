@@ -1,4 +1,5 @@
-"""On-manifold data for AML: analytic curves, closed-form block-on-incline, off-manifold."""
+"""On-manifold data for AML: analytic curves, closed-form block-on-incline, MJX incline rollouts
+(`InclineEnvSource`, imported on first use since it loads envs_mjx), off-manifold samplers."""
 
 from jaml.sources.analytic import HyperboloidPlaneCurve
 from jaml.sources.base import Source
@@ -11,6 +12,7 @@ __all__ = [
     "PRESETS",
     "BlockOnIncline",
     "HyperboloidPlaneCurve",
+    "InclineEnvSource",
     "Source",
     "bounding_box",
     "downhill_acceleration",
@@ -19,3 +21,11 @@ __all__ = [
     "thicken",
     "uniform_in_box",
 ]
+
+
+def __getattr__(name: str):
+    if name == "InclineEnvSource":
+        from jaml.sources.incline_env import InclineEnvSource
+
+        return InclineEnvSource
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,7 +1,9 @@
-"""Named sources for the CLI and tests: the paper's analytic domain and block-on-incline setups."""
+"""Named sources for the CLI and tests: the paper's analytic domain, block-on-incline setups, and
+rows from the MJX incline domains (the source and target of §5's latent space transfer)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 
@@ -9,7 +11,17 @@ from jaml.sources.analytic import HyperboloidPlaneCurve
 from jaml.sources.base import Source
 from jaml.sources.incline import BlockOnIncline
 
-PRESETS: dict[str, Callable[[], Source]] = {
+
+def _incline_env(name: str) -> Callable[..., Source]:
+    def build(**options) -> Source:
+        from jaml.sources import incline_env  # local: importing envs_mjx costs ~2 s
+
+        return incline_env.make(name, **options)
+
+    return build
+
+
+PRESETS: dict[str, Callable[..., Source]] = {
     # Fig. 5: the hyperboloid ∩ plane ellipse.
     "ellipse": HyperboloidPlaneCurve,
     # Fig. 7 top row: a 45° incline, no friction, no drag.
@@ -25,12 +37,34 @@ PRESETS: dict[str, Callable[[], Source]] = {
         drag_coef=2.0,
         name="block-drag-range",
     ),
+    # §5: (θ, s0, v0, a0, s1, v1) from MJX GeomOnIncline (the source domain) and MeshOnIncline
+    # (the stand-in for YCB-on-incline, the target), in their normalised LD units.
+    "geom-on-incline": _incline_env("geom-on-incline"),
+    "mesh-on-incline": _incline_env("mesh-on-incline"),
 }
+# Presets whose keyword options are not dataclass fields (see `make`).
+_KEYWORD_PRESETS = ("geom-on-incline", "mesh-on-incline")
 
 
-def make(name: str) -> Source:
-    """The preset source called `name` (see PRESETS)."""
+def make(name: str, **overrides) -> Source:
+    """The preset source called `name` (see PRESETS), with keyword overrides.
+
+    For "geom-on-incline" / "mesh-on-incline" the overrides are `InclineEnvSource` options
+    (action_range, rollout_steps, pool_size, drop_clipped) or fields of the env's config, e.g.
+    `make("geom-on-incline", friction_range=(0.0, 0.0), action_range=(0.0, 0.0))`. For the
+    others they replace fields of the source's dataclass, e.g. `make("block45", friction=0.1)`.
+    """
     try:
-        return PRESETS[name]()
+        factory = PRESETS[name]
     except KeyError:
         raise ValueError(f"unknown source {name!r}; valid sources: {sorted(PRESETS)}") from None
+    if name in _KEYWORD_PRESETS:
+        return factory(**overrides)
+    source = factory()
+    if not overrides:
+        return source
+    valid = {f.name for f in dataclasses.fields(source)}
+    unknown = sorted(set(overrides) - valid)
+    if unknown:
+        raise ValueError(f"{name}: unknown source overrides {unknown}; valid: {sorted(valid)}")
+    return dataclasses.replace(source, **overrides)

@@ -135,3 +135,33 @@ def test_bad_source_parameters_raise():
         sources.BlockOnIncline(times=(1.0, 0.0))
     with pytest.raises(ValueError, match="valid sources"):
         sources.make("torus")
+
+
+def test_make_overrides_replace_preset_fields():
+    src = sources.make("block45", friction=0.1)
+    assert src.friction == 0.1 and src.name == "block45"
+    with pytest.raises(ValueError, match="unknown source overrides"):
+        sources.make("block45", mass=1.0)
+
+
+def test_prepare_draws_a_sources_pool_once():
+    """A source with pool_size is sampled once, before training, and then behaves as rows."""
+    rows = np.asarray(sources.make("block45").sample(jax.random.key(0), 300))
+    calls = []
+
+    class Pooled:
+        name, dim_names, pool_size = "pooled", ("s0", "v0", "s1", "v1"), 300
+
+        def sample(self, key, n):
+            calls.append(n)
+            return rows
+
+    batches = prepare(Pooled(), 64, 0.0, jax.random.key(0), 4)
+    assert calls == [300] and batches.sampler is None and batches.dim_names == Pooled.dim_names
+    np.testing.assert_array_equal(np.asarray(batches.rows), rows)
+    np.testing.assert_array_equal(np.asarray(batches.low), rows.min(0))
+    on = np.asarray(batches.on(jax.random.key(1), batches.rows))
+    assert on.shape == (64, 4) and np.isin(on[:, 0], rows[:, 0]).all()
+    Pooled.pool_size = 1
+    with pytest.raises(ValueError, match="pool_size"):
+        prepare(Pooled(), 64, 0.0, jax.random.key(0), 4)

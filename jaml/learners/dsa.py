@@ -40,12 +40,8 @@ class DSAConfig(RecurrentConfig):
         return self.static_dim or self.ld_dim
 
     @property
-    def penalty_dim(self) -> int:
-        return self.f_size + self.z_step
-
-    @property
-    def latent_size(self) -> int:
-        return self.f_size + self.hist * self.z_step
+    def static_size(self) -> int:
+        return self.f_size
 
 
 def _random_half(key, b: int, t: int) -> jax.Array:
@@ -91,6 +87,7 @@ class DisentangledSequentialAE(nn.Module):
     def dynamic_posterior(self, feats, a, f):
         """f [B, F] (squashed, no gradient) ⊕ feats ⊕ a → μ_z, logvar_z [B, T, Z]."""
         f_seq = jnp.broadcast_to(jax.lax.stop_gradient(f)[:, None], (*feats.shape[:2], f.shape[-1]))
+        a = elbo.encoder_actions(a, feats.shape[1])  # the actions before the last frame only
         return self.dynamic_head(self.dynamic_rnn(jnp.concatenate([f_seq, feats, a], axis=-1)))
 
     def dynamic_prior(self, z, f, a):

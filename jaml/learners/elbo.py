@@ -18,6 +18,18 @@ def frames_to_float(frames: jax.Array) -> jax.Array:
     return frames.astype(jnp.float32)
 
 
+def encoder_actions(a: jax.Array, hist: int) -> jax.Array:
+    """[B, T, A]: the actions an encoder may see, with a_t for t ≥ hist − 1 set to 0.
+
+    a_t is executed after frame t, so the action at the last input frame (and every later one)
+    is chosen from the state that frame shows: under a trained policy it is a function of the
+    true state and would leak it into the latent, past the pixels (suite_reference §4: the
+    reference fed a dummy 0 as the current action). Zeroing keeps the shapes of the inputs.
+    """
+    keep = jnp.arange(a.shape[1]) < hist - 1
+    return jnp.where(keep[None, :, None], a, 0.0)
+
+
 def reparameterize(key: jax.Array, mu: jax.Array, logvar: jax.Array) -> jax.Array:
     """[..., Z]: z = μ + ε·exp(½ logvar), ε ~ N(0, I); logvar is log σ²."""
     return mu + jax.random.normal(key, mu.shape, mu.dtype) * jnp.exp(0.5 * logvar)

@@ -86,14 +86,19 @@ class LearnerConfig:
         raise NotImplementedError
 
     @property
+    def static_size(self) -> int:
+        """F: latent entries shared by all steps (PRED's static part; 0 for most learners)."""
+        return 0
+
+    @property
     def penalty_dim(self) -> int:
         """P: per-step size of the sampled latent handed to a latent penalty."""
-        return self.z_step
+        return self.static_size + self.z_step
 
     @property
     def latent_size(self) -> int:
         """Z: size of `encode`'s flattened posterior mean."""
-        return self.latent_steps * self.z_step
+        return self.static_size + self.latent_steps * self.z_step
 
 
 @dataclasses.dataclass(frozen=True)

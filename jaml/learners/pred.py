@@ -18,16 +18,27 @@ class PREDConfig(LearnerConfig):
     The other reference presets (hist, pred): SEQ16 (4, 12), SEQ8 (2, 6), PARAMS_PRED (8, 24),
     SEQ2 (1, 1). Batches carry the whole window, T + L frames and actions; the learner sees the
     first T and decodes all T + L.
+
+    static_dim: F latent entries shared by all T + L steps, decoded with each step's dynamic
+    part as [f ⊕ z_t] (the reference's PARAMS_PRED_BLK_SM for the incline: F = 3, Z = 2); the
+    per-step latent a penalty sees is then [f ⊕ z_t], and `encode` gives [f, z_1, …, z_{T+L}].
     """
 
     hist: int = 8
     pred: int = 16
     mlp_widths: tuple[int, ...] = (1024, 512)
+    static_dim: int = 0
 
     def __post_init__(self):
         super().__post_init__()
         if self.hist < 1 or self.pred < 0:
             raise ValueError(f"PRED needs hist ≥ 1 and pred ≥ 0, got {self.hist}, {self.pred}")
+        if self.static_dim < 0:
+            raise ValueError(f"PRED needs static_dim ≥ 0, got {self.static_dim}")
+
+    @property
+    def static_size(self) -> int:
+        return self.static_dim
 
     @property
     def seq_len(self) -> int:

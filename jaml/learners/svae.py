@@ -9,6 +9,7 @@ import dataclasses
 
 import jax.numpy as jnp
 
+from jaml.learners import elbo
 from jaml.learners.learner import FRAME_SHAPE, Learner, RecurrentConfig
 from jaml.learners.networks import ConvDecoder, ConvEncoder, GaussianHead, RNNEncoder
 from jaml.learners.vae import StepwiseGaussianVAE
@@ -35,6 +36,7 @@ class SequenceVAE(StepwiseGaussianVAE):
         """x [B, T, H, W, C], a [B, T, A] → μ, logvar [B, T, Z]."""
         b, t = x.shape[:2]
         feats = self.conv(x.reshape(b * t, *FRAME_SHAPE), train).reshape(b, t, -1)
+        a = elbo.encoder_actions(a, t)  # the actions before the last frame only
         return self.head(self.rnn(jnp.concatenate([feats, a], axis=-1)))
 
 

@@ -32,30 +32,42 @@ class VAEConfig(SingleFrameConfig):
 
 class StepwiseGaussianVAE(nn.Module):
     """A Gaussian posterior per decoded step (`posterior`, defined by subclasses), sampled with
-    the reparameterisation trick and decoded frame by frame; shared by the VAE, PRED and SVAE."""
+    the reparameterisation trick and decoded frame by frame; shared by the VAE, PRED and SVAE.
+
+    The first F = `config.static_size` entries of every step's latent are a static part shared
+    by all steps (PRED's layout for the incline, reference PARAMS_PRED_BLK_SM): `posterior`
+    repeats them over steps, one sample (step 0's) is drawn and repeated, and their KL counts
+    once. The decoder sees [f ⊕ z_t] per step. F = 0 for the other learners.
+    """
 
     config: Any
 
     def posterior(self, x, a, train: bool):
-        """x [B, T, H, W, C], a [B, T, A] → μ, logvar [B, S, Z]."""
+        """x [B, T, H, W, C], a [B, T, A] → μ, logvar [B, S, F + Z]."""
         raise NotImplementedError
 
     def decode(self, z, train: bool):
-        """z [B, S, Z] → [B, S, H, W, C]; each step decoded on its own."""
+        """z [B, S, F + Z] → [B, S, H, W, C]; each step decoded on its own."""
         b, s = z.shape[:2]
         if self.config.mu_nl:
             z = nn.sigmoid(z)
         return self.decoder(z.reshape(b * s, -1), train).reshape(b, s, *FRAME_SHAPE)
 
     def __call__(self, x, a, key, train: bool = True) -> Outputs:
+        f = self.config.static_size
         mu, logvar = self.posterior(x, a, train)
         z = elbo.reparameterize(key, mu, logvar)
-        kl = elbo.kl_to_standard_normal(mu, logvar).sum(axis=-1)
+        z = z.at[:, :, :f].set(jnp.broadcast_to(z[:, :1, :f], z[:, :, :f].shape))
+        kl = elbo.kl_to_standard_normal(mu[..., f:], logvar[..., f:]).sum(axis=-1)
+        if f:
+            kl = kl + elbo.kl_to_standard_normal(mu[:, 0, :f], logvar[:, 0, :f])
         return Outputs(recon=self.decode(z, train), kl={"kl": kl}, z=z)
 
     def encode(self, x, a) -> jax.Array:
+        """[B, F + S·Z]: the static posterior mean once, then every step's dynamic mean."""
+        f = self.config.static_size
         mu, _ = self.posterior(x, a, False)
-        return mu.reshape(mu.shape[0], -1)
+        return jnp.concatenate([mu[:, 0, :f], mu[..., f:].reshape(mu.shape[0], -1)], axis=-1)
 
     def reconstruct(self, x, a) -> jax.Array:
         mu, _ = self.posterior(x, a, False)
@@ -65,7 +77,9 @@ class StepwiseGaussianVAE(nn.Module):
 class FeedForwardVAE(StepwiseGaussianVAE):
     """Conv features ⊕ actions of the first `hist` frames → MLP → posterior over S steps → decode.
 
-    config needs hist, latent_steps, z_step, mlp_widths and the LearnerConfig fields.
+    The action at the last input frame is hidden from the encoder (`elbo.encoder_actions`).
+    config needs hist, latent_steps, z_step, static_size, mlp_widths and the LearnerConfig
+    fields.
     """
 
     config: Any
@@ -75,19 +89,26 @@ class FeedForwardVAE(StepwiseGaussianVAE):
         self.conv = ConvEncoder(c.conv_filters, c.conv_features)
         self.trunk = MLP(c.mlp_widths)
         self.head = GaussianHead(
-            c.latent_steps * c.z_step, "elu" if c.mu_nl else "none", c.logvar_limit
+            c.static_size + c.latent_steps * c.z_step,
+            "elu" if c.mu_nl else "none",
+            c.logvar_limit,
         )
         self.decoder = ConvDecoder(c.deconv_filters)
 
     def posterior(self, x, a, train: bool):
-        """x [B, T, H, W, C], a [B, T, A] → μ, logvar [B, S, Z] from the first `hist` frames."""
+        """x [B, T, H, W, C], a [B, T, A] → μ, logvar [B, S, F + Z] from the first `hist`
+        frames and the actions between them."""
         c = self.config
-        b, h = x.shape[0], c.hist
+        b, h, f = x.shape[0], c.hist, c.static_size
         feats = self.conv(x[:, :h].reshape(b * h, *FRAME_SHAPE), train).reshape(b, h, -1)
-        inputs = jnp.concatenate([feats, a[:, :h]], axis=-1).reshape(b, -1)
-        mu, logvar = self.head(self.trunk(inputs))
-        shape = (b, c.latent_steps, c.z_step)
-        return mu.reshape(shape), logvar.reshape(shape)
+        inputs = jnp.concatenate([feats, elbo.encoder_actions(a[:, :h], h)], axis=-1)
+        mu, logvar = self.head(self.trunk(inputs.reshape(b, -1)))
+
+        def per_step(v):  # [B, F + S·Z] → [B, S, F + Z], the static part repeated
+            static = jnp.broadcast_to(v[:, None, :f], (b, c.latent_steps, f))
+            return jnp.concatenate([static, v[:, f:].reshape(b, c.latent_steps, c.z_step)], -1)
+
+        return per_step(mu), per_step(logvar)
 
 
 def make_vae(name: str, config: VAEConfig) -> Learner:

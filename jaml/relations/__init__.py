@@ -6,20 +6,27 @@ relations.evaluate(rs, tau)   # [..., K]
 relations.penalty(rs, tau)    # [...] Σ_k |g_k|  (paper eq. 4)
 relations.holds(rs, tau)      # bool [...]
 relations.save(rs, path); rs = relations.load(path)
+pen = relations.latent_penalty(rs, relations.LatentLayout(static={"theta": 2},
+                               dynamic={"s": 3, "v": 4}), latent_size=5, action_size=1)
+                              # (z [B, S, 5], a [B, S, 1]) -> [B], for a learner's loss (eq. 4)
 """
 
 from jaml.relations.checkpoint import load, save
 from jaml.relations.config import Config
 from jaml.relations.relation_set import RelationSet, evaluate, holds, penalty
 from jaml.relations.training import RelationSummary, fit
+from jaml.relations.transfer import LatentLayout, LayoutError, latent_penalty
 
 __all__ = [
     "Config",
+    "LatentLayout",
+    "LayoutError",
     "RelationSet",
     "RelationSummary",
     "evaluate",
     "fit",
     "holds",
+    "latent_penalty",
     "load",
     "penalty",
     "save",

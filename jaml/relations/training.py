@@ -2,8 +2,9 @@
 
 Each g_k trains on fresh on-manifold batches with eq. 1; with transversality (eq. 2) the angle
 between ∇g_k and the frozen ∇g_j is pushed towards 90°; with restricted syzygies (eq. 3) a
-network f is fitted to express g_k through g_1..g_{k−1} on off-manifold data, and while it
-succeeds g_k is pushed away from it. Every loop is a jitted `lax.scan` (see `loop.py`).
+network f is fitted to express g_k through g_1..g_{k−1} on off-manifold data, and g_k is pushed
+away from every f fitted so far, whether or not f explained it (the paper's soft version).
+Every loop is a jitted `lax.scan` (see `loop.py`).
 """
 
 from __future__ import annotations
@@ -384,8 +385,8 @@ def fit(
                     info["g_scale"],
                     "found" if found else "none",
                 )
-                if not found:
-                    break
+                # Soft / incremental syzygies (paper App. B.3.1): the push away from f is
+                # applied every round, "even if f did not reach output close to zero".
                 syz_found.append(f_params)
                 state = _fit_relation(
                     cfg,

@@ -124,6 +124,54 @@ def test_same_seed_same_params_and_another_seed_differs(runs, name):
                                                      jax.tree.leaves(other), strict=True))
 
 
+@pytest.mark.parametrize("name", learners.ALL_LEARNERS)
+def test_encoding_ignores_the_actions_at_and_after_the_last_input_frame(runs, name):
+    """a_{h−1} = π(s_{h−1}) under a trained policy: seen by the encoder it would leak the state
+    into the latent past the pixels (issue: current-action leak; the reference fed a dummy 0)."""
+    run = runs(name)
+    learner, (frames, actions), variables = run["learner"], run["data"], run["state"].variables
+    hist = learner.config.hist
+    encode = jax.jit(learner.encode)
+    changed = actions.copy()
+    changed[:, hist - 1 :] = 7.0
+    np.testing.assert_array_equal(encode(variables, frames, changed),
+                                  encode(variables, frames, actions))
+    if hist > 1:  # the actions between input frames still reach the latent
+        earlier = actions.copy()
+        earlier[:, 0] += 3.0
+        assert not np.allclose(encode(variables, frames, earlier),
+                               encode(variables, frames, actions))
+
+
+def test_pred_static_part_is_shared_by_every_step_and_counted_once():
+    """F static entries: one sample repeated over the T + L steps, [f, z_1..z_S] encoded, and
+    the KL equals the hand-assembled sum (static once, dynamic per step)."""
+    learner = learners.make("PRED", ld_dim=LD, **SMALL_CONV, hist=1, pred=2,
+                            mlp_widths=(16,), static_dim=3, latent_dim=2)
+    cfg = learner.config
+    assert (cfg.penalty_dim, cfg.latent_size) == (3 + 2, 3 + 3 * 2)
+    frames, actions = batch(3, learner.seq_len)
+    opt = learners.default_optimizer(learner)
+    variables = learners.init_train_state(learner, opt, jax.random.key(0),
+                                          (frames, actions)).variables
+    x, a = learner.check_batch(frames, actions)
+    out = learner.module.apply(variables, x, a, jax.random.key(1), train=True,
+                               mutable=["batch_stats"])[0]
+    assert out.z.shape == (B, 3, 5)
+    np.testing.assert_array_equal(out.z[:, 1:, :3], np.broadcast_to(out.z[:, :1, :3],
+                                                                    (B, 2, 3)))
+    assert not np.allclose(out.z[:, 0, 3:], out.z[:, 1, 3:])
+    (mu, logvar), _ = learner.module.apply(variables, x, a, True, method="posterior",
+                                           mutable=["batch_stats"])
+    kl = lambda m, lv: 0.5 * np.sum(np.exp(lv) + m**2 - 1.0 - lv, axis=-1)  # noqa: E731
+    expected = kl(mu[:, 0, :3], logvar[:, 0, :3]) + kl(mu[..., 3:], logvar[..., 3:]).sum(-1)
+    np.testing.assert_allclose(out.kl["kl"], expected, rtol=1e-5)
+    mu, _ = learner.module.apply(variables, x, a, False, method="posterior")
+    z = learner.encode(variables, frames, actions)
+    np.testing.assert_allclose(z, np.concatenate([mu[:, 0, :3], mu[..., 3:].reshape(B, -1)],
+                                                 -1), rtol=1e-6)
+
+
 def test_pred_decodes_t_plus_l_frames_from_the_first_t(runs):
     run = runs("PRED")
     learner, (frames, actions), variables = run["learner"], run["data"], run["state"].variables

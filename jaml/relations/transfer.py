@@ -1,0 +1,163 @@
+"""Imposing learned relations on a learner's latent space (paper §4, eq. 4): the latent penalty.
+
+A relation set learned on a source domain's low-dimensional transitions, e.g. rows
+τ = (theta, s0, v0, a0, s1, v1), is evaluated on the learner's sampled latents instead: a
+`LatentLayout` says which per-step latent entry plays each source coordinate, and
+`latent_penalty` builds the function `(z [B, S, P], actions [B, S, A]) -> [B]` that the learners'
+loss takes (`Learner.loss(..., latent_penalty=...)`, `jaml.stream.build(config, penalty)`).
+
+Relation coordinates are matched by name, in the relation set's own order:
+  - a `static` name (here "theta") reads one latent entry, shared by all steps (read at step 0);
+  - a `dynamic` name d with suffix 0 / 1 (here "s0", "v0", "s1", "v1") reads d's latent entry at
+    step t / t + 1;
+  - an `actions` name a with suffix 0 (here "a0") reads action column a at step t.
+g_k is evaluated on every consecutive pair (t, t + 1), t = 0 .. S − 2, of the S latent steps, and
+the penalty sums over pairs (the paper's penalty is on the whole sampled sequence τ̃_{1:T+L}).
+
+Two forms of the per-pair value, both times `weight`:
+  - "sum": Σ_k |g_k| (the paper's eq. 4);
+  - "hinge": mean_k |g_k|·[|g_k| > on_mean_k] (the reference's `latent_transfer_loss`: a relation
+    counts only where it is violated by more than its recorded on-manifold mean).
+Latents meet relations raw: the sampled, pre-sigmoid τ̃ of eq. 4, which must then be on the scale
+the relations were trained on (the source's units); configure the learner without the output
+squashing (`mu_nl=False`) when the source's units are not (0, 1) (see docs/transfer.md).
+
+Shapes: B batch, S latent steps, P per-step latent, A action, D relation input, K relations.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+
+import jax
+import jax.numpy as jnp
+
+from jaml.relations.relation_set import RelationSet, evaluate
+
+FORMS = ("sum", "hinge")
+
+
+class LayoutError(ValueError):
+    """A latent layout that does not match a relation set's coordinates."""
+
+
+@dataclasses.dataclass(frozen=True)
+class LatentLayout:
+    """Where each coordinate of a relation set sits in a learner's per-step latent.
+
+    static: relation coordinate name → index into the per-step latent P (one value per sequence).
+    dynamic: state name → index into P; the relation's "<name>0" / "<name>1" read it at t / t + 1.
+    actions: action name → column of the learner's actions; the relation's "<name>0" reads it at t.
+    """
+
+    static: Mapping[str, int]
+    dynamic: Mapping[str, int]
+    actions: Mapping[str, int] = dataclasses.field(default_factory=lambda: {"a": 0})
+
+    def gather(self, names: tuple[str, ...], latent_size: int, action_size: int):
+        """For each relation coordinate, (source, index, step offset) with source "z" or "a";
+        raises LayoutError naming every coordinate the layout cannot place, every layout entry
+        the relations do not use, and indices out of range."""
+        problems, plan, used = [], [], set()
+        for name in names:
+            if name in self.static:
+                plan.append(("z", self.static[name], 0, True))
+                used.add(("static", name))
+                continue
+            base, suffix = name[:-1], name[-1:]
+            if suffix in ("0", "1") and base in self.dynamic:
+                plan.append(("z", self.dynamic[base], int(suffix), False))
+                used.add(("dynamic", base))
+            elif suffix == "0" and base in self.actions:
+                plan.append(("a", self.actions[base], 0, False))
+                used.add(("actions", base))
+            else:
+                problems.append(f"relation coordinate {name!r} has no place in the layout")
+        for kind in ("static", "dynamic", "actions"):
+            for name in getattr(self, kind):
+                if (kind, name) not in used:
+                    problems.append(f"layout {kind} entry {name!r} is not a relation coordinate")
+        for source, index, _, _ in plan:
+            size = latent_size if source == "z" else action_size
+            if not 0 <= index < size:
+                what = "per-step latent" if source == "z" else "action"
+                problems.append(f"{what} index {index} outside [0, {size})")
+        if problems:
+            raise LayoutError(
+                f"latent layout does not match the relations' coordinates {list(names)}: "
+                + "; ".join(problems)
+            )
+        return plan
+
+
+def transitions(plan, z: jax.Array, actions: jax.Array) -> jax.Array:
+    """τ [B, S − 1, D] for every consecutive latent pair, coordinates in the relations' order."""
+    steps = z.shape[1] - 1
+    columns = []
+    for source, index, offset, static in plan:
+        if source == "a":
+            columns.append(actions[:, :steps, index])
+        elif static:
+            columns.append(jnp.broadcast_to(z[:, :1, index], (z.shape[0], steps)))
+        else:
+            columns.append(z[:, offset : offset + steps, index])
+    return jnp.stack(columns, axis=-1)
+
+
+def pair_penalty(rs: RelationSet, tau: jax.Array, form: str) -> jax.Array:
+    """[...]: the per-transition penalty of tau [..., D] (see the module docstring)."""
+    g = jnp.abs(evaluate(rs, tau))
+    if form == "sum":
+        return jnp.sum(g, axis=-1)
+    return jnp.mean(jnp.where(g > rs.on_means, g, 0.0), axis=-1)
+
+
+def latent_penalty(
+    rs: RelationSet,
+    layout: LatentLayout,
+    *,
+    latent_size: int,
+    action_size: int,
+    weight: float = 1.0,
+    form: str = "hinge",
+):
+    """`penalty(z [B, S, P], actions [B, S, A]) -> [B]`: weight × Σ_t penalty(τ_t), τ_t built
+    from latent steps t, t + 1 by `layout`. Every mismatch is reported here, before training.
+
+    latent_size, action_size: P and A of the learner that will call it (its
+    `config.penalty_dim` and the env's `action_size`).
+    """
+    if form not in FORMS:
+        raise ValueError(f"form must be one of {FORMS}, got {form!r}")
+    if not weight >= 0:
+        raise ValueError(f"weight must be ≥ 0, got {weight}")
+    if rs.num_relations == 0:
+        raise ValueError("the relation set is empty: there is nothing to impose")
+    if len(rs.dim_names) != rs.dim:
+        raise LayoutError(
+            "the relation set has no coordinate names, so a latent layout cannot be matched to "
+            "it; learn it from a source with dim_names (or rows plus names)"
+        )
+    plan = layout.gather(tuple(rs.dim_names), latent_size, action_size)
+
+    def penalty(z: jax.Array, actions: jax.Array) -> jax.Array:
+        if z.ndim != 3 or z.shape[-1] != latent_size or z.shape[1] < 2:
+            raise ValueError(
+                f"the latent penalty needs z [B, S ≥ 2, {latent_size}], got {tuple(z.shape)}"
+            )
+        if actions.shape[:2] != z.shape[:2] or actions.shape[-1] != action_size:
+            raise ValueError(
+                f"actions must be [B, S, {action_size}] = {(*z.shape[:2], action_size)}, got "
+                f"{tuple(actions.shape)}"
+            )
+        tau = transitions(plan, z, actions)
+        return weight * jnp.sum(pair_penalty(rs, tau, form), axis=1)
+
+    return penalty
+
+
+def residual(rs: RelationSet, layout: LatentLayout, z, actions) -> jax.Array:
+    """[B]: mean over transitions of Σ_k |g_k| on latents (a diagnostic, unweighted)."""
+    plan = layout.gather(tuple(rs.dim_names), z.shape[-1], actions.shape[-1])
+    return jnp.mean(pair_penalty(rs, transitions(plan, z, actions), "sum"), axis=1)

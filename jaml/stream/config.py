@@ -40,6 +40,11 @@ class StreamConfig:
     eval_curr: sequences in the π_curr test set (current policy; PPO runs only).
     eval_transient: steps after reset before the test sequences are cut (reference 120).
     regressor_iterations: alignment regressor steps (reference 10 000).
+    regressor_normalize: z-score the regressor's targets (errors in training-std units, the
+      benchmark envs); False for the domains whose LD state is already in a fixed range
+      (Incline, reference §5), errors then in those units.
+    distortion_dims: LD-state names whose values are τ^true in the distortion ρ (paper eq. 5;
+      the incline's dynamic state, position and velocity); empty means all of them.
     learner_overrides: learner config fields (e.g. beta, hist).
     env_overrides: env config fields (e.g. multicolor).
     """
@@ -61,6 +66,8 @@ class StreamConfig:
     eval_curr: int = 2_500
     eval_transient: int = 120
     regressor_iterations: int = 10_000
+    regressor_normalize: bool = True
+    distortion_dims: tuple[str, ...] = ()
     ppo: PPOConfig = dataclasses.field(default_factory=PPOConfig)
     learner_overrides: dict[str, Any] = dataclasses.field(default_factory=dict)
     env_overrides: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -112,6 +119,8 @@ class StreamConfig:
         d = dict(d)
         ppo = d.pop("ppo", {})
         ppo = PPOConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in ppo.items()})
+        if "distortion_dims" in d:
+            d["distortion_dims"] = tuple(d["distortion_dims"])
         return cls(ppo=ppo, **d)
 
 
@@ -120,7 +129,11 @@ def for_env(env: str, learner: str = "VAE_rpl", **overrides) -> StreamConfig:
 
     Pendulums: rollout 32, 10 learner steps per epoch, PPO MLP 64 with 3 × 8 minibatches,
     sequence learners on 24-frame windows (the learners' defaults). Incline domains: rollout 10
-    (the reference forces it), PRED sees 1 frame and predicts 1, SVAE/DSA 8-frame windows.
+    (the reference forces it), SVAE/DSA 8-frame windows, and the reference's small-block
+    presets: PRED sees 1 frame and predicts 1 with a static part of 3 and 2 dynamic entries per
+    step (PARAMS_PRED_BLK_SM), the VAEs a 5-entry latent (PARAMS_VAE_BLK_SM), both without the
+    output sigmoid and with log-variances clipped at ±20; alignment in the LD state's own units
+    and the distortion on position and velocity.
     Locomotion: rollout 64, 50 learner steps, PPO MLP 256 with 50 passes × 4 minibatches, 16-frame
     windows (SEQ16: PRED 4 in, 12 predicted).
     """
@@ -131,8 +144,16 @@ def for_env(env: str, learner: str = "VAE_rpl", **overrides) -> StreamConfig:
         base = dict(rollout_len=10, learner_steps=10, ppo=PPOConfig(hidden=(256, 256),
                                                                     num_updates=10,
                                                                     num_minibatches=4))
-        learner_defaults = {"PRED": {"hist": 1, "pred": 1}, "SVAE": {"hist": 8},
-                            "DSA": {"hist": 8}}.get(learner, {})
+        small_block = {"mu_nl": False, "logvar_limit": 20.0}
+        learner_defaults = {
+            "PRED": {"hist": 1, "pred": 1, "static_dim": 3, "latent_dim": 2, **small_block},
+            "VAE_v0": {"latent_dim": 5, **small_block},
+            "VAE_rpl": {"latent_dim": 5, **small_block},
+            "beta-VAE": {"latent_dim": 5, **small_block},
+            "SVAE": {"hist": 8},
+            "DSA": {"hist": 8},
+        }.get(learner, {})
+        base |= dict(regressor_normalize=False, distortion_dims=("position", "velocity"))
     else:
         base = dict(rollout_len=64, learner_steps=50, ppo=PPOConfig(hidden=(256, 256),
                                                                     num_updates=50,

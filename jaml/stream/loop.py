@@ -248,12 +248,20 @@ class Stream:
         errors = evaluation.alignment_errors(
             *train, tests, seed=int(jax.random.randint(k_reg, (), 0, 2**31 - 1)),
             seq_len=self.seq_len, num_iterations=cfg.regressor_iterations,
+            normalize=cfg.regressor_normalize,
         )
         lat, st = tests["pi_rand"]
         return {
             "errors": {k: np.asarray(v).tolist() for k, v in errors.items()},
-            "distortion": float(evaluation.distortion(lat, st)),
+            "distortion": float(evaluation.distortion(lat, st[:, self.distortion_columns])),
         }
+
+    @property
+    def distortion_columns(self) -> np.ndarray:
+        """Indices of the LD state's τ^true entries for the distortion (all by default)."""
+        names = list(self.env.ld_state_names)
+        return np.asarray([names.index(n) for n in self.config.distortion_dims] or
+                          range(len(names)))
 
     def reconstructions(self, s: StreamState, key: jax.Array, num: int = 8):
         """(true, decoded) last frames of `num` replay sequences, uint8 [num, 64, 64, 3] each."""
@@ -392,6 +400,10 @@ def _build(config: StreamConfig, latent_penalty) -> Stream:
                          f"{list(learners.ALL_LEARNERS)}")
     env = envs_mjx.make(config.env, **config.env_overrides)
     ld_dim = len(env.ld_state_names)
+    unknown = sorted(set(config.distortion_dims) - set(env.ld_state_names))
+    if unknown:
+        raise ValueError(f"distortion_dims {unknown} are not LD-state names of {config.env}: "
+                         f"{list(env.ld_state_names)}")
     learner = learners.make(config.learner, ld_dim=ld_dim, **config.learner_overrides)
     problems = []
     column = config.rollout_len + 1

@@ -257,6 +257,9 @@ def _analyse(stream: Stream, state: StreamState, key, pi_rand_key, names, out: P
     errors = {k: v for k, v in report["errors"].items() if k != "validation"}
     records = plots.history_records(epoch, stream.config.learner, errors, names,
                                     report["distortion"], run=stream.config.seed)
+    # The held-out replay rows' error, for choices made without the test sets.
+    validation = dict(zip(names, report["errors"]["validation"], strict=True))
+    records = [r | {"validation": validation} for r in records]
     truth, recon = stream.reconstructions(state, jax.random.fold_in(key, 7))
     _save_png(out / "recon" / f"epoch_{epoch:06d}.png", [truth, recon])
     return records

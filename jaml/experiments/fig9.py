@@ -1,0 +1,303 @@
+"""Paper Fig. 9: relations learned on Geom-on-incline imposed on PRED trained on MeshOnIncline.
+
+The sim-to-sim transfer of paper §5. Four steps, each resumable in OUT:
+  1. OUT/relations/{trnsv,syz}: AML relations on "geom-on-incline" LD transitions
+     τ = (theta, s0, v0, a0, s1, v1), with transversality (AML_trnsv) and with restricted
+     syzygies (AML_syz) (`jaml.relations.run`).
+  2. OUT/pilot/w<weight>: if several penalty weights are given, one PRED+AML_trnsv run per weight
+     on a pilot seed that is not reported; the weight whose held-out *replay* (validation) error
+     of the object's position is lowest is kept (OUT/choice.json). The π_rand test set plays no
+     part in the choice.
+  3. OUT/<method>/seed_N: the learning loop on MeshOnIncline's PPO frame stream (`jaml.stream`)
+     for PRED+AML_trnsv, PRED+AML_syz, PRED and VAE_rpl, every seed.
+  4. OUT/fig9.md and OUT/fig9.png: object-position alignment error on π_rand and the distortion
+     Var(ρ) (eq. 5, τ^true = position and velocity) over training, mean and 90 % intervals over
+     seeds, and the final differences against PRED with Welch 90 % intervals.
+
+    python -m jaml.experiments.fig9 --out runs/fig9                 # GPU-sized defaults
+    python -m jaml.experiments.fig9 --out runs/fig9 --report-only   # tables from finished runs
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from jaml.evaluation import plots
+
+SOURCE, TARGET = "geom-on-incline", "MeshOnIncline"
+METHODS = {  # name → (learner, relation set or None)
+    "PRED+AML_trnsv": ("PRED", "trnsv"),
+    "PRED+AML_syz": ("PRED", "syz"),
+    "PRED": ("PRED", None),
+    "VAE_rpl": ("VAE_rpl", None),
+}
+# PRED's per-step latent on the incline is [f_0, f_1, f_2, s_t, v_t] (static part 3, dynamic 2:
+# `stream.for_env`); θ is read from the static part's last entry (the reference's "static latent
+# tail"), and the action between steps from the env's action.
+LAYOUT = dict(static={"theta": 2}, dynamic={"s": 3, "v": 4}, actions={"a": 0})
+# Relations: 3 per set as in the paper's block-on-incline figures, with budgets cut to fit the
+# experiment's time (the stopping rule usually ends a relation well before them).
+RELATIONS = {
+    "trnsv": dict(max_relations=3, independence="transversality", max_steps=20_000),
+    "syz": dict(max_relations=3, independence="syzygy", max_steps=20_000,
+                syzygies_per_relation=2, syzygy_max_steps=4_000, syzygy_push_steps=4_000),
+}
+# The stream at a reduced scale (the paper's replay is 5000 columns; its Fig. 9 x-axis spans
+# thousands of epochs).
+SCALE = dict(num_envs=64, replay_slots=1024, epochs=416, eval_every=100, eval_train=4096,
+             eval_rand=10_048, eval_curr=1024, regressor_iterations=4000)
+POSITION, DISTORTION = "position", "distortion"
+
+
+@dataclasses.dataclass(frozen=True)
+class Penalty:
+    """How relations are imposed: the per-pair form and its weight (see `relations.transfer`)."""
+
+    weight: float = 1000.0
+    form: str = "hinge"
+
+
+def learn_relations(out: Path, progress: bool = False) -> dict:
+    """OUT/relations/{trnsv,syz}: fitted (or resumed) relation sets; name → summary."""
+    from jaml import relations
+    from jaml.relations.run import run
+
+    summaries = {}
+    for name, options in RELATIONS.items():
+        started = time.perf_counter()
+        summaries[name] = run(SOURCE, relations.Config(**options), out / "relations" / name,
+                              progress=progress)
+        print(f"relations {name}: {summaries[name]['num_relations']} in "
+              f"{time.perf_counter() - started:.0f}s", flush=True)
+    return summaries
+
+
+def penalty_for(out: Path, relation_set: str, penalty: Penalty):
+    """The latent penalty of a relation set for the incline PRED (layout above)."""
+    from jaml import relations
+    from jaml.stream.loop import build
+
+    stream = build(_config("PRED", 0))
+    rs = relations.load(out / "relations" / relation_set / "checkpoint")
+    return relations.latent_penalty(
+        rs, relations.LatentLayout(**LAYOUT), latent_size=stream.learner.config.penalty_dim,
+        action_size=stream.env.action_size, weight=penalty.weight, form=penalty.form,
+    )
+
+
+def _config(learner: str, seed: int):
+    from jaml.stream import for_env
+
+    return for_env(TARGET, learner, seed=seed, **SCALE)
+
+
+def _write_json(path: Path, value) -> None:
+    from jaml._files import write_json
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_json(path, value)
+
+
+def run_method(out: Path, method: str, seeds, penalty: Penalty, run_dir=None) -> None:
+    """Every seed of one method (compiled once: the seeds share the Stream's program)."""
+    from jaml.stream.run import run
+
+    learner, relation_set = METHODS[method]
+    latent_penalty = None
+    described = {"method": method, "relations": relation_set}
+    if relation_set is not None:
+        latent_penalty = penalty_for(out, relation_set, penalty)
+        described |= dataclasses.asdict(penalty)
+    for seed in seeds:
+        directory = (run_dir or out / method) / f"seed_{seed}"
+        recorded = directory / "penalty.json"
+        if recorded.exists() and json.loads(recorded.read_text()) != described:
+            raise ValueError(f"{directory} was run with {recorded.read_text()}, not {described}; "
+                             "use the same options or a new --out")
+        _write_json(recorded, described)
+        started = time.perf_counter()
+        summary = run(_config(learner, seed), directory, progress=False,
+                      latent_penalty=latent_penalty)
+        phases = ", ".join(f"{k} {v:.0f}s" for k, v in summary["seconds_by_phase"].items())
+        print(f"{method} seed {seed}: {summary['status']} in "
+              f"{time.perf_counter() - started:.0f}s ({phases})", flush=True)
+
+
+def choose_weight(out: Path, weights, pilot_seed: int, form: str) -> Penalty:
+    """The weight with the lowest held-out replay error of the object's position (pilot runs of
+    PRED+AML_trnsv); the choice is written to OUT/choice.json and reused on resume."""
+    choice_path = out / "choice.json"
+    if choice_path.exists():
+        recorded = json.loads(choice_path.read_text())
+        if sorted(recorded["weights"]) == sorted(weights) and recorded["form"] == form:
+            return Penalty(recorded["weight"], form)
+    scores = {}
+    for w in weights:
+        directory = out / "pilot" / f"w{w:g}"
+        run_method(out, "PRED+AML_trnsv", [pilot_seed], Penalty(w, form), run_dir=directory)
+        history = _read_history(directory / f"seed_{pilot_seed}" / "history.jsonl")
+        last = max(r["step"] for r in history)
+        scores[w] = next(r["validation"][POSITION] for r in history if r["step"] == last)
+    best = min(scores, key=scores.get)
+    _write_json(choice_path, {"weights": list(weights), "form": form, "pilot_seed": pilot_seed,
+                              "validation_position_error": {f"{w:g}": v
+                                                            for w, v in scores.items()},
+                              "weight": best})
+    return Penalty(best, form)
+
+
+def _read_history(path: Path) -> list[dict]:
+    text = path.read_text() if path.exists() else ""
+    return [json.loads(x) for x in text.splitlines() if x.strip()]
+
+
+def collect(out: Path, methods) -> dict[str, list[list[dict]]]:
+    """method → per seed, its π_rand analysis records (relabelled with the method's name)."""
+    runs = {}
+    for method in methods:
+        histories = []
+        for d in sorted((out / method).glob("seed_*")):
+            records = [r | {"learner": method} for r in _read_history(d / "history.jsonl")
+                       if r["test_set"] == "pi_rand"]
+            if records:
+                histories.append(records)
+        if histories:
+            runs[method] = histories
+    return runs
+
+
+def _final(histories: list[list[dict]], key) -> list[float]:
+    """Per seed: the value at the last analysis step every seed reached."""
+    last = min(max(r["step"] for r in h) for h in histories)
+    return [key(next(r for r in h if r["step"] == last)) for h in histories]
+
+
+def welch_interval(a, b, confidence: float = 0.90) -> tuple[float, float, float]:
+    """(mean(a) − mean(b), low, high): Welch's interval for the difference of two means."""
+    from scipy import stats
+
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    diff = float(a.mean() - b.mean())
+    if a.size < 2 or b.size < 2:
+        return diff, float("nan"), float("nan")
+    va, vb = a.var(ddof=1) / a.size, b.var(ddof=1) / b.size
+    se = math.sqrt(va + vb)
+    if se == 0:
+        return diff, diff, diff
+    dof = (va + vb) ** 2 / (va**2 / (a.size - 1) + vb**2 / (b.size - 1))
+    half = float(stats.t.ppf(0.5 + confidence / 2, dof)) * se
+    return diff, diff - half, diff + half
+
+
+def _cell(values) -> str:
+    mean, low, high = plots.mean_interval(values)
+    return f"{mean:.4f}" if len(values) < 2 else f"{mean:.4f} ± {(high - low) / 2:.4f}"
+
+
+def plot(runs: dict[str, list[list[dict]]], path: Path) -> None:
+    """Two panels like the paper's Fig. 9: position error on π_rand and Var(ρ) over epochs."""
+    from collections import defaultdict
+
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(10, 3.8), layout="constrained")
+    axes = fig.subplots(1, 2)
+    for k, (method, histories) in enumerate(runs.items()):
+        for ax, key in zip(axes, (lambda r: r["errors"][POSITION], lambda r: r[DISTORTION]),
+                           strict=True):
+            points = defaultdict(list)
+            for h in histories:
+                for r in h:
+                    points[int(r["step"])].append(float(key(r)))
+            steps = sorted(points)
+            bands = np.array([plots.mean_interval(points[s]) for s in steps])
+            ax.plot(steps, bands[:, 0], color=f"C{k}", label=f"{method} ({len(histories)})")
+            ax.fill_between(steps, bands[:, 1], bands[:, 2], color=f"C{k}", alpha=0.2,
+                            linewidth=0)
+    axes[0].set_title("object position alignment error, π_rand")
+    axes[0].set_ylabel("mean |error| (normalised position)")
+    axes[1].set_title("encoder distortion Var(ρ), π_rand")
+    axes[1].set_ylabel("Var(ρ)")
+    for ax in axes:
+        ax.set_xlabel("epoch")
+    axes[0].legend(fontsize=8)
+    FigureCanvasAgg(fig)
+    fig.savefig(path, dpi=100)
+
+
+def report(out: Path, methods) -> str:
+    """OUT/fig9.md (and fig9.png) from every finished run; returns the markdown."""
+    runs = collect(out, methods)
+    if not runs:
+        return "no finished runs\n"
+    plot(runs, out / "fig9.png")
+    position = {m: _final(h, lambda r: r["errors"][POSITION]) for m, h in runs.items()}
+    velocity = {m: _final(h, lambda r: r["errors"]["velocity"]) for m, h in runs.items()}
+    distortion = {m: _final(h, lambda r: r[DISTORTION]) for m, h in runs.items()}
+    epoch = {m: min(max(r["step"] for r in h) for h in hs) for m, hs in runs.items()
+             for h in hs[:1]}
+    lines = ["| method | seeds | epoch | position error (π_rand) | velocity error (π_rand) | "
+             "distortion Var(ρ) |", "|---|---|---|---|---|---|"]
+    for m in runs:
+        lines.append(f"| {m} | {len(runs[m])} | {epoch[m]} | {_cell(position[m])} | "
+                     f"{_cell(velocity[m])} | {_cell(distortion[m])} |")
+    if "PRED" in runs:
+        lines += ["", "Difference from PRED at the last analysis (mean, Welch 90 % interval; "
+                  "negative = lower than PRED):", "",
+                  "| method | Δ position error | Δ distortion |", "|---|---|---|"]
+        for m in runs:
+            if m == "PRED":
+                continue
+            cells = []
+            for table in (position, distortion):
+                d, lo, hi = welch_interval(table[m], table["PRED"])
+                cells.append(f"{d:+.4f} [{lo:+.4f}, {hi:+.4f}]")
+            lines.append(f"| {m} | " + " | ".join(cells) + " |")
+    text = "\n".join(lines) + "\n"
+    (out / "fig9.md").write_text(text)
+    return text
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--weights", type=float, nargs="+", default=[Penalty.weight],
+                        help="penalty weight; several: choose by pilot runs' validation error")
+    parser.add_argument("--form", choices=("hinge", "sum"), default=Penalty.form,
+                        help="hinge: the reference's mean_k |g_k| above its on-manifold mean; "
+                             "sum: the paper's Σ_k |g_k|")
+    parser.add_argument("--pilot-seed", type=int, default=100)
+    parser.add_argument("--report-only", action="store_true")
+    for k, v in SCALE.items():
+        parser.add_argument("--" + k.replace("_", "-"), type=int, default=v)
+    args = parser.parse_args(argv)
+    SCALE.update({k: getattr(args, k) for k in SCALE})
+    if not args.report_only:
+        started = time.perf_counter()
+        if any(METHODS[m][1] for m in args.methods):
+            learn_relations(args.out)
+        if len(args.weights) > 1:
+            penalty = choose_weight(args.out, args.weights, args.pilot_seed, args.form)
+        else:
+            penalty = Penalty(args.weights[0], args.form)
+        print(f"penalty: {penalty}", flush=True)
+        for method in args.methods:
+            run_method(args.out, method, args.seeds, penalty)
+        print(f"fig9 total {time.perf_counter() - started:.0f}s", flush=True)
+    print(report(args.out, args.methods))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

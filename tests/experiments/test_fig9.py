@@ -1,0 +1,64 @@
+"""The Fig. 9 report and its pieces: per-seed histories → final means, Welch intervals, figure."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from jaml.evaluation import history_records
+from jaml.experiments import fig9
+from jaml.relations.transfer import LatentLayout
+
+NAMES = ["texture_id", "object_id", "theta", "position", "velocity"]
+
+
+def _write_run(path, method, seed, position_at_end, distortion_at_end):
+    path.mkdir(parents=True)
+    records = []
+    for step, pos, dist in ((100, 0.3, 9.0), (200, position_at_end, distortion_at_end)):
+        errors = {"pi_rand": [0.1, 0.0, 0.2, pos, 0.4], "pi_curr": [0.5] * 5}
+        records += history_records(step, "PRED", errors, NAMES, dist, run=seed)
+    (path / "history.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+
+
+def test_welch_interval_matches_a_hand_computation():
+    a, b = [1.0, 2.0, 3.0], [2.0, 4.0, 6.0, 8.0]
+    diff, low, high = fig9.welch_interval(a, b)
+    va, vb = np.var(a, ddof=1) / 3, np.var(b, ddof=1) / 4  # 1/3, 20/12
+    dof = (va + vb) ** 2 / (va**2 / 2 + vb**2 / 3)
+    assert dof == pytest.approx(4.0755, abs=1e-4)  # (1/3 + 5/3)² / ((1/3)²/2 + (5/3)²/3)
+    half = stats.t.ppf(0.95, dof) * math.sqrt(va + vb)
+    assert diff == -3.0
+    assert (low, high) == pytest.approx((-3.0 - half, -3.0 + half), abs=2e-3)
+
+
+def test_report_tables_final_means_and_differences_from_pred(tmp_path):
+    for seed, (pos, dist) in enumerate([(0.10, 1.0), (0.12, 1.2), (0.14, 1.4)]):
+        _write_run(tmp_path / "PRED+AML_trnsv" / f"seed_{seed}", "PRED+AML_trnsv", seed, pos, dist)
+    for seed, (pos, dist) in enumerate([(0.20, 2.0), (0.22, 2.2), (0.24, 2.4)]):
+        _write_run(tmp_path / "PRED" / f"seed_{seed}", "PRED", seed, pos, dist)
+
+    text = fig9.report(tmp_path, list(fig9.METHODS))
+
+    table = [line.split(" | ") for line in text.splitlines() if line.startswith("| PRED")]
+    rows = {cells[0].strip("| "): cells for cells in table if len(cells) == 6}
+    half = 2.9199856 * 0.02 / math.sqrt(3)  # t(0.95, 2 dof) · s / √n, s = 0.02
+    assert rows["PRED+AML_trnsv"][1:4] == ["3", "200", f"0.1200 ± {half:.4f}"]
+    assert rows["PRED"][3] == f"0.2200 ± {half:.4f}"
+    assert rows["PRED"][5].startswith("2.2000 ± ")
+    diff_row = next(line for line in text.splitlines()
+                    if line.startswith("| PRED+AML_trnsv | -") or
+                    line.startswith("| PRED+AML_trnsv | +"))
+    assert diff_row.split(" | ")[1].startswith("-0.1000 [")
+    assert "VAE_rpl" not in text and "PRED+AML_syz" not in text  # no runs, no rows
+    assert (tmp_path / "fig9.md").read_text() == text
+    assert (tmp_path / "fig9.png").stat().st_size > 0
+
+
+def test_the_layout_reads_every_relation_coordinate_from_the_incline_pred():
+    """The experiment's layout against the source's coordinate names and PRED's latent size."""
+    plan = LatentLayout(**fig9.LAYOUT).gather(("theta", "s0", "v0", "a0", "s1", "v1"), 5, 1)
+    assert [p[:3] for p in plan] == [("z", 2, 0), ("z", 3, 0), ("z", 4, 0), ("a", 0, 0),
+                                     ("z", 3, 1), ("z", 4, 1)]

@@ -182,6 +182,7 @@ class GeomOnIncline(Env):
             "mass": mass,
             "friction": friction,
             "texture_id": texture_id,
+            "object_id": jnp.asarray(self._object_index, jnp.int32),
         }
         return qpos, jnp.zeros(6), info
 
@@ -244,7 +245,7 @@ class GeomOnIncline(Env):
         c = self.config
         s, v = self.along_plank(data.qpos, data.qvel, info["theta"])
         tid = info["texture_id"].astype(jnp.float32)
-        oid = jnp.asarray(float(self._object_index))
+        oid = jnp.asarray(info["object_id"], jnp.float32)
         f, theta = info["friction"], info["theta"]
         if c.normalize_ld:
             tid, oid = tid / 6.0, oid / 6.0

@@ -52,8 +52,9 @@ RELATIONS = {
 }
 # The stream at a reduced scale (the paper's replay is 5000 columns; its Fig. 9 x-axis spans
 # thousands of epochs).
-SCALE = dict(num_envs=64, replay_slots=1024, epochs=416, eval_every=100, eval_train=4096,
-             eval_rand=10_048, eval_curr=1024, regressor_iterations=4000)
+# ≥ 10K distortion pairs come from the π_rand set's 4096 sequences (`evaluation.distortion`).
+SCALE = dict(num_envs=64, replay_slots=1024, epochs=316, eval_every=150, eval_train=4096,
+             eval_rand=4096, eval_curr=1024, regressor_iterations=4000)
 POSITION, DISTORTION = "position", "distortion"
 
 
@@ -87,10 +88,22 @@ def penalty_for(out: Path, relation_set: str, penalty: Penalty):
 
     stream = build(_config("PRED", 0))
     rs = relations.load(out / "relations" / relation_set / "checkpoint")
+    used = converged(out, relation_set)
     return relations.latent_penalty(
-        rs, relations.LatentLayout(**LAYOUT), latent_size=stream.learner.config.penalty_dim,
-        action_size=stream.env.action_size, weight=penalty.weight, form=penalty.form,
-    )
+        rs.select(used), relations.LatentLayout(**LAYOUT),
+        latent_size=stream.learner.config.penalty_dim, action_size=stream.env.action_size,
+        weight=penalty.weight, form=penalty.form,
+    ), used
+
+
+def converged(out: Path, relation_set: str) -> list[int]:
+    """0-based indices of the relations that met the stopping rule ("done"); a relation that
+    ran into its step cap does not separate on- from off-manifold data and is not imposed."""
+    summary = json.loads((out / "relations" / relation_set / "summary.json").read_text())
+    used = [r["index"] - 1 for r in summary["relations"] if r["status"] == "done"]
+    if not used:
+        raise ValueError(f"no relation of {relation_set} converged; nothing to impose")
+    return used
 
 
 def _config(learner: str, seed: int):
@@ -114,8 +127,8 @@ def run_method(out: Path, method: str, seeds, penalty: Penalty, run_dir=None) ->
     latent_penalty = None
     described = {"method": method, "relations": relation_set}
     if relation_set is not None:
-        latent_penalty = penalty_for(out, relation_set, penalty)
-        described |= dataclasses.asdict(penalty)
+        latent_penalty, used = penalty_for(out, relation_set, penalty)
+        described |= dataclasses.asdict(penalty) | {"relations_used": [i + 1 for i in used]}
     for seed in seeds:
         directory = (run_dir or out / method) / f"seed_{seed}"
         recorded = directory / "penalty.json"

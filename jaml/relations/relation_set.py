@@ -50,6 +50,22 @@ class RelationSet:
             syzygies=(*self.syzygies, syzygies),
         )
 
+    def select(self, indices) -> RelationSet:
+        """The relations at `indices` (0-based, in order), e.g. only those that converged."""
+        indices = [int(i) for i in indices]
+        if not indices or any(not 0 <= i < self.num_relations for i in indices):
+            raise ValueError(f"indices must name relations in 0..{self.num_relations - 1}, "
+                             f"got {indices}")
+        idx = jnp.asarray(indices)
+        syzygies = tuple(self.syzygies[i] for i in indices) if self.syzygies else ()
+        return self.replace(
+            params=tuple(self.params[i] for i in indices),
+            on_means=self.on_means[idx],
+            off_means=self.off_means[idx],
+            widths=tuple(self.widths[i] for i in indices),
+            syzygies=syzygies,
+        )
+
     @classmethod
     def empty(cls, dim: int, depth: int, tolerance: float, dim_names=()) -> RelationSet:
         zeros = jnp.zeros((0,), jnp.float32)

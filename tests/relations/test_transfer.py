@@ -184,3 +184,14 @@ def test_penalty_reaches_the_encoder_and_a_tiny_pred_run_lowers_the_residual():
     # shrinks the posterior's spread, then moves its mean; 50 steps do only part of that).
     plain, imposed = train(None), train(pen)
     assert imposed < 0.75 * plain, (imposed, plain)
+
+
+def test_select_keeps_the_chosen_relations_and_their_statistics():
+    rs = trapezoid_relations(on_mean=0.1)
+    rs = rs.append(rs.params[0], 0.2, 2.0, 4).append(rs.params[0], 0.3, 3.0, 4)
+    picked = rs.select([0, 2])
+    assert picked.num_relations == 2 and picked.widths == (4, 4)
+    np.testing.assert_allclose(picked.on_means, [0.1, 0.3])
+    np.testing.assert_allclose(picked.off_means, [1.0, 3.0])
+    with pytest.raises(ValueError, match=r"indices must name relations in 0\.\.2"):
+        rs.select([3])

@@ -1,0 +1,63 @@
+"""Wall time of the Fig. 9 experiment (`jaml.experiments.fig9`) from a finished OUT directory.
+
+Run it on the machine that ran the experiment: it reads the relation runs' summaries (fit
+seconds) and every learning-loop run's `summary.json` (its wall seconds by phase, compilation
+included) and records one row per method plus the total through the harness. A run that was
+resumed counts only its last call, so record from runs that each finished in one call.
+
+    python benchmarks/fig9_time.py --out runs/fig9
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from benchmarks import harness
+from jaml.experiments import fig9
+
+
+def rows(out: Path) -> list[dict]:
+    result, total = [], 0.0
+    for name in fig9.RELATIONS:
+        path = out / "relations" / name / "summary.json"
+        if path.exists():
+            seconds = sum(r["seconds"] for r in json.loads(path.read_text())["relations"])
+            total += seconds
+            result.append({"case": f"relations {name}", "wall_s": seconds})
+    for method in fig9.METHODS:
+        summaries = [json.loads(p.read_text()) for p in sorted((out / method).glob(
+            "seed_*/summary.json"))]
+        finished = [s for s in summaries if s["status"] == "finished"]
+        if not finished:
+            continue
+        seconds = sum(s["seconds_this_call"] for s in finished)
+        phases = {k: sum(s["seconds_by_phase"][k] for s in finished)
+                  for k in finished[0]["seconds_by_phase"]}
+        total += seconds
+        result.append({"case": f"{method} x {len(finished)} seeds", "wall_s": seconds,
+                       "epochs": finished[0]["epoch"],
+                       **{f"{k}_s": v for k, v in phases.items()}})
+    result.append({"case": "Fig. 9 total (relations + all runs)", "wall_s": total})
+    return result
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args(argv)
+    measured = rows(args.out)
+    for row in measured:
+        print(row)
+    config = json.loads(next(args.out.glob("*/seed_*/config.json")).read_text())
+    scale = json.dumps({k: config[k] for k in ("num_envs", "replay_slots", "epochs")})
+    harness.record("fig9_experiment", measured,
+                   notes=f"Wall seconds of `python -m jaml.experiments.fig9` (compilation "
+                         f"included, one call per run) at {scale}.")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -89,11 +89,15 @@ def placeholder_pixels_fn(size: int) -> PixelsFn:
     return pixels_fn
 
 
-def renderer_pixels_fn(mj_model: mujoco.MjModel, camera: str, size: int) -> PixelsFn:
+def renderer_pixels_fn(
+    mj_model: mujoco.MjModel, camera: str, size: int, customise: Callable | None = None
+) -> PixelsFn:
     """Pixels from `envs_mjx.render`: one context built here, `render(ctx, data).rgb` per call.
 
     The context's per-geom colour (`geom_rgb` [ngeom, 3] in the jaml renderer, or a `geom_rgba`
-    field) is replaced by `info["geom_rgba"]` each call, so the episode's colours reach the image.
+    field) is replaced by `info["geom_rgba"]` each call, so the episode's colours reach the image;
+    then `customise(ctx, info) -> ctx`, when given, sets the rest of the episode's appearance
+    (e.g. which texture a geom shows).
     """
     from envs_mjx import render  # local: the renderer is an optional, separately built module
 
@@ -111,6 +115,8 @@ def renderer_pixels_fn(mj_model: mujoco.MjModel, camera: str, size: int) -> Pixe
             c = ctx.replace(geom_rgb=info["geom_rgba"][:, :3])
         elif field == "geom_rgba":
             c = ctx.replace(geom_rgba=info["geom_rgba"])
+        if customise is not None:
+            c = customise(c, info)
         return render.render(c, data).rgb
 
     return pixels_fn
@@ -186,7 +192,18 @@ class Env(brax_base.Env):
 
     def reset(self, rng: jax.Array) -> State:
         """Samples an initial state (and the episode's randomized model fields) from `rng`."""
-        qpos, qvel, info = self._sample_reset(rng)
+        return self._reset_from(*self._sample_reset(rng))
+
+    def reset_batch(self, rng: jax.Array, num_envs: int) -> State:
+        """`num_envs` resets with a leading batch axis: env slot i of a batch.
+
+        `vmap(reset)` over split keys by default; a domain whose env slots keep a property
+        across their resets (MeshOnIncline's object, i mod N) overrides it. Rollouts draw their
+        fresh reset states through this (`jaml.stream.collect.reset`)."""
+        return jax.vmap(self.reset)(jax.random.split(rng, num_envs))
+
+    def _reset_from(self, qpos: jax.Array, qvel: jax.Array, info: dict[str, Any]) -> State:
+        """The initial State from `_sample_reset`'s (qpos, qvel, info)."""
         info = {**info, "t": jnp.zeros((), jnp.int32), "truncation": jnp.zeros(())}
         info["pixels_valid"] = jnp.asarray(self.pixels_valid)
         model = self.physics_model(info)
@@ -278,6 +295,12 @@ class Env(brax_base.Env):
         del data
         return info
 
+    def _render_context(self, ctx: Any, info: dict[str, Any]) -> Any:
+        """The render context for one env's frame, after `info["geom_rgba"]` is applied (see
+        `renderer_pixels_fn`). Default: unchanged."""
+        del info
+        return ctx
+
     def _model_fields(self, info: dict[str, Any]) -> dict[str, jax.Array]:
         """Per-env physics fields of mjx.Model (name -> value) derived from info."""
         del info
@@ -324,7 +347,7 @@ class Env(brax_base.Env):
         if mode == "off":
             return placeholder_pixels_fn(size), False
         if renderer_available():
-            return renderer_pixels_fn(self.mj_model, self.camera, size), True
+            return renderer_pixels_fn(self.mj_model, self.camera, size, self._render_context), True
         if mode == "required":
             raise ImportError(
                 f"{type(self).__name__}: pixels='required' but envs_mjx.render is not installed"

@@ -1,6 +1,13 @@
-"""Rebuilds assets/meshes/ from an unpacked pybullet 3.2.7 wheel (see assets/PROVENANCE.md).
+"""Rebuilds assets/meshes/ and assets/textures/ from two unpacked PyPI wheels (PROVENANCE.md).
 
-python assets/meshes/prepare.py /path/to/unpacked/pybullet_data
+python assets/meshes/prepare.py PYBULLET_DATA ROBOSUITE_ASSETS
+
+PYBULLET_DATA: `pybullet_data/` of the pybullet 3.2.7 wheel; ROBOSUITE_ASSETS:
+`robosuite/models/assets/` of the robosuite 1.5.2 wheel (`pip download --no-deps` each, unzip).
+Objects are turned z-up with the pose they rest in on the plank (MeshOnIncline lays a mesh with its
++z away from the plank and its +x downhill), decimated to at most 300 triangles and given a
+texture of at most 128 px a side; surface textures (the plank and ground pairs) are shrunk to
+64 px a side, which is finer than a 64 x 64 frame resolves on either surface.
 """
 
 import sys
@@ -17,28 +24,78 @@ from envs_mjx.domains.mesh_object import (
     write_object,
 )
 
-# Turns from the models' y-up to z-up: the duck about +x, the domino about -x (so its dotted face,
-# at -y in the OBJ, faces up).
+ASSETS = Path(__file__).resolve().parents[1]
+# Rotations (applied to the OBJ's vertices) into the z-up pose the object rests in.
+# The duck: y-up model, turned about +x. The domino: turned about -x so its dotted face (at -y in
+# the OBJ) faces up.
 Y_UP_TO_Z_UP = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], np.float64)
 Y_DOWN_TO_Z_UP = np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]], np.float64)
-# name -> (obj, texture, rotation) inside pybullet_data.
-SOURCES = {
-    "duck": ("duck.obj", "duckCM.png", Y_UP_TO_Z_UP),
-    "domino": ("domino/domino.obj", "domino/domino.jpg", Y_DOWN_TO_Z_UP),
+# robosuite's objects are z-up and upright. The cereal box lies on its printed front (-y of the
+# OBJ faces up) with its long side (z) downhill; the can lies on its side, axis downhill, as the
+# reference's YCB boxes and cans did (their long axis pointed downhill at reset).
+BOX_ON_FRONT = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], np.float64)
+ON_SIDE = np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]], np.float64)
+IDENTITY = np.eye(3)
+# name -> (wheel, obj, texture, rotation); wheel is "pybullet" or "robosuite".
+OBJECTS = {
+    "duck": ("pybullet", "duck.obj", "duckCM.png", Y_UP_TO_Z_UP),
+    "domino": ("pybullet", "domino/domino.obj", "domino/domino.jpg", Y_DOWN_TO_Z_UP),
+    "cereal": ("robosuite", "objects/meshes/cereal.obj", "textures/cereal.png", BOX_ON_FRONT),
+    "can": ("robosuite", "objects/meshes/can.obj", "textures/soda.png", ON_SIDE),
+    "bread": ("robosuite", "objects/meshes/bread.obj", "textures/bread.png", IDENTITY),
+    "lemon": ("robosuite", "objects/meshes/lemon.obj", "textures/lemon.png", IDENTITY),
 }
+# Surface textures for the plank / ground pairs (envs_mjx.domains.mesh_incline.SURFACES):
+# file name in assets/textures/ -> texture in robosuite's `textures/`.
+SURFACES = (
+    "clay",
+    "red-wood",
+    "blue-wood",
+    "cream-plaster",
+    "light-gray-floor-tile",
+    "light-wood",
+    "wood-varnished-panels",
+    "green-wood",
+    "dirt",
+    "gray-woodgrain",
+    "brass-ambra",
+    "dark-wood",
+)
+SURFACE_SIZE = 64
 
 
-def main(pybullet_data: str) -> None:
-    root = Path(pybullet_data)
-    for name, (obj, tex, rotation) in SOURCES.items():
-        verts, faces, uv = read_obj(root / obj)
-        verts, faces, kept = decimate(verts @ rotation.T, faces, 300)
-        image, uv_kept = crop_to_uv(Image.open(root / tex).convert("RGB"), uv[kept])
-        image.thumbnail((128, 128), Image.Resampling.LANCZOS)
-        mesh = TexturedMesh(verts, faces, uv_kept, np.asarray(image, np.uint8))
-        write_object(mesh, Path(__file__).parent / name)
-        print(name, len(verts), "vertices", len(faces), "faces", image.size)
+def prepare_object(path_obj: Path, path_tex: Path, rotation: np.ndarray) -> TexturedMesh:
+    verts, faces, uv = read_obj(path_obj)
+    verts, faces, kept = decimate(verts @ rotation.T, faces, 300)
+    image, uv_kept = crop_to_uv(Image.open(path_tex).convert("RGB"), uv[kept])
+    image.thumbnail((128, 128), Image.Resampling.LANCZOS)
+    return TexturedMesh(verts, faces, uv_kept, np.asarray(image, np.uint8))
+
+
+def main(pybullet_data: str, robosuite_assets: str) -> None:
+    roots = {"pybullet": Path(pybullet_data), "robosuite": Path(robosuite_assets)}
+    for name, (wheel, obj, tex, rotation) in OBJECTS.items():
+        mesh = prepare_object(roots[wheel] / obj, roots[wheel] / tex, rotation)
+        write_object(mesh, ASSETS / "meshes" / name)
+        extent = np.ptp(mesh.verts, axis=0)
+        print(
+            name,
+            len(mesh.verts),
+            "vertices",
+            len(mesh.faces),
+            "faces",
+            mesh.texture.shape[1::-1],
+            "extent",
+            np.round(extent, 3),
+        )
+    out = ASSETS / "textures"
+    out.mkdir(exist_ok=True)
+    for name in SURFACES:
+        image = Image.open(roots["robosuite"] / "textures" / f"{name}.png").convert("RGB")
+        image = image.resize((SURFACE_SIZE, SURFACE_SIZE), Image.Resampling.LANCZOS)
+        image.save(out / f"{name}.png", optimize=True)
+        print(name, image.size)
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    main(*sys.argv[1:3])

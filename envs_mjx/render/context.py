@@ -16,6 +16,9 @@ _G = mujoco.mjtGeom
 DRAWABLE = (_G.mjGEOM_PLANE, _G.mjGEOM_SPHERE, _G.mjGEOM_CAPSULE, _G.mjGEOM_ELLIPSOID,
             _G.mjGEOM_CYLINDER, _G.mjGEOM_BOX, _G.mjGEOM_MESH)
 _TEX_2D = int(mujoco.mjtTexture.mjTEXTURE_2D)
+# Mip levels kept per texture (sides down to 1 texel, or 2^-(MIP_LEVELS - 1) of the texture):
+# enough for textures up to 128 x 128.
+MIP_LEVELS = 8
 
 
 @struct.dataclass
@@ -49,6 +52,8 @@ class RenderContext:
     tex_adr: jnp.ndarray  # [ntex2d] int32
     tex_w: jnp.ndarray  # [ntex2d] int32
     tex_h: jnp.ndarray  # [ntex2d] int32
+    tex_mip: jnp.ndarray  # [M] int32: texels of every mip level, packed r | g << 8 | b << 16
+    tex_mip_adr: jnp.ndarray  # [ntex2d, MIP_LEVELS] int32 where each level starts in tex_mip
     light_dir: jnp.ndarray  # [3] direction the model's first light travels (world)
     light_diffuse: jnp.ndarray  # [L, 3] headlight first, then the model light if any
     light_specular: jnp.ndarray  # [L, 3]
@@ -69,6 +74,9 @@ class RenderContext:
     # Textured planes whose texture is a two-colour checker (MuJoCo's builtin="checker"): drawn
     # box-filtered over each pixel's footprint instead of by nearest texel (see raycast).
     checker_geoms: tuple = struct.field(pytree_node=False, default=())
+    # Textured planes with an image texture: drawn trilinearly from the texture's mip levels at
+    # the level of each pixel's footprint (see raycast._plane_uv), as OpenGL draws them.
+    mip_geoms: tuple = struct.field(pytree_node=False, default=())
 
 
 def decimate(verts: np.ndarray, faces: np.ndarray, max_faces: int):
@@ -106,6 +114,12 @@ def decimate(verts: np.ndarray, faces: np.ndarray, max_faces: int):
     return sums / counts, cluster[faces[kept]], kept
 
 
+def mesh_set(m: mujoco.MjModel, geoms: Sequence[int], max_faces: int = 300) -> MeshSet:
+    """The triangles `make_context` draws for mesh geoms `geoms`, in each geom's local frame
+    (for a context whose mesh slots are filled per env, as MeshOnIncline's object is)."""
+    return _mesh_set(m, geoms, max_faces)
+
+
 def _mesh_set(m: mujoco.MjModel, geoms: Sequence[int], max_faces: int) -> MeshSet:
     tris, uvs, has_uv = [], [], []
     for g in geoms:
@@ -138,10 +152,34 @@ def _mesh_set(m: mujoco.MjModel, geoms: Sequence[int], max_faces: int) -> MeshSe
         geom=tuple(int(g) for g in geoms))
 
 
+def texture_index(m: mujoco.MjModel) -> np.ndarray:
+    """[ntex] int32: each MuJoCo texture's index among the packed 2-D textures (the values
+    `RenderContext.geom_tex` holds), -1 for cube and skybox textures."""
+    is_2d = np.asarray(m.tex_type) == _TEX_2D
+    return np.where(is_2d, np.cumsum(is_2d) - 1, -1).astype(np.int32)
+
+
+def mip_levels(rgb: np.ndarray) -> list[np.ndarray]:
+    """[h, w, 3] uint8 -> MIP_LEVELS images: the texture, then box-filtered halvings (sides
+    max(1, side >> level), each level averaged from the full texture), as glGenerateMipmap
+    builds them for power-of-two sides."""
+    from PIL import Image  # matplotlib's dependency; only needed when a model has textures
+
+    h, w, _ = rgb.shape
+    image = Image.fromarray(rgb)
+    levels = [rgb]
+    for level in range(1, MIP_LEVELS):
+        size = (max(1, w >> level), max(1, h >> level))
+        levels.append(np.asarray(image.resize(size, Image.Resampling.BOX), np.uint8))
+    return levels
+
+
 def _textures(m: mujoco.MjModel):
-    """Pack every 2-D texture's texels into one [N, 3] array; cube/skybox textures get -1."""
-    index = -np.ones(m.ntex, np.int32)
+    """Pack every 2-D texture's texels into one [N, 3] array and its mip levels into one packed
+    int32 array (see RenderContext); cube/skybox textures get -1."""
+    index = texture_index(m)
     chunks, adr, ws, hs, n = [], [], [], [], 0
+    mips, mip_adr, n_mip = [], [], 0
     for t in range(m.ntex):
         if m.tex_type[t] != _TEX_2D:
             continue
@@ -149,17 +187,24 @@ def _textures(m: mujoco.MjModel):
         a = m.tex_adr[t]
         texels = m.tex_data[a:a + w * h * c].reshape(h * w, c)
         rgb = np.repeat(texels[:, :1], 3, axis=1) if c < 3 else texels[:, :3]
-        index[t] = len(adr)
         chunks.append(rgb.astype(np.float32) / 255.0)
         adr.append(n)
         ws.append(w)
         hs.append(h)
         n += w * h
+        starts = []
+        for level in mip_levels(np.ascontiguousarray(rgb.reshape(h, w, 3), np.uint8)):
+            starts.append(n_mip)
+            px = level.reshape(-1, 3).astype(np.uint32)
+            mips.append((px[:, 0] | (px[:, 1] << 8) | (px[:, 2] << 16)).astype(np.int32))
+            n_mip += len(px)
+        mip_adr.append(starts)
     if not chunks:  # keep shapes non-empty so gathers compile; geom_tex is -1 everywhere
         chunks, adr, ws, hs = [np.zeros((1, 3), np.float32)], [0], [1], [1]
+        mips, mip_adr = [np.zeros(1, np.int32)], [[0] * MIP_LEVELS]
     i32 = np.int32
     return (index, np.concatenate(chunks), np.array(adr, i32), np.array(ws, i32),
-            np.array(hs, i32))
+            np.array(hs, i32), np.concatenate(mips), np.array(mip_adr, i32))
 
 
 def checker_colours(rgb: np.ndarray, w: int, h: int):
@@ -218,7 +263,7 @@ def make_context(mj_model: mujoco.MjModel, camera: str | int, height: int = 64, 
         if t == _G.mjGEOM_MESH:
             mesh = _mesh_set(m, ids, max_mesh_faces)
 
-    tex_index, tex_rgb, tex_adr, tex_w, tex_h = _textures(m)
+    tex_index, tex_rgb, tex_adr, tex_w, tex_h, tex_mip, tex_mip_adr = _textures(m)
     matid = np.where(has_mat, m.geom_matid, 0)
     mat_tex = m.mat_texid[:, 1] if m.mat_texid.ndim == 2 else m.mat_texid  # mjTEXROLE_RGB
     tex_of_geom = np.where(has_mat, mat_tex[matid], -1) if m.nmat else -np.ones(m.ngeom, int)
@@ -231,14 +276,18 @@ def make_context(mj_model: mujoco.MjModel, camera: str | int, height: int = 64, 
                or (t == _G.mjGEOM_MESH and m.mesh_texcoordadr[m.geom_dataid[g]] >= 0)]
     textured = tuple(g for g in with_uv if geom_tex[g] >= 0)
     geom_checker = np.zeros((m.ngeom, 2, 3), np.float32)
-    checker = []
+    checker, mip = [], []
     for g in textured:
+        if m.geom_type[g] != _G.mjGEOM_PLANE:
+            continue
         t = int(geom_tex[g])
         a, w, h = int(tex_adr[t]), int(tex_w[t]), int(tex_h[t])
         colours = checker_colours(tex_rgb[a:a + w * h], w, h)
-        if colours is not None and m.geom_type[g] == _G.mjGEOM_PLANE:
+        if colours is not None:
             geom_checker[g] = [(colours[0] + colours[1]) / 2, (colours[0] - colours[1]) / 2]
             checker.append(g)
+        else:
+            mip.append(g)
     extent = m.stat.extent
     zfar = m.vis.map.zfar * extent
     if m.nmat:
@@ -284,7 +333,8 @@ def make_context(mj_model: mujoco.MjModel, camera: str | int, height: int = 64, 
         geom_specular=jnp.asarray(spec, f32),
         geom_shininess=jnp.asarray(shin, f32), geom_emission=jnp.asarray(emis, f32),
         tex_rgb=jnp.asarray(tex_rgb), tex_adr=jnp.asarray(tex_adr), tex_w=jnp.asarray(tex_w),
-        tex_h=jnp.asarray(tex_h), light_dir=jnp.asarray(light_dir, f32),
+        tex_h=jnp.asarray(tex_h), tex_mip=jnp.asarray(tex_mip),
+        tex_mip_adr=jnp.asarray(tex_mip_adr), light_dir=jnp.asarray(light_dir, f32),
         light_diffuse=jnp.asarray(np.array(diffuse), f32),
         light_specular=jnp.asarray(np.array(specular), f32),
         ambient=jnp.asarray(ambient, f32), background=jnp.asarray(background, f32),
@@ -293,4 +343,4 @@ def make_context(mj_model: mujoco.MjModel, camera: str | int, height: int = 64, 
         pixel_pitch=jnp.asarray(2.0 * np.tan(np.deg2rad(m.cam_fovy[cam]) / 2.0) / height, f32),
         geom_checker=jnp.asarray(geom_checker), height=height, width=width,
         group_types=tuple(types), group_geoms=tuple(groups), light_id=light_id,
-        textured_geoms=textured, checker_geoms=tuple(checker))
+        textured_geoms=textured, checker_geoms=tuple(checker), mip_geoms=tuple(mip))

@@ -1,5 +1,5 @@
-"""Surface colour: material colour times texture (nearest texel, or a box-filtered checker),
-directional lights, ambient."""
+"""Surface colour: material colour times texture (nearest texel, trilinear from mip levels, or a
+box-filtered checker), directional lights, ambient."""
 
 from __future__ import annotations
 
@@ -20,6 +20,44 @@ def sample_texture(tex_rgb, tex_adr, tex_w, tex_h, tex_id, u, v):
     col = jnp.clip(((u - jnp.floor(u)) * w).astype(jnp.int32), 0, w - 1)
     row = jnp.clip(((v - jnp.floor(v)) * h).astype(jnp.int32), 0, h - 1)
     return tex_rgb[tex_adr[tid] + row * w + col]
+
+
+def sample_mip(tex_mip, tex_mip_adr, tex_w, tex_h, tex_id, u, v, lod):
+    """Bilinear lookup with wrap-around in the mip level nearest `lod` (OpenGL's
+    LINEAR_MIPMAP_NEAREST); lod <= 0.5 (magnification, or about one texel per pixel) reads
+    level 0.
+
+    Against mujoco.Renderer's trilinear (LINEAR_MIPMAP_LINEAR) the incline's floor differs by
+    a mean |rgb| of 2.1 of 255 where trilinear differs by 1.8, at half its cost on the CPU
+    (4 gathers instead of 8: 240 against 550 us per frame on the incline's scene, batch 64).
+
+    tex_mip: [M] int32 packed texels of every level (context.mip_levels, r | g << 8 | b << 16);
+    tex_mip_adr: [ntex, L] int32 where each level starts; tex_w, tex_h: [ntex] level-0 size;
+    tex_id: [P] int32; u, v, lod: [P]. Returns three [P] channels in [0, 1].
+    """
+    tid = jnp.clip(tex_id, 0, tex_mip_adr.shape[0] - 1)
+    n_levels = tex_mip_adr.shape[1]
+    level = jnp.clip((lod + 0.5).astype(jnp.int32), 0, n_levels - 1)
+    lw, lh = jnp.maximum(tex_w[tid] >> level, 1), jnp.maximum(tex_h[tid] >> level, 1)
+    adr = tex_mip_adr.reshape(-1)[tid * n_levels + level]
+    # Texel centres sit at half-integers: x = u w - 1/2 lies between texels x0 and x0 + 1.
+    x = (u - jnp.floor(u)) * lw.astype(jnp.float32) - 0.5
+    y = (v - jnp.floor(v)) * lh.astype(jnp.float32) - 0.5
+    x0, y0 = jnp.floor(x), jnp.floor(y)
+    fx, fy = x - x0, y - y0
+    x0 = jnp.where(x0 < 0.0, lw - 1, x0.astype(jnp.int32))  # x >= -1/2: only -1 wraps
+    y0 = jnp.where(y0 < 0.0, lh - 1, y0.astype(jnp.int32))
+    x1 = jnp.where(x0 + 1 >= lw, 0, x0 + 1)
+    y1 = jnp.where(y0 + 1 >= lh, 0, y0 + 1)
+    out = [0.0, 0.0, 0.0]
+    for row, col, weight in ((y0, x0, (1.0 - fx) * (1.0 - fy)), (y0, x1, fx * (1.0 - fy)),
+                             (y1, x0, (1.0 - fx) * fy), (y1, x1, fx * fy)):
+        # Separate gathers: one gather of stacked indices measured 1.2x slower (8 taps).
+        texel = tex_mip[adr + row * lw + col]
+        weight = weight * (1.0 / 255.0)
+        out = [o + ((texel >> shift) & 0xFF).astype(jnp.float32) * weight
+               for o, shift in zip(out, (0, 8, 16), strict=True)]
+    return out
 
 
 def square_wave_mean(u, width, min_width=1e-2):
@@ -64,16 +102,21 @@ def _horner(coefs, x):
     return acc
 
 
+def log2(x):
+    """log2(x) for normal positive float32 x, to 2.2e-6 absolute, through the exponent bits and
+    a polynomial (XLA:CPU's log costs as much as the rest of a shading loop, see spec_pow)."""
+    i = lax.bitcast_convert_type(x, jnp.int32)
+    mant = lax.bitcast_convert_type((i & 0x7FFFFF) | 0x3F800000, jnp.float32) - 1.0
+    return ((i >> 23) - 127).astype(jnp.float32) + _horner(_LOG2, mant)
+
+
 def spec_pow(base, expo):
     """base ** expo for base in (0, 1], expo >= 0, to ~3e-4 relative for expo <= 128.
 
     Through the float's exponent bits and two short polynomials: XLA:CPU's exp and log inside
     the shading loop cost as much as the rest of shading together.
     """
-    i = lax.bitcast_convert_type(base, jnp.int32)
-    mant = lax.bitcast_convert_type((i & 0x7FFFFF) | 0x3F800000, jnp.float32) - 1.0
-    log2 = ((i >> 23) - 127).astype(jnp.float32) + _horner(_LOG2, mant)
-    y = jnp.maximum(expo * log2, -126.0)
+    y = jnp.maximum(expo * log2(base), -126.0)
     yi = jnp.floor(y)
     frac = _horner(_EXP2, y - yi)  # in [1, 2)
     bits = lax.bitcast_convert_type(frac, jnp.int32) + (yi.astype(jnp.int32) << 23)
@@ -118,10 +161,18 @@ def shade(ctx, hit, geom, rays, light_dirs):
     r, g, b, specular, expo, emission = _materials(ctx, geom)
     if ctx.textured_geoms:
         texel = [jnp.ones_like(r)] * 3
-        if any(g not in ctx.checker_geoms for g in ctx.textured_geoms):
+        filtered = set(ctx.checker_geoms) | set(ctx.mip_geoms)
+        if any(g not in filtered for g in ctx.textured_geoms):
             rgb = sample_texture(ctx.tex_rgb, ctx.tex_adr, ctx.tex_w, ctx.tex_h, hit.tex, hit.u,
                                  hit.v)
             texel = [rgb[:, i] for i in range(3)]
+        if ctx.mip_geoms:
+            mip = sample_mip(ctx.tex_mip, ctx.tex_mip_adr, ctx.tex_w, ctx.tex_h, hit.tex, hit.u,
+                             hit.v, hit.lod)
+            on = geom == ctx.mip_geoms[0]
+            for gid in ctx.mip_geoms[1:]:
+                on = on | (geom == gid)
+            texel = [jnp.where(on, a, b) for a, b in zip(mip, texel, strict=True)]
         for gid in ctx.checker_geoms:  # u carries the filtered checker value in [-1, 1]
             mask = geom == gid
             mid, half = ctx.geom_checker[gid, 0], ctx.geom_checker[gid, 1]

@@ -70,8 +70,11 @@ class Episodes:
 
 
 def reset(env: Env, key: jax.Array, num_envs: int) -> State:
-    """A batch of `num_envs` independent resets."""
-    return jax.vmap(env.reset)(jax.random.split(key, num_envs))
+    """A batch of `num_envs` independent resets; env slot i gets what `env.reset_batch` gives
+    slot i (MeshOnIncline: object i mod N), so a slot keeps it across the resets swapped in."""
+    if not isinstance(env, Env):  # e.g. a Brax wrapper, whose reset reset_batch would bypass
+        return jax.vmap(env.reset)(jax.random.split(key, num_envs))
+    return env.reset_batch(key, num_envs)
 
 
 def _swap_in(done: jax.Array, fresh: State, state: State) -> State:

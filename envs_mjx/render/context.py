@@ -74,8 +74,9 @@ class RenderContext:
     # Textured planes whose texture is a two-colour checker (MuJoCo's builtin="checker"): drawn
     # box-filtered over each pixel's footprint instead of by nearest texel (see raycast).
     checker_geoms: tuple = struct.field(pytree_node=False, default=())
-    # Textured planes with an image texture: drawn trilinearly from the texture's mip levels at
-    # the level of each pixel's footprint (see raycast._plane_uv), as OpenGL draws them.
+    # Textured meshes, and planes with an image texture: drawn from the texture's mip levels at
+    # the level of each pixel's footprint (see raycast._plane_uv, raycast._mesh_hits), as
+    # OpenGL draws them.
     mip_geoms: tuple = struct.field(pytree_node=False, default=())
 
 
@@ -279,6 +280,7 @@ def make_context(mj_model: mujoco.MjModel, camera: str | int, height: int = 64, 
     checker, mip = [], []
     for g in textured:
         if m.geom_type[g] != _G.mjGEOM_PLANE:
+            mip.append(g)  # a mesh with uv
             continue
         t = int(geom_tex[g])
         a, w, h = int(tex_adr[t]), int(tex_w[t]), int(tex_h[t])

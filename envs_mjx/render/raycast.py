@@ -266,13 +266,31 @@ def _mesh_hits(ctx, coef, table, x, y, best: _Hit) -> _Hit:
     row = table[tri]  # [P, 4 or 11]: one gather of the winning triangles' data
     u = v = best.u
     tex = jnp.int32(-1)
+    lod = best.lod
     if table.shape[1] > 4:
         bary = [(c[:, 3 * k] * x + c[:, 3 * k + 1] * y + c[:, 3 * k + 2]) * t for k in range(3)]
         u = bary[0] * row[:, 4] + bary[1] * row[:, 6] + bary[2] * row[:, 8]
         v = bary[0] * row[:, 5] + bary[1] * row[:, 7] + bary[2] * row[:, 9]
         tex = row[:, 10].astype(jnp.int32)
-    new = _Hit(t, row[:, 3].astype(jnp.int32), row[:, 0], row[:, 1], row[:, 2], u, v, tex,
-               best.lod)
+        if any(g in ctx.mip_geoms for g in ctx.mesh.geom):
+            # The footprint for mip sampling: bary_k = w_k t with t = 1 / sum(w), so
+            # d bary_k / dx = t (c_kx - bary_k sum_j c_jx), and du/dx = t (sum_k c_kx u_k - u S_x)
+            # (likewise y, v); one pixel step is pixel_pitch on the camera-frame plane.
+            k = t * ctx.pixel_pitch
+            derivs = []
+            for axis in (0, 1):
+                s_axis = c[:, axis] + c[:, 3 + axis] + c[:, 6 + axis]
+                for coord, col in ((u, 4), (v, 5)):
+                    weighted = sum(c[:, 3 * j + axis] * row[:, col + 2 * j] for j in range(3))
+                    derivs.append(k * (weighted - s_axis * coord))
+            du_dx, dv_dx, du_dy, dv_dy = derivs
+            tid = jnp.maximum(tex, 0)
+            w2 = jnp.square(ctx.tex_w[tid].astype(jnp.float32))
+            h2 = jnp.square(ctx.tex_h[tid].astype(jnp.float32))
+            rho2 = jnp.maximum(w2 * du_dx * du_dx + h2 * dv_dx * dv_dx,
+                               w2 * du_dy * du_dy + h2 * dv_dy * dv_dy)
+            lod = 0.5 * shading.log2(jnp.maximum(rho2, 1e-12))
+    new = _Hit(t, row[:, 3].astype(jnp.int32), row[:, 0], row[:, 1], row[:, 2], u, v, tex, lod)
     return _select(closer, new, best)
 
 

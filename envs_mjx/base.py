@@ -6,7 +6,10 @@ lives in `state.info` as arrays; `Env.physics_model(info)` turns it into batched
 fields, and the pixels function receives `info` to read per-env appearance.
 
 Per-env appearance field (read by pixel functions): `info["geom_rgba"]`, float32 [ngeom, 4], the
-RGBA of every geom for this episode (the colour scheme drawn at reset).
+RGBA of every geom for this episode (the colour scheme drawn at reset). Appearance beyond colours
+(MeshOnIncline's textures and object mesh) goes into the render context per env through
+`Env._render_context`. `Env.reset_batch` resets a batch of env slots; a domain may give each slot
+a fixed property (MeshOnIncline: object i mod N).
 
 Non-finite actions: inside jit, a step whose action has any NaN/Inf is skipped entirely. The
 returned state equals the input state (same physics, LD state, pixels, done, info), except that

@@ -55,7 +55,7 @@ def latents(s0, v0, v1, s1=None, theta=0.3):
 
 def test_penalty_is_zero_on_consistent_latents_and_grows_with_the_violation():
     rs = trapezoid_relations()
-    pen = latent_penalty(rs, LAYOUT, latent_size=3, action_size=1, form="sum")
+    pen = latent_penalty(rs, LAYOUT, latent_size=3, action_size=1, weight=1.0, form="sum")
     actions = jnp.ones((3, 2, 1))
     z = latents([0.1, 0.5, -0.2], [0.3, -1.0, 0.0], [0.7, 0.2, 0.4])
     np.testing.assert_allclose(pen(z, actions), 0.0, atol=1e-7)
@@ -70,7 +70,7 @@ def test_penalty_is_zero_on_consistent_latents_and_grows_with_the_violation():
     heavy = latent_penalty(rs, LAYOUT, latent_size=3, action_size=1, form="sum", weight=10.0)
     np.testing.assert_allclose(heavy(bad, actions), 10 * value, rtol=1e-6)
     hinge = latent_penalty(trapezoid_relations(on_mean=0.005), LAYOUT, latent_size=3,
-                           action_size=1, form="hinge")
+                           action_size=1, weight=1.0, form="hinge")
     np.testing.assert_allclose(hinge(bad, actions), np.where(value > 0.005, value, 0.0),
                                rtol=1e-5)
 
@@ -79,7 +79,7 @@ def test_penalty_sums_over_consecutive_pairs_in_the_relations_order():
     """Three latent steps give two transitions (0→1, 1→2); a relation set whose coordinates
     are listed in another order reads the same latents by name."""
     rs = trapezoid_relations()
-    pen = latent_penalty(rs, LAYOUT, latent_size=3, action_size=1, form="sum")
+    pen = latent_penalty(rs, LAYOUT, latent_size=3, action_size=1, weight=1.0, form="sum")
     z2 = latents([0.0], [0.0], [0.0], s1=[0.1])
     three = jnp.concatenate([z2, z2[:, 1:] + jnp.asarray([0.0, 0.2, 0.0])], axis=1)
     g01 = np.tanh(np.tanh(np.tanh(np.tanh(0.2 * 0.1))))
@@ -92,7 +92,8 @@ def test_penalty_sums_over_consecutive_pairs_in_the_relations_order():
     first["hidden0_kernel"] = first["hidden0_kernel"][:, np.array(order)]
     rs_perm = rs_perm.replace(params=({"params": first},),
                               dim_names=tuple(NAMES[i] for i in order))
-    pen_perm = latent_penalty(rs_perm, LAYOUT, latent_size=3, action_size=1, form="sum")
+    pen_perm = latent_penalty(rs_perm, LAYOUT, latent_size=3, action_size=1, weight=1.0,
+                              form="sum")
     np.testing.assert_allclose(pen_perm(three, jnp.zeros((1, 3, 1))), [g01 + g12], rtol=1e-5)
 
 

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from jaml.evaluation import plots
+from jaml.experiments._runs import add_scale_options, apply_scale, cell, read_history
 
 LEARNERS = ("VAE_v0", "VAE_rpl", "PRED", "SVAE", "DSA")
 ENVS = ("CartPole", "InvertedPendulum")
@@ -44,17 +45,6 @@ def final_errors(history: list[dict]) -> dict[str, dict[str, float]]:
     return {r["test_set"]: r["errors"] for r in history if r["step"] == last}
 
 
-def _read_history(path: Path) -> list[dict]:
-    text = path.read_text() if path.exists() else ""
-    return [json.loads(x) for x in text.splitlines() if x.strip()]
-
-
-def _cell(values: list[float]) -> str:
-    """'0.123' for one run, '0.123 ± 0.045' (90 % confidence half-width) for several."""
-    mean, low, high = plots.mean_interval(values)
-    return f"{mean:.3f}" if len(values) < 2 else f"{mean:.3f} ± {(high - low) / 2:.3f}"
-
-
 def report(out: Path, envs, learners) -> str:
     """fig2.md from every finished seed_N run under OUT/ENV/LEARNER; returns its text."""
     lines = ["# Fig. 2 at reduced scale: alignment error (training-std units; lower is better)",
@@ -63,7 +53,7 @@ def report(out: Path, envs, learners) -> str:
         runs = {}  # learner → [history per seed]
         for learner in learners:
             seed_dirs = sorted((out / env / learner).glob("seed_*"))
-            histories = [h for h in (_read_history(d / "history.jsonl") for d in seed_dirs) if h]
+            histories = [h for h in (read_history(d / "history.jsonl") for d in seed_dirs) if h]
             if histories:
                 runs[learner] = histories
         if not runs:
@@ -85,7 +75,7 @@ def report(out: Path, envs, learners) -> str:
                 dims = {n: [e[n] for e in per_seed] for n in names}
                 pos = [np.mean([e[k] for k in names if not _velocity(k)]) for e in per_seed]
                 vel = [np.mean([e[k] for k in names if _velocity(k)]) for e in per_seed]
-                cells = [_cell(v) for v in (*dims.values(), pos, vel)]
+                cells = [cell(v) for v in (*dims.values(), pos, vel)]
                 lines.append(f"| {learner} | {test_set} | " + " | ".join(cells)
                              + f" | {last} | {len(per_seed)} |")
         lines.append("")
@@ -108,10 +98,9 @@ def main(argv=None) -> int:
                         default=[], help="a learner config field for every run, e.g. "
                                          "frame_nll=mean (the reference code's likelihood)")
     parser.add_argument("--report-only", action="store_true")
-    for k, v in SCALE.items():
-        parser.add_argument("--" + k.replace("_", "-"), type=int, default=v)
+    add_scale_options(parser, SCALE)
     args = parser.parse_args(argv)
-    SCALE.update({k: getattr(args, k) for k in SCALE})
+    apply_scale(args, SCALE)
     if not args.report_only:
         from jaml.stream import for_env
         from jaml.stream.run import run

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from jaml.evaluation import plots
+from jaml.experiments._runs import add_scale_options, apply_scale, cell, read_history
 
 SOURCE, TARGET = "geom-on-incline", "MeshOnIncline"
 METHODS = {  # name → (learner, relation set or None)
@@ -159,7 +160,7 @@ def choose_weight(out: Path, weights, pilot_seed: int, form: str) -> Penalty:
     for w in weights:
         directory = out / "pilot" / f"w{w:g}"
         run_method(out, "PRED+AML_trnsv", [pilot_seed], Penalty(w, form), run_dir=directory)
-        history = _read_history(directory / f"seed_{pilot_seed}" / "history.jsonl")
+        history = read_history(directory / f"seed_{pilot_seed}" / "history.jsonl")
         last = max(r["step"] for r in history)
         scores[w] = next(r["validation"][POSITION] for r in history if r["step"] == last)
     best = min(scores, key=scores.get)
@@ -170,18 +171,13 @@ def choose_weight(out: Path, weights, pilot_seed: int, form: str) -> Penalty:
     return Penalty(best, form)
 
 
-def _read_history(path: Path) -> list[dict]:
-    text = path.read_text() if path.exists() else ""
-    return [json.loads(x) for x in text.splitlines() if x.strip()]
-
-
 def collect(out: Path, methods) -> dict[str, list[list[dict]]]:
     """method → per seed, its π_rand analysis records (relabelled with the method's name)."""
     runs = {}
     for method in methods:
         histories = []
         for d in sorted((out / method).glob("seed_*")):
-            records = [r | {"learner": method} for r in _read_history(d / "history.jsonl")
+            records = [r | {"learner": method} for r in read_history(d / "history.jsonl")
                        if r["test_set"] == "pi_rand"]
             if records:
                 histories.append(records)
@@ -214,8 +210,7 @@ def welch_interval(a, b, confidence: float = 0.90) -> tuple[float, float, float]
 
 
 def _cell(values) -> str:
-    mean, low, high = plots.mean_interval(values)
-    return f"{mean:.4f}" if len(values) < 2 else f"{mean:.4f} ± {(high - low) / 2:.4f}"
+    return cell(values, digits=4)
 
 
 def plot(runs: dict[str, list[list[dict]]], path: Path) -> None:
@@ -295,10 +290,9 @@ def main(argv=None) -> int:
                              "sum: the paper's Σ_k |g_k|")
     parser.add_argument("--pilot-seed", type=int, default=100)
     parser.add_argument("--report-only", action="store_true")
-    for k, v in SCALE.items():
-        parser.add_argument("--" + k.replace("_", "-"), type=int, default=v)
+    add_scale_options(parser, SCALE)
     args = parser.parse_args(argv)
-    SCALE.update({k: getattr(args, k) for k in SCALE})
+    apply_scale(args, SCALE)
     if not args.report_only:
         started = time.perf_counter()
         if any(METHODS[m][1] for m in args.methods):

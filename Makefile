@@ -2,7 +2,15 @@
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
+# `make install GPU=1` adds the `cuda` extra (jax[cuda12], same JAX version); its own stamp
+# also marks the CPU one done, so a later `make test` does not reinstall.
+ifeq ($(GPU),1)
+EXTRAS := dev,cuda
+STAMP := $(VENV)/.installed-gpu
+else
+EXTRAS := dev
 STAMP := $(VENV)/.installed
+endif
 
 .PHONY: install demo test test-slow lint bench clean
 
@@ -12,8 +20,8 @@ install: $(STAMP)
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
-	touch $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[$(EXTRAS)]'
+	touch $(sort $(STAMP) $(VENV)/.installed)
 
 demo: $(STAMP)
 	$(BIN)/jaml demo --out runs/demo

@@ -1,10 +1,12 @@
-"""The `jaml` command line: `jaml relations …`, `jaml suite …`, `jaml demo`, `jaml envs list|show`.
-Entry points stay thin."""
+"""The `jaml` command line: `jaml relations …`, `jaml suite …`, `jaml demo`, `jaml envs list|show`,
+`jaml info`. Entry points stay thin."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
+import io
 import logging
 import sys
 import types
@@ -208,6 +210,39 @@ def _cmd_envs_show(args) -> int:
     return 0
 
 
+_INFO_PACKAGES = ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint", "brax", "mujoco",
+                  "mujoco-mjx")
+
+
+def _cmd_info(args) -> int:
+    import importlib
+    import importlib.metadata
+
+    import jax
+
+    print(f"jax {jax.__version__}, default backend {jax.default_backend()}")
+    for device in jax.devices():
+        print(f"  device {device.id}: platform {device.platform}, kind {device.device_kind}")
+    for name in _INFO_PACKAGES:
+        try:
+            version = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            version = "not installed"
+        print(f"{name} {version}")
+    for label, module in (("MJX physics", "mujoco.mjx"), ("MJX renderer", "envs_mjx.render")):
+        try:
+            importlib.import_module(module)
+            print(f"{label} ({module}): import ok")
+        except Exception as error:  # report any failure, this is a diagnostic
+            print(f"{label} ({module}): import FAILED: {type(error).__name__}: {error}")
+    with contextlib.suppress(Exception):
+        from mujoco.mjx import warp
+
+        print(f"MuJoCo Warp (optional, unused by jaml): "
+              f"{'installed' if warp.WARP_INSTALLED else 'not installed'}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from jaml.sources import PRESETS
 
@@ -266,16 +301,44 @@ def build_parser() -> argparse.ArgumentParser:
     show.add_argument("--steps", type=int, default=8, help="columns: frames per reset")
     show.add_argument("--seed", type=int, default=0, help="PRNG seed")
     show.set_defaults(func=_cmd_envs_show)
+
+    sub.add_parser(
+        "info",
+        help="JAX version, backend and devices; package versions; whether MJX imports",
+    ).set_defaults(func=_cmd_info)
     return parser
 
 
+def _import_mjx_quietly() -> list[str]:
+    """Import mujoco.mjx with stdout captured; return what it printed.
+
+    mujoco 4.0's mujoco.mjx.warp probes for MuJoCo Warp (optional, GPU; jaml does not use it)
+    and, when absent, `print`s "Failed to import warp: …" and "Failed to import mujoco_warp: …"
+    to stdout on every import: a print, not a logging call or warning, so no logger level or
+    warnings filter silences it. Only jaml's entry point captures it (libraries leave stdout
+    alone); `jaml -v` logs the captured lines."""
+    if "mujoco.mjx" in sys.modules:
+        return []
+    buffer = io.StringIO()
+    with contextlib.redirect_stdout(buffer), contextlib.suppress(ImportError):
+        import mujoco.mjx  # noqa: F401
+    return buffer.getvalue().splitlines()
+
+
 def main(argv=None) -> int:
+    captured = _import_mjx_quietly()
     args = build_parser().parse_args(argv)
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING,
         format="%(asctime)s %(name)s %(message)s",
         datefmt="%H:%M:%S",
+        # Importing orbax-checkpoint logs through absl (ArrayHandler's vlog), and absl calls
+        # logging.basicConfig() when the root logger has no handler; ours would then be a no-op
+        # and `-v` silent: replace that handler.
+        force=True,
     )
+    for line in captured:
+        logging.getLogger(__name__).info("import mujoco.mjx: %s", line)
     try:
         return args.func(args)
     except (ValueError, TypeError, FileNotFoundError) as error:

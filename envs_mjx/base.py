@@ -137,6 +137,9 @@ def contact_flags(data: mjx.Data, floor_geom: int, geoms: np.ndarray) -> jax.Arr
     return jnp.any(pair & touching[None], axis=1).astype(jnp.float32)
 
 
+LD_GROUPS = ("position", "velocity", "contact", "other")
+
+
 class Env(brax_base.Env):
     """A domain: MJCF model, n_frames substeps per action, LD state, reward and termination.
 
@@ -192,6 +195,20 @@ class Env(brax_base.Env):
     @property
     def ld_state_names(self) -> tuple[str, ...]:
         return self._ld_state_names
+
+    @property
+    def ld_state_groups(self) -> tuple[str, ...]:
+        """Per LD dimension, one of LD_GROUPS: what the paper aggregates alignment over
+        (position, velocity and contacts for locomotion, Fig. 2); "other" for scene parameters
+        such as a texture id."""
+        groups = tuple(self._ld_groups())
+        if len(groups) != len(self._ld_state_names) or not set(groups) <= set(LD_GROUPS):
+            raise ValueError(f"{type(self).__name__}: ld_state_groups must give one of "
+                             f"{LD_GROUPS} per LD dimension, got {groups}")
+        return groups
+
+    def _ld_groups(self) -> tuple[str, ...]:
+        raise NotImplementedError(f"{type(self).__name__} declares no LD-state groups")
 
     def reset(self, rng: jax.Array) -> State:
         """Samples an initial state (and the episode's randomized model fields) from `rng`."""

@@ -50,6 +50,9 @@ class CartPole(Env):
         self._slots = [geom_ids(mj_model, ["cart"]), geom_ids(mj_model, ["pole"])]
         super().__init__(config, mj_model, ("theta", "theta_dot", "x", "x_dot"), pixels_fn)
 
+    def _ld_groups(self):
+        return ("position", "velocity", "position", "velocity")
+
     def _sample_reset(self, rng):
         k_state, k_colour = jax.random.split(rng)
         s = jax.random.uniform(k_state, (4,), minval=-1.0, maxval=1.0) * self.config.reset_noise

@@ -141,6 +141,11 @@ class GeomOnIncline(Env):
         names += ["theta", "position", "velocity"]
         super().__init__(config, mj_model, tuple(names), pixels_fn)
 
+    def _ld_groups(self):
+        # The angle, texture, object and friction are drawn per episode and stay constant.
+        kinds = {"position": "position", "velocity": "velocity"}
+        return tuple(kinds.get(n, "other") for n in self.ld_state_names)
+
     def _add_object(self, spec: mujoco.MjSpec, config: InclineConfig) -> float:
         """Shapes the spec's "object" geom (the collision geom the contact pairs name) and
         returns the object's extent along its local +x, which reset points into the plank."""

@@ -43,6 +43,9 @@ class InvertedPendulum(Env):
         names = ("x", "x_dot", "cos_theta", "sin_theta", "theta_dot")
         super().__init__(config, mj_model, names, pixels_fn)
 
+    def _ld_groups(self):
+        return ("position", "velocity", "position", "position", "velocity")
+
     def _sample_reset(self, rng):
         k_theta, k_colour = jax.random.split(rng)
         noise = self.config.reset_noise

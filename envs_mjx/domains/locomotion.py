@@ -81,6 +81,15 @@ class Locomotion(Env):
         names += [f"{f}_contact" for f in self.feet]
         super().__init__(config, mj_model, tuple(names), pixels_fn)
 
+    def _ld_groups(self):
+        velocities = ("vx", "vy", "vz")
+        return tuple(
+            "contact" if n.endswith("_contact")
+            else "velocity" if n in velocities or n.endswith("_vel")
+            else "position"  # z, heading to target, roll, pitch, joint angles
+            for n in self.ld_state_names
+        )
+
     # -- subclass hooks ---------------------------------------------------------------------------
 
     def _torso_linvel(self, data) -> jax.Array:

@@ -2,9 +2,10 @@
 
 Runs `jaml.stream.run` for every (env, learner, seed) into OUT/ENV/LEARNER/seed_N (each run
 resumable), then writes OUT/fig2.md (final per-dimension errors on π_rand and π_curr, with
-position and velocity means; over several seeds the mean and its 90 % confidence interval, as
-the paper's Fig. 2 shows over 6 runs) and OUT/ENV_alignment.png (all learners' curves, bands over
-seeds). The paper's findings it checks:
+means per LD group: position, velocity, contacts, from the domains' metadata; over several
+seeds the mean and its 90 % confidence interval, as the paper's Fig. 2 shows over 6 runs)
+and OUT/ENV_alignment.png (all learners' curves, bands over seeds; one panel per group for
+locomotion). The paper's findings it checks:
   (a) VAE_rpl aligns better than VAE_v0 on π_rand (the replay keeps early, diverse frames);
   (b) PRED and the sequential learners (SVAE, DSA) align velocities better than the VAE, which
       sees one frame and cannot tell velocity.
@@ -35,8 +36,17 @@ SCALE = dict(num_envs=64, replay_slots=1024, epochs=216, eval_every=50, eval_tra
              eval_rand=2048, eval_curr=1024, regressor_iterations=4000)
 
 
-def _velocity(name: str) -> bool:
-    return name.endswith("_dot") or "vel" in name
+def ld_groups(env: str) -> dict[str, list[str]]:
+    """group → LD-state names of `env`, from the domain's own metadata (`ld_state_groups`):
+    the paper aggregates position, velocity and contacts (Fig. 2, locomotion)."""
+    import envs_mjx
+
+    domain = envs_mjx.make(env)
+    groups: dict[str, list[str]] = {}
+    for name, group in zip(domain.ld_state_names, domain.ld_state_groups, strict=True):
+        if group != "other":
+            groups.setdefault(group, []).append(name)
+    return groups
 
 
 def final_errors(history: list[dict]) -> dict[str, dict[str, float]]:
@@ -63,24 +73,27 @@ def report(out: Path, envs, learners) -> str:
         config_path = next((out / env / next(iter(runs))).glob("seed_*/config.json"))
         config = json.loads(config_path.read_text())
         settings = {k: config[k] for k in SCALE}
+        groups = ld_groups(env)
         lines += [f"## {env}", "", f"Settings: {json.dumps(settings)}", "",
-                  "| learner | test set | " + " | ".join(names) + " | position mean | "
-                  "velocity mean | epoch | seeds |",
-                  "|---" * (len(names) + 6) + "|"]
+                  "| learner | test set | " + " | ".join(names) + " | "
+                  + " | ".join(f"{g} mean" for g in groups) + " | epoch | seeds |",
+                  "|---" * (len(names) + len(groups) + 4) + "|"]
         for learner, histories in runs.items():
             finals = [final_errors(h) for h in histories]
             last = min(max(r["step"] for r in h) for h in histories)
             for test_set in finals[0]:
                 per_seed = [f[test_set] for f in finals if test_set in f]
                 dims = {n: [e[n] for e in per_seed] for n in names}
-                pos = [np.mean([e[k] for k in names if not _velocity(k)]) for e in per_seed]
-                vel = [np.mean([e[k] for k in names if _velocity(k)]) for e in per_seed]
-                cells = [cell(v) for v in (*dims.values(), pos, vel)]
+                means = [[np.mean([e[k] for k in dims_of]) for e in per_seed]
+                         for dims_of in groups.values()]
+                cells = [cell(v) for v in (*dims.values(), *means)]
                 lines.append(f"| {learner} | {test_set} | " + " | ".join(cells)
                              + f" | {last} | {len(per_seed)} |")
         lines.append("")
+        # Locomotion has tens of dimensions: one panel per group, as the paper shows them.
+        panels = groups if len(names) > 8 else None
         plots.plot_alignment([r for hs in runs.values() for h in hs for r in h],
-                             out / f"{env}_alignment.png")
+                             out / f"{env}_alignment.png", groups=panels)
     text = "\n".join(lines) + "\n"
     (out / "fig2.md").write_text(text)
     return text

@@ -42,3 +42,16 @@ def test_report_averages_seeds_with_a_t_interval(tmp_path):
     assert "InvertedPendulum" not in text  # no runs, no section
     assert (tmp_path / "fig2.md").read_text() == text
     assert (tmp_path / "CartPole_alignment.png").stat().st_size > 0
+
+
+def test_groups_come_from_the_domains_metadata_not_the_names():
+    """vx/vy/vz are velocities and the foot flags contacts (a name rule counted both as
+    position); the incline's scene parameters are in no group."""
+    cheetah = fig2.ld_groups("HalfCheetah")
+    assert {"vx", "vy", "vz", "bthigh_vel"} <= set(cheetah["velocity"])
+    assert {"z_rel", "roll", "bthigh_pos"} <= set(cheetah["position"])
+    assert len(cheetah["contact"]) == 6 and all(n.endswith("_contact") for n in cheetah["contact"])
+    assert fig2.ld_groups("CartPole") == {"position": ["theta", "x"],
+                                          "velocity": ["theta_dot", "x_dot"]}
+    assert fig2.ld_groups("MeshOnIncline") == {"position": ["position"],
+                                               "velocity": ["velocity"]}

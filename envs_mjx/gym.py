@@ -1,0 +1,181 @@
+"""Gymnasium interface: `to_gymnasium(name, num_envs, seed=0, **overrides)`.
+
+`num_envs=None` gives a `gymnasium.Env` (`MjxGymEnv`), `num_envs=N` a `gymnasium.vector.VectorEnv`
+(`MjxVectorEnv`) stepping N envs in one jitted, vmapped call. Observations are the uint8
+[S, S, 3] frames (`state.pixels`); actions are float32 in [-1, 1]; `info["ld_state"]` is the true
+low-dimensional state (float32 [D] or [N, D]), named by `info["ld_state_names"]`.
+
+PRNG keys are explicit: `reset(seed=s)` sets the key to `jax.random.PRNGKey(s)` (the constructor's
+`seed` when the first reset has none); every reset then does `key, sub = jax.random.split(key)` and
+resets from `sub` (`env.reset(sub)`, or `env.reset_batch(sub, N)` for the vector env). The vector
+env also splits its key on every `step`, and resets the envs that ended on the previous step from
+`env.reset_batch(sub, N)` (NEXT_STEP autoreset).
+
+Terminated vs truncated: the envs follow Brax, where `state.done` is set for both and
+`state.info["truncation"]` is 1 for a time-limit end; here `truncated = truncation > 0` and
+`terminated = done and not truncated`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from envs_mjx.base import Env
+from envs_mjx.registry import make
+
+
+def to_gymnasium(name: str, num_envs: int | None, seed: int = 0, **overrides):
+    """The named domain (`envs_mjx.make(name, **overrides)`) as a Gymnasium env.
+
+    `num_envs=None`: a single `gymnasium.Env`; an int: a `gymnasium.vector.VectorEnv` of that many
+    envs with NEXT_STEP autoreset. `seed` seeds the PRNG key until `reset(seed=...)` replaces it.
+    """
+    env = make(name, **overrides)
+    if num_envs is None:
+        return MjxGymEnv(env, seed=seed)
+    return MjxVectorEnv(env, num_envs, seed=seed)
+
+
+def _spaces(env: Env) -> tuple[spaces.Box, spaces.Box]:
+    size = int(env.config.image_size)
+    obs = spaces.Box(0, 255, (size, size, 3), np.uint8)
+    act = spaces.Box(-1.0, 1.0, (env.action_size,), np.float32)
+    return obs, act
+
+
+def _flags(state) -> tuple[np.ndarray, np.ndarray]:
+    """(terminated, truncated) as numpy bools from Brax's done / info["truncation"]."""
+    truncated = np.asarray(state.info["truncation"]) > 0
+    terminated = (np.asarray(state.done) > 0) & ~truncated
+    return terminated, truncated
+
+
+class MjxGymEnv(gymnasium.Env):
+    """One MJX env as a `gymnasium.Env`: pixels in, actions in [-1, 1] out."""
+
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"]}  # noqa: RUF012
+
+    def __init__(self, env: Env, seed: int = 0, render_mode: str | None = None):
+        self.env = env
+        self.observation_space, self.action_space = _spaces(env)
+        self.render_mode = render_mode
+        self._reset_fn = jax.jit(env.reset)
+        self._step_fn = jax.jit(env.step)
+        self._key = jax.random.PRNGKey(seed)
+        self._state = None
+
+    def _obs_info(self) -> tuple[np.ndarray, dict[str, Any]]:
+        s = self._state
+        info = {
+            "ld_state": np.asarray(s.ld_state, np.float32),
+            "ld_state_names": self.env.ld_state_names,
+        }
+        return np.asarray(s.pixels, np.uint8), info
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        if seed is not None:
+            self._key = jax.random.PRNGKey(seed)
+        self._key, sub = jax.random.split(self._key)
+        self._state = self._reset_fn(sub)
+        return self._obs_info()
+
+    def step(self, action):
+        if self._state is None:
+            raise RuntimeError("call reset() before step()")
+        action = jnp.asarray(np.asarray(action, np.float32).reshape(self.action_space.shape))
+        self._state = self._step_fn(self._state, action)
+        obs, info = self._obs_info()
+        terminated, truncated = _flags(self._state)
+        return obs, float(self._state.reward), bool(terminated), bool(truncated), info
+
+    def render(self):
+        return None if self._state is None else np.asarray(self._state.pixels, np.uint8)
+
+
+class MjxVectorEnv(VectorEnv):
+    """N copies of an MJX env in one jitted, vmapped step, with NEXT_STEP autoreset.
+
+    Autoreset (Gymnasium's NEXT_STEP mode): an env that ends (terminated or truncated) on step t
+    is reset on step t + 1, whose action it ignores; that step returns its reset observation and
+    info with reward 0 and terminated / truncated False.
+    """
+
+    def __init__(self, env: Env, num_envs: int, seed: int = 0):
+        self.env = env
+        self.num_envs = int(num_envs)
+        self.single_observation_space, self.single_action_space = _spaces(env)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
+        self.render_mode = None
+        self._key = jax.random.PRNGKey(seed)
+        self._state = None
+        self._autoreset = np.zeros(self.num_envs, bool)
+
+        n = self.num_envs
+        if hasattr(env, "reset_batch"):
+
+            def reset_batch(key):
+                return env.reset_batch(key, n)
+        else:
+
+            def reset_batch(key):
+                return jax.vmap(env.reset)(jax.random.split(key, n))
+
+        def step(state, actions, autoreset, key):
+            key, sub = jax.random.split(key)
+            stepped = jax.vmap(env.step)(state, actions)
+
+            def merge():
+                fresh = reset_batch(sub)
+
+                def pick(f, s):
+                    mask = autoreset.reshape((n,) + (1,) * (s.ndim - 1))
+                    return jnp.where(mask, f, s)
+
+                return jax.tree.map(pick, fresh, stepped)
+
+            state = jax.lax.cond(jnp.any(autoreset), merge, lambda: stepped)
+            return state, key
+
+        self._reset_fn = jax.jit(reset_batch)
+        self._step_fn = jax.jit(step)
+
+    def _obs_info(self) -> tuple[np.ndarray, dict[str, Any]]:
+        s = self._state
+        info = {
+            "ld_state": np.asarray(s.ld_state, np.float32),
+            "ld_state_names": self.env.ld_state_names,
+        }
+        return np.asarray(s.pixels, np.uint8), info
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        if seed is not None:
+            self._key = jax.random.PRNGKey(seed)
+        self._key, sub = jax.random.split(self._key)
+        self._state = self._reset_fn(sub)
+        self._autoreset = np.zeros(self.num_envs, bool)
+        return self._obs_info()
+
+    def step(self, actions):
+        if self._state is None:
+            raise RuntimeError("call reset() before step()")
+        actions = np.asarray(actions, np.float32).reshape(self.action_space.shape)
+        self._state, self._key = self._step_fn(
+            self._state, jnp.asarray(actions), jnp.asarray(self._autoreset), self._key
+        )
+        obs, info = self._obs_info()
+        terminated, truncated = _flags(self._state)
+        self._autoreset = terminated | truncated
+        reward = np.asarray(self._state.reward, np.float32)
+        return obs, reward, terminated, truncated, info

@@ -1,0 +1,151 @@
+"""envs_mjx.to_gymnasium on CartPole: check_env, vector spaces, keys, determinism, autoreset."""
+
+import types
+
+import gymnasium
+import jax
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from gymnasium.vector import AutoresetMode, VectorEnv
+
+import envs_mjx
+from envs_mjx.gym import _flags
+
+N = 4
+
+
+@pytest.fixture(scope="module")
+def single():
+    return envs_mjx.to_gymnasium("CartPole", None, seed=0)
+
+
+@pytest.fixture(scope="module")
+def vec():
+    return envs_mjx.to_gymnasium("CartPole", N, seed=0)
+
+
+@pytest.fixture(scope="module")
+def direct(single):
+    """The wrapped env's own reset / step, jitted here (not the wrapper's functions)."""
+    env = single.unwrapped.env
+    return jax.jit(env.reset), jax.jit(env.step)
+
+
+def test_check_env(single):
+    assert isinstance(single.unwrapped, gymnasium.Env)
+    check_env(single.unwrapped, skip_render_check=True)
+
+
+def test_single_spaces_and_step(single):
+    assert single.observation_space == gymnasium.spaces.Box(0, 255, (64, 64, 3), np.uint8)
+    assert single.action_space == gymnasium.spaces.Box(-1, 1, (1,), np.float32)
+    obs, info = single.reset(seed=5)
+    assert obs.dtype == np.uint8 and obs.shape == (64, 64, 3)
+    assert info["ld_state"].dtype == np.float32 and info["ld_state"].shape == (4,)
+    assert tuple(info["ld_state_names"]) == ("theta", "theta_dot", "x", "x_dot")
+    obs, r, term, trunc, info = single.step(np.array([1.0], np.float32))
+    assert type(r) is float and type(term) is bool and type(trunc) is bool
+    assert obs in single.observation_space
+
+
+def test_ld_state_matches_direct_env(single, direct):
+    reset, step = direct
+    key, sub = jax.random.split(jax.random.PRNGKey(11))
+    state = reset(sub)
+    _, info = single.reset(seed=11)
+    np.testing.assert_array_equal(info["ld_state"], np.asarray(state.ld_state))
+    a = np.array([-0.7], np.float32)
+    state = step(state, a)
+    obs, r, _, _, info = single.step(a)
+    np.testing.assert_array_equal(info["ld_state"], np.asarray(state.ld_state))
+    np.testing.assert_array_equal(obs, np.asarray(state.pixels))
+    assert r == pytest.approx(float(state.reward))
+    # An unseeded reset continues from the split key.
+    _, sub = jax.random.split(key)
+    _, info = single.reset()
+    np.testing.assert_array_equal(info["ld_state"], np.asarray(reset(sub).ld_state))
+
+
+def test_vector_spaces_and_shapes(vec):
+    assert isinstance(vec, VectorEnv)
+    assert vec.num_envs == N
+    assert vec.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
+    assert vec.single_observation_space.shape == (64, 64, 3)
+    assert vec.observation_space.shape == (N, 64, 64, 3)
+    assert vec.observation_space.dtype == np.uint8
+    assert vec.single_action_space == gymnasium.spaces.Box(-1, 1, (1,), np.float32)
+    assert vec.action_space.shape == (N, 1) and vec.action_space.dtype == np.float32
+    obs, info = vec.reset(seed=0)
+    assert obs.shape == (N, 64, 64, 3) and obs.dtype == np.uint8
+    assert obs in vec.observation_space
+    assert info["ld_state"].shape == (N, 4) and info["ld_state"].dtype == np.float32
+    obs, r, term, trunc, info = vec.step(vec.action_space.sample())
+    assert obs.shape == (N, 64, 64, 3) and obs.dtype == np.uint8
+    assert r.shape == (N,) and term.shape == (N,) and trunc.shape == (N,)
+    assert term.dtype == np.bool_ and trunc.dtype == np.bool_
+    assert info["ld_state"].shape == (N, 4)
+
+
+def test_vector_ld_state_matches_direct_env(vec, direct):
+    reset, _ = direct
+    _, sub = jax.random.split(jax.random.PRNGKey(3))
+    keys = jax.random.split(sub, N)  # CartPole's reset_batch: vmap(reset) over split keys
+    _, info = vec.reset(seed=3)
+    want = np.stack([np.asarray(reset(k).ld_state) for k in keys])
+    np.testing.assert_allclose(info["ld_state"], want, rtol=1e-6, atol=1e-7)
+
+
+def test_seed_determinism(single, vec):
+    o1, _ = single.reset(seed=7)
+    o2, _ = single.reset(seed=7)
+    np.testing.assert_array_equal(o1, o2)
+    v1, i1 = vec.reset(seed=7)
+    s1 = vec.step(np.ones((N, 1), np.float32))[0]
+    v2, i2 = vec.reset(seed=7)
+    s2 = vec.step(np.ones((N, 1), np.float32))[0]
+    np.testing.assert_array_equal(v1, v2)
+    np.testing.assert_array_equal(s1, s2)
+    np.testing.assert_array_equal(i1["ld_state"], i2["ld_state"])
+    v3, i3 = vec.reset(seed=8)
+    assert not np.array_equal(v1, v3)
+    assert not np.array_equal(i1["ld_state"], i3["ld_state"])
+
+
+def test_next_step_autoreset(vec):
+    obs, info = vec.reset(seed=0)
+    push = np.ones((N, 1), np.float32)
+    for _ in range(200):
+        obs, _, term, trunc, info = vec.step(push)
+        if term.any():
+            break
+    else:
+        pytest.fail("pushing one way never terminated CartPole")
+    ended = term | trunc
+    assert term[ended].all() and not trunc.any()  # pushed off the track: termination, not time
+    assert np.all(np.abs(info["ld_state"][ended, 2]) > 0.3)  # cart far out
+    last_ld = info["ld_state"]
+    obs2, r2, term2, trunc2, info2 = vec.step(push)
+    # Ended envs: reset observation, reward 0, flags False.
+    assert np.all(r2[ended] == 0.0)
+    assert not term2[ended].any() and not trunc2[ended].any()
+    assert np.all(np.abs(info2["ld_state"][ended]) <= 0.05 + 1e-6)  # CartPole's reset noise
+    assert not np.array_equal(obs2[ended], obs[ended])
+    # The others stepped on: reward > 0, cart moved further right.
+    live = ~ended
+    if live.any():
+        assert np.all(r2[live] > 0)
+        assert np.all(info2["ld_state"][live, 2] > last_ld[live, 2])
+    # And the step after that steps the reset envs normally again.
+    _, r3, _, _, info3 = vec.step(push)
+    assert np.all(r3[ended] > 0)
+    assert np.all(info3["ld_state"][ended, 2] > info2["ld_state"][ended, 2])
+
+
+def test_flags_split_done_by_truncation():
+    s = types.SimpleNamespace(
+        done=np.array([0.0, 1.0, 1.0]), info={"truncation": np.array([0.0, 0.0, 1.0])}
+    )
+    term, trunc = _flags(s)
+    np.testing.assert_array_equal(term, [False, True, False])
+    np.testing.assert_array_equal(trunc, [False, False, True])

@@ -58,7 +58,27 @@ def _flags(state) -> tuple[np.ndarray, np.ndarray]:
     return terminated, truncated
 
 
-class MjxGymEnv(gymnasium.Env):
+def _observation(env: Env, state) -> tuple[np.ndarray, dict[str, Any]]:
+    """(uint8 frames, info with the LD state and its names) of a (batched) state."""
+    info = {"ld_state": np.asarray(state.ld_state, np.float32),
+            "ld_state_names": env.ld_state_names}
+    return np.asarray(state.pixels, np.uint8), info
+
+
+class _KeyedState:
+    """What both env kinds share: the explicit PRNG key, resets from it, the observation."""
+
+    def _obs_info(self) -> tuple[np.ndarray, dict[str, Any]]:
+        return _observation(self.env, self._state)
+
+    def _reset_state(self, seed: int | None) -> None:
+        if seed is not None:
+            self._key = jax.random.PRNGKey(seed)
+        self._key, sub = jax.random.split(self._key)
+        self._state = self._reset_fn(sub)
+
+
+class MjxGymEnv(_KeyedState, gymnasium.Env):
     """One MJX env as a `gymnasium.Env`: pixels in, actions in [-1, 1] out."""
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"]}  # noqa: RUF012
@@ -72,20 +92,9 @@ class MjxGymEnv(gymnasium.Env):
         self._key = jax.random.PRNGKey(seed)
         self._state = None
 
-    def _obs_info(self) -> tuple[np.ndarray, dict[str, Any]]:
-        s = self._state
-        info = {
-            "ld_state": np.asarray(s.ld_state, np.float32),
-            "ld_state_names": self.env.ld_state_names,
-        }
-        return np.asarray(s.pixels, np.uint8), info
-
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
-        if seed is not None:
-            self._key = jax.random.PRNGKey(seed)
-        self._key, sub = jax.random.split(self._key)
-        self._state = self._reset_fn(sub)
+        self._reset_state(seed)
         return self._obs_info()
 
     def step(self, action):
@@ -101,7 +110,7 @@ class MjxGymEnv(gymnasium.Env):
         return None if self._state is None else np.asarray(self._state.pixels, np.uint8)
 
 
-class MjxVectorEnv(VectorEnv):
+class MjxVectorEnv(_KeyedState, VectorEnv):
     """N copies of an MJX env in one jitted, vmapped step, with NEXT_STEP autoreset.
 
     Autoreset (Gymnasium's NEXT_STEP mode): an env that ends (terminated or truncated) on step t
@@ -150,20 +159,9 @@ class MjxVectorEnv(VectorEnv):
         self._reset_fn = jax.jit(reset_batch)
         self._step_fn = jax.jit(step)
 
-    def _obs_info(self) -> tuple[np.ndarray, dict[str, Any]]:
-        s = self._state
-        info = {
-            "ld_state": np.asarray(s.ld_state, np.float32),
-            "ld_state_names": self.env.ld_state_names,
-        }
-        return np.asarray(s.pixels, np.uint8), info
-
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
-        if seed is not None:
-            self._key = jax.random.PRNGKey(seed)
-        self._key, sub = jax.random.split(self._key)
-        self._state = self._reset_fn(sub)
+        self._reset_state(seed)
         self._autoreset = np.zeros(self.num_envs, bool)
         return self._obs_info()
 

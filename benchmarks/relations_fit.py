@@ -114,7 +114,7 @@ def main(argv=None):
             {
                 "case": "ellipse, 2 relations to the stopping rule",
                 "impl": "pytorch reference (reference step counts x measured steps/s)",
-                "wall_s": peer_wall,
+                "modelled_wall_s": peer_wall,
                 "steps": REFERENCE_STEPS,
             }
         )
@@ -127,8 +127,8 @@ def main(argv=None):
             "impl": f"jaml ({objective} objective), median of {len(runs)} seeds",
             **median,
         }
-        if peer_wall:
-            row["speedup_vs_pytorch"] = peer_wall / median["wall_s"]
+        if peer_wall:  # against a modelled time, so in a column of its own
+            row["speedup_vs_modelled_pytorch"] = peer_wall / median["wall_s"]
         rows.append(row)
         print(row, flush=True)
     if not args.no_record:

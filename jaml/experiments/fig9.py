@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -195,31 +194,30 @@ def collect(out: Path, methods) -> dict[str, list[list[dict]]]:
     return runs
 
 
+def _last_step(histories: list[list[dict]]) -> int:
+    """The last analysis step every seed reached."""
+    return min(max(r["step"] for r in h) for h in histories)
+
+
 def _final(histories: list[list[dict]], key) -> list[float]:
     """Per seed: the value at the last analysis step every seed reached."""
-    last = min(max(r["step"] for r in h) for h in histories)
+    last = _last_step(histories)
     return [key(next(r for r in h if r["step"] == last)) for h in histories]
 
 
 def welch_interval(a, b, confidence: float = 0.90) -> tuple[float, float, float]:
-    """(mean(a) − mean(b), low, high): Welch's interval for the difference of two means."""
+    """(mean(a) − mean(b), low, high): Welch's interval for the difference of two means
+    (scipy's unequal-variance t-test)."""
     from scipy import stats
 
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     diff = float(a.mean() - b.mean())
     if a.size < 2 or b.size < 2:
         return diff, float("nan"), float("nan")
-    va, vb = a.var(ddof=1) / a.size, b.var(ddof=1) / b.size
-    se = math.sqrt(va + vb)
-    if se == 0:
+    if a.var() == 0 and b.var() == 0:
         return diff, diff, diff
-    dof = (va + vb) ** 2 / (va**2 / (a.size - 1) + vb**2 / (b.size - 1))
-    half = float(stats.t.ppf(0.5 + confidence / 2, dof)) * se
-    return diff, diff - half, diff + half
-
-
-def _cell(values) -> str:
-    return cell(values, digits=4)
+    ci = stats.ttest_ind(a, b, equal_var=False).confidence_interval(confidence)
+    return diff, float(ci.low), float(ci.high)
 
 
 def plot(runs: dict[str, list[list[dict]]], path: Path) -> None:
@@ -263,13 +261,12 @@ def report(out: Path, methods) -> str:
     position = {m: _final(h, lambda r: r["errors"][POSITION]) for m, h in runs.items()}
     velocity = {m: _final(h, lambda r: r["errors"]["velocity"]) for m, h in runs.items()}
     distortion = {m: _final(h, lambda r: r[DISTORTION]) for m, h in runs.items()}
-    epoch = {m: min(max(r["step"] for r in h) for h in hs) for m, hs in runs.items()
-             for h in hs[:1]}
+    epoch = {m: _last_step(hs) for m, hs in runs.items()}
     lines = ["| method | seeds | epoch | position error (π_rand) | velocity error (π_rand) | "
              "distortion Var(ρ) |", "|---|---|---|---|---|---|"]
     for m in runs:
-        lines.append(f"| {m} | {len(runs[m])} | {epoch[m]} | {_cell(position[m])} | "
-                     f"{_cell(velocity[m])} | {_cell(distortion[m])} |")
+        lines.append(f"| {m} | {len(runs[m])} | {epoch[m]} | {cell(position[m], 4)} | "
+                     f"{cell(velocity[m], 4)} | {cell(distortion[m], 4)} |")
     if "PRED" in runs:
         lines += ["", "Difference from PRED at the last analysis (mean, Welch 90 % interval; "
                   "negative = lower than PRED):", "",

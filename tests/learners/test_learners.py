@@ -25,9 +25,9 @@ TINY = {
     # static LD + 3 steps × dynamic LD
     "DSA": ({"hist": 3, "rnn_hidden": 16, "prior_hidden": 16}, 2 + 3 * 2),
     # 4×4 cells × (where 4 + presence + depth + what 2) + background 2
-    "SPAIR": ({"backbone_filters": (8, 8, 8), "cell_widths": (16,), "glimpse_size": 8,
-               "what_dim": 2, "bg_dim": 2, "object_filters": (8, 8), "object_hidden": 16,
-               "bg_hidden": 16}, 16 * (4 + 1 + 1 + 2) + 2),
+    "SPAIR": ({"backbone_filters": (8, 8, 8), "lateral_widths": (16,), "passthrough": 8,
+               "glimpse_size": 8, "what_dim": 2, "bg_dim": 2, "object_filters": (8, 8),
+               "object_hidden": 16, "bg_hidden": 16}, 16 * (4 + 1 + 1 + 2) + 2),
 }
 
 

@@ -4,6 +4,7 @@
     evaluation.alignment_error(lat_tr, st_tr, lat_te, st_te)     # [D], training-std units
     evaluation.alignment_errors(lat_tr, st_tr, {"pi_curr": (l, s), "pi_rand": (l, s)})
     evaluation.distortion(latents, states)                       # Var ρ over random pairs
+    evaluation.principal_axis_error(R_true, R_hat)               # Rearrange rotation blocks
     evaluation.plot_alignment(history, "alignment.png"); evaluation.plot_distortion(...)
 """
 
@@ -14,9 +15,11 @@ from jaml.evaluation.alignment import (
     alignment_errors,
     fit_regressor,
     regressor_error,
+    rotation_errors,
 )
 from jaml.evaluation.distortion import distortion, distortion_coefficients, sample_pairs
 from jaml.evaluation.plots import history_records, plot_alignment, plot_distortion
+from jaml.evaluation.rotation import principal_axis_error, rearrange_rotation_starts
 
 __all__ = [
     "Regressor",
@@ -29,6 +32,9 @@ __all__ = [
     "history_records",
     "plot_alignment",
     "plot_distortion",
+    "principal_axis_error",
+    "rearrange_rotation_starts",
     "regressor_error",
+    "rotation_errors",
     "sample_pairs",
 ]

@@ -137,7 +137,18 @@ def contact_flags(data: mjx.Data, floor_geom: int, geoms: np.ndarray) -> jax.Arr
     return jnp.any(pair & touching[None], axis=1).astype(jnp.float32)
 
 
-LD_GROUPS = ("position", "velocity", "contact", "other")
+# "orientation": rotation-matrix entries (Rearrange's objects), scored by the reference's
+# rotation error (suite_reference.md §5), not by L1 like positions.
+LD_GROUPS = ("position", "velocity", "contact", "orientation", "other")
+
+
+def drawn_rgba(mj_model: mujoco.MjModel) -> np.ndarray:
+    """float32 [ngeom, 4]: each geom's colour as drawn, its material's where it has one
+    (MuJoCo's rule)."""
+    rgba = np.array(mj_model.geom_rgba, np.float32)
+    has_mat = np.asarray(mj_model.geom_matid) >= 0
+    rgba[has_mat] = mj_model.mat_rgba[mj_model.geom_matid[has_mat]]
+    return rgba
 
 
 class Env(brax_base.Env):
@@ -162,11 +173,7 @@ class Env(brax_base.Env):
         self.mjx_model = mjx.put_model(mj_model)
         self._data0 = mjx.make_data(self.mjx_model)
         self._ld_state_names = tuple(ld_state_names)
-        # Geoms with a material are drawn in the material's colour (MuJoCo's rule).
-        rgba = np.array(mj_model.geom_rgba, np.float32)
-        has_mat = np.asarray(mj_model.geom_matid) >= 0
-        rgba[has_mat] = mj_model.mat_rgba[mj_model.geom_matid[has_mat]]
-        self._base_rgba = rgba
+        self._base_rgba = drawn_rgba(mj_model)
         self.pixels_fn, self.pixels_valid = self._build_pixels_fn(pixels_fn)
 
     # -- Brax interface -------------------------------------------------------------------------
@@ -228,6 +235,7 @@ class Env(brax_base.Env):
         info["pixels_valid"] = jnp.asarray(self.pixels_valid)
         model = self.physics_model(info)
         data = self._initial_data(model, qpos, qvel)
+        data, info = self._settle(model, data, info)
         info = self._after_reset(data, info)
         ld = self._ld_state(data, info)
         _, _, metrics = self._reward_done(data, data, jnp.zeros(self.action_size), info)
@@ -251,8 +259,7 @@ class Env(brax_base.Env):
         info = dict(state.info)
         model = self.physics_model(info)
         prev = state.pipeline_state
-        data = self._apply_action(prev, action, info)
-        data = jax.lax.fori_loop(0, self.n_frames, lambda _, d: mjx.step(model, d), data)
+        data = self._advance(model, prev, action, info)
         ld = self._ld_state(data, info)
         reward, terminated, metrics = self._reward_done(prev, data, action, info)
         t = info["t"] + 1
@@ -305,6 +312,20 @@ class Env(brax_base.Env):
         if self.reset_contacts:
             data = mjx.collision(model, data)
         return data
+
+    def _settle(
+        self, model: mjx.Model, data: mjx.Data, info: dict[str, Any]
+    ) -> tuple[mjx.Data, dict[str, Any]]:
+        """Physics a reset runs before its first state (Rearrange's settle and random-torque
+        steps); may take reset-only entries out of info. Default: none."""
+        return data, info
+
+    def _advance(
+        self, model: mjx.Model, data: mjx.Data, action: jax.Array, info: dict[str, Any]
+    ) -> mjx.Data:
+        """One env step's physics: `_apply_action`, then n_frames mjx.step substeps."""
+        data = self._apply_action(data, action, info)
+        return jax.lax.fori_loop(0, self.n_frames, lambda _, d: mjx.step(model, d), data)
 
     def _sample_reset(self, rng: jax.Array) -> tuple[jax.Array, jax.Array, dict[str, Any]]:
         """Returns (qpos, qvel, info); info must hold "geom_rgba" [ngeom, 4]."""

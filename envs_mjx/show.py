@@ -38,27 +38,29 @@ def format_list(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def rollout_frames(name: str, resets: int, steps: int, seed: int = 0) -> np.ndarray:
+def rollout_frames(name: str, resets: int, steps: int, seed: int = 0, **overrides) -> np.ndarray:
     """uint8 [resets, steps, H, W, 3]: frame 0 is the reset state, frame t the state after t
-    uniform random actions in [-1, 1]; each row is a fresh reset (its own colours, angle, ...)."""
+    uniform random actions in [-1, 1]; each row is a fresh reset (its own colours, angle, ...),
+    from the env's batch reset (`Env.reset_batch`: row i is env slot i, e.g. Rearrange's
+    version i mod 4). `overrides` go to `envs_mjx.make` (e.g. arm="franka")."""
     if resets < 1 or steps < 1:
         raise ValueError(f"resets and steps must be >= 1, got {resets} and {steps}")
-    env = envs_mjx.make(name, pixels="required", episode_length=None)
+    env = envs_mjx.make(name, pixels="required", episode_length=None, **overrides)
 
-    def one(key):
+    def run(key):
         k_reset, k_act = jax.random.split(key)
-        state = env.reset(k_reset)
-        actions = jax.random.uniform(k_act, (steps - 1, env.action_size), minval=-1.0, maxval=1.0)
+        states = env.reset_batch(k_reset, resets)
+        shape = (steps - 1, resets, env.action_size)
+        actions = jax.random.uniform(k_act, shape, minval=-1.0, maxval=1.0)
 
         def body(s, a):
-            s = env.step(s, a)
+            s = jax.vmap(env.step)(s, a)
             return s, s.pixels
 
-        _, frames = jax.lax.scan(body, state, actions)
-        return jnp.concatenate([state.pixels[None], frames], axis=0)
+        _, frames = jax.lax.scan(body, states, actions)  # [steps - 1, resets, ...]
+        return jnp.concatenate([states.pixels[:, None], jnp.swapaxes(frames, 0, 1)], axis=1)
 
-    keys = jax.random.split(jax.random.key(seed), resets)
-    return np.asarray(jax.jit(jax.vmap(one))(keys))
+    return np.asarray(jax.jit(run)(jax.random.key(seed)))
 
 
 def grid(frames: np.ndarray, gap: int = 2) -> np.ndarray:
@@ -72,13 +74,38 @@ def grid(frames: np.ndarray, gap: int = 2) -> np.ndarray:
     return out
 
 
-def show(name: str, out: str | Path, resets: int = 4, steps: int = 8, seed: int = 0) -> Path:
-    """Writes the rollout grid of env `name` to the PNG `out`; returns its path."""
+def show(
+    name: str, out: str | Path, resets: int = 4, steps: int = 8, seed: int = 0, **overrides
+) -> Path:
+    """Writes the rollout grid of env `name` (config `overrides`) to the PNG `out`; returns its
+    path."""
     from PIL import Image
 
     if name not in envs_mjx.ALL_ENVS:
         raise ValueError(f"unknown env {name!r}; valid names: {list(envs_mjx.ALL_ENVS)}")
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(grid(rollout_frames(name, resets, steps, seed))).save(out)
+    Image.fromarray(grid(rollout_frames(name, resets, steps, seed, **overrides))).save(out)
     return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m envs_mjx.show NAME --out PNG [--arm franka] [--version V] ...`"""
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("name")
+    parser.add_argument("--out", required=True)
+    parser.add_argument("--resets", type=int, default=4)
+    parser.add_argument("--steps", type=int, default=8)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--arm", help="Rearrange: reacher or franka")
+    parser.add_argument("--version", type=int, help="Rearrange: one version 0-11 for every row")
+    args = parser.parse_args(argv)
+    overrides = {k: getattr(args, k) for k in ("arm", "version") if getattr(args, k) is not None}
+    print(show(args.name, args.out, args.resets, args.steps, args.seed, **overrides))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,6 +1,7 @@
 """Rebuilds assets/meshes/ and assets/textures/ from two unpacked PyPI wheels (PROVENANCE.md).
 
 python assets/meshes/prepare.py PYBULLET_DATA ROBOSUITE_ASSETS
+python assets/meshes/prepare.py --panda ROBOSUITE_ASSETS    (only meshes/panda/)
 
 PYBULLET_DATA: `pybullet_data/` of the pybullet 3.2.7 wheel; ROBOSUITE_ASSETS:
 `robosuite/models/assets/` of the robosuite 1.5.2 wheel (`pip download --no-deps` each, unzip).
@@ -62,6 +63,37 @@ SURFACES = (
     "dark-wood",
 )
 SURFACE_SIZE = 64
+# The Franka Panda's links (Rearrange-Franka): the collision meshes of franka_ros'
+# panda_description that robosuite ships under `bullet_data/`, in each link's URDF frame (m).
+PANDA_DIR = "bullet_data/panda_description/meshes/collision"
+PANDA_LINKS = ("link0", "link1", "link2", "link3", "link4", "link5", "link6", "link7", "hand",
+               "finger")
+PANDA_MAX_FACES = 120
+
+
+def read_stl(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(verts [V, 3], faces [F, 3]) of a binary STL, corners shared between triangles welded."""
+    raw = path.read_bytes()
+    n = int(np.frombuffer(raw[80:84], np.uint32)[0])
+    rec = np.dtype([("normal", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")])
+    corners = np.frombuffer(raw[84 : 84 + 50 * n], rec)["v"].reshape(-1, 3).astype(np.float64)
+    verts, index = np.unique(np.round(corners, 6), axis=0, return_inverse=True)
+    return verts, index.reshape(-1, 3)
+
+
+def prepare_panda(robosuite_assets: str) -> None:
+    """meshes/panda/<link>.obj: each link's collision mesh decimated to PANDA_MAX_FACES."""
+    out = ASSETS / "meshes" / "panda"
+    out.mkdir(parents=True, exist_ok=True)
+    for link in PANDA_LINKS:
+        verts, faces = read_stl(Path(robosuite_assets) / PANDA_DIR / f"{link}.stl")
+        verts, faces, _ = decimate(verts, faces, PANDA_MAX_FACES)
+        used, faces = np.unique(faces, return_inverse=True)
+        verts, faces = verts[used], faces.reshape(-1, 3)
+        lines = [f"v {x:.5f} {y:.5f} {z:.5f}" for x, y, z in verts]
+        lines += [f"f {a} {b} {c}" for a, b, c in faces + 1]
+        (out / f"{link}.obj").write_text("\n".join(lines) + "\n")
+        print(link, len(verts), "vertices", len(faces), "faces")
 
 
 def prepare_object(path_obj: Path, path_tex: Path, rotation: np.ndarray) -> TexturedMesh:
@@ -98,4 +130,7 @@ def main(pybullet_data: str, robosuite_assets: str) -> None:
 
 
 if __name__ == "__main__":
-    main(*sys.argv[1:3])
+    if sys.argv[1] == "--panda":
+        prepare_panda(sys.argv[2])
+    else:
+        main(*sys.argv[1:3])

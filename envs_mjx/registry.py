@@ -13,6 +13,7 @@ from envs_mjx.domains import (
     incline,
     inverted_pendulum,
     mesh_incline,
+    rearrange,
 )
 
 # name -> (env class, default_config)
@@ -23,6 +24,9 @@ _REGISTRY: dict[str, tuple[type[Env], Callable[[], EnvConfig]]] = {
     "Ant": (ant.Ant, ant.default_config),
     "GeomOnIncline": (incline.GeomOnIncline, incline.default_config),
     "MeshOnIncline": (mesh_incline.MeshOnIncline, mesh_incline.default_config),
+    # arm="reacher" (default) | "franka"; version=0..11 or a batch of versions (i mod 4).
+    "RearrangeGeom": (rearrange.RearrangeGeom, rearrange.default_config),
+    "RearrangeYCB": (rearrange.RearrangeYCB, rearrange.default_config),
 }
 ALL_ENVS: tuple[str, ...] = tuple(_REGISTRY)
 

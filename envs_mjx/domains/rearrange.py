@@ -620,21 +620,30 @@ class Rearrange(Env):
         ctx = ctx.replace(group_size=group_size)
         if ctx.mesh is not None and self.objects_kind == "ycb":
             tables = self._mesh_tables(ctx.mesh.geom)
-            ctx = ctx.replace(mesh=ctx.mesh.replace(**{f: t[slot] for f, t in tables.items()}))
+            mesh = {f: jnp.asarray(t)[slot] for f, t in tables.items()}
+            ctx = ctx.replace(mesh=ctx.mesh.replace(**mesh))
         return ctx
 
-    def _mesh_tables(self, geoms: tuple) -> dict[str, jax.Array]:
-        """The renderer's triangles of `geoms` per version, padded to one count: [V, Gm, T, ...]."""
+    def _mesh_tables(self, geoms: tuple) -> dict[str, np.ndarray]:
+        """The renderer's triangles of `geoms` per version, padded to one count: [V, Gm, T, ...]
+        (host arrays, built once per geom tuple, outside any trace)."""
         from envs_mjx.render.context import mesh_set
 
-        # make_context's default budget (300), which the env's meshes are already under.
-        sets = [mesh_set(m, list(geoms), 300) for m in self._models]
-        n_tri = max(s.valid.shape[1] for s in sets)
-        out = {}
-        for f in ("v0", "e1", "e2", "valid", "uv"):
-            rows = [np.stack([_pad(a, n_tri) for a in np.asarray(getattr(s, f))]) for s in sets]
-            out[f] = jnp.asarray(np.stack(rows))
-        return out
+        cache = self.__dict__.setdefault("_mesh_table_cache", {})
+        if geoms not in cache:
+            with jax.ensure_compile_time_eval():
+                # make_context's default budget (300), which the env's meshes are already under.
+                sets = [mesh_set(m, list(geoms), 300) for m in self._models]
+                arrays = [{f: np.asarray(getattr(s, f)) for f in _MESH_FIELDS} for s in sets]
+            n_tri = max(a["valid"].shape[1] for a in arrays)
+            cache[geoms] = {
+                f: np.stack([np.stack([_pad(g, n_tri) for g in a[f]]) for a in arrays])
+                for f in _MESH_FIELDS
+            }
+        return cache[geoms]
+
+
+_MESH_FIELDS = ("v0", "e1", "e2", "valid", "uv")
 
 
 class RearrangeGeom(Rearrange):

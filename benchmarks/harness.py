@@ -96,6 +96,12 @@ def environment() -> dict:
             capture_output=True,
             check=False,
         ).stdout.strip()
+        # Uncommitted changes to tracked files: the commit alone does not name the code.
+        if commit and not os.environ.get("JAML_COMMIT") and subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=HERE, text=True, capture_output=True, check=False,
+        ).stdout.strip():
+            commit += "+dirty"
     except OSError:
         commit = ""
     return {

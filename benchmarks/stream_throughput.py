@@ -1,19 +1,21 @@
-"""Frames/s through the suite's learning loop (jaml.stream), compile time apart.
+"""Frames/s and epochs/s through the suite's learning loop (jaml.stream), compile time apart.
 
-Three cases per (env, learner), each timed as the median of blocked repeats of a block of
-`--epochs` epochs (the state carried from call to call, as in a run):
-  stream  — `Stream.act`: physics + rendering + policy + PPO update + replay insert
+R runs of one config (seeds) train stacked, as `jaml.stream.run.run_many` trains them: one
+compiled program, the runs vmapped and, with several devices, split across them. Three cases
+per (env, learner, R), each timed as the median of blocked repeats of a block of `--epochs`
+epochs (the state carried from call to call, as in a run):
+  stream  — `Stream.act` of every run: physics + rendering + policy + PPO update + replay insert
             (the frame stream, perf_anchors S3);
-  loop    — the whole epoch: the stream plus `learner_steps` learner updates on replay batches;
-            reported as env frames/s collected and learner frames/s trained;
+  loop    — whole epochs (`run_stacked_epochs`): the stream plus `learner_steps` learner
+            updates on replay batches; env frames/s collected, learner frames/s trained and
+            epochs/s, all aggregated over the R runs;
   learner — the learner updates alone, on batches sampled from the filled replay.
-There is no peer for the whole loop in this run (the paper's PyBullet + PyTorch stack is not
-installed here); its anchors are the reference figures in `reference/perf_anchors.md` (PyBullet
-TinyRenderer cartpole ≈ 698 frames/s per core before any learning). The learner's PyTorch peer is
-`benchmarks/learner_throughput.py`.
+The peer of a row is the same code at R = 1 in the same run (`speedup_vs_one_run`): the loop
+before runs were stacked. There is no peer for the whole loop from the paper's PyBullet +
+PyTorch stack here; its anchors are in `reference/perf_anchors.md`.
 
-    python benchmarks/stream_throughput.py                       # GPU sizes (64 envs · 32 steps)
-    python benchmarks/stream_throughput.py --quick --no-record   # tiny CPU smoke run
+    python benchmarks/stream_throughput.py --runs 1 6 12             # GPU, paper's 64 envs
+    python benchmarks/stream_throughput.py --quick --no-record       # tiny CPU smoke run
 """
 
 from __future__ import annotations
@@ -29,11 +31,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import harness
 from jaml.stream import build, for_env
-from jaml.stream.loop import _act, _learn_step, _loops_on_host
+from jaml.stream.loop import (
+    _act_runs,
+    _learn_step_runs,
+    run_stacked_epochs,
+    runs_mesh,
+    stack_runs,
+)
 
 
-def bench(env: str, learner: str, num_envs: int, epochs: int, frames_per_batch: int,
-          replay_slots: int, repeats: int) -> list[dict]:
+def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_per_batch: int,
+          replay_slots: int, repeats: int, devices: int | None) -> list[dict]:
     defaults = for_env(env, learner)
     minibatches = defaults.ppo.num_minibatches
     minibatches = minibatches if num_envs % minibatches == 0 else 1
@@ -42,58 +50,86 @@ def bench(env: str, learner: str, num_envs: int, epochs: int, frames_per_batch: 
                               epochs=max(1000, replay_slots // num_envs),
                               ppo=dataclasses.replace(defaults.ppo, num_minibatches=minibatches))
     stream = build(config)
-    holder = {"s": stream.init(jax.random.PRNGKey(0))}
+    mesh = runs_mesh(runs, jax.local_devices()[:devices])
+    host_loop = jax.default_backend() == "cpu"
+    holder = {"s": stack_runs([stream.init(jax.random.PRNGKey(seed)) for seed in range(runs)])}
     # Fill the replay first so the loop case trains on every epoch.
-    fill = config.fill_epochs
-    holder["s"], _ = stream.run_epochs(holder["s"], fill)
+    holder["s"], _ = run_stacked_epochs(stream, holder["s"], config.fill_epochs, mesh=mesh)
 
     def stream_only():
         s = holder["s"]
         for _ in range(epochs):
-            s, _, _ = _act(stream, s)
+            s, _, _ = _act_runs(stream, s)
         holder["s"] = s
         return s.replay.size
 
     def loop():
-        holder["s"], m = stream.run_epochs(holder["s"], epochs)
+        holder["s"], m = run_stacked_epochs(stream, holder["s"], epochs, mesh=mesh)
         return m
 
-    def learner_only():
+    learn_runs = jax.jit(stream.learn_runs, donate_argnums=0)
+
+    def learner_only():  # as the loop trains: one call per epoch (host loop: per step)
         s = holder["s"]
-        ls, key = s.learner, s.key
-        for i in range(epochs * config.learner_steps):
-            ls, _ = _learn_step(stream, ls, s.replay, jax.random.fold_in(key, i))
+        ls = s.learner
+        for k in jax.random.split(jax.random.PRNGKey(1), (epochs, runs)):
+            if host_loop:
+                for step_keys in jax.vmap(stream.learn_keys)(k).swapaxes(0, 1):
+                    ls, _ = _learn_step_runs(stream, ls, s.replay, step_keys)
+            else:
+                ls, _ = learn_runs(ls, s.replay, k)
         holder["s"] = s.replace(learner=ls)
         return ls.step
 
-    env_frames = epochs * num_envs * config.rollout_len
-    learner_frames = epochs * config.learner_steps * stream.batch_sequences * stream.seq_len
+    env_frames = runs * epochs * num_envs * config.rollout_len
+    learner_frames = runs * epochs * config.learner_steps * stream.batch_sequences * stream.seq_len
     rows = []
-    for case, fn in (("stream", stream_only), ("loop", loop), ("learner", learner_only)):
+    cases = (("stream", stream_only), ("loop", loop), ("learner", learner_only))
+    for case, fn in cases:
+        if case != "loop" and mesh.size > 1:
+            continue  # the pieces are jitted for one device; only the loop is sharded
         t = harness.measure(fn, repeats=repeats)
         row = {
             "case": f"{env}/{learner}/{case}",
             "impl": "jaml",
             "batch": num_envs,
+            "runs": runs,
+            "devices": mesh.size,
             "compile_s": t["compile_s"],
             "median_s": t["median_s"],
             "epochs_per_call": epochs,
-            "host_loop": _loops_on_host(),
+            "host_loop": host_loop,
         }
         if case in ("stream", "loop"):
             row["env_frames_per_s"] = env_frames / t["median_s"]
         if case in ("loop", "learner"):
             row["learner_frames_per_s"] = learner_frames / t["median_s"]
+        if case == "loop":
+            row["epochs_per_s"] = runs * epochs / t["median_s"]
         rows.append(row)
         print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()},
               flush=True)
     return rows
 
 
+def _speedups(rows: list[dict]) -> None:
+    """speedup_vs_one_run: aggregate throughput over the same case at R = 1, one device."""
+    for row in rows:
+        base = next((r for r in rows if r["case"] == row["case"] and r["runs"] == 1
+                     and r["devices"] == 1), None)
+        if base is not None:
+            key = "env_frames_per_s" if "env_frames_per_s" in row else "learner_frames_per_s"
+            row["speedup_vs_one_run"] = row[key] / base[key]
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", nargs="+", default=["CartPole"])
     parser.add_argument("--learners", nargs="+", default=["VAE_rpl"])
+    parser.add_argument("--runs", type=int, nargs="+", default=[1],
+                        help="stacked runs (seeds) per program; one row set per value")
+    parser.add_argument("--devices", type=int, default=None,
+                        help="devices to split the runs across (default: all, at most R)")
     parser.add_argument("--num-envs", type=int, default=64)
     parser.add_argument("--epochs", type=int, default=10, help="epochs per timed call")
     parser.add_argument("--frames-per-batch", type=int, default=1024)
@@ -107,13 +143,18 @@ def main(argv=None) -> int:
         args.replay_slots, args.repeats = 16, 1
     for env in args.envs:
         for learner in args.learners:
-            rows = bench(env, learner, args.num_envs, args.epochs, args.frames_per_batch,
-                         args.replay_slots, args.repeats)
+            rows = []
+            for runs in args.runs:
+                rows += bench(env, learner, runs, args.num_envs, args.epochs,
+                              args.frames_per_batch, args.replay_slots, args.repeats,
+                              args.devices)
+            _speedups(rows)
             if not args.no_record:  # after each pair: a run cut short keeps what it measured
                 harness.record("stream_throughput", rows,
-                               notes="frames/s through jaml.stream: stream = act (physics+"
-                                     "render+PPO+replay), loop = whole epoch, learner = "
-                                     "updates only")
+                               notes="frames/s through jaml.stream, R stacked runs: stream = "
+                                     "act (physics+render+PPO+replay), loop = whole epochs, "
+                                     "learner = updates only; speedup_vs_one_run = aggregate "
+                                     "over R = 1 on one device, same run")
     return 0
 
 

@@ -1,7 +1,16 @@
 """The evaluation suite's domains: MJCF models stepped in MJX, with LD state and pixels."""
 
 from envs_mjx.base import Env, EnvConfig, State
-from envs_mjx.gym import to_gymnasium
 from envs_mjx.registry import ALL_ENVS, default_config, make
 
 __all__ = ["ALL_ENVS", "Env", "EnvConfig", "State", "default_config", "make", "to_gymnasium"]
+
+
+def __getattr__(name: str):
+    # Gymnasium is imported on first use of `to_gymnasium` only: the domains, the learning loop
+    # and the benchmarks do not need it (and a GPU image without it still runs them).
+    if name == "to_gymnasium":
+        from envs_mjx.gym import to_gymnasium
+
+        return to_gymnasium
+    raise AttributeError(f"module 'envs_mjx' has no attribute {name!r}")

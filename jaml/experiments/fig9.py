@@ -132,8 +132,8 @@ def _write_json(path: Path, value) -> None:
 
 
 def run_method(out: Path, method: str, seeds, penalty: Penalty, run_dir=None) -> None:
-    """Every seed of one method (compiled once: the seeds share the Stream's program)."""
-    from jaml.stream.run import run
+    """Every seed of one method, trained together (`run_many`: one program, seeds vmapped)."""
+    from jaml.stream.run import run_many
 
     learner, relation_set = METHODS[method]
     latent_penalty = None
@@ -141,19 +141,20 @@ def run_method(out: Path, method: str, seeds, penalty: Penalty, run_dir=None) ->
     if relation_set is not None:
         latent_penalty, used = penalty_for(out, relation_set, penalty)
         described |= dataclasses.asdict(penalty) | {"relations_used": [i + 1 for i in used]}
-    for seed in seeds:
-        directory = (run_dir or out / method) / f"seed_{seed}"
+    directories = [(run_dir or out / method) / f"seed_{seed}" for seed in seeds]
+    for directory in directories:
         recorded = directory / "penalty.json"
         if recorded.exists() and json.loads(recorded.read_text()) != described:
             raise ValueError(f"{directory} was run with {recorded.read_text()}, not {described}; "
                              "use the same options or a new --out")
         _write_json(recorded, described)
-        started = time.perf_counter()
-        summary = run(_config(learner, seed), directory, progress=False,
-                      latent_penalty=latent_penalty)
+    started = time.perf_counter()
+    summaries = run_many([_config(learner, seed) for seed in seeds], directories,
+                         progress=False, latent_penalty=latent_penalty)
+    for seed, summary in zip(seeds, summaries, strict=True):
         phases = ", ".join(f"{k} {v:.0f}s" for k, v in summary["seconds_by_phase"].items())
-        print(f"{method} seed {seed}: {summary['status']} in "
-              f"{time.perf_counter() - started:.0f}s ({phases})", flush=True)
+        print(f"{method} seed {seed}: {summary['status']} ({phases})", flush=True)
+    print(f"{method}: {len(seeds)} seeds in {time.perf_counter() - started:.0f}s", flush=True)
 
 
 def choose_weight(out: Path, weights, pilot_seed: int, form: str) -> Penalty:

@@ -5,14 +5,28 @@
     s = stream.build(cfg)
     state = s.init(jax.random.PRNGKey(0))
     state, metrics = s.run_epochs(state, 10)       # 10 epochs, metrics stacked [10]
-    report = s.evaluate(state, key, pi_rand_key)   # alignment errors on π_rand / π_curr
+    report = stream.evaluate(s, state, key, pi_rand_key)   # alignment on π_rand / π_curr
 
-`jaml suite` (jaml.stream.run) wraps this with a run directory and resumable checkpoints.
+    # Six seeds as one program (vmapped; split across the local devices on GPU/TPU):
+    states = stream.stack_runs([s.init(jax.random.PRNGKey(i)) for i in range(6)])
+    states, metrics = stream.run_stacked_epochs(s, states, 10)   # metrics [10, 6]
+
+`jaml suite` (jaml.stream.run) wraps this with a run directory and resumable checkpoints;
+`jaml.stream.run.run_many` trains several seeds together, each in its own directory.
 """
 
+from jaml.stream.analysis import evaluate
 from jaml.stream.collect import Episodes, rollout
 from jaml.stream.config import POLICIES, StreamConfig, for_env
-from jaml.stream.loop import Stream, StreamState, build
+from jaml.stream.loop import (
+    Stream,
+    StreamState,
+    build,
+    run_stacked_epochs,
+    runs_mesh,
+    stack_runs,
+    unstack_runs,
+)
 from jaml.stream.ppo import PPO, PPOConfig, PPOState, random_policy
 from jaml.stream.replay import Columns, Replay
 
@@ -28,7 +42,12 @@ __all__ = [
     "StreamConfig",
     "StreamState",
     "build",
+    "evaluate",
     "for_env",
     "random_policy",
     "rollout",
+    "run_stacked_epochs",
+    "runs_mesh",
+    "stack_runs",
+    "unstack_runs",
 ]

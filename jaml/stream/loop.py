@@ -7,30 +7,31 @@ One epoch, a pure jitted function of `StreamState`:
   3. the rollout's columns go into the replay;
   4. once the replay is full (reference §3), the learner takes `learner_steps` gradient steps,
      each on `frames_per_batch // L` sequences of L frames sampled from the replay.
-`Stream.run_epochs(state, n)` runs n epochs: device loops of up to 32 epochs on GPU/TPU, a host
-loop of jitted pieces on CPU. `Stream.evaluate` is the
-periodic analysis (reference §5): encode sequences from the replay (regressor training set) and
-from fresh rollouts of a random policy (π_rand, the same set every time: a fixed key) and of the
-current policy (π_curr), then fit a fresh regressor latents → LD state of each sequence's last
-input frame and report its per-dimension test error, plus the distortion ρ on π_rand.
+Several independent runs of one Stream (configs that differ only in their seeds) train as one
+program: their states stack along a leading runs axis R, `Stream.epochs` vmaps the epoch over
+them, and `run_stacked_epochs` runs n epochs in device loops of up to 32 (GPU/TPU; the runs
+sharded across a device mesh) or a host loop of jitted pieces (CPU). `Stream.run_epochs` is the
+one-run case. The periodic analysis is `jaml.stream.analysis`.
 
-Shapes: E envs, T rollout_len, L = learner.seq_len, B sequences per learner batch, Z latent.
+Shapes: R runs, E envs, T rollout_len, L = learner.seq_len, B sequences per learner batch.
 """
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
-import math
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
+from jax.sharding import Mesh, NamedSharding
+from jax.sharding import PartitionSpec as P
 
 import envs_mjx
 from envs_mjx.base import Env, State
-from jaml import evaluation, learners
+from jaml import learners
 from jaml.stream import collect
 from jaml.stream import ppo as ppo_lib
 from jaml.stream import replay as replay_lib
@@ -163,123 +164,133 @@ class Stream:
     def learn_step(self, learner_state: learners.TrainState, replay: replay_lib.Replay,
                    key: jax.Array):
         """One learner gradient step on a batch sampled from the replay."""
+        batch, k_step = self.sample_batch(replay, key)
+        return self.train_step(learner_state, batch, k_step)
+
+    def sample_batch(self, replay: replay_lib.Replay, key: jax.Array):
+        """(frames, actions) of one learner batch from the replay, and the step's own key."""
         k_sample, k_step = jax.random.split(key)
         seqs = replay_lib.sample(replay, k_sample, self.batch_sequences, self.seq_len)
-        return self.train_step(learner_state, (seqs.frames, seqs.actions), k_step)
+        return (seqs.frames, seqs.actions), k_step
 
     def learn_keys(self, key: jax.Array) -> jax.Array:
         return jax.random.split(key, self.config.learner_steps)
 
-    def epoch(self, s: StreamState) -> tuple[StreamState, dict[str, jax.Array]]:
-        """One whole epoch as a pure function (the learner trains once the replay is full)."""
-        s, k_learn, metrics = self.act(s)
+    def learn_runs(self, learner_state: learners.TrainState, replay: replay_lib.Replay,
+                   keys: jax.Array):
+        """The epoch's `learner_steps` gradient steps of R stacked runs (keys [R]); metrics [R],
+        averaged over the steps.
+
+        Each step samples every run's batch at once (vmapped), then takes the runs' gradient
+        steps one after another (`lax.map`): vmapped, the runs' different conv weights become
+        one grouped convolution, which GPU libraries run far slower than R ordinary ones
+        (H100, VAE_rpl at the paper's batch: 6 runs vmapped trained 33K frames/s in all, one run
+        alone 76K)."""
+
+        def step(learner_state, step_keys):
+            batch, k_step = jax.vmap(self.sample_batch)(replay, step_keys)
+            return jax.lax.map(lambda args: self.train_step(*args),
+                               (learner_state, batch, k_step))
+
+        per_step = jax.vmap(self.learn_keys)(keys).swapaxes(0, 1)  # [learner_steps, R, 2]
+        learner_state, m = jax.lax.scan(step, learner_state, per_step)
+        return learner_state, jax.tree.map(lambda x: jnp.mean(x, axis=0), m)
+
+    def epochs(self, states: StreamState) -> tuple[StreamState, dict[str, jax.Array]]:
+        """One whole epoch of R stacked runs (leading axis R), as a pure function; metrics [R].
+
+        Each run acts, then trains once its replay is full. The runs of one Stream fill their
+        replays on the same epoch, so one branch (run 0's) serves all: a vmapped `cond` would
+        run the learner steps on every epoch and select."""
+        states, k_learn, metrics = jax.vmap(self.act)(states)
 
         def train(ls):
-            ls, m = jax.lax.scan(lambda c, k: self.learn_step(c, s.replay, k), ls,
-                                 self.learn_keys(k_learn))
-            return ls, jax.tree.map(jnp.mean, m)
+            return self.learn_runs(ls, states.replay, k_learn)
 
         def skip(ls):
-            shapes = jax.eval_shape(train, ls)[1]
-            return ls, jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype), shapes)
+            return ls, _skipped(self, states, k_learn)
 
-        learner_state, learner_metrics = jax.lax.cond(s.replay.full, train, skip, s.learner)
+        learner_state, learner_metrics = jax.lax.cond(_replays_full(states), train, skip,
+                                                      states.learner)
         metrics.update({f"learner/{k}": v for k, v in learner_metrics.items()})
-        return s.replace(learner=learner_state), metrics
+        return states.replace(learner=learner_state), metrics
 
     def run_epochs(self, s: StreamState, n: int) -> tuple[StreamState, dict[str, jax.Array]]:
-        """n epochs; metrics stacked [n]. The state is donated (do not reuse the argument).
-
-        On GPU/TPU the epochs run in jitted device loops of up to 32 epochs. On CPU they are a
-        Python loop over jitted `act` and `learn_step` calls computing the same function with
-        the same keys: XLA:CPU runs convolutions inside a while loop 20–40× slower than outside
-        one (measured: two VAE steps 12.4 s in a scan vs 0.8 s unrolled, 2-core EPYC, jaxlib
-        0.10.2).
-        """
-        if not _loops_on_host():
-            blocks = []
-            for start in range(0, n, _BLOCK):
-                k = min(_BLOCK, n - start)
-                s, metrics = _run_epochs(self, s, jnp.asarray(k, jnp.int32))
-                blocks.append(jax.tree.map(lambda x, k=k: x[:k], metrics))
-            return s, jax.tree.map(lambda *x: jnp.concatenate(x), *blocks)
-        history = []
-        for _ in range(n):
-            s, k_learn, metrics = _act(self, s)
-            if bool(s.replay.full):
-                steps = [None] * self.config.learner_steps
-                learner_state = s.learner
-                for i, k in enumerate(self.learn_keys(k_learn)):
-                    learner_state, steps[i] = _learn_step(self, learner_state, s.replay, k)
-                s = s.replace(learner=learner_state)
-                learner_metrics = jax.tree.map(lambda *v: jnp.mean(jnp.stack(v)), *steps)
-            else:
-                shapes = jax.eval_shape(self.learn_step, s.learner, s.replay, k_learn)[1]
-                learner_metrics = jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan), shapes)
-            metrics.update({f"learner/{k}": v for k, v in learner_metrics.items()})
-            history.append(metrics)
-        return s, jax.tree.map(lambda *v: jnp.stack(v), *history)
-
-    # -- analysis -----------------------------------------------------------------------------
-
-    def encoded_replay(self, s: StreamState, key: jax.Array, num: int):
-        """(latents [N, Z], LD targets [N, D]) of N ≈ num sequences sampled from the replay."""
-        keys = jax.random.split(key, _chunks(num, self.config.num_envs))
-        return _map_chunks(_replay_chunk, self, s, None, keys)
-
-    def encoded_rollouts(self, s: StreamState, key: jax.Array, num: int, random: bool):
-        """(latents, LD targets) of sequences cut from fresh rollouts: reset, `eval_transient`
-        steps, then consecutive L-step rollouts per env (reference §5, start t = 0)."""
-        k_start, k_chunks = jax.random.split(key)
-        random = jnp.asarray(random)
-        env_state = _rollout_start(self, s, k_start, random)
-        keys = jax.random.split(k_chunks, _chunks(num, self.config.num_envs))
-        return _map_chunks(_rollout_chunk, self, s, (env_state, random), keys)
-
-    def evaluate(self, s: StreamState, key: jax.Array, pi_rand_key: jax.Array) -> dict:
-        """Alignment errors [D] on π_rand (and π_curr under PPO), the held-out validation error,
-        and the distortion of the π_rand latents. Host-side numbers (floats / lists)."""
-        cfg = self.config
-        k_train, k_curr, k_reg = jax.random.split(key, 3)
-        train = self.encoded_replay(s, k_train, cfg.eval_train)
-        tests = {"pi_rand": self.encoded_rollouts(s, pi_rand_key, cfg.eval_rand, random=True)}
-        if cfg.policy == "ppo" and cfg.eval_curr > 0:
-            tests["pi_curr"] = self.encoded_rollouts(s, k_curr, cfg.eval_curr, random=False)
-        errors = evaluation.alignment_errors(
-            *train, tests, seed=int(jax.random.randint(k_reg, (), 0, 2**31 - 1)),
-            seq_len=self.seq_len, num_iterations=cfg.regressor_iterations,
-            normalize=cfg.regressor_normalize,
-        )
-        lat, st = tests["pi_rand"]
-        return {
-            "errors": {k: np.asarray(v).tolist() for k, v in errors.items()},
-            "distortion": float(evaluation.distortion(lat, st[:, self.distortion_columns])),
-        }
-
-    @property
-    def distortion_columns(self) -> np.ndarray:
-        """Indices of the LD state's τ^true entries for the distortion (all by default)."""
-        names = list(self.env.ld_state_names)
-        return np.asarray([names.index(n) for n in self.config.distortion_dims] or
-                          range(len(names)))
-
-    def reconstructions(self, s: StreamState, key: jax.Array, num: int = 8):
-        """(true, decoded) last frames of `num` replay sequences, uint8 [num, 64, 64, 3] each."""
-        seqs = replay_lib.sample(s.replay, key, num, self.seq_len)
-        recon = _reconstruct(self, s.learner.variables, seqs.frames, seqs.actions)
-        return (np.asarray(seqs.frames[:, -1]),
-                np.asarray(jnp.round(recon[:, -1] * 255)).astype(np.uint8))
+        """n epochs of one run; metrics stacked [n]. The state is donated (do not reuse the
+        argument). `run_stacked_epochs` with R = 1: see it for the device and host loops."""
+        states, metrics = run_stacked_epochs(self, stack_runs([s]), n)
+        return unstack_runs(states)[0], jax.tree.map(lambda x: x[:, 0], metrics)
 
 
 _PPO_METRICS = ("total_loss", "policy_loss", "v_loss", "entropy_loss", "kl_mean")
 
 
-def _loops_on_host() -> bool:
-    return jax.default_backend() == "cpu"
+# -- several runs at once ---------------------------------------------------------------------
+
+def stack_runs(states: list[StreamState]) -> StreamState:
+    """R runs' states → one state whose leaves carry a leading runs axis [R, ...]."""
+    return jax.tree.map(lambda *x: jnp.stack(x), *states)
 
 
-def _chunks(num: int, num_envs: int) -> int:
-    return max(1, math.ceil(num / num_envs))
+def unstack_runs(states: StreamState) -> list[StreamState]:
+    """The inverse of `stack_runs`: one state per run."""
+    count = states.epoch.shape[0]
+    return [jax.tree.map(lambda x, i=i: x[i], states) for i in range(count)]
+
+
+def runs_mesh(num_runs: int, devices=None) -> Mesh:
+    """A 1-D mesh ("runs") over the first min(num_runs, len(devices)) devices (default: all
+    local devices of the default backend). With `jax.distributed` initialised, pass
+    `jax.devices()` to span every host's devices."""
+    devices = list(jax.local_devices() if devices is None else devices)
+    return Mesh(np.asarray(devices[:max(1, min(num_runs, len(devices)))]), (RUNS_AXIS,))
+
+
+RUNS_AXIS = "runs"
+
+
+def run_stacked_epochs(stream: Stream, states: StreamState, n: int, *, mesh: Mesh | None = None,
+                       host_loop: bool | None = None):
+    """n epochs of R independent runs of one Stream, stacked along a leading axis.
+
+    Returns (states, metrics [n, R] per name). The states are donated (do not reuse the
+    argument). Every run computes exactly what it would alone (the same keys and functions),
+    so one call trains R seeds with one compiled program.
+
+    The device loop (default on GPU/TPU) runs up to 32 epochs per call inside `fori_loop`.
+    With a mesh of several devices (default: `runs_mesh(R)`) the states are sharded along its
+    "runs" axis and each device runs the same one-device program on its own runs, launched
+    from one host thread per device so the devices work at once; nothing is communicated
+    between them. R is padded to a multiple of the mesh size with copies of the first run,
+    dropped afterwards.
+    One program per device rather than one `shard_map` program: XLA's GPU compiler crashed
+    (segfault, jaxlib 0.11.2, 2×H200) compiling the `shard_map` form of this loop, which XLA:CPU
+    compiled and ran correctly.
+    The host loop (default on CPU) is a Python loop over jitted, vmapped `act` and `learn_step`
+    calls computing the same function with the same keys: XLA:CPU runs convolutions inside a
+    while loop 20–40× slower than outside one (measured: two VAE steps 12.4 s in a scan vs
+    0.8 s unrolled, 2-core EPYC, jaxlib 0.10.2).
+    """
+    count = int(states.epoch.shape[0])
+    if host_loop is None:
+        host_loop = jax.default_backend() == "cpu"
+    if host_loop:
+        return _host_loop(stream, states, n)
+    mesh = runs_mesh(count) if mesh is None else mesh
+    padded = -count % mesh.size
+    if padded:
+        states = jax.tree.map(
+            lambda x: jnp.concatenate([x, jnp.repeat(x[:1], padded, axis=0)]), states)
+    if mesh.size > 1:
+        states = jax.device_put(states, NamedSharding(mesh, P(RUNS_AXIS)))
+    blocks = []
+    for start in range(0, n, _BLOCK):
+        k = min(_BLOCK, n - start)
+        states, metrics = _blocks_per_device(stream, mesh, states, k)
+        blocks.append(jax.tree.map(lambda x, k=k: x[:k, :count], metrics))
+    if padded:
+        states = jax.tree.map(lambda x: x[:count], states)
+    return states, jax.tree.map(lambda *x: jnp.concatenate(x), *blocks)
 
 
 # Epochs per device call: the loop runs n ≤ _BLOCK epochs with n a traced bound, so one
@@ -287,93 +298,94 @@ def _chunks(num: int, num_envs: int) -> int:
 _BLOCK = 32
 
 
-@jax.jit(static_argnums=0, donate_argnums=1)
-def _run_epochs(stream: Stream, s: StreamState, n: jax.Array):
-    """n (traced, ≤ _BLOCK) epochs; metrics in [_BLOCK] buffers, NaN past n."""
-    shapes = jax.eval_shape(stream.epoch, s)[1]
+def _blocks_per_device(stream: Stream, mesh: Mesh, states: StreamState, n: int):
+    """`_device_block` on each device's runs; the states stay sharded as they came."""
+    if mesh.size == 1:
+        return _device_block(stream, states, jnp.asarray(n, jnp.int32))
+    leaves, treedef = jax.tree.flatten(states)
+
+    def on(device):
+        local = [next(s.data for s in x.addressable_shards if s.device == device)
+                 for x in leaves]
+        out = _device_block_kept(stream, treedef.unflatten(local),
+                                 jax.device_put(jnp.asarray(n, jnp.int32), device))
+        return jax.block_until_ready(out)
+
+    # One host thread per device: a GPU while loop's trip test syncs with the thread that
+    # launched it, so a single thread would run the devices one after another.
+    with concurrent.futures.ThreadPoolExecutor(mesh.size) as pool:
+        outs = list(pool.map(on, mesh.devices.flat))
+    sharding = NamedSharding(mesh, P(RUNS_AXIS))
+
+    def gather(*parts):
+        shape = (sum(p.shape[0] for p in parts), *parts[0].shape[1:])
+        return jax.make_array_from_single_device_arrays(shape, sharding, list(parts))
+
+    new = jax.tree.map(gather, *(o[0] for o in outs))
+    metrics = jax.tree.map(lambda *m: np.concatenate([np.asarray(x) for x in m], axis=1),
+                           *(o[1] for o in outs))
+    return new, metrics
+
+
+def _block(stream: Stream, states: StreamState, n: jax.Array):
+    """n (traced, ≤ _BLOCK) epochs of stacked runs; metrics in [_BLOCK, R] buffers, NaN past n."""
+    shapes = jax.eval_shape(stream.epochs, states)[1]
     buffers = jax.tree.map(lambda x: jnp.full((_BLOCK, *x.shape), jnp.nan, x.dtype), shapes)
 
     def body(i, carry):
-        s, buffers = carry
-        s, metrics = stream.epoch(s)
-        return s, jax.tree.map(lambda b, v: b.at[i].set(v), buffers, metrics)
+        states, buffers = carry
+        states, metrics = stream.epochs(states)
+        return states, jax.tree.map(lambda b, v: b.at[i].set(v), buffers, metrics)
 
-    return jax.lax.fori_loop(0, n, body, (s, buffers))
+    return jax.lax.fori_loop(0, n, body, (states, buffers))
+
+
+_device_block = jax.jit(_block, static_argnums=0, donate_argnums=1)
+# For one device's shard of sharded states: its buffers are views of the sharded arrays, which
+# are not donated.
+_device_block_kept = jax.jit(_block, static_argnums=0)
+
+
+def _host_loop(stream: Stream, states: StreamState, n: int):
+    history = []
+    for _ in range(n):
+        states, k_learn, metrics = _act_runs(stream, states)
+        if bool(_replays_full(states)):
+            keys = jax.vmap(stream.learn_keys)(k_learn)  # [R, learner_steps, 2]
+            learner_state, steps = states.learner, []
+            for i in range(stream.config.learner_steps):
+                learner_state, m = _learn_step_runs(stream, learner_state, states.replay,
+                                                    keys[:, i])
+                steps.append(m)
+            states = states.replace(learner=learner_state)
+            learner_metrics = jax.tree.map(lambda *v: jnp.mean(jnp.stack(v), axis=0), *steps)
+        else:
+            learner_metrics = _skipped(stream, states, k_learn)
+        metrics.update({f"learner/{k}": v for k, v in learner_metrics.items()})
+        history.append(metrics)
+    return states, jax.tree.map(lambda *v: jnp.stack(v), *history)
+
+
+def _replays_full(states: StreamState) -> jax.Array:
+    """Whether the stacked runs' replays are full (run 0's: they fill on the same epoch).
+    Vmapped: the replay's sizes are properties of one run's shapes."""
+    return jax.vmap(lambda replay: replay.full)(states.replay)[0]
+
+
+def _skipped(stream: Stream, states: StreamState, k_learn: jax.Array):
+    """NaN learner metrics [R] for an epoch without learner steps (the replay still fills)."""
+    shapes = jax.eval_shape(stream.learn_runs, states.learner, states.replay, k_learn)[1]
+    return jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype), shapes)
 
 
 @jax.jit(static_argnums=0, donate_argnums=1)
-def _act(stream: Stream, s: StreamState):
-    return stream.act(s)
+def _act_runs(stream: Stream, states: StreamState):
+    return jax.vmap(stream.act)(states)
 
 
 @jax.jit(static_argnums=0, donate_argnums=1)
-def _learn_step(stream: Stream, learner_state, replay, key):
-    return stream.learn_step(learner_state, replay, key)
-
-
-def _map_chunks(producer, stream: Stream, s: StreamState, carry, keys):
-    """For each key, `producer(stream, s, carry, key) -> (carry, Columns [E, L])`, encoded;
-    returns (latents [N, Z], LD targets [N, D]) with N = E · len(keys).
-
-    A host loop over one jitted producer and one jitted encoder on every backend: a scan over
-    the chunks would compile the encoder once per data set (its length is static), and the
-    per-chunk dispatch costs milliseconds against seconds of compilation (and XLA:CPU runs
-    convolutions inside loops slowly, see `Stream.run_epochs`)."""
-    outs = []
-    for k in keys:
-        carry, seqs = producer(stream, s, carry, k)
-        outs.append(_encode(stream, s.learner.variables, seqs))
-    return tuple(jnp.concatenate(x) for x in zip(*outs, strict=True))
-
-
-@jax.jit(static_argnums=0)
-def _reconstruct(stream: Stream, variables, frames, actions):
-    # Module level, keyed on the Stream: a `jax.jit` made per call would recompile per analysis.
-    return stream.learner.reconstruct(variables, frames, actions)
-
-
-@jax.jit(static_argnums=0)
-def _encode(stream: Stream, variables, seqs: replay_lib.Columns):
-    z = stream.learner.encode(variables, seqs.frames, seqs.actions)
-    return z, seqs.ld[:, stream.hist - 1]
-
-
-@jax.jit(static_argnums=0)
-def _replay_chunk(stream: Stream, s: StreamState, carry, key):
-    return carry, replay_lib.sample(s.replay, key, stream.config.num_envs, stream.seq_len)
-
-
-@jax.jit(static_argnums=0)
-def _rollout_chunk(stream: Stream, s: StreamState, carry, key):
-    """carry (env state, traced π_rand flag) → L steps, one test sequence per env."""
-    env_state, random = carry
-    L = stream.seq_len
-    env_state, _, columns, _ = collect.rollout(stream.env, env_state,
-                                               stream.test_policy(s.ppo, random), key, L)
-    return (env_state, random), jax.vmap(replay_lib.window, (0, None, None))(columns, 0, L)
-
-
-@jax.jit(static_argnums=0)
-def _rollout_start(stream: Stream, s: StreamState, key: jax.Array, random: jax.Array) -> State:
-    k_reset, k_transient = jax.random.split(key)
-    env_state = collect.reset(stream.env, k_reset, stream.config.num_envs)
-    if stream.config.eval_transient:
-        env_state = _steps(stream.env, env_state, stream.test_policy(s.ppo, random), k_transient,
-                           stream.config.eval_transient)
-    return env_state
-
-
-def _steps(env: Env, state: State, policy, key: jax.Array, n: int) -> State:
-    """n steps with auto-reset, recording nothing (transients before test sequences)."""
-    k_reset, k_steps = jax.random.split(key)
-    fresh = collect.reset(env, k_reset, state.reward.shape[0])
-
-    def body(state, k):
-        actions, _ = policy(state.obs, k)
-        nstate = jax.vmap(env.step)(state, actions)
-        return collect._swap_in(nstate.done > 0, fresh, nstate), None
-
-    return jax.lax.scan(body, state, jax.random.split(k_steps, n))[0]
+def _learn_step_runs(stream: Stream, learner_state, replay, keys):
+    return jax.vmap(stream.learn_step)(learner_state, replay, keys)
 
 
 _BUILT: dict = {}

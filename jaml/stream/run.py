@@ -31,8 +31,16 @@ from tqdm.auto import tqdm
 
 from jaml._files import write_json
 from jaml.evaluation import plots
+from jaml.stream import analysis
 from jaml.stream.config import StreamConfig
-from jaml.stream.loop import Stream, StreamState, build
+from jaml.stream.loop import (
+    Stream,
+    StreamState,
+    build,
+    run_stacked_epochs,
+    stack_runs,
+    unstack_runs,
+)
 
 log = logging.getLogger("jaml.stream")
 
@@ -127,101 +135,175 @@ def _checkpointer(out: Path) -> ocp.CheckpointManager:
     )
 
 
+class _RunDir:
+    """One run's directory: its config check, keys, state (restored or fresh), logs, analyses,
+    checkpoints and summary."""
+
+    def __init__(self, stream: Stream, config: StreamConfig, out: Path):
+        self.config, self.out = config, out
+        resolved = config.to_dict()
+        config_path = out / "config.json"
+        if config_path.exists() and json.loads(config_path.read_text()) != resolved:
+            raise ValueError(f"{out} holds a run with a different configuration ({config_path}); "
+                             "resume with the same options or choose a new --out")
+        out.mkdir(parents=True, exist_ok=True)
+        write_json(config_path, resolved)
+        (out / "recon").mkdir(exist_ok=True)
+        k_init, self.k_eval, self.pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
+        self.manager = _checkpointer(out)
+        if self.manager.latest_step() is not None:
+            abstract = jax.eval_shape(stream.init, k_init)
+            flat = self.manager.restore(self.manager.latest_step(),
+                                        args=ocp.args.StandardRestore(_flat(abstract)))
+            self.state = _unflat(abstract, flat)
+            log.info("resuming %s at epoch %d", out, int(self.state.epoch))
+        else:
+            self.state = stream.init(k_init)
+        self.epoch = int(self.state.epoch)
+        _truncate_jsonl(out / "metrics.jsonl", lambda r: r["epoch"] <= self.epoch)
+        self.history = _truncate_jsonl(out / "history.jsonl", lambda r: r["step"] <= self.epoch)
+        self.logs = _Logs(out)
+        self.status = "running"
+        self.targets = [t for t in analysis_epochs(config) if t > self.epoch]
+        self.started = time.perf_counter()
+        # Wall seconds of this call by phase (first calls include compilation); the epochs of
+        # runs trained together are shared among them.
+        self.seconds = {"epochs": 0.0, "analysis": 0.0, "checkpoint": 0.0}
+
+    def analyse(self, stream: Stream, state: StreamState) -> None:
+        """Analysis, figures and an atomic checkpoint at the current epoch."""
+        with _timed(self.seconds, "analysis"):
+            records = _analyse(stream, state, jax.random.fold_in(self.k_eval, self.epoch),
+                               self.pi_rand_key, list(stream.env.ld_state_names), self.out,
+                               self.epoch)
+        self.history += records
+        with (self.out / "history.jsonl").open("a") as f:
+            f.writelines(json.dumps(r) + "\n" for r in records)
+        self.logs.analysis(self.epoch, records)
+        _figures(self.history, self.out)
+        with _timed(self.seconds, "checkpoint"):
+            self.manager.save(self.epoch, args=ocp.args.StandardSave(_flat(state)))
+            self.manager.wait_until_finished()
+
+    def close(self) -> dict:
+        self.logs.close()
+        self.manager.close()
+        last = max((h["step"] for h in self.history), default=-1)
+        summary = {
+            "status": self.status,
+            "epoch": self.epoch,
+            "seconds_this_call": time.perf_counter() - self.started,
+            "seconds_by_phase": self.seconds,
+            "checkpoint_epoch": self.manager.latest_step(),
+            "final": [r for r in self.history if r["step"] == last],
+        }
+        write_json(self.out / "summary.json", summary)
+        return summary
+
+
 def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | None = None,
         latent_penalty=None) -> dict:
     """Runs (or resumes) the loop in `out`; returns the summary. `stop_after` ends the process's
     work after that many epochs in this call (a deliberate interruption, for tests and jobs
-    with a time limit); the next call resumes."""
-    out = Path(out)
-    stream = build(config, latent_penalty)  # every config problem surfaces before any file
-    resolved = config.to_dict()
-    config_path = out / "config.json"
-    if config_path.exists() and json.loads(config_path.read_text()) != resolved:
-        raise ValueError(f"{out} holds a run with a different configuration ({config_path}); "
-                         "resume with the same options or choose a new --out")
-    out.mkdir(parents=True, exist_ok=True)
-    write_json(config_path, resolved)
-    (out / "recon").mkdir(exist_ok=True)
+    with a time limit); the next call resumes. A non-finite loss raises `NonFiniteLoss`."""
+    summary = run_many([config], [out], progress=progress, stop_after=stop_after,
+                       latent_penalty=latent_penalty)[0]
+    if summary["status"] == "nonfinite":
+        raise NonFiniteLoss(summary["error"])
+    return summary
 
-    key = jax.random.PRNGKey(config.seed)
-    k_init, k_eval, pi_rand_key = jax.random.split(key, 3)
-    manager = _checkpointer(out)
-    state = None
-    if manager.latest_step() is not None:
-        abstract = jax.eval_shape(stream.init, k_init)
-        flat = manager.restore(manager.latest_step(),
-                               args=ocp.args.StandardRestore(_flat(abstract)))
-        state = _unflat(abstract, flat)
-        log.info("resuming %s at epoch %d", out, int(state.epoch))
-    if state is None:
-        state = stream.init(k_init)
-    epoch = int(state.epoch)
-    _truncate_jsonl(out / "metrics.jsonl", lambda r: r["epoch"] <= epoch)
-    history = _truncate_jsonl(out / "history.jsonl", lambda r: r["step"] <= epoch)
 
-    logs = _Logs(out)
-    names = list(stream.env.ld_state_names)
-    bar = tqdm(total=config.epochs, initial=epoch, desc=f"{config.env} {config.learner}",
-               unit="epoch", disable=not progress)
-    status, started, budget = "running", time.perf_counter(), stop_after
-    # Wall seconds of this call by phase (first calls include compilation).
-    seconds = {"epochs": 0.0, "analysis": 0.0, "checkpoint": 0.0}
+def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
+             stop_after: int | None = None, latent_penalty=None, mesh=None) -> list[dict]:
+    """Runs (or resumes) several runs of one program, each in its own directory, trained
+    together: the configs may differ only in their seeds, and their states are stacked and
+    advanced by one compiled loop (`run_stacked_epochs`; several devices split the runs, see
+    `mesh`). Runs resumed at different epochs first advance in groups by epoch until they meet.
+    Returns one summary per run; a run whose loss turns non-finite stops alone (status
+    "nonfinite", its last good checkpoint kept) and the others go on."""
+    if len(configs) != len(outs) or not configs:
+        raise ValueError(f"run_many needs one out directory per config, got {len(configs)} "
+                         f"configs and {len(outs)} directories")
+    keys = {c.program_key() for c in configs}
+    if len(keys) > 1:
+        raise ValueError("runs trained together must differ only in their seeds; got "
+                         f"{len(keys)} different configurations")
+    outs = [Path(o) for o in outs]
+    if len(set(outs)) < len(outs):
+        raise ValueError(f"two runs share an out directory: {[str(o) for o in outs]}")
+    stream = build(configs[0], latent_penalty)  # every config problem surfaces before any file
+    runs = [_RunDir(stream, c, o) for c, o in zip(configs, outs, strict=True)]
+    label = f"{configs[0].env} {configs[0].learner}" + (f" ×{len(runs)}" if len(runs) > 1 else "")
+    bar = tqdm(total=configs[0].epochs * len(runs), initial=sum(r.epoch for r in runs),
+               desc=label, unit="epoch", disable=not progress)
+    budget = {id(r): stop_after for r in runs}
+    # The runs being trained and their stacked states, kept stacked from one analysis to the
+    # next while the group stays the same (the common case: all runs at one epoch).
+    members: list[_RunDir] = []
+    states = None
     try:
-        for target in [t for t in analysis_epochs(config) if t > epoch]:
-            while epoch < target:
-                n = target - epoch if budget is None else min(target - epoch, budget)
-                if n == 0:
-                    status = "interrupted"
-                    break
-                with _timed(seconds, "epochs"):
-                    state, metrics = stream.run_epochs(state, n)
-                    metrics = jax.tree.map(np.asarray, metrics)
-                _check_finite(metrics, epoch)
-                logs.epochs(epoch, metrics)
-                epoch += n
-                budget = None if budget is None else budget - n
-                bar.update(n)
-                bar.set_postfix(ret=f"{_last_finite(metrics['episode_return']):.3g}",
-                                loss=f"{_last_finite(metrics['learner/loss']):.4g}")
-            if status == "interrupted":
+        while True:
+            for r in runs:
+                if r.status == "running" and not r.targets:
+                    r.status = "finished"
+            active = [r for r in runs if r.status == "running"]
+            if not active:
                 break
-            with _timed(seconds, "analysis"):
-                records = _analyse(stream, state, jax.random.fold_in(k_eval, epoch),
-                                   pi_rand_key, names, out, epoch)
-            history += records
-            with (out / "history.jsonl").open("a") as f:
-                f.writelines(json.dumps(r) + "\n" for r in records)
-            logs.analysis(epoch, records)
-            _figures(history, out)
-            with _timed(seconds, "checkpoint"):
-                manager.save(epoch, args=ocp.args.StandardSave(_flat(state)))
-                manager.wait_until_finished()
-        else:
-            status = "finished"
-    except NonFiniteLoss:
-        status = "nonfinite"
-        raise
+            epoch = min(r.epoch for r in active)
+            group = [r for r in active if r.epoch == epoch]
+            target = group[0].targets[0]
+            n = target - epoch if stop_after is None else min(target - epoch, budget[id(group[0])])
+            if n == 0:
+                for r in group:
+                    r.status = "interrupted"
+                continue
+            if group != members:
+                if states is not None:
+                    for r, state in zip(members, unstack_runs(states), strict=True):
+                        r.state = state
+                states = stack_runs([r.state for r in group])
+                members = group
+                for r in group:
+                    r.state = None
+            tic = time.perf_counter()
+            states, metrics = run_stacked_epochs(stream, states, n, mesh=mesh)
+            metrics = jax.tree.map(np.asarray, metrics)
+            share = (time.perf_counter() - tic) / len(group)
+            bar.update(n * len(group))
+            for i, r in enumerate(group):
+                mine = {k: v[:, i] for k, v in metrics.items()}
+                r.seconds["epochs"] += share
+                if stop_after is not None:
+                    budget[id(r)] -= n
+                error = _non_finite(mine, r.epoch)
+                if error:  # this run stops; its stacked state is dropped at the next regroup
+                    r.status, r.error = "nonfinite", error
+                    log.error("%s: %s", r.out, error)
+                    continue
+                r.logs.epochs(r.epoch, mine)
+                r.epoch += n
+                if r.epoch == target:
+                    r.targets.pop(0)
+                    r.analyse(stream, jax.tree.map(lambda x, i=i: x[i], states))
+            bar.set_postfix(ret=f"{_last_finite(metrics['episode_return'][:, 0]):.3g}",
+                            loss=f"{_last_finite(metrics['learner/loss'][:, 0]):.4g}")
     except KeyboardInterrupt:
-        status = "interrupted"
+        for r in runs:
+            r.status = "interrupted" if r.status == "running" else r.status
         raise
     except BaseException:
-        status = "failed"
+        for r in runs:
+            r.status = "failed" if r.status == "running" else r.status
         raise
     finally:
         bar.close()
-        logs.close()
-        manager.close()
-        summary = {
-            "status": status,
-            "epoch": epoch,
-            "seconds_this_call": time.perf_counter() - started,
-            "seconds_by_phase": seconds,
-            "checkpoint_epoch": manager.latest_step(),
-            "final": [r for r in history if r["step"] == max((h["step"] for h in history),
-                                                            default=-1)],
-        }
-        write_json(out / "summary.json", summary)
-    return summary
+        summaries = []
+        for r in runs:
+            summary = r.close()
+            if r.status == "nonfinite":
+                summary["error"] = r.error
+            summaries.append(summary)
+    return summaries
 
 
 @contextlib.contextmanager
@@ -239,28 +321,30 @@ def _last_finite(values: np.ndarray) -> float:
     return float(finite[-1]) if finite.size else float("nan")
 
 
-def _check_finite(metrics: dict[str, np.ndarray], first_epoch: int) -> None:
+def _non_finite(metrics: dict[str, np.ndarray], first_epoch: int) -> str | None:
+    """The message for a learner loss that became NaN/inf in these epochs, else None."""
     loss = metrics["learner/loss"]
     training = metrics["learner/training"] > 0
     bad = training & ~np.isfinite(loss)
-    if bad.any():
-        raise NonFiniteLoss(
-            f"learner loss became non-finite at epoch {first_epoch + int(np.argmax(bad)) + 1}; "
+    if not bad.any():
+        return None
+    return (f"learner loss became non-finite at epoch {first_epoch + int(np.argmax(bad)) + 1}; "
             "the run stopped and its last good checkpoint is kept (lower the learning rate or "
-            "check the inputs, then start a new --out or resume from the checkpoint)"
-        )
+            "check the inputs, then start a new --out or resume from the checkpoint)")
 
 
 def _analyse(stream: Stream, state: StreamState, key, pi_rand_key, names, out: Path,
              epoch: int) -> list[dict]:
-    report = stream.evaluate(state, key, pi_rand_key)
+    report = analysis.evaluate(stream, state, key, pi_rand_key)
     errors = {k: v for k, v in report["errors"].items() if k != "validation"}
     records = plots.history_records(epoch, stream.config.learner, errors, names,
                                     report["distortion"], run=stream.config.seed)
     # The held-out replay rows' error, for choices made without the test sets.
     validation = dict(zip(names, report["errors"]["validation"], strict=True))
     records = [r | {"validation": validation} for r in records]
-    truth, recon = stream.reconstructions(state, jax.random.fold_in(key, 7))
+    truth, recon = analysis.reconstructions(stream, state, jax.random.fold_in(key, 7))
+    if hasattr(stream.learner, "draw_boxes"):  # SPAIR: its boxes drawn over the true frames
+        truth = stream.learner.draw_boxes(state.learner.variables, truth)
     _save_png(out / "recon" / f"epoch_{epoch:06d}.png", [truth, recon])
     return records
 

@@ -24,13 +24,13 @@ def _fast_compiling_prng():
         yield
 
 
-def tiny(**overrides):
+def tiny(learner="VAE_rpl", **overrides):
     """Two fill epochs, then training; analyses at epochs 2, 4, 6."""
     settings = dict(num_envs=8, rollout_len=4, replay_slots=16, frames_per_batch=8,
                     learner_steps=2, epochs=6, eval_every=2, eval_train=16, eval_rand=16,
                     eval_curr=16, eval_transient=3, regressor_iterations=20,
                     ppo=stream.PPOConfig(num_minibatches=4))
-    return stream.for_env("CartPole", "VAE_rpl", **{**settings, **overrides})
+    return stream.for_env("CartPole", learner, **{**settings, **overrides})
 
 
 @pytest.mark.parametrize(

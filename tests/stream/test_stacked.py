@@ -1,0 +1,89 @@
+"""Stacked runs: R seeds trained as one program must compute what each seed computes alone.
+
+The reference is the host loop of one run (jitted `act` and `learn_step` per call, the CPU
+path): the device loop (`fori_loop` over whole epochs, the GPU/TPU path) over R vmapped runs,
+with the runs split across two devices (the two XLA:CPU devices of
+tests/conftest.py), must reproduce every run's PPO and learner losses.
+"""
+
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from jaml import stream
+from jaml.stream import run as run_lib
+from tests.stream.test_loop import tiny
+
+SEEDS = (0, 1, 2)
+EPOCHS = 2
+METRICS = ("learner/loss", "learner/training", "ppo/total_loss", "ppo/v_loss")
+
+
+def small():
+    """VAE_v0 (no kept slots), one learner step per epoch: epoch 1 fills the replay (the learner
+    waits), epoch 2 trains."""
+    return tiny(learner="VAE_v0", replay_slots=16, learner_steps=1)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _fast_compiling_prng():
+    with jax.threefry_partitionable(False):  # see tests/learners/conftest.py
+        yield
+
+
+def test_runs_split_across_two_devices_match_each_run_alone():
+    s = stream.build(small())
+    alone = []
+    for seed in SEEDS:
+        _, metrics = s.run_epochs(s.init(jax.random.PRNGKey(seed)), EPOCHS)
+        alone.append(metrics)
+    # Three runs on two devices: one device steps two runs, the other one run and a padding copy.
+    assert jax.device_count() == 2, "tests/conftest.py asks XLA for two CPU devices"
+    mesh = stream.runs_mesh(len(SEEDS))
+    states = stream.stack_runs([s.init(jax.random.PRNGKey(seed)) for seed in SEEDS])
+    states, together = stream.run_stacked_epochs(s, states, EPOCHS, mesh=mesh, host_loop=False)
+    assert mesh.size == 2 and states.epoch.tolist() == [EPOCHS] * len(SEEDS)
+    assert [np.asarray(m["learner/training"]).tolist() for m in alone] == [[0, 1]] * 3
+    for k in METRICS:
+        # vmapped per-device programs fuse differently from the host loop: float rounding only
+        np.testing.assert_allclose(np.asarray(together[k]).T, [m[k] for m in alone],
+                                   rtol=2e-5, atol=1e-6, err_msg=k)
+
+
+def test_runs_trained_together_must_share_their_program(tmp_path):
+    with pytest.raises(ValueError, match="differ only in their seeds"):
+        run_lib.run_many([tiny(), tiny(seed=1, learner_steps=3)], [tmp_path / "a", tmp_path / "b"])
+    with pytest.raises(ValueError, match="share an out directory"):
+        run_lib.run_many([tiny(), tiny(seed=1)], [tmp_path / "a", tmp_path / "a"])
+    with pytest.raises(ValueError, match="one out directory per config"):
+        run_lib.run_many([tiny(), tiny(seed=1)], [tmp_path / "a"])
+
+
+@pytest.mark.slow
+def test_run_many_writes_what_each_run_writes_alone_and_regroups_resumed_runs(tmp_path):
+    """Seed 1 resumed at epoch 2 while seed 0 starts: they advance apart, then together."""
+    configs = [tiny(seed=0), tiny(seed=1)]
+    run_lib.run(configs[1], tmp_path / "many" / "1", progress=False, stop_after=2)
+    summaries = run_lib.run_many(configs, [tmp_path / "many" / "0", tmp_path / "many" / "1"],
+                                 progress=False)
+    assert [s["status"] for s in summaries] == ["finished", "finished"]
+    for seed, config in enumerate(configs):
+        run_lib.run(config, tmp_path / "alone" / str(seed), progress=False)
+        for name in ("metrics.jsonl", "history.jsonl"):
+            many = (tmp_path / "many" / str(seed) / name).read_text().splitlines()
+            single = (tmp_path / "alone" / str(seed) / name).read_text().splitlines()
+            assert len(many) == len(single), name
+            for a, b in zip(many, single, strict=True):
+                a, b = json.loads(a), json.loads(b)
+                np.testing.assert_allclose(_numbers(a), _numbers(b), rtol=1e-4, atol=1e-5)
+
+
+def _numbers(record) -> list[float]:
+    """Every number in a JSON record, in order (NaN kept)."""
+    if isinstance(record, dict):
+        return [x for v in record.values() for x in _numbers(v)]
+    if isinstance(record, list):
+        return [x for v in record for x in _numbers(v)]
+    return [float(record)] if isinstance(record, int | float) else []

@@ -42,6 +42,28 @@ def test_report_averages_seeds_with_a_t_interval(tmp_path):
     assert "InvertedPendulum" not in text  # no runs, no section
     assert (tmp_path / "fig2.md").read_text() == text
     assert (tmp_path / "CartPole_alignment.png").stat().st_size > 0
+    assert (tmp_path / "fig2.png").stat().st_size > 0
+
+
+def test_figure_panels_average_the_groups_of_each_domain(tmp_path):
+    """Pendulums: position and velocity panels; locomotion: one panel, the mean of its groups'
+    means (contacts weigh as much as the many position dims)."""
+    _write_run(tmp_path / "CartPole" / "PRED" / "seed_0", "PRED", 0, [0.1, 0.5, 0.3, 0.7])
+    records = [r for r in fig2.figure_records(tmp_path, ["CartPole"], ["PRED"])
+               if r["step"] == 20]
+    assert records[0]["errors"] == {"CartPole position": 0.2, "CartPole velocity": 0.6}
+    assert records[0]["learner"] == "PRED"
+    assert fig2.panels("Ant").keys() == {"Ant (pos, vel, contacts)"}
+    assert len(fig2.panels("Ant")["Ant (pos, vel, contacts)"]) == 3
+
+
+def test_grid_configs_follow_the_paper_per_family():
+    cart = fig2.config_for("CartPole", "beta-VAE_20", 3, fig2.SCALE, fig2.SCHEDULE)
+    ant = fig2.config_for("Ant", "PRED", 0, fig2.SCALE, fig2.SCHEDULE)
+    assert (cart.learner, cart.learner_overrides["beta"], cart.seed) == ("beta-VAE", 20.0, 3)
+    assert (cart.epochs, cart.learner_steps, cart.replay_slots) == (1000, 10, 4992)
+    assert (ant.epochs, ant.learner_steps, ant.rollout_len) == (300, 50, 64)
+    assert cart.frames_per_batch == ant.frames_per_batch == 1024
 
 
 def test_groups_come_from_the_domains_metadata_not_the_names():

@@ -6,7 +6,8 @@
     OUT/history.jsonl     one record per analysis and test set (`jaml.evaluation.plots` format)
     OUT/tensorboard/      the same scalars
     OUT/checkpoints/      Orbax: the whole StreamState (envs, PPO, learner, optimiser states,
-                          replay, RNG key), written atomically after every analysis
+                          replay, RNG key) as named arrays, written atomically after every
+                          analysis (`jaml.stream.checkpoint`)
     OUT/alignment.png, distortion.png, recon/epoch_XXXXXX.png, summary.json
 
 Restarted with the same config, a run resumes from its newest checkpoint and drops the JSON-lines
@@ -26,12 +27,11 @@ from pathlib import Path
 
 import jax
 import numpy as np
-import orbax.checkpoint as ocp
 from tqdm.auto import tqdm
 
 from jaml._files import write_json
 from jaml.evaluation import plots
-from jaml.stream import analysis
+from jaml.stream import analysis, checkpoint
 from jaml.stream.config import StreamConfig
 from jaml.stream.loop import (
     Stream,
@@ -113,28 +113,6 @@ class _Logs:
         self.tb.close()
 
 
-def _flat(state) -> dict[str, jax.Array]:
-    """The state's non-empty leaves by position (Orbax refuses zero-size arrays, and mjx.Data
-    has some, e.g. `act` for a model without actuator state)."""
-    leaves = jax.tree.leaves(state)
-    return {f"leaf_{i:05d}": x for i, x in enumerate(leaves) if np.prod(x.shape) > 0}
-
-
-def _unflat(abstract, flat: dict[str, jax.Array]):
-    leaves, treedef = jax.tree.flatten(abstract)
-    restored = [flat[f"leaf_{i:05d}"] if np.prod(a.shape) > 0 else jax.numpy.zeros(a.shape,
-                                                                                   a.dtype)
-                for i, a in enumerate(leaves)]
-    return jax.tree.unflatten(treedef, restored)
-
-
-def _checkpointer(out: Path) -> ocp.CheckpointManager:
-    return ocp.CheckpointManager(
-        (out / "checkpoints").absolute(),
-        options=ocp.CheckpointManagerOptions(max_to_keep=2, create=True),
-    )
-
-
 class _RunDir:
     """One run's directory: its config check, keys, state (restored or fresh), logs, analyses,
     checkpoints and summary."""
@@ -150,12 +128,9 @@ class _RunDir:
         write_json(config_path, resolved)
         (out / "recon").mkdir(exist_ok=True)
         k_init, self.k_eval, self.pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
-        self.manager = _checkpointer(out)
+        self.manager = checkpoint.manager(out)
         if self.manager.latest_step() is not None:
-            abstract = jax.eval_shape(stream.init, k_init)
-            flat = self.manager.restore(self.manager.latest_step(),
-                                        args=ocp.args.StandardRestore(_flat(abstract)))
-            self.state = _unflat(abstract, flat)
+            self.state = checkpoint.restore(self.manager, jax.eval_shape(stream.init, k_init))
             log.info("resuming %s at epoch %d", out, int(self.state.epoch))
         else:
             self.state = stream.init(k_init)
@@ -182,8 +157,7 @@ class _RunDir:
         self.logs.analysis(self.epoch, records)
         _figures(self.history, self.out)
         with _timed(self.seconds, "checkpoint"):
-            self.manager.save(self.epoch, args=ocp.args.StandardSave(_flat(state)))
-            self.manager.wait_until_finished()
+            checkpoint.save(self.manager, self.epoch, state)
 
     def close(self) -> dict:
         self.logs.close()

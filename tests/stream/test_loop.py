@@ -14,7 +14,7 @@ import orbax.checkpoint as ocp
 import pytest
 
 from jaml import stream
-from jaml.stream import loop
+from jaml.stream import checkpoint, loop
 from jaml.stream import run as run_lib
 
 
@@ -65,21 +65,41 @@ def test_a_run_directory_refuses_another_config(tmp_path):
         run_lib.run(tiny(), tmp_path, progress=False)
 
 
-def test_checkpoint_round_trip_keeps_every_leaf(tmp_path):
+def test_checkpoint_round_trip_keeps_every_leaf_by_name(tmp_path):
     s = stream.build(tiny())
     state = s.init(jax.random.PRNGKey(0))
     empty = [x for x in jax.tree.leaves(state) if x.size == 0]
     assert empty, "mjx.Data carries zero-size fields; the checkpoint must handle them"
-    manager = run_lib._checkpointer(tmp_path)
-    manager.save(0, args=ocp.args.StandardSave(run_lib._flat(state)))
-    manager.wait_until_finished()
-    abstract = jax.eval_shape(s.init, jax.random.PRNGKey(0))
-    flat = manager.restore(0, args=ocp.args.StandardRestore(run_lib._flat(abstract)))
-    restored = run_lib._unflat(abstract, flat)
+    mgr = checkpoint.manager(tmp_path)
+    checkpoint.save(mgr, 0, state)
+    assert "learner.params.conv.conv0.kernel" in set(mgr.item_metadata(0).keys())
+    assert mgr.metadata().custom_metadata["format"] == checkpoint.FORMAT
+    restored = checkpoint.restore(mgr, jax.eval_shape(s.init, jax.random.PRNGKey(0)))
     assert jax.tree.structure(restored) == jax.tree.structure(state)
     for a, b in zip(jax.tree.leaves(state), jax.tree.leaves(restored), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    manager.close()
+    # Other shapes (more envs) or another learner's state: refused, naming what differs.
+    wider = stream.build(tiny(num_envs=16, replay_slots=32))
+    with pytest.raises(checkpoint.CheckpointMismatch, match=r"other shapes .*saved \(8"):
+        checkpoint.restore(mgr, jax.eval_shape(wider.init, jax.random.PRNGKey(0)))
+    other = stream.build(tiny(learner="SVAE", rollout_len=24, frames_per_batch=24))
+    with pytest.raises(checkpoint.CheckpointMismatch, match=r"missing .*unexpected"):
+        checkpoint.restore(mgr, jax.eval_shape(other.init, jax.random.PRNGKey(0)))
+    mgr.close()
+
+
+def test_format_1_checkpoints_with_positional_names_still_restore(tmp_path):
+    s = stream.build(tiny())
+    state = s.init(jax.random.PRNGKey(0))
+    leaves = jax.tree.leaves(state)
+    old = {f"leaf_{i:05d}": x for i, x in enumerate(leaves) if x.size > 0}
+    mgr = checkpoint.manager(tmp_path)
+    mgr.save(0, args=ocp.args.StandardSave(old))
+    mgr.wait_until_finished()
+    restored = checkpoint.restore(mgr, jax.eval_shape(s.init, jax.random.PRNGKey(0)))
+    for a, b in zip(leaves, jax.tree.leaves(restored), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    mgr.close()
 
 
 def test_test_policy_is_uniform_or_current_by_a_traced_flag():
@@ -133,12 +153,10 @@ def _records(path):
 
 def _learner_params(out, config):
     s = stream.build(config)
-    abstract = jax.eval_shape(s.init, jax.random.PRNGKey(config.seed))
-    manager = run_lib._checkpointer(out)
-    flat = manager.restore(manager.latest_step(),
-                           args=ocp.args.StandardRestore(run_lib._flat(abstract)))
-    manager.close()
-    return run_lib._unflat(abstract, flat).learner.params
+    mgr = checkpoint.manager(out)
+    params = checkpoint.restore(mgr, jax.eval_shape(s.init, jax.random.PRNGKey(config.seed)))
+    mgr.close()
+    return params.learner.params
 
 
 @pytest.mark.slow

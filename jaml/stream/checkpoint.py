@@ -1,0 +1,102 @@
+"""Run checkpoints: the whole `StreamState` as named arrays in an Orbax `CheckpointManager`.
+
+Each leaf is saved under its pytree path ("learner.params.conv0.kernel", "env.data.qpos", …),
+so a checkpoint says what it holds and one written by a different `StreamState` is refused with
+the names that differ, rather than failing on a shape at some leaf index. The manager's root
+metadata records `FORMAT`; format 1 (leaves named by position, "leaf_00042", before commit
+e2a3174's successor) is still read when the leaf count matches. Zero-size leaves (mjx.Data has
+some, e.g. `act` of a model without actuator state) are not saved (Orbax refuses them) and are
+restored as zeros. Saving is atomic: Orbax writes a step to a temporary directory and renames it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import orbax.checkpoint as ocp
+
+FORMAT = 2
+_POSITIONAL = "leaf_"
+
+
+class CheckpointMismatch(ValueError):
+    """The checkpoint holds a different state than the one this code builds."""
+
+
+def manager(out: Path, max_to_keep: int = 2) -> ocp.CheckpointManager:
+    """The manager of OUT/checkpoints (created if missing)."""
+    return ocp.CheckpointManager(
+        (Path(out) / "checkpoints").absolute(),
+        options=ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True),
+        metadata={"format": FORMAT, "content": "jaml.stream.StreamState"},
+    )
+
+
+def named(state) -> dict[str, jax.Array]:
+    """{path name: leaf} of the state's non-empty leaves."""
+    leaves = jax.tree_util.tree_flatten_with_path(state)[0]
+    return {_name(path): x for path, x in leaves if np.prod(x.shape) > 0}
+
+
+def save(mgr: ocp.CheckpointManager, step: int, state) -> None:
+    mgr.save(step, args=ocp.args.StandardSave(named(state)))
+    mgr.wait_until_finished()
+
+
+def restore(mgr: ocp.CheckpointManager, abstract, step: int | None = None):
+    """The state saved at `step` (default: the latest), shaped like `abstract` (an
+    `eval_shape` of the state). Raises CheckpointMismatch if the names differ."""
+    step = mgr.latest_step() if step is None else step
+    saved = set(mgr.item_metadata(step).keys())
+    paths_leaves, treedef = jax.tree_util.tree_flatten_with_path(abstract)
+    names = [_name(p) if np.prod(a.shape) > 0 else None for p, a in paths_leaves]
+    wanted = {n for n in names if n is not None}
+    if saved != wanted and all(k.startswith(_POSITIONAL) for k in saved) \
+            and len(saved) == len(wanted):
+        # Format 1: the same leaves, named by their index among all leaves.
+        positional = {n: f"{_POSITIONAL}{i:05d}" for i, n in enumerate(names) if n is not None}
+        if set(positional.values()) == saved:
+            target = {positional[n]: a for n, (_, a) in zip(names, paths_leaves, strict=True)
+                      if n is not None}
+            flat = mgr.restore(step, args=ocp.args.StandardRestore(target))
+            return _build(treedef, paths_leaves, names, {n: flat[p] for n, p in
+                                                         positional.items()})
+    if saved != wanted:
+        missing, unexpected = sorted(wanted - saved), sorted(saved - wanted)
+        raise CheckpointMismatch(
+            f"{mgr.directory} step {step} holds another state than this code builds: missing "
+            f"{missing[:5]}{'…' if len(missing) > 5 else ''}, unexpected "
+            f"{unexpected[:5]}{'…' if len(unexpected) > 5 else ''} (was it written by another "
+            "jaml version or config? start a new --out)")
+    target = {n: a for n, (_, a) in zip(names, paths_leaves, strict=True) if n is not None}
+    metadata = mgr.item_metadata(step)
+    reshaped = sorted(n for n, a in target.items() if tuple(metadata[n].shape) != a.shape)
+    if reshaped:
+        raise CheckpointMismatch(
+            f"{mgr.directory} step {step} holds other shapes for {reshaped[:5]}"
+            f"{'…' if len(reshaped) > 5 else ''} (e.g. {reshaped[0]}: saved "
+            f"{tuple(metadata[reshaped[0]].shape)}, built {target[reshaped[0]].shape}); was it "
+            "written with another config? start a new --out")
+    flat = mgr.restore(step, args=ocp.args.StandardRestore(target))
+    return _build(treedef, paths_leaves, names, flat)
+
+
+def _build(treedef, paths_leaves, names, flat):
+    leaves = [flat[n] if n is not None else jnp.zeros(a.shape, a.dtype)
+              for n, (_, a) in zip(names, paths_leaves, strict=True)]
+    return jax.tree_util.tree_unflatten(treedef, leaves)
+
+
+def _name(path) -> str:
+    parts = []
+    for k in path:
+        for attr in ("name", "key", "idx"):
+            if hasattr(k, attr):
+                parts.append(str(getattr(k, attr)))
+                break
+        else:
+            parts.append(str(k))
+    return ".".join(parts)

@@ -110,12 +110,16 @@ def run(
     progress: bool = True,
     figures: bool = True,
 ) -> dict:
-    """Learn relations on a preset source into the run directory `out`; returns the summary.
+    """Learn relations on a preset source, or a .npy / .csv file of rows, into the run directory
+    `out`; returns the summary.
 
-    `source_options` are `sources.make` overrides (recorded in config.json when given)."""
+    `source_options` are `sources.make` overrides (recorded in config.json when given). A file's
+    rows are recorded by their SHA-256, so a run does not resume on changed data."""
     source = sources.make(source_name, **(source_options or {}))
     out = Path(out)
     resolved = {"source": source_name, "relations": cfg.to_dict()}
+    if isinstance(source, sources.FileSource):
+        resolved["source_sha256"] = source.fingerprint()
     if source_options:
         resolved["source_options"] = source_options
     config_path, summary_path, ckpt_path = (

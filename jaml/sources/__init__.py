@@ -1,8 +1,10 @@
 """On-manifold data for AML: analytic curves, closed-form block-on-incline, MJX incline rollouts
-(`InclineEnvSource`, imported on first use since it loads envs_mjx), off-manifold samplers."""
+(`InclineEnvSource`, imported on first use since it loads envs_mjx), a user's rows from a
+.npy / .csv file (`FileSource`), off-manifold samplers."""
 
 from jaml.sources.analytic import HyperboloidPlaneCurve
 from jaml.sources.base import Source
+from jaml.sources.file import FileSource
 from jaml.sources.incline import DRAG_KINDS, BlockOnIncline, downhill_acceleration, flow
 from jaml.sources.off_manifold import bounding_box, thicken, uniform_in_box
 from jaml.sources.presets import PRESETS, make
@@ -11,6 +13,7 @@ __all__ = [
     "DRAG_KINDS",
     "PRESETS",
     "BlockOnIncline",
+    "FileSource",
     "HyperboloidPlaneCurve",
     "InclineEnvSource",
     "Source",

@@ -6,7 +6,9 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
+from pathlib import Path
 
+from jaml.sources import file
 from jaml.sources.analytic import HyperboloidPlaneCurve
 from jaml.sources.base import Source
 from jaml.sources.incline import BlockOnIncline
@@ -47,17 +49,24 @@ _KEYWORD_PRESETS = ("geom-on-incline", "mesh-on-incline")
 
 
 def make(name: str, **overrides) -> Source:
-    """The preset source called `name` (see PRESETS), with keyword overrides.
+    """The preset source called `name` (see PRESETS), with keyword overrides, or the rows of a
+    user's `.npy` / `.csv` file when `name` is a path ending in one of those (`FileSource`).
 
     For "geom-on-incline" / "mesh-on-incline" the overrides are `InclineEnvSource` options
     (action_range, rollout_steps, pool_size, drop_clipped) or fields of the env's config, e.g.
     `make("geom-on-incline", friction_range=(0.0, 0.0), action_range=(0.0, 0.0))`. For the
     others they replace fields of the source's dataclass, e.g. `make("block45", friction=0.1)`.
     """
+    if name not in PRESETS and (str(name).lower().endswith(file.SUFFIXES)
+                                or Path(name).is_file()):
+        if overrides:
+            raise ValueError(f"{name}: a file source takes no options, got {sorted(overrides)}")
+        return file.FileSource.load(name)
     try:
         factory = PRESETS[name]
     except KeyError:
-        raise ValueError(f"unknown source {name!r}; valid sources: {sorted(PRESETS)}") from None
+        raise ValueError(f"unknown source {name!r}; valid sources: {sorted(PRESETS)}, or the "
+                         "path of a .npy / .csv file of [N, D] rows") from None
     if name in _KEYWORD_PRESETS:
         return factory(**overrides)
     source = factory()

@@ -1,312 +1,27 @@
-"""The `jaml` command line: `jaml relations …`, `jaml suite …`, `jaml demo`, `jaml envs list|show`,
-`jaml info`. Entry points stay thin."""
+"""The `jaml` command line: `jaml relations | suite | fig2 | fig9 | demo | envs list|show | info`.
+
+One mechanism (tyro over dataclasses): each command is a dataclass whose fields, and the library
+configs nested in it (relations.Config, StreamConfig and its PPOConfig, the learners' and the
+envs' configs), become typed flags, with help from the dataclasses' docstrings and choices from
+Literal types or the registries. Entry points stay thin.
+"""
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import dataclasses
 import io
 import logging
+import os
+import re
 import sys
-import types
+import threading
+import traceback
 import typing
 from pathlib import Path
+from typing import Annotated, Literal
 
-
-def _field_type(field: dataclasses.Field):
-    """argparse type for a Config field: the non-None member of `T | None` parses 'none'."""
-    hint = typing.get_type_hints(_relations_config())[field.name]
-    args = typing.get_args(hint)
-    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
-        inner = next(a for a in args if a is not type(None))
-        return lambda text: None if text.lower() == "none" else inner(text)
-    return hint
-
-
-def _relations_config():
-    from jaml.relations.config import Config
-
-    return Config
-
-
-def _add_config_options(parser: argparse.ArgumentParser) -> None:
-    """One --option per relations.Config field, generated from the dataclass (no repetition)."""
-    group = parser.add_argument_group("relations.Config fields (defaults follow the paper)")
-    doc = _relations_config().__doc__ or ""
-    for field in dataclasses.fields(_relations_config()):
-        flag = "--" + field.name.replace("_", "-")
-        described = next(
-            (
-                line.split(":", 1)[1].strip()
-                for line in doc.splitlines()
-                if line.strip().startswith(field.name + ":")
-            ),
-            "",
-        )
-        group.add_argument(
-            flag,
-            dest=field.name,
-            type=_field_type(field),
-            default=None,
-            help=f"{described} (default: {field.default})".replace("%", "%%"),
-        )
-
-
-def _config_from(args):
-    values = {
-        f.name: getattr(args, f.name)
-        for f in dataclasses.fields(_relations_config())
-        if getattr(args, f.name) is not None
-    }
-    return _relations_config()(**values)
-
-
-def _cmd_relations(args) -> int:
-    from jaml.relations.run import run
-
-    # JSON lists become tuples: config ranges are (lo, hi) tuples.
-    options = {k: tuple(v) if isinstance(v, list) else v for k, v in (args.source_opt or [])}
-    summary = run(
-        args.source,
-        _config_from(args),
-        args.out,
-        source_options=options or None,
-        progress=not args.no_progress,
-    )
-    _print_summary(args.out, summary)
-    return 0
-
-
-def _print_summary(out, summary) -> None:
-    print(
-        f"{summary['source']}: {summary['num_relations']} relations, {summary['status']}, "
-        f"{summary['seconds']:.1f}s -> {out}"
-    )
-    for r in summary["relations"]:
-        print(
-            f"  g{r['index']} (width {r['width']}): {r['status']} after {r['steps']} steps, "
-            f"{r['seconds']:.1f}s, mean |g| on {r['on_mean']:.4g} off {r['off_mean']:.4g} "
-            f"(x{r['ratio']:.1f}), syzygies {r['syzygies_found']}"
-        )
-
-
-def _cmd_demo(args) -> int:
-    from jaml.relations.config import Config
-    from jaml.relations.run import run
-
-    out = Path(args.out)
-    for source in ("ellipse", "block45"):
-        print(f"== AML with transversality on {source} (2 relations) ==", flush=True)
-        summary = run(source, Config(max_relations=2), out / source, progress=not args.no_progress)
-        _print_summary(out / source, summary)
-    print(f"figures: {sorted(str(p) for p in out.rglob('*.png'))}")
-    return 0
-
-
-_SUITE_FIELDS = ("seed", "num_envs", "rollout_len", "replay_slots", "replay_keep_fraction",
-                 "learner_steps", "frames_per_batch", "epochs", "eval_every", "eval_train",
-                 "eval_rand", "eval_curr", "eval_transient", "regressor_iterations")
-
-
-def key_value(text: str) -> tuple[str, object]:
-    """KEY=VALUE with VALUE read as JSON where it parses (numbers, true, lists), else a string."""
-    import json
-
-    if "=" not in text:
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
-    key, value = text.split("=", 1)
-    try:
-        return key, json.loads(value)
-    except json.JSONDecodeError:
-        return key, value
-
-
-def _field_docs(doc: str) -> dict[str, str]:
-    """`name: text` entries of a docstring, continuation lines (indented deeper) joined."""
-    docs, current, indent = {}, None, None
-    for line in doc.splitlines():
-        stripped = line.strip()
-        depth = len(line) - len(stripped)
-        head = stripped.split(":", 1)[0]
-        if ":" in stripped and head.isidentifier() and (indent is None or depth <= indent):
-            current, indent = head, depth
-            docs[current] = stripped.split(":", 1)[1].strip()
-        elif current and stripped and depth > indent:
-            docs[current] += " " + stripped
-        else:
-            current = None
-    return docs
-
-
-def _cmd_suite(args) -> int:
-    from jaml.stream import for_env
-    from jaml.stream.run import run
-
-    overrides = {f: getattr(args, f) for f in _SUITE_FIELDS if getattr(args, f) is not None}
-    learner_overrides = dict(args.learner_opt or [])
-    config = for_env(args.env, args.learner, policy=args.policy,
-                     learner_overrides=learner_overrides,
-                     env_overrides=dict(args.env_opt or []), **overrides)
-    summary = run(config, args.out, progress=not args.no_progress, stop_after=args.stop_after)
-    print(f"{args.env} {args.learner} ({args.policy}): {summary['status']} at epoch "
-          f"{summary['epoch']}, checkpoint {summary['checkpoint_epoch']} -> {args.out}")
-    for r in summary["final"]:
-        errs = " ".join(f"{k}={v:.3f}" for k, v in r["errors"].items())
-        print(f"  {r['test_set']}: {errs}")
-    return 0
-
-
-def _add_suite_parser(sub) -> None:
-    import envs_mjx
-    from jaml import learners
-    from jaml.stream import POLICIES, StreamConfig
-
-    suite = sub.add_parser(
-        "suite",
-        help="the evaluation suite's learning loop (paper §2.1): PPO frames → replay → learner",
-        description="PPO (or a random policy) acts in NUM_ENVS MJX envs; their 64×64 frames fill "
-        "a replay that keeps its initial half; a learner trains on replay sequences and is "
-        "analysed every EVAL_EVERY epochs by the alignment of its latents with the true state "
-        "on π_rand and π_curr. Writes a run directory; re-running with the same --out and "
-        "options resumes from the last checkpoint. Defaults per env follow the reference suite.",
-    )
-    suite.add_argument("--env", required=True, choices=envs_mjx.ALL_ENVS)
-    suite.add_argument("--learner", required=True, choices=learners.ALL_LEARNERS)
-    suite.add_argument("--policy", default="ppo", choices=POLICIES)
-    suite.add_argument("--out", required=True, type=Path, help="run directory")
-    docs = _field_docs(StreamConfig.__doc__ or "")
-    hints = typing.get_type_hints(StreamConfig)
-    for name in _SUITE_FIELDS:
-        described = docs.get(name, "")
-        kind = float if "float" in str(hints[name]) else int
-        suite.add_argument("--" + name.replace("_", "-"), dest=name, type=kind, default=None,
-                           help=described.replace("%", "%%"))
-    suite.add_argument("--learner-opt", type=key_value, action="append", metavar="KEY=VALUE",
-                       help="learner config field, e.g. beta=20 or hist=16 (repeatable)")
-    suite.add_argument("--env-opt", type=key_value, action="append", metavar="KEY=VALUE",
-                       help="env config field, e.g. multicolor=false (repeatable)")
-    suite.add_argument("--stop-after", type=int, default=None,
-                       help="stop after this many epochs in this call; the next call resumes "
-                       "from the last checkpoint (written with each analysis), redoing the "
-                       "epochs after it")
-    suite.add_argument("--no-progress", action="store_true", help="no progress bar")
-    suite.set_defaults(func=_cmd_suite)
-
-
-def _cmd_envs_list(args) -> int:
-    from envs_mjx.show import format_list, list_envs
-
-    print(format_list(list_envs()))
-    return 0
-
-
-def _cmd_envs_show(args) -> int:
-    from envs_mjx.show import show
-
-    out = args.out or Path(f"{args.name}.png")
-    path = show(args.name, out, resets=args.resets, steps=args.steps, seed=args.seed)
-    print(f"{args.name}: {args.resets} resets x {args.steps} frames -> {path}")
-    return 0
-
-
-_INFO_PACKAGES = ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint", "brax", "mujoco",
-                  "mujoco-mjx")
-
-
-def _cmd_info(args) -> int:
-    import importlib
-    import importlib.metadata
-
-    import jax
-
-    print(f"jax {jax.__version__}, default backend {jax.default_backend()}")
-    for device in jax.devices():
-        print(f"  device {device.id}: platform {device.platform}, kind {device.device_kind}")
-    for name in _INFO_PACKAGES:
-        try:
-            version = importlib.metadata.version(name)
-        except importlib.metadata.PackageNotFoundError:
-            version = "not installed"
-        print(f"{name} {version}")
-    for label, module in (("MJX physics", "mujoco.mjx"), ("MJX renderer", "envs_mjx.render")):
-        try:
-            importlib.import_module(module)
-            print(f"{label} ({module}): import ok")
-        except Exception as error:  # report any failure, this is a diagnostic
-            print(f"{label} ({module}): import FAILED: {type(error).__name__}: {error}")
-    with contextlib.suppress(Exception):
-        from mujoco.mjx import warp
-
-        print(f"MuJoCo Warp (optional, unused by jaml): "
-              f"{'installed' if warp.WARP_INSTALLED else 'not installed'}")
-    return 0
-
-
-def build_parser() -> argparse.ArgumentParser:
-    from jaml.sources import PRESETS
-
-    parser = argparse.ArgumentParser(prog="jaml", description=__doc__)
-    parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level")
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    rel = sub.add_parser(
-        "relations",
-        help="learn AML relations on a source (paper §3, Alg. 1)",
-        description="Learn relations g_1..g_K on a source's on-manifold data and "
-        "write a run directory (config, metrics, checkpoint, summary, figures). "
-        "Re-running with the same --out and options resumes.",
-    )
-    rel.add_argument("--source", required=True, choices=sorted(PRESETS), help="data source")
-    rel.add_argument(
-        "--source-opt",
-        type=key_value,
-        action="append",
-        metavar="KEY=VALUE",
-        help="source option or override (repeatable), e.g. for geom-on-incline / "
-        "mesh-on-incline pool_size=65536, action_range=[0,0], friction_range=[0,0] (any field "
-        "of the env's config); for the block presets a BlockOnIncline field, e.g. friction=0.1",
-    )
-    rel.add_argument("--out", required=True, type=Path, help="run directory")
-    rel.add_argument("--no-progress", action="store_true", help="no progress bars")
-    _add_config_options(rel)
-    rel.set_defaults(func=_cmd_relations)
-
-    _add_suite_parser(sub)
-
-    demo = sub.add_parser(
-        "demo",
-        help="the quick tour: relations on the analytic and block domains",
-        description="Learn two relations with transversality on the ellipse "
-        "and on the 45° block-on-incline, writing run directories and figures.",
-    )
-    demo.add_argument("--out", type=Path, default=Path("runs/demo"), help="parent run directory")
-    demo.add_argument("--no-progress", action="store_true", help="no progress bars")
-    demo.set_defaults(func=_cmd_demo)
-
-    envs = sub.add_parser("envs", help="the MJX domains (envs_mjx): list them, look at them")
-    envs_sub = envs.add_subparsers(dest="envs_command", required=True)
-    envs_sub.add_parser(
-        "list", help="each env with its action size and LD state (size and names)"
-    ).set_defaults(func=_cmd_envs_list)
-    show = envs_sub.add_parser(
-        "show",
-        help="PNG grid of rendered frames from random-action rollouts",
-        description="Rows are resets (so per-episode colours show), columns are time; "
-        "frames come from the env's own pixels path (envs_mjx.render).",
-    )
-    show.add_argument("name", help="env name (see `jaml envs list`)")
-    show.add_argument("--out", type=Path, default=None, help="PNG path (default: NAME.png)")
-    show.add_argument("--resets", type=int, default=4, help="rows: independent resets")
-    show.add_argument("--steps", type=int, default=8, help="columns: frames per reset")
-    show.add_argument("--seed", type=int, default=0, help="PRNG seed")
-    show.set_defaults(func=_cmd_envs_show)
-
-    sub.add_parser(
-        "info",
-        help="JAX version, backend and devices; package versions; whether MJX imports",
-    ).set_defaults(func=_cmd_info)
-    return parser
+import tyro
 
 
 def _import_mjx_quietly() -> list[str]:
@@ -325,9 +40,509 @@ def _import_mjx_quietly() -> list[str]:
     return buffer.getvalue().splitlines()
 
 
+# Before anything imports envs_mjx (the command classes below read its registry).
+_MJX_PRINTS = _import_mjx_quietly()
+
+# ---------------------------------------------------------------------------------------------
+# The mechanism: help from docstrings, choices, hidden fields, one-line errors.
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """Field → help from the `name: text` entries of `cls`'s docstrings (its bases' first, so
+    subclasses inherit them). Continuation lines (indented deeper) are joined; an entry may name
+    several fields (`a, b: text` or `a / b: text`)."""
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        current, indent = [], None
+        for line in (klass.__dict__.get("__doc__") or "").splitlines():
+            stripped = line.strip()
+            depth = len(line) - len(stripped)
+            head, _, text = stripped.partition(":")
+            names = [n.strip() for n in re.split(r"[,/]", head)]
+            if text and all(n.isidentifier() for n in names) and (indent is None
+                                                                   or depth <= indent):
+                current, indent = names, depth
+                for n in names:
+                    docs[n] = text.strip()
+            elif current and stripped and depth > indent:
+                for n in current:
+                    docs[n] += " " + stripped
+            else:
+                current = []
+    return docs
+
+
+def _choices() -> dict[tuple[str, str], tuple[str, ...]]:
+    """(class name, field) → its valid values, for `str` fields whose set is fixed elsewhere
+    (registries, validation in __post_init__)."""
+    from jaml.stream import POLICIES
+
+    return {
+        ("StreamConfig", "policy"): POLICIES,
+        ("LearnerConfig", "frame_nll"): ("sum", "mean"),
+        ("EnvConfig", "pixels"): ("auto", "required", "off"),
+    }
+
+
+# (class name, field) of fields that are not flags: the suite sets them from --env/--learner
+# (the learner's ld_dim is the env's LD-state size) and from the typed learner/env configs.
+_SUITE_FIXED = ("env", "learner", "learner_overrides", "env_overrides")
+_HIDDEN = {("StreamConfig", name) for name in _SUITE_FIXED} | {("LearnerConfig", "ld_dim")}
+_in_rule = threading.local()
+
+
+def _registry() -> tyro.constructors.ConstructorRegistry:
+    """tyro's dataclass handling, plus: help from `field_docs` where tyro finds none, Literal
+    choices from `_choices`, and the `_HIDDEN` fields fixed to their defaults."""
+    registry = tyro.constructors.ConstructorRegistry()
+    choices = _choices()
+
+    @registry.struct_rule
+    def documented(info: tyro.constructors.StructTypeInfo):
+        cls = info.type
+        if getattr(_in_rule, "active", False) or not (
+            isinstance(cls, type) and dataclasses.is_dataclass(cls)
+            and cls.__module__.split(".")[0] in ("jaml", "envs_mjx")
+        ):
+            return None
+        _in_rule.active = True
+        try:
+            spec = tyro.constructors.ConstructorRegistry.get_struct_spec(info)
+        finally:
+            _in_rule.active = False
+        if not isinstance(spec, tyro.constructors.StructConstructorSpec):
+            return spec
+        docs = field_docs(cls)
+        bases = [k.__name__ for k in cls.__mro__]
+        fields = []
+        for f in spec.fields:
+            kind = f.type
+            values = next((choices[b, f.name] for b in bases if (b, f.name) in choices), None)
+            if values is not None:
+                kind = Literal[values]
+            if any((b, f.name) in _HIDDEN for b in bases):
+                kind = tyro.conf.Suppress[kind]
+            helptext = f.helptext() if callable(f.helptext) else f.helptext
+            helptext = " ".join((helptext or docs.get(f.name) or "").split())  # unwrapped
+            fields.append(dataclasses.replace(f, type=kind, helptext=helptext or None))
+        return dataclasses.replace(spec, fields=tuple(fields))
+
+    return registry
+
+
+def _one_line(box: str) -> str:
+    """tyro's boxed error as one line: the message section, unwrapped, less the help texts of
+    the arguments it names (indented under them). The box is drawn in UTF-8 (title in the top
+    border) or, when stdout is not UTF-8, in ASCII (title, then a rule)."""
+    text = re.sub(r"\x1b\[[0-9;]*m", "", box)
+    unicode = text.lstrip().startswith("╭")
+    sections: list[list[str]] = [[]]
+    for line in text.splitlines():
+        if line.strip().startswith(("╭", "╰")):
+            continue
+        content = line.strip().strip("│").rstrip()
+        if content.strip() and set(content.strip()) <= set("─-"):
+            sections.append([])
+        elif content.strip():
+            sections[-1].append(content)
+    sections = [s for s in sections if s]
+    message = sections[0] if unicode or len(sections) < 2 else sections[1]
+    indent = min(len(x) - len(x.lstrip()) for x in message) if message else 0
+    kept = [x.strip() for x in message if len(x) - len(x.lstrip()) < indent + 8]
+    return " ".join(" ".join(kept).split()) or "invalid arguments"
+
+
+# ---------------------------------------------------------------------------------------------
+# Commands. Each `run()` returns the exit status.
+
+KeyValues = Annotated[tuple[str, ...], tyro.conf.UseAppendAction,
+                      tyro.conf.arg(metavar="KEY=VALUE")]
+
+
+def key_value(text: str) -> tuple[str, object]:
+    """KEY=VALUE with VALUE read as JSON where it parses (numbers, true, lists), else a string."""
+    import json
+
+    if "=" not in text:
+        raise ValueError(f"expected KEY=VALUE, got {text!r}")
+    key, value = text.split("=", 1)
+    try:
+        return key, json.loads(value)
+    except json.JSONDecodeError:
+        return key, value
+
+
+def key_values(items) -> dict[str, object]:
+    """{KEY: VALUE} of KEY=VALUE texts; JSON lists become tuples (config ranges are tuples)."""
+    pairs = (key_value(text) for text in items)
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in pairs}
+
+
+def _print_summary(out, summary) -> None:
+    print(
+        f"{summary['source']}: {summary['num_relations']} relations, {summary['status']}, "
+        f"{summary['seconds']:.1f}s -> {out}"
+    )
+    for r in summary["relations"]:
+        print(
+            f"  g{r['index']} (width {r['width']}): {r['status']} after {r['steps']} steps, "
+            f"{r['seconds']:.1f}s, mean |g| on {r['on_mean']:.4g} off {r['off_mean']:.4g} "
+            f"(x{r['ratio']:.1f}), syzygies {r['syzygies_found']}"
+        )
+
+
+def _relations_config():
+    from jaml.relations.config import Config
+
+    return Config
+
+
+@dataclasses.dataclass(frozen=True)
+class Relations:
+    """Learn AML relations g_1..g_K on a source's on-manifold rows (paper §3, Alg. 1) and write
+    a run directory (config, metrics, checkpoint, summary, figures). Re-running with the same out
+    directory and options resumes. Config defaults follow the paper."""
+
+    source: str
+    """a preset (ellipse, block45, block36-drag, block-drag-range, geom-on-incline,
+    mesh-on-incline) or the path of a .npy file of [N, D] rows or a .csv file of N lines of D
+    numbers, optionally after a header line of column names (they name the relations' inputs)"""
+    out: Path
+    """run directory"""
+    source_opt: KeyValues = ()
+    """source option or override (repeatable; presets only), e.g. for geom-on-incline /
+    mesh-on-incline pool_size=65536, action_range=[0,0], friction_range=[0,0] (any field of the
+    env's config); for the block presets a BlockOnIncline field, e.g. friction=0.1"""
+    no_progress: bool = False
+    """no progress bars"""
+    config: Annotated[_relations_config(), tyro.conf.arg(name="")] = dataclasses.field(
+        default_factory=_relations_config())
+
+    def run(self) -> int:
+        from jaml.relations.run import run
+
+        summary = run(self.source, self.config, self.out,
+                      source_options=key_values(self.source_opt) or None,
+                      progress=not self.no_progress)
+        _print_summary(self.out, summary)
+        return 0
+
+
+def _suite_config():
+    from jaml.stream import StreamConfig
+
+    return StreamConfig
+
+
+def _envs() -> tuple[str, ...]:
+    import envs_mjx
+
+    return envs_mjx.ALL_ENVS
+
+
+def _learners() -> tuple[str, ...]:
+    from jaml import learners
+
+    return learners.ALL_LEARNERS
+
+
+@dataclasses.dataclass(frozen=True)
+class Suite:
+    """The evaluation suite's learning loop (paper §2.1): PPO (or a random policy) acts in
+    NUM_ENVS MJX envs; their 64×64 frames fill a replay that keeps its initial half; a learner
+    trains on replay sequences and is analysed every EVAL_EVERY epochs by the alignment of its
+    latents with the true state on π_rand and π_curr. Writes a run directory; re-running with the
+    same out directory and options resumes from the last checkpoint. Defaults per env follow the
+    reference suite (`jaml.stream.for_env`): `jaml suite --env ENV --learner LEARNER --help`
+    shows them, with the env's and the learner's own options (env-config, learner-config)."""
+
+    env: Literal[_envs()]
+    """the MJX domain (`jaml envs list`)"""
+    learner: Literal[_learners()]
+    """the learner (jaml.learners)"""
+    out: Path
+    """run directory"""
+    stop_after: int | None = None
+    """stop after this many epochs in this call; the next call resumes from the last checkpoint
+    (written with each analysis), redoing the epochs after it"""
+    no_progress: bool = False
+    """no progress bar"""
+    config: Annotated[_suite_config(), tyro.conf.arg(name="")] = dataclasses.field(
+        default_factory=_suite_config())
+
+    def stream_config(self):
+        """The run's StreamConfig: `for_env`'s per-domain settings, then what the flags changed
+        (learner and env options: the fields that differ from their defaults)."""
+        from jaml.stream import for_env
+
+        base = for_env(self.env, self.learner)
+        changed = _changed(self.config, base, skip=_SUITE_FIXED)
+        learner_opt, env_opt = dict(base.learner_overrides), {}
+        learner_config = getattr(self, "learner_config", None)
+        if learner_config is not None:
+            learner_opt |= _changed(learner_config, _learner_default(self.learner),
+                                    keep=base.learner_overrides, skip=("ld_dim",))
+        env_config = getattr(self, "env_config", None)
+        if env_config is not None:
+            env_opt = _changed(env_config, _env_default(self.env))
+        return for_env(self.env, self.learner, **changed, learner_overrides=learner_opt,
+                       env_overrides=env_opt)
+
+    def run(self) -> int:
+        from jaml.stream.run import run
+
+        config = self.stream_config()
+        summary = run(config, self.out, progress=not self.no_progress,
+                      stop_after=self.stop_after)
+        print(f"{config.env} {config.learner} ({config.policy}): {summary['status']} at epoch "
+              f"{summary['epoch']}, checkpoint {summary['checkpoint_epoch']} -> {self.out}")
+        for r in summary["final"]:
+            errs = " ".join(f"{k}={v:.3f}" for k, v in r["errors"].items())
+            print(f"  {r['test_set']}: {errs}")
+        return 0
+
+
+def _learner_default(name: str):
+    from jaml import learners
+
+    # ld_dim comes from the env when the stream builds the learner; 1 stands in for help.
+    return learners.default_config(name, ld_dim=1)
+
+
+def _env_default(name: str):
+    import envs_mjx
+
+    return envs_mjx.default_config(name)
+
+
+def _changed(config, default, keep=(), skip=()) -> dict:
+    """The fields of `config` that differ from `default`, or are in `keep`, less `skip`."""
+    return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)
+            if f.name not in skip and (f.name in keep or getattr(config, f.name)
+                                       != getattr(default, f.name))}
+
+
+def _suite_for(argv: list[str]) -> type:
+    """Suite, or when argv names a valid --env and --learner, a Suite whose defaults are that
+    pair's (`for_env`) with the learner's and the env's configs as typed flags."""
+
+    def value(flag: str):
+        for i, arg in enumerate(argv):
+            if arg == flag and i + 1 < len(argv):
+                return argv[i + 1]
+            if arg.startswith(flag + "="):
+                return arg.split("=", 1)[1]
+        return None
+
+    env, learner = value("--env"), value("--learner")
+    if env not in _envs() or learner not in _learners():
+        return Suite
+    from jaml.stream import for_env
+
+    base = for_env(env, learner)
+    learner_config = _learner_default(learner).replace(**base.learner_overrides)
+    env_config = _env_default(env)
+    return dataclasses.make_dataclass(
+        "Suite",
+        [
+            ("config", Annotated[_suite_config(), tyro.conf.arg(name="")],
+             dataclasses.field(default=base)),
+            ("learner_config", type(learner_config), dataclasses.field(default=learner_config)),
+            ("env_config", type(env_config), dataclasses.field(default=env_config)),
+        ],
+        bases=(Suite,),
+        frozen=True,
+        namespace={"__doc__": Suite.__doc__, "__module__": __name__},
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class Demo:
+    """The quick tour: learn two relations with transversality on the ellipse and on the 45°
+    block-on-incline, writing run directories and figures."""
+
+    out: Path = Path("runs/demo")
+    """parent run directory"""
+    no_progress: bool = False
+    """no progress bars"""
+
+    def run(self) -> int:
+        from jaml.relations.config import Config
+        from jaml.relations.run import run
+
+        for source in ("ellipse", "block45"):
+            print(f"== AML with transversality on {source} (2 relations) ==", flush=True)
+            summary = run(source, Config(max_relations=2), self.out / source,
+                          progress=not self.no_progress)
+            _print_summary(self.out / source, summary)
+        print(f"figures: {sorted(str(p) for p in self.out.rglob('*.png'))}")
+        return 0
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvsList:
+    """Each env with its action size and LD state (size and names)."""
+
+    def run(self) -> int:
+        from envs_mjx.show import format_list, list_envs
+
+        print(format_list(list_envs()))
+        return 0
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvsShow:
+    """PNG grid of rendered frames from random-action rollouts: rows are resets (so per-episode
+    colours show), columns are time; frames come from the env's own pixels path
+    (envs_mjx.render)."""
+
+    env: Literal[_envs()]
+    """the MJX domain (`jaml envs list`)"""
+    out: Path | None = None
+    """PNG path (default: ENV.png)"""
+    resets: int = 4
+    """rows: independent resets"""
+    steps: int = 8
+    """columns: frames per reset"""
+    seed: int = 0
+    """PRNG seed"""
+
+    def run(self) -> int:
+        from envs_mjx.show import show
+
+        out = self.out or Path(f"{self.env}.png")
+        path = show(self.env, out, resets=self.resets, steps=self.steps, seed=self.seed)
+        print(f"{self.env}: {self.resets} resets x {self.steps} frames -> {path}")
+        return 0
+
+
+@dataclasses.dataclass(frozen=True)
+class Envs:
+    """The MJX domains (envs_mjx): list them, look at them."""
+
+    action: tyro.conf.OmitSubcommandPrefixes[
+        Annotated[EnvsList, tyro.conf.subcommand("list")]
+        | Annotated[EnvsShow, tyro.conf.subcommand("show")]
+    ]
+
+    def run(self) -> int:
+        return self.action.run()
+
+
+_INFO_PACKAGES = ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint", "brax", "mujoco",
+                  "mujoco-mjx")
+
+
+@dataclasses.dataclass(frozen=True)
+class Info:
+    """JAX version, backend and devices; package versions; whether MJX imports."""
+
+    def run(self) -> int:
+        import importlib
+        import importlib.metadata
+
+        import jax
+
+        print(f"jax {jax.__version__}, default backend {jax.default_backend()}")
+        for device in jax.devices():
+            print(f"  device {device.id}: platform {device.platform}, kind {device.device_kind}")
+        for name in _INFO_PACKAGES:
+            try:
+                version = importlib.metadata.version(name)
+            except importlib.metadata.PackageNotFoundError:
+                version = "not installed"
+            print(f"{name} {version}")
+        for label, module in (("MJX physics", "mujoco.mjx"),
+                              ("MJX renderer", "envs_mjx.render")):
+            try:
+                importlib.import_module(module)
+                print(f"{label} ({module}): import ok")
+            except Exception as error:  # report any failure, this is a diagnostic
+                print(f"{label} ({module}): import FAILED: {type(error).__name__}: {error}")
+        with contextlib.suppress(Exception):
+            from mujoco.mjx import warp
+
+            print(f"MuJoCo Warp (optional, unused by jaml): "
+                  f"{'installed' if warp.WARP_INSTALLED else 'not installed'}")
+        return 0
+
+
+def _commands(argv: list[str]) -> dict[str, type]:
+    from jaml.experiments import fig2, fig9
+
+    return {"relations": Relations, "suite": _suite_for(argv), "fig2": fig2.Args,
+            "fig9": fig9.Args, "demo": Demo, "envs": Envs, "info": Info}
+
+
+def _root(argv: list[str]) -> type:
+    """The `jaml` dataclass: global flags and one subcommand per command."""
+    union = typing.Union[tuple(Annotated[cls, tyro.conf.subcommand(name)]  # noqa: UP007
+                               for name, cls in _commands(argv).items())]
+
+    help_debug = "show full tracebacks (and tyro's full parse errors) instead of one line"
+    jaml = dataclasses.make_dataclass("Jaml", [
+        ("command", tyro.conf.OmitSubcommandPrefixes[union]),
+        ("debug", Annotated[bool, tyro.conf.CascadeSubcommandArgs,
+                            tyro.conf.arg(help=help_debug)], False),
+        ("verbose", Annotated[bool, tyro.conf.CascadeSubcommandArgs,
+                              tyro.conf.arg(aliases=("-v",), help="log at INFO level")], False),
+    ], frozen=True, namespace={"__doc__": __doc__.split("\n\n")[0], "__module__": __name__})
+    return jaml
+
+
+# ---------------------------------------------------------------------------------------------
+# The entry point.
+
+
+def _deprecated_forms(argv: list[str]) -> list[str]:
+    """`envs show NAME` (positional) → `envs show --env NAME`, with a deprecation note."""
+    for i in range(len(argv) - 2):
+        if argv[i:i + 2] == ["envs", "show"] and not argv[i + 2].startswith("-"):
+            print(f"jaml: `envs show {argv[i + 2]}` is deprecated; use `envs show --env "
+                  f"{argv[i + 2]}`", file=sys.stderr)
+            return [*argv[:i + 2], "--env", *argv[i + 2:]]
+    return argv
+
+
+def parse(argv: list[str]):
+    """The parsed `jaml` dataclass. Parse errors exit with status 2 after one line on stderr
+    (tyro's full message with --debug); --help exits 0."""
+    argv = _deprecated_forms(list(argv))
+    debug = "--debug" in argv
+    helping = "-h" in argv or "--help" in argv
+    captured = io.StringIO()
+    # One line per error message (so that it reads back as one line), unless shown in full.
+    environ = {} if helping or debug else {"COLUMNS": "10000"}
+    with contextlib.ExitStack() as stack:
+        if not helping:
+            stack.enter_context(contextlib.redirect_stderr(captured))
+        old = {k: os.environ.get(k) for k in environ}
+        os.environ.update(environ)
+        try:
+            return tyro.cli(_root(argv), args=argv, prog="jaml", registry=_registry(),
+                            config=(tyro.conf.FlagCreatePairsOff,))
+        except SystemExit as exit_:
+            if exit_.code:
+                stack.close()
+                prog = " ".join(["jaml", *[a for a in argv[:1] if not a.startswith("-")]])
+                if debug:
+                    sys.stderr.write(captured.getvalue())
+                else:
+                    print(f"{prog}: error: {_one_line(captured.getvalue())} "
+                          f"(see `{prog} --help`)", file=sys.stderr)
+            raise
+        finally:
+            for k, v in old.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+
+
 def main(argv=None) -> int:
-    captured = _import_mjx_quietly()
-    args = build_parser().parse_args(argv)
+    captured = [*_MJX_PRINTS, *_import_mjx_quietly()]
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = parse(argv)
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING,
         format="%(asctime)s %(name)s %(message)s",
@@ -340,9 +555,12 @@ def main(argv=None) -> int:
     for line in captured:
         logging.getLogger(__name__).info("import mujoco.mjx: %s", line)
     try:
-        return args.func(args)
+        return args.command.run()
     except (ValueError, TypeError, FileNotFoundError) as error:
-        print(f"jaml: error: {error}", file=sys.stderr)
+        if args.debug:
+            traceback.print_exc()
+        else:
+            print(f"jaml: error: {error} (--debug shows the traceback)", file=sys.stderr)
         return 2
 
 

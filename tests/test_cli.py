@@ -42,3 +42,138 @@ def test_cli_stdout_has_no_warp_probe_lines():
     )
     assert "Failed to import" not in result.stdout + result.stderr
     assert result.stdout.startswith("jax ")
+
+
+# One config/CLI mechanism: typed, complete help; one-line errors; --debug; file sources.
+
+import json  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from jaml import cli  # noqa: E402
+
+TINY = ["--max-relations", "1", "--max-steps", "20", "--chunk-steps", "20", "--batch-size", "32",
+        "--stop-patience", "1", "--eval-batches", "1", "--no-progress"]
+
+
+@pytest.mark.parametrize("command", ["relations", "suite", "fig2", "fig9", "demo", "envs",
+                                     "envs list", "envs show", "info"])
+def test_every_subcommand_has_help(command, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main([*command.split(), "--help"])
+    assert exit_info.value.code == 0
+    assert f"usage: jaml {command}" in capsys.readouterr().out
+
+
+def test_relations_help_documents_every_field_with_its_choices(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["relations", "--help"])
+    out = " ".join(capsys.readouterr().out.replace("│", " ").split())
+    assert "--depth INT hidden layers of every g_k. (default: 3)" in out
+    assert "--base-width INT hidden width of g_1" in out and "--max-width INT cap on" in out
+    assert "--independence {transversality,syzygy}" in out
+    assert "--objective {paper,reference}" in out
+    # Multi-line docstring entries are whole, not cut at their first line.
+    assert "the on-manifold statistic is the mean of the largest fraction of |g| values" in out
+
+
+def test_suite_help_shows_the_pairs_defaults_and_typed_learner_and_env_options(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["suite", "--env", "Ant", "--learner", "PRED", "--help"])
+    out = " ".join(capsys.readouterr().out.replace("│", " ").split())
+    assert "--policy {ppo,random}" in out
+    assert "--rollout-len INT steps per env per epoch" in out and "(default: 64)" in out
+    assert "--ppo.hidden [INT [INT ...]] (default: 256 256)" in out
+    assert "--learner-config.hist INT" in out and "--learner-config.frame-nll {sum,mean}" in out
+    assert "--env-config.pixels {auto,required,off}" in out
+    assert "--learner-config.ld-dim" not in out and "--learner-overrides" not in out
+
+
+def test_suite_flags_become_the_runs_config():
+    args = cli.parse(["suite", "--env", "Ant", "--learner", "PRED", "--out", "x",
+                      "--learner-config.beta", "2", "--env-config.episode-length", "500",
+                      "--ppo.num-updates", "7", "--epochs", "3"])
+    config = args.command.stream_config()
+    assert config.learner_overrides == {"hist": 4, "pred": 12, "beta": 2.0}
+    assert config.env_overrides == {"episode_length": 500}
+    assert config.ppo.num_updates == 7 and config.ppo.hidden == (256, 256)  # Ant's, kept
+    assert config.epochs == 3 and config.rollout_len == 64
+
+
+def test_a_bad_choice_is_one_line_naming_the_valid_values(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["relations", "--source", "ellipse", "--out", "x", "--objective", "best"])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and len(err.strip().splitlines()) == 1
+    assert err.startswith("jaml relations: error: invalid choice 'best'")
+    assert "('paper', 'reference')" in err
+
+
+def test_debug_shows_the_traceback(tmp_path, capsys):
+    argv = ["relations", "--source", str(tmp_path / "missing.csv"), "--out", str(tmp_path / "r")]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "missing.csv: no such file" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+    assert cli.main([*argv, "--debug"]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback (most recent call last)" in err and "FileNotFoundError" in err
+
+
+def test_relations_fit_a_csv_with_a_header(tmp_path, capsys):
+    t = np.random.default_rng(0).uniform(0, 2 * np.pi, 200)
+    rows = np.stack([np.cos(t), np.sin(t), 0.5 * np.cos(t)], axis=1)
+    path = tmp_path / "rows.csv"
+    path.write_text("a,b,c\n" + "\n".join(",".join(f"{v:.6f}" for v in r) for r in rows))
+    out = tmp_path / "run"
+    assert cli.main(["relations", "--source", str(path), "--out", str(out), *TINY]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["num_relations"] == 1 and summary["source"] == str(path)
+    from jaml import relations
+
+    assert relations.load(out / "checkpoint").dim_names == ("a", "b", "c")
+    config = json.loads((out / "config.json").read_text())
+    assert len(config["source_sha256"]) == 64
+
+
+@pytest.mark.parametrize(("name", "text", "message"), [
+    ("ragged.csv", "a,b\n1,2\n3\n", "line 3 has 1 columns, expected 2"),
+    ("words.csv", "1,2\n3,x\n", "line 2: 'x' is not a number"),
+    ("nan.csv", "a,b\n1,2\n3,nan\n", "non-finite values (NaN/inf), the first in row 1"),
+    ("one.csv", "a,b\n1,2\n", "at least 2 rows"),
+    ("rows.txt", "1,2\n3,4\n", "expected a .npy or .csv file"),
+])
+def test_a_malformed_file_is_a_clear_error(tmp_path, capsys, name, text, message):
+    (tmp_path / name).write_text(text)
+    code = cli.main(["relations", "--source", str(tmp_path / name), "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err
+    assert code == 2 and message in err, err
+
+
+def test_a_npy_of_the_wrong_shape_is_a_clear_error(tmp_path, capsys):
+    np.save(tmp_path / "flat.npy", np.arange(10.0))
+    code = cli.main(["relations", "--source", str(tmp_path / "flat.npy"), "--out",
+                     str(tmp_path / "r")])
+    assert code == 2 and "expected an array of [N, D] rows, got shape (10,)" in (
+        capsys.readouterr().err)
+
+
+def test_envs_show_positional_name_still_works_with_a_deprecation_note(capsys):
+    args = cli.parse(["envs", "show", "CartPole", "--steps", "2"])
+    assert args.command.action.env == "CartPole" and args.command.action.steps == 2
+    assert "deprecated; use `envs show --env CartPole`" in capsys.readouterr().err
+
+
+def test_fig2_and_fig9_are_subcommands_and_modules(capsys):
+    from jaml.experiments import fig2, fig9
+
+    args = cli.parse(["fig2", "--out", "x", "--envs", "CartPole", "--variants", "PRED",
+                      "--learner-opt", "frame_nll=mean", "--pendulum-epochs", "5"])
+    assert isinstance(args.command, fig2.Args) and args.command.envs == ("CartPole",)
+    assert args.command.learner_opt == ("frame_nll=mean",) and args.command.pendulum_epochs == 5
+    args = cli.parse(["fig9", "--out", "x", "--methods", "PRED", "--form", "sum"])
+    assert isinstance(args.command, fig9.Args) and args.command.form == "sum"
+    with pytest.raises(SystemExit) as exit_info:
+        fig2.main(["--help"])
+    assert exit_info.value.code == 0 and "--pendulum-epochs INT" in capsys.readouterr().out

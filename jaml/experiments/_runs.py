@@ -1,8 +1,7 @@
-"""What the figure drivers share: reading run histories, table cells, scale options."""
+"""What the figure drivers share: reading run histories, table cells."""
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -21,14 +20,3 @@ def cell(values, digits: int = 3) -> str:
     if len(values) < 2:
         return f"{mean:.{digits}f}"
     return f"{mean:.{digits}f} ± {(high - low) / 2:.{digits}f}"
-
-
-def add_scale_options(parser: argparse.ArgumentParser, scale: dict[str, int]) -> None:
-    """--num-envs, --epochs, …: one integer option per entry of a driver's SCALE."""
-    for k, v in scale.items():
-        parser.add_argument("--" + k.replace("_", "-"), type=int, default=v)
-
-
-def apply_scale(args: argparse.Namespace, scale: dict[str, int]) -> None:
-    """Updates the driver's SCALE in place from the parsed options."""
-    scale.update({k: getattr(args, k) for k in scale})

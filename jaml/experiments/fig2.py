@@ -25,13 +25,15 @@ pendulums, 300 on locomotion (the paper trained tens of thousands).
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 import sys
 import time
 from pathlib import Path
+from typing import Annotated, Literal
 
 import numpy as np
+import tyro
 
 from jaml.evaluation import plots
 from jaml.experiments._runs import cell, read_history
@@ -181,40 +183,72 @@ def report(out: Path, envs, variants) -> str:
     return text
 
 
-def main(argv=None) -> int:
-    from jaml.cli import key_value
+@dataclasses.dataclass(frozen=True)
+class Args:
+    """Paper Fig. 2: every (env, variant) cell trains its seeds together into OUT/ENV/VARIANT/
+    seed_N (each resumable), then OUT/fig2.md and the figures are written from the runs."""
 
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument("--envs", nargs="+", default=list(ENVS), choices=ENVS)
-    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
-    parser.add_argument("--seeds", type=int, nargs="+", default=list(SEEDS))
-    parser.add_argument("--learner-opt", type=key_value, action="append", metavar="KEY=VALUE",
-                        default=[], help="a learner config field for every run, e.g. "
-                                         "frame_nll=mean (the reference code's likelihood)")
-    for k, v in SCALE.items():
-        parser.add_argument("--" + k.replace("_", "-"), type=int, default=v)
-    for fam, (epochs, every) in SCHEDULE.items():
-        parser.add_argument(f"--{fam}-epochs", type=int, default=epochs)
-        parser.add_argument(f"--{fam}-eval-every", type=int, default=every)
-    parser.add_argument("--stop-after", type=int, default=None,
-                        help="epochs per cell in this call (a session's share); rerun resumes")
-    parser.add_argument("--report-only", action="store_true")
-    args = parser.parse_args(argv)
-    scale = {k: getattr(args, k) for k in SCALE}
-    schedule = {f: (getattr(args, f"{f}_epochs"), getattr(args, f"{f}_eval_every"))
-                for f in SCHEDULE}
-    if not args.report_only:
-        for env in args.envs:
-            for variant in args.variants:
-                started = time.perf_counter()
-                summaries = run_cell(args.out, env, variant, args.seeds, scale, schedule,
-                                     dict(args.learner_opt), args.stop_after)
-                statuses = sorted({s["status"] for s in summaries})
-                print(f"{env} {variant}: {len(summaries)} seeds {'/'.join(statuses)} in "
-                      f"{time.perf_counter() - started:.0f}s", flush=True)
-    print(report(args.out, args.envs, args.variants))
-    return 0
+    out: Path
+    """the grid's directory"""
+    envs: tuple[Literal[ENVS], ...] = ENVS
+    """domains of the grid"""
+    variants: tuple[Literal[tuple(VARIANTS)], ...] = tuple(VARIANTS)
+    """learner variants (β-VAE at β 5 and 20)"""
+    seeds: tuple[int, ...] = SEEDS
+    """seeds of each cell, trained together"""
+    learner_opt: Annotated[tuple[str, ...], tyro.conf.UseAppendAction,
+                           tyro.conf.arg(metavar="KEY=VALUE")] = ()
+    """a learner config field for every run (repeatable), e.g. frame_nll=mean (the reference
+    code's likelihood)"""
+    num_envs: int = SCALE["num_envs"]
+    """envs stepped in parallel (the paper's 64)"""
+    replay_slots: int = SCALE["replay_slots"]
+    """replay columns (the paper's 5000, rounded to a multiple of num_envs)"""
+    eval_train: int = SCALE["eval_train"]
+    """sequences in the alignment regressor's training set"""
+    eval_rand: int = SCALE["eval_rand"]
+    """sequences in the π_rand test set"""
+    eval_curr: int = SCALE["eval_curr"]
+    """sequences in the π_curr test set"""
+    regressor_iterations: int = SCALE["regressor_iterations"]
+    """alignment regressor steps"""
+    pendulum_epochs: int = SCHEDULE["pendulum"][0]
+    """epochs of CartPole and InvertedPendulum runs"""
+    pendulum_eval_every: int = SCHEDULE["pendulum"][1]
+    """epochs between their analyses"""
+    locomotion_epochs: int = SCHEDULE["locomotion"][0]
+    """epochs of HalfCheetah and Ant runs"""
+    locomotion_eval_every: int = SCHEDULE["locomotion"][1]
+    """epochs between their analyses"""
+    stop_after: int | None = None
+    """epochs per cell in this call (a session's share); a rerun resumes"""
+    report_only: bool = False
+    """no training: fig2.md and the figures from the runs under OUT"""
+
+    def run(self) -> int:
+        from jaml.cli import key_values
+
+        scale = {k: getattr(self, k) for k in SCALE}
+        schedule = {f: (getattr(self, f"{f}_epochs"), getattr(self, f"{f}_eval_every"))
+                    for f in SCHEDULE}
+        if not self.report_only:
+            for env in self.envs:
+                for variant in self.variants:
+                    started = time.perf_counter()
+                    summaries = run_cell(self.out, env, variant, self.seeds, scale, schedule,
+                                         key_values(self.learner_opt), self.stop_after)
+                    statuses = sorted({s["status"] for s in summaries})
+                    print(f"{env} {variant}: {len(summaries)} seeds {'/'.join(statuses)} in "
+                          f"{time.perf_counter() - started:.0f}s", flush=True)
+        print(report(self.out, self.envs, self.variants))
+        return 0
+
+
+def main(argv=None) -> int:
+    """`python -m jaml.experiments.fig2 ARGS` is `jaml fig2 ARGS`."""
+    from jaml import cli
+
+    return cli.main(["fig2", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":

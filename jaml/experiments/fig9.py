@@ -29,17 +29,17 @@ as parallel processes (what docs/results/fig9.md did, 2.1× the throughput of on
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import sys
 import time
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
 from jaml.evaluation import plots
-from jaml.experiments._runs import add_scale_options, apply_scale, cell, read_history
+from jaml.experiments._runs import cell, read_history
 
 SOURCE, TARGET = "geom-on-incline", "MeshOnIncline"
 METHODS = {  # name → (learner, relation set or None)
@@ -285,40 +285,72 @@ def report(out: Path, methods) -> str:
     return text
 
 
+@dataclasses.dataclass(frozen=True)
+class Args:
+    """Paper Fig. 9: relations learned on geom-on-incline imposed on PRED trained on
+    MeshOnIncline; relations, the penalty-weight pilot, every method's seeds, then OUT/fig9.md
+    and OUT/fig9.png (each step resumable in OUT)."""
+
+    out: Path
+    """the experiment's directory"""
+    methods: tuple[Literal[tuple(METHODS)], ...] = tuple(METHODS)
+    """methods to train (they share only the relations and the chosen weight)"""
+    seeds: tuple[int, ...] = (0, 1, 2)
+    """seeds of each method, trained together"""
+    weights: tuple[float, ...] = PILOT_WEIGHTS
+    """penalty weight; several: choose by pilot runs' validation error"""
+    form: Literal["hinge", "sum"] = Penalty.form
+    """hinge: the reference's mean_k |g_k| above its on-manifold mean; sum: the paper's
+    Σ_k |g_k|"""
+    pilot_seed: int = 100
+    """seed of the pilot runs (not reported)"""
+    report_only: bool = False
+    """no training: fig9.md and fig9.png from the finished runs"""
+    pilot_only: bool = False
+    """learn the relations and choose the weight, then stop (so that methods can then run as
+    parallel processes)"""
+    num_envs: int = SCALE["num_envs"]
+    """envs stepped in parallel"""
+    replay_slots: int = SCALE["replay_slots"]
+    """replay columns (a multiple of num_envs)"""
+    epochs: int = SCALE["epochs"]
+    """epochs of every run"""
+    eval_every: int = SCALE["eval_every"]
+    """epochs between analyses"""
+    eval_train: int = SCALE["eval_train"]
+    """sequences in the alignment regressor's training set"""
+    eval_rand: int = SCALE["eval_rand"]
+    """sequences in the π_rand test set (≥ 10K distortion pairs need 4096)"""
+    eval_curr: int = SCALE["eval_curr"]
+    """sequences in the π_curr test set"""
+    regressor_iterations: int = SCALE["regressor_iterations"]
+    """alignment regressor steps"""
+
+    def run(self) -> int:
+        SCALE.update({k: getattr(self, k) for k in SCALE})
+        if not self.report_only:
+            started = time.perf_counter()
+            if any(METHODS[m][1] for m in self.methods):
+                learn_relations(self.out)
+            if len(self.weights) > 1:
+                penalty = choose_weight(self.out, self.weights, self.pilot_seed, self.form)
+            else:
+                penalty = Penalty(self.weights[0], self.form)
+            print(f"penalty: {penalty}", flush=True)
+            if self.pilot_only:
+                return 0
+            for method in self.methods:
+                run_method(self.out, method, self.seeds, penalty)
+            print(f"fig9 total {time.perf_counter() - started:.0f}s", flush=True)
+        print(report(self.out, self.methods))
+        return 0
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--weights", type=float, nargs="+", default=list(PILOT_WEIGHTS),
-                        help="penalty weight; several: choose by pilot runs' validation error")
-    parser.add_argument("--form", choices=("hinge", "sum"), default=Penalty.form,
-                        help="hinge: the reference's mean_k |g_k| above its on-manifold mean; "
-                             "sum: the paper's Σ_k |g_k|")
-    parser.add_argument("--pilot-seed", type=int, default=100)
-    parser.add_argument("--report-only", action="store_true")
-    parser.add_argument("--pilot-only", action="store_true",
-                        help="learn the relations and choose the weight, then stop (so that "
-                             "methods can then run as parallel processes)")
-    add_scale_options(parser, SCALE)
-    args = parser.parse_args(argv)
-    apply_scale(args, SCALE)
-    if not args.report_only:
-        started = time.perf_counter()
-        if any(METHODS[m][1] for m in args.methods):
-            learn_relations(args.out)
-        if len(args.weights) > 1:
-            penalty = choose_weight(args.out, args.weights, args.pilot_seed, args.form)
-        else:
-            penalty = Penalty(args.weights[0], args.form)
-        print(f"penalty: {penalty}", flush=True)
-        if args.pilot_only:
-            return 0
-        for method in args.methods:
-            run_method(args.out, method, args.seeds, penalty)
-        print(f"fig9 total {time.perf_counter() - started:.0f}s", flush=True)
-    print(report(args.out, args.methods))
-    return 0
+    """`python -m jaml.experiments.fig9 ARGS` is `jaml fig9 ARGS`."""
+    from jaml import cli
+
+    return cli.main(["fig9", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":

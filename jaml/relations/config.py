@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Literal, get_args
 
-INDEPENDENCE = ("transversality", "syzygy")
-OBJECTIVES = ("paper", "reference")
+Independence = Literal["transversality", "syzygy"]
+Objective = Literal["paper", "reference"]
+INDEPENDENCE: tuple[str, ...] = get_args(Independence)
+OBJECTIVES: tuple[str, ...] = get_args(Objective)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -27,7 +30,9 @@ class Config:
       batch_size: on- and off-manifold rows per step (reference: 1024).
       learning_rate: Adam step size (reference: 1e-4).
       max_steps: cap on optimizer steps per relation (reference: 50 000).
-      base_width, max_width, depth: g_k has `depth` hidden layers of base·2^(k−1) units, capped.
+      base_width: hidden width of g_1; g_k's layers have base_width·2^(k−1) units (capped).
+      max_width: cap on the hidden width of every g_k.
+      depth: hidden layers of every g_k.
       transversality_weight: β of eq. 2; None picks the objective's default (paper 1e3, ref. 1).
       syzygies_per_relation: rounds S of {fit f, push g_k} per relation in syzygy mode.
       syzygy_width: hidden width of the syzygy network f.
@@ -49,8 +54,8 @@ class Config:
     """
 
     max_relations: int = 10
-    independence: str = "transversality"
-    objective: str = "paper"
+    independence: Independence = "transversality"
+    objective: Objective = "paper"
     seed: int = 0
     batch_size: int = 1024
     learning_rate: float = 1e-4

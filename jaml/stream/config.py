@@ -25,6 +25,7 @@ class StreamConfig:
 
     env / learner: registry names (`envs_mjx.ALL_ENVS`, `jaml.learners.ALL_LEARNERS`).
     policy: "ppo" (PPO on the true LD state) or "random" (uniform actions).
+    seed: PRNG seed of the run (envs, policy, learner, replay sampling, test sets).
     num_envs: envs stepped in parallel; each epoch adds one replay column per env.
     rollout_len: steps per env per epoch (a column holds rollout_len + 1 frames).
     replay_slots: replay columns (the reference's 5000); a multiple of num_envs.
@@ -45,6 +46,7 @@ class StreamConfig:
       (Incline, reference §5), errors then in those units.
     distortion_dims: LD-state names whose values are τ^true in the distortion ρ (paper eq. 5;
       the incline's dynamic state, position and velocity); empty means all of them.
+    ppo: PPO's hyper-parameters (`for_env` sets the network and passes per domain).
     learner_overrides: learner config fields (e.g. beta, hist).
     env_overrides: env config fields (e.g. multicolor).
     """

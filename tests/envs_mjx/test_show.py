@@ -1,6 +1,7 @@
 """`jaml envs list` and `jaml envs show`, driven through jaml.cli.main."""
 
 import numpy as np
+import pytest
 from PIL import Image
 
 import envs_mjx
@@ -18,15 +19,18 @@ def test_envs_list_prints_every_env_with_sizes_and_names(capsys):
 
 
 def test_envs_show_unknown_name_lists_valid_ones(capsys, tmp_path):
-    assert main(["envs", "show", "Nope", "--out", str(tmp_path / "x.png")]) == 2
+    with pytest.raises(SystemExit) as exit_info:
+        main(["envs", "show", "--env", "Nope", "--out", str(tmp_path / "x.png")])
     err = capsys.readouterr().err
-    assert "unknown env 'Nope'" in err and "CartPole" in err and "GeomOnIncline" in err
+    assert exit_info.value.code == 2
+    assert "invalid choice 'Nope'" in err and "CartPole" in err and "GeomOnIncline" in err
     assert not (tmp_path / "x.png").exists()
 
 
 def test_envs_show_writes_a_resets_by_time_grid(tmp_path, capsys):
     out = tmp_path / "cartpole.png"
-    argv = ["envs", "show", "CartPole", "--out", str(out), "--resets", "2", "--steps", "3"]
+    argv = ["envs", "show", "--env", "CartPole", "--out", str(out), "--resets", "2", "--steps",
+            "3"]
     assert main([*argv, "--seed", "1"]) == 0
     assert str(out) in capsys.readouterr().out
     img = np.asarray(Image.open(out))

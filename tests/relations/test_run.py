@@ -84,12 +84,15 @@ def test_every_subcommand_has_help(argv, capsys):
 
 
 def test_bad_cli_values_give_clear_errors(tmp_path, capsys):
-    with pytest.raises(SystemExit):
-        cli.main(["relations", "--source", "torus", "--out", str(tmp_path)])
-    assert "invalid choice: 'torus'" in capsys.readouterr().err
-    code = cli.main(["relations", "--source", "ellipse", "--out", str(tmp_path),
-                     "--independence", "orthogonality"])
-    assert code == 2 and "independence must be one of" in capsys.readouterr().err
+    code = cli.main(["relations", "--source", "torus", "--out", str(tmp_path)])
+    assert code == 2 and "unknown source 'torus'; valid sources" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["relations", "--source", "ellipse", "--out", str(tmp_path),
+                  "--independence", "orthogonality"])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and len(err.strip().splitlines()) == 1
+    assert "invalid choice 'orthogonality' for argument '--independence'" in err
+    assert "('transversality', 'syzygy')" in err
 
 
 def test_pretraining_towards_a_prior_heuristic():

@@ -84,7 +84,15 @@ def _row(tree, i):
 # -- contract -------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("name,arm", PAIRS)
+# The Franka scenes' batched reset + rollout compile for 2–3 minutes each on two CPU cores: their
+# contract and C-MuJoCo stepping run with the slow tests (`make test-slow`); the default suite
+# checks the Franka's kinematics, IK and LD names against MuJoCo and renders its scenes against
+# mujoco.Renderer below.
+SLOW_FRANKA = [pytest.param(n, a, marks=pytest.mark.slow) if a == "franka" else (n, a)
+               for n, a in PAIRS]
+
+
+@pytest.mark.parametrize("name,arm", SLOW_FRANKA)
 def test_contract_jit_vmap(name, arm):
     h = harness(name, arm)
     env = h.env
@@ -288,7 +296,7 @@ K = 3
 C_TOL = (1e-4, 2e-2)
 
 
-@pytest.mark.parametrize("name,arm", PAIRS)
+@pytest.mark.parametrize("name,arm", SLOW_FRANKA)
 def test_mjx_step_matches_c_mujoco(name, arm):
     h = harness(name, arm)
     env = h.env

@@ -10,11 +10,9 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 
 from jaml.relations.relation_set import RelationSet, evaluate
 
@@ -63,7 +61,7 @@ def plot_zero_sets_3d(rs: RelationSet, on: np.ndarray, path, key=None, names=("x
         for k in range(rs.num_relations)
     ]
     titles = ["on-manifold data", *_titles(rs)]
-    fig = plt.figure(figsize=(4 * len(titles), 4.2))
+    fig = Figure(figsize=(4 * len(titles), 4.2))
     for i, (points, title) in enumerate(zip([on, *sets], titles, strict=True)):
         ax = fig.add_subplot(1, len(titles), i + 1, projection="3d")
         if len(points):
@@ -79,9 +77,7 @@ def plot_zero_sets_3d(rs: RelationSet, on: np.ndarray, path, key=None, names=("x
             zlabel=names[2],
         )
         ax.set_title(f"{title} ({len(points)} pts)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    _save(fig, path)
     return Path(path)
 
 
@@ -116,9 +112,8 @@ def plot_phase_space(rs: RelationSet, on_by_range: dict, path, key=None):
     each relation's zero-level set. τ must be (s0, v0, s1, v1, …) time-major rows."""
     key = jax.random.key(0) if key is None else key
     ncols = 2 + rs.num_relations
-    fig, axes = plt.subplots(
-        len(on_by_range), ncols, figsize=(3.6 * ncols, 3.4 * len(on_by_range)), squeeze=False
-    )
+    fig = Figure(figsize=(3.6 * ncols, 3.4 * len(on_by_range)))
+    axes = fig.subplots(len(on_by_range), ncols, squeeze=False)
     for row, (label, on) in enumerate(on_by_range.items()):
         low, high = _box(np.asarray(on))
         limits = ((low[0], high[0]), (low[1], high[1]))
@@ -130,7 +125,12 @@ def plot_phase_space(rs: RelationSet, on_by_range: dict, path, key=None):
         titles = [f"on-manifold, {label}"] + [f"{t}, {label}" for t in _titles(rs)]
         for col, (tau, title) in enumerate(zip([np.asarray(on), *sets], titles, strict=True)):
             _arrows(axes[row, col], tau, title, limits)
+    _save(fig, path)
+    return Path(path)
+
+
+def _save(fig: Figure, path) -> None:
+    """Renders with the Agg canvas (no pyplot, no global backend) and writes the file."""
+    FigureCanvasAgg(fig)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return Path(path)

@@ -32,7 +32,25 @@ from flax import linen, struct
 
 @dataclasses.dataclass(frozen=True)
 class PPOConfig:
-    """PPO hyper-parameters; defaults are the reference's pendulum settings."""
+    """PPO hyper-parameters; defaults are the reference's pendulum settings.
+
+    hidden: widths of the policy's and the value function's MLP hidden layers.
+    learning_rate: Adam step size at the start of the run.
+    lr_decay: decay the step size linearly to 0 over the run's epochs (one PPO update each).
+    discounting: the discount γ.
+    gae_lambda: GAE's λ; 1 (the reference) gives discounted returns bootstrapped from the value
+      at the rollout's end.
+    clipping_epsilon: PPO's ratio clip.
+    vf_coefficient: weight of the value loss.
+    entropy_cost: weight of the entropy bonus.
+    max_grad_norm: global gradient-norm clip.
+    num_updates: passes over each rollout.
+    num_minibatches: minibatches per pass, each of whole env trajectories (must divide
+      num_envs).
+    normalize_observations: running mean/std normalisation of the LD-state observations.
+    normalize_advantage: standardise advantages per minibatch.
+    reward_scaling: multiplies rewards inside the loss.
+    """
 
     hidden: tuple[int, ...] = (64, 64)
     learning_rate: float = 1e-4

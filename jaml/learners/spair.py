@@ -7,8 +7,11 @@ a box (`where`), an appearance (`what`) read from a glimpse of that box by a spa
 a depth and a relaxed-Bernoulli presence. The presence prior is SPAIR's prior on the object
 count, a truncated geometric annealed over training. Objects are decoded to RGB + alpha glimpses,
 placed back with the inverse transform and composed over a decoded background by SPAIR's
-importance-weighted rule. Shapes: B batch, N = G² cells, g glimpse side, H = W = 64, C = 3,
-K what size, Q background size, P = 4 + K + 2 per-cell program (box, what, depth, presence).
+importance-weighted rule. For the first training steps SPAIR's training wheels hold the box,
+depth and presence posteriors out of the gradient; `jaml.learners.spair_probe` checks that the
+presences find objects on a toy task. Shapes: B batch, N = G² cells, g glimpse side,
+H = W = 64, C = 3, K what size, Q background size, P = 4 + K + 2 per-cell program (box, what,
+depth, presence).
 """
 
 from __future__ import annotations
@@ -44,6 +47,11 @@ class SPAIRConfig(SingleFrameConfig):
     Defaults follow SPAIR's published configuration (auto_yolo `yolo_air_config`) where it has
     one, and our choices otherwise (docs/learners.md lists which).
 
+    beta: the weight of every KL group against the unit-variance Gaussian −log p(x | ·) (0.1).
+      With Adam, loss = nll + β·KL trains like a Gaussian likelihood of σ = √β ≈ 0.32, close to
+      the weight SPAIR's per-pixel cross-entropy gives a pixel (its curvature 1/(p(1 − p)) is
+      4 at p = ½, 11 at p = 0.1). At β = 1 an object's pixels were worth less than its KLs and
+      the presences died on the toy task (docs/learners.md, `spair_probe`).
     grid_size: G, cells per side (4; the paper's other grid is 6); any of 1..8.
     glimpse_size: side g of the object glimpse (the AML paper's 28); a multiple of 4.
     what_dim: K, appearance latent per cell (SPAIR's A = 50). bg_dim: Q, background latent.
@@ -68,9 +76,16 @@ class SPAIRConfig(SingleFrameConfig):
       the decoded background before its bilinear upsampling to 64×64.
     init_logvar: initial bias of every posterior log-variance head (σ ≈ 0.37 at −2): with unit
       variances the sampled boxes and presences made the early loss mostly noise.
+    training_wheels_steps: SPAIR's training wheels: for the first this many training steps no
+      gradient reaches the box, depth and presence posteriors (their μ, logvar and the presence
+      logit are held by a stop-gradient), so that the glimpse encoder / decoder learn to draw
+      what lies in the initial boxes before the boxes and presences move (SPAIR: 1000, a
+      staircase `Exp(1.0, 0.0, decay_rate=0.0, decay_steps=1000, staircase=True)`); 0 turns
+      them off.
     conv_filters / deconv_filters / mu_nl are not used.
     """
 
+    beta: float = 0.1
     grid_size: int = 4
     glimpse_size: int = 28
     what_dim: int = 50
@@ -92,6 +107,7 @@ class SPAIRConfig(SingleFrameConfig):
     bg_hidden: int = 128
     bg_resolution: int = 16
     init_logvar: float = -2.0
+    training_wheels_steps: int = 1000
 
     def __post_init__(self):
         super().__post_init__()
@@ -107,6 +123,7 @@ class SPAIRConfig(SingleFrameConfig):
             ("count_prior_odds", self.count_prior_odds > 0.0, "> 0"),
             ("count_prior_odds_start", self.count_prior_odds_start > 0.0, "> 0"),
             ("count_prior_decay_steps", self.count_prior_decay_steps >= 0, "≥ 0"),
+            ("training_wheels_steps", self.training_wheels_steps >= 0, "≥ 0"),
             ("temperature", self.temperature > 0.0, "> 0"),
             ("backbone_filters", len(self.backbone_filters) == 3, "three conv widths"),
             ("lateral_widths", len(self.lateral_widths) >= 1, "at least one width"),
@@ -145,6 +162,10 @@ class SPAIRConfig(SingleFrameConfig):
         start = math.log(self.count_prior_odds_start)
         decay = 0.1 ** (jnp.asarray(step, jnp.float32) / self.count_prior_decay_steps)
         return end + (start - end) * decay
+
+    def training_wheels(self, step) -> jax.Array:
+        """1.0 while the training wheels are on (`step` < training_wheels_steps), else 0.0."""
+        return (jnp.asarray(step, jnp.float32) < self.training_wheels_steps).astype(jnp.float32)
 
 
 # --- Spatial transformer (axis-aligned boxes: scale + translation, separable) ---------------
@@ -229,6 +250,11 @@ def bernoulli_kl(logit: jax.Array, prior) -> jax.Array:
 def relaxed_bernoulli(key: jax.Array, logit: jax.Array, temperature: float) -> jax.Array:
     """[...] in (0, 1): binary-concrete sample σ((logit + log u − log(1 − u)) / temperature)."""
     return jax.nn.sigmoid((logit + logistic_noise(key, logit.shape)) / temperature)
+
+
+def held(x: jax.Array, wheels) -> jax.Array:
+    """x in the forward pass; its gradient scaled by 1 − wheels (0 while the wheels are on)."""
+    return wheels * jax.lax.stop_gradient(x) + (1.0 - wheels) * x
 
 
 def logistic_noise(key: jax.Array, shape) -> jax.Array:
@@ -452,13 +478,14 @@ class CellStep(nn.Module):
     the edge element above and to both sides and holding the edge element where no cell has
     been inferred yet. xs per cell: feature [B, F], index n, the Gaussian noises of where
     [B, 4], what [B, K] and depth [B, 1] and the presence's logistic noise [B] (all zero for the
-    posterior means). Broadcast: the frame [B, H, W, C] and the presence temperature.
+    posterior means). Broadcast: the frame [B, H, W, C], the presence temperature and the
+    training wheels (1.0: no gradient into the box, depth and presence posteriors; 0.0: off).
     """
 
     config: Any
 
     @nn.compact
-    def __call__(self, grid, xs, img, temperature):
+    def __call__(self, grid, xs, img, temperature, wheels):
         c = self.config
         feat, n, eps_where, eps_what, eps_depth, noise_pres = xs
         row, col = n // c.grid_size, n % c.grid_size
@@ -469,9 +496,9 @@ class CellStep(nn.Module):
 
         out = _Lateral(c.lateral_widths, 2 * WHERE + c.passthrough, name="box")(
             jnp.concatenate([feat, context], axis=-1))
-        where_mu = out[:, :WHERE] + where_mu0
-        where_logvar = jnp.clip(out[:, WHERE:2 * WHERE] + c.init_logvar, -c.logvar_limit,
-                                c.logvar_limit)
+        where_mu = held(out[:, :WHERE] + where_mu0, wheels)
+        where_logvar = held(jnp.clip(out[:, WHERE:2 * WHERE] + c.init_logvar, -c.logvar_limit,
+                                     c.logvar_limit), wheels)
         features = out[:, 2 * WHERE:]
         where = where_mu + eps_where * jnp.exp(0.5 * where_logvar)
         cell = jnp.stack([col, row]).astype(jnp.float32)
@@ -486,8 +513,9 @@ class CellStep(nn.Module):
 
         out = _Lateral(c.lateral_widths, 2 + c.passthrough, name="depth")(
             jnp.concatenate([feat, context, features, program], axis=-1))
-        depth_mu = out[:, :1]
-        depth_logvar = jnp.clip(out[:, 1:2] + c.init_logvar, -c.logvar_limit, c.logvar_limit)
+        depth_mu = held(out[:, :1], wheels)
+        depth_logvar = held(jnp.clip(out[:, 1:2] + c.init_logvar, -c.logvar_limit,
+                                     c.logvar_limit), wheels)
         features = out[:, 2:]
         depth = depth_mu + eps_depth * jnp.exp(0.5 * depth_logvar)
         z = MAX_DEPTH * jax.nn.sigmoid(jnp.clip(depth, -10.0, 10.0))
@@ -495,7 +523,7 @@ class CellStep(nn.Module):
 
         pres_logit = _Lateral(c.lateral_widths, 1, name="pres")(
             jnp.concatenate([feat, context, features, program], axis=-1))[:, 0]
-        pres_logit = jnp.clip(pres_logit, -10.0, 10.0)
+        pres_logit = held(jnp.clip(pres_logit, -10.0, 10.0), wheels)
         pres = jax.nn.sigmoid((pres_logit + noise_pres) / temperature)
         program = jnp.concatenate([program, pres[:, None]], axis=-1)
 
@@ -519,7 +547,8 @@ class SPAIR(nn.Module):
         c = self.config
         self.backbone = GridBackbone(c.backbone_filters, c.conv_features, c.grid_size)
         self.cells = nn.scan(CellStep, variable_broadcast="params", split_rngs={"params": False},
-                             in_axes=(0, nn.broadcast, nn.broadcast), out_axes=0)(c)
+                             in_axes=(0, nn.broadcast, nn.broadcast, nn.broadcast),
+                             out_axes=0)(c)
         # The program of a missing neighbour (off the grid or not yet inferred); box and
         # presence parts pass through a sigmoid like a cell's (SPAIR's edge element).
         self.edge = self.param("edge", nn.initializers.zeros, (c.program_size,))
@@ -537,21 +566,22 @@ class SPAIR(nn.Module):
         e, w = self.edge, WHERE
         return jnp.concatenate([jax.nn.sigmoid(e[:w]), e[w:-1], jax.nn.sigmoid(e[-1:])])
 
-    def infer(self, img, noise, temperature, train: bool) -> tuple[dict, tuple]:
+    def infer(self, img, noise, temperature, train: bool, wheels=0.0) -> tuple[dict, tuple]:
         """img [B, H, W, C] → per-cell latents (each [B, N, ·]; z, pres, pres_logit [B, N]) and
         the background posterior (μ, logvar) [B, Q].
 
         noise: (where [B, N, 4], what [B, N, K], depth [B, N, 1], presence [B, N]) standard
-        normal / logistic draws, zeros for the posterior means (with temperature 1).
+        normal / logistic draws, zeros for the posterior means (with temperature 1). wheels:
+        1.0 holds the box, depth and presence posteriors out of the gradient (`CellStep`).
         """
         feats = self.backbone(img, train)
         feats = feats.reshape(feats.shape[0], -1, feats.shape[-1])  # [B, N, F], row-major cells
         bg = self.bg_head(self.bg_trunk(feats.mean(axis=1)))
-        return self.infer_cells(feats, img, noise, temperature), bg
+        return self.infer_cells(feats, img, noise, temperature, wheels), bg
 
-    def infer_cells(self, feats, img, noise, temperature) -> dict:
-        """The raster-order scan over cells: feats [B, N, F] (the backbone's), img, noise as in
-        `infer` → per-cell latents [B, N, ·]."""
+    def infer_cells(self, feats, img, noise, temperature, wheels=0.0) -> dict:
+        """The raster-order scan over cells: feats [B, N, F] (the backbone's), img, noise,
+        wheels as in `infer` → per-cell latents [B, N, ·]."""
         c = self.config
         b = img.shape[0]
         grid = jnp.broadcast_to(self.edge_program(),
@@ -559,7 +589,8 @@ class SPAIR(nn.Module):
         xs = (feats, *noise)
         xs = jax.tree.map(lambda v: jnp.swapaxes(v, 0, 1), xs)  # cells first
         xs = (xs[0], jnp.arange(c.cells), *xs[1:])
-        _, latents = self.cells(grid, xs, img, jnp.asarray(temperature, jnp.float32))
+        _, latents = self.cells(grid, xs, img, jnp.asarray(temperature, jnp.float32),
+                                jnp.asarray(wheels, jnp.float32))
         return jax.tree.map(lambda v: jnp.swapaxes(v, 0, 1), latents)
 
     def render(self, where, what, z, presence, bg) -> jax.Array:
@@ -584,15 +615,17 @@ class SPAIR(nn.Module):
                  jax.random.normal(k_what, (b, n, c.what_dim)),
                  jax.random.normal(k_depth, (b, n, 1)),
                  logistic_noise(k_pres, (b, n)))
-        lat, (bg_mu, bg_logvar) = self.infer(img, noise, c.temperature, train)
+        # Training steps so far: they drive the training wheels and the count prior's annealing.
+        step = self.steps.value
+        if train and self.is_mutable_collection("batch_stats") and not self.is_initializing():
+            self.steps.value = step + 1.0
+        wheels = c.training_wheels(step) if train else 0.0
+        lat, (bg_mu, bg_logvar) = self.infer(img, noise, c.temperature, train, wheels)
         bg = elbo.reparameterize(k_bg, bg_mu, bg_logvar)
         recon = self.render(lat["where"], lat["what"], lat["z"], lat["pres"], bg)
 
         # The count prior of the presences (SPAIR): each cell's prior given the earlier cells'
         # hard presences, under the annealed geometric prior on the number of objects.
-        step = self.steps.value
-        if train and self.is_mutable_collection("batch_stats") and not self.is_initializing():
-            self.steps.value = step + 1.0
         hard = jax.lax.stop_gradient((lat["pres"] > 0.5).astype(jnp.float32))
         prior = presence_prior(hard, c.count_prior_log_odds(step))
         pres = lat["pres"]  # SPAIR weighs each object's KLs by its (relaxed) presence

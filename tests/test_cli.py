@@ -84,7 +84,8 @@ def test_suite_help_shows_the_pairs_defaults_and_typed_learner_and_env_options(c
     out = " ".join(capsys.readouterr().out.replace("│", " ").split())
     assert "--policy {ppo,random}" in out
     assert "--rollout-len INT steps per env per epoch" in out and "(default: 64)" in out
-    assert "--ppo.hidden [INT [INT ...]] (default: 256 256)" in out
+    assert "--ppo.hidden [INT [INT ...]] widths of the policy's" in out
+    assert "hidden layers. (default: 256 256)" in out
     assert "--learner-config.hist INT" in out and "--learner-config.frame-nll {sum,mean}" in out
     assert "--env-config.pixels {auto,required,off}" in out
     assert "--learner-config.ld-dim" not in out and "--learner-overrides" not in out

@@ -298,23 +298,39 @@ def run_stacked_epochs(stream: Stream, states: StreamState, n: int, *, mesh: Mes
 _BLOCK = 32
 
 
+# (stream, tree, shapes) of sharded states whose per-device programs are compiled.
+_TRACED: set = set()
+
+
 def _blocks_per_device(stream: Stream, mesh: Mesh, states: StreamState, n: int):
     """`_device_block` on each device's runs; the states stay sharded as they came."""
     if mesh.size == 1:
         return _device_block(stream, states, jnp.asarray(n, jnp.int32))
     leaves, treedef = jax.tree.flatten(states)
+    # JAX config contexts are thread-local: a caller's `with jax.threefry_partitionable(...)`
+    # would not reach the device threads, whose random bits would then differ. That one is
+    # carried over; set other tracing flags with `jax.config.update` when using several devices.
+    partitionable = jax.config.jax_threefry_partitionable
 
     def on(device):
         local = [next(s.data for s in x.addressable_shards if s.device == device)
                  for x in leaves]
-        out = _device_block_kept(stream, treedef.unflatten(local),
-                                 jax.device_put(jnp.asarray(n, jnp.int32), device))
-        return jax.block_until_ready(out)
+        with jax.threefry_partitionable(partitionable):
+            out = _device_block_kept(stream, treedef.unflatten(local),
+                                     jax.device_put(jnp.asarray(n, jnp.int32), device))
+            return jax.block_until_ready(out)
 
     # One host thread per device: a GPU while loop's trip test syncs with the thread that
-    # launched it, so a single thread would run the devices one after another.
-    with concurrent.futures.ThreadPoolExecutor(mesh.size) as pool:
-        outs = list(pool.map(on, mesh.devices.flat))
+    # launched it, so a single thread would run the devices one after another. A device's first
+    # call traces and compiles its program: those run in this thread, one device at a time, so
+    # no two threads trace (Flax and JAX tracing state is not shared-thread safe).
+    key = (stream, jax.tree.structure(states), tuple(x.shape for x in leaves))
+    if key not in _TRACED:
+        outs = [on(device) for device in mesh.devices.flat]
+        _TRACED.add(key)
+    else:
+        with concurrent.futures.ThreadPoolExecutor(mesh.size) as pool:
+            outs = list(pool.map(on, mesh.devices.flat))
     sharding = NamedSharding(mesh, P(RUNS_AXIS))
 
     def gather(*parts):

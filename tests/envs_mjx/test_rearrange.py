@@ -370,6 +370,7 @@ def test_v5_slot_shapes_rest_in_c_mujoco():
 # -- reset ----------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # the full reset's 30 physics steps compile for ~40 s on two cores
 def test_reset_settles_objects_inside_the_tray():
     """The full reset (20 settle + 10 random-torque Bullet steps): every object is inside the
     walls, low in the tray (it may rest on another object: spawns overlap, as in the reference),

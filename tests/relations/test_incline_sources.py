@@ -138,8 +138,8 @@ def test_overrides_and_pool():
         sources.make("geom-on-incline", gravity=1.0)
     with pytest.raises(ValueError, match="action_range"):
         sources.make("geom-on-incline", action_range=(-2.0, 2.0))
-    parser = cli.build_parser()
-    args = parser.parse_args(
+    args = cli.parse(
         ["relations", "--source", "geom-on-incline", "--source-opt", "pool_size=4096", "--out", "x"]
     )
-    assert args.source == "geom-on-incline" and args.source_opt == [("pool_size", 4096)]
+    assert args.command.source == "geom-on-incline"
+    assert cli.key_values(args.command.source_opt) == {"pool_size": 4096}

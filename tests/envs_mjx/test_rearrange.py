@@ -90,9 +90,13 @@ def _row(tree, i):
 # mujoco.Renderer below.
 SLOW_FRANKA = [pytest.param(n, a, marks=pytest.mark.slow) if a == "franka" else (n, a)
                for n, a in PAIRS]
+# The contract of the YCB scene with the reacher is RearrangeGeom's with other meshes: slow too
+# (the default suite steps it against C MuJoCo below).
+SLOW_CONTRACT = [pytest.param(n, a, marks=pytest.mark.slow)
+                 if (n, a) != ("RearrangeGeom", "reacher") else (n, a) for n, a in PAIRS]
 
 
-@pytest.mark.parametrize("name,arm", SLOW_FRANKA)
+@pytest.mark.parametrize("name,arm", SLOW_CONTRACT)
 def test_contract_jit_vmap(name, arm):
     h = harness(name, arm)
     env = h.env

@@ -13,6 +13,7 @@ from jaml.stream import ppo as ppo_lib
 THRESHOLD = 150.0
 
 
+@pytest.mark.slow  # ~80 s on two cores; the losses and update are checked by the fast tests
 def test_ppo_learns_cartpole_from_the_ld_state():
     env = envs_mjx.make("CartPole", pixels="off")
     # Reference settings except a 3× learning rate without decay, to learn in a short run.

@@ -69,6 +69,9 @@ class Stream:
     optimizer: Any
     train_step: Any
     keep_fraction: float
+    # The per-device executables of the multi-device loop, by (device, input avals). Shared by
+    # the Streams that `build` makes for one config's seeds (`dataclasses.replace` keeps it).
+    programs: dict = dataclasses.field(default_factory=dict, repr=False)
 
     def __post_init__(self):
         parts = (self.env, self.learner, self.ppo, self.optimizer, self.train_step)
@@ -228,8 +231,13 @@ _PPO_METRICS = ("total_loss", "policy_loss", "v_loss", "entropy_loss", "kl_mean"
 # -- several runs at once ---------------------------------------------------------------------
 
 def stack_runs(states: list[StreamState]) -> StreamState:
-    """R runs' states → one state whose leaves carry a leading runs axis [R, ...]."""
-    return jax.tree.map(lambda *x: jnp.stack(x), *states)
+    """R runs' states → one state whose leaves carry a leading runs axis [R, ...].
+
+    Weak types are dropped (e.g. Brax's normaliser initialises `std_eps` from a Python float):
+    the epoch loop returns strong types, and a leaf whose type changed between calls would
+    re-trace and re-compile the loop on the second call."""
+    return jax.tree.map(lambda *x: jax.lax.convert_element_type(jnp.stack(x), x[0].dtype),
+                        *states)
 
 
 def unstack_runs(states: StreamState) -> list[StreamState]:
@@ -298,39 +306,33 @@ def run_stacked_epochs(stream: Stream, states: StreamState, n: int, *, mesh: Mes
 _BLOCK = 32
 
 
-# (stream, tree, shapes) of sharded states whose per-device programs are compiled.
-_TRACED: set = set()
-
-
 def _blocks_per_device(stream: Stream, mesh: Mesh, states: StreamState, n: int):
-    """`_device_block` on each device's runs; the states stay sharded as they came."""
+    """`_block` on each device's runs; the states stay sharded as they came."""
     if mesh.size == 1:
         return _device_block(stream, states, jnp.asarray(n, jnp.int32))
     leaves, treedef = jax.tree.flatten(states)
-    # JAX config contexts are thread-local: a caller's `with jax.threefry_partitionable(...)`
-    # would not reach the device threads, whose random bits would then differ. That one is
-    # carried over; set other tracing flags with `jax.config.update` when using several devices.
-    partitionable = jax.config.jax_threefry_partitionable
+    devices = list(mesh.devices.flat)
+    args = {d: (treedef.unflatten([next(s.data for s in x.addressable_shards if s.device == d)
+                                   for x in leaves]),
+                jax.device_put(jnp.asarray(n, jnp.int32), d)) for d in devices}
+    # Each device gets its own executable (its inputs live there). Tracing runs here, in the
+    # caller's thread, one device after another: Flax and JAX tracing state is not safe to share
+    # between threads, and JAX's config contexts (e.g. `jax.threefry_partitionable`, which
+    # decides the random bits) are thread-local, so the caller's are the ones that count. What
+    # is thread safe, XLA compiling and running the executables, happens in one host thread per
+    # device: a GPU while loop's trip test syncs with the thread that launched it, so a single
+    # thread would run the devices one after another.
+    avals = tuple(jax.typeof(x) for x in leaves)
+    lowered = {d: _device_block_kept.lower(stream, *args[d]) for d in devices
+               if (d, avals) not in stream.programs}
 
     def on(device):
-        local = [next(s.data for s in x.addressable_shards if s.device == device)
-                 for x in leaves]
-        with jax.threefry_partitionable(partitionable):
-            out = _device_block_kept(stream, treedef.unflatten(local),
-                                     jax.device_put(jnp.asarray(n, jnp.int32), device))
-            return jax.block_until_ready(out)
+        if device in lowered:
+            stream.programs[device, avals] = lowered[device].compile()
+        return jax.block_until_ready(stream.programs[device, avals](*args[device]))
 
-    # One host thread per device: a GPU while loop's trip test syncs with the thread that
-    # launched it, so a single thread would run the devices one after another. A device's first
-    # call traces and compiles its program: those run in this thread, one device at a time, so
-    # no two threads trace (Flax and JAX tracing state is not shared-thread safe).
-    key = (stream, jax.tree.structure(states), tuple(x.shape for x in leaves))
-    if key not in _TRACED:
-        outs = [on(device) for device in mesh.devices.flat]
-        _TRACED.add(key)
-    else:
-        with concurrent.futures.ThreadPoolExecutor(mesh.size) as pool:
-            outs = list(pool.map(on, mesh.devices.flat))
+    with concurrent.futures.ThreadPoolExecutor(mesh.size) as pool:
+        outs = list(pool.map(on, devices))
     sharding = NamedSharding(mesh, P(RUNS_AXIS))
 
     def gather(*parts):
@@ -358,7 +360,7 @@ def _block(stream: Stream, states: StreamState, n: jax.Array):
 
 _device_block = jax.jit(_block, static_argnums=0, donate_argnums=1)
 # For one device's shard of sharded states: its buffers are views of the sharded arrays, which
-# are not donated.
+# are not donated. Lowered and compiled explicitly, per device, into `Stream.programs`.
 _device_block_kept = jax.jit(_block, static_argnums=0)
 
 

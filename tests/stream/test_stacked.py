@@ -45,11 +45,12 @@ def test_runs_split_across_two_devices_match_each_run_alone():
     assert jax.device_count() == 2, "tests/conftest.py asks XLA for two CPU devices"
     mesh = stream.runs_mesh(len(SEEDS))
     states = stream.stack_runs([s.init(jax.random.PRNGKey(seed)) for seed in SEEDS])
-    # One epoch per call: the first call compiles each device's program in turn, the second
-    # runs the devices from their own threads.
+    # One epoch per call: the first call compiles each device's program, the second must reuse
+    # them (the states it returns have the types it was given).
     states, first = stream.run_stacked_epochs(s, states, 1, mesh=mesh, host_loop=False)
     states, second = stream.run_stacked_epochs(s, states, EPOCHS - 1, mesh=mesh,
                                                host_loop=False)
+    assert sorted(d.id for d, _ in s.programs) == [0, 1], "one program per device, reused"
     together = jax.tree.map(lambda a, b: np.concatenate([a, b]), first, second)
     assert mesh.size == 2 and states.epoch.tolist() == [EPOCHS] * len(SEEDS)
     assert [np.asarray(m["learner/training"]).tolist() for m in alone] == [[0, 1]] * 3

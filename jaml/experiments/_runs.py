@@ -1,17 +1,104 @@
-"""What the figure drivers share: reading run histories, table cells."""
+"""What the figure drivers share: the command's skeleton (train, then report), training one
+cell's seeds together, reading run histories, interval statistics and table cells."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import sys
+import time
 from pathlib import Path
 
+import numpy as np
+
 from jaml.evaluation import plots
+
+
+@dataclasses.dataclass(frozen=True)
+class Driver:
+    """A figure's command: `train()` (skipped with --report-only), then `report()` printed.
+    Subclasses are the drivers' `Args` dataclasses; their fields become the command's flags."""
+
+    def train(self) -> bool | None:
+        """Trains (or resumes) the figure's runs; False ends the command without a report."""
+        raise NotImplementedError
+
+    def report(self) -> str:
+        """Writes the figure's markdown and images from the runs found; returns the markdown."""
+        raise NotImplementedError
+
+    def fields(self, names) -> dict:
+        """{name: this command's value} for the named flags (e.g. a driver's SCALE keys)."""
+        return {k: getattr(self, k) for k in names}
+
+    def run(self) -> int:
+        if not getattr(self, "report_only", False):
+            started = time.perf_counter()
+            if self.train() is False:
+                return 0
+            print(f"training: {time.perf_counter() - started:.0f}s in this call", flush=True)
+        print(self.report())
+        return 0
+
+
+def main(command: str, argv=None) -> int:
+    """`python -m jaml.experiments.COMMAND ARGS` is `jaml COMMAND ARGS`."""
+    from jaml import cli
+
+    return cli.main([command, *(sys.argv[1:] if argv is None else argv)])
+
+
+def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,
+                latent_penalty=None) -> list[dict]:
+    """Every seed of one cell trained together (`run_many`: one program, the seeds stacked),
+    each in its resumable directory; prints one line per seed (status, seconds by phase) and
+    one for the cell. Returns the runs' summaries."""
+    from jaml.stream.run import run_many
+
+    started = time.perf_counter()
+    summaries = run_many(list(configs), list(dirs), progress=False, stop_after=stop_after,
+                         latent_penalty=latent_penalty)
+    for config, summary in zip(configs, summaries, strict=True):
+        phases = ", ".join(f"{k} {v:.0f}s" for k, v in summary["seconds_by_phase"].items())
+        print(f"{label} seed {config.seed}: {summary['status']} at epoch {summary['epoch']} "
+              f"({phases})", flush=True)
+    statuses = "/".join(sorted({s["status"] for s in summaries}))
+    print(f"{label}: {len(summaries)} seeds {statuses} in {time.perf_counter() - started:.0f}s",
+          flush=True)
+    return summaries
 
 
 def read_history(path: Path) -> list[dict]:
     """The analysis records of a run's history.jsonl ([] when it has none yet)."""
     text = path.read_text() if path.exists() else ""
     return [json.loads(x) for x in text.splitlines() if x.strip()]
+
+
+def seed_histories(directory: Path) -> list[list[dict]]:
+    """The histories of the seed_N runs under `directory` that have analysed at least once,
+    in seed-directory order."""
+    histories = (read_history(d / "history.jsonl") for d in sorted(directory.glob("seed_*")))
+    return [h for h in histories if h]
+
+
+def last_common_step(histories: list[list[dict]]) -> int:
+    """The last analysis step every run reached."""
+    return min(max(r["step"] for r in h) for h in histories)
+
+
+def welch_interval(a, b, confidence: float = 0.90) -> tuple[float, float, float]:
+    """(mean(a) − mean(b), low, high): Welch's interval for the difference of two means
+    (scipy's unequal-variance t-test)."""
+    from scipy import stats
+
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    diff = float(a.mean() - b.mean())
+    if a.size < 2 or b.size < 2:
+        return diff, float("nan"), float("nan")
+    if a.var() == 0 and b.var() == 0:
+        return diff, diff, diff
+    ci = stats.ttest_ind(a, b, equal_var=False).confidence_interval(confidence)
+    return diff, float(ci.low), float(ci.high)
 
 
 def cell(values, digits: int = 3) -> str:

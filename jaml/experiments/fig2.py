@@ -28,7 +28,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import sys
-import time
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -36,7 +35,8 @@ import numpy as np
 import tyro
 
 from jaml.evaluation import plots
-from jaml.experiments._runs import cell, read_history
+from jaml.experiments import _runs
+from jaml.experiments._runs import cell
 
 PENDULUMS = ("CartPole", "InvertedPendulum")
 LOCOMOTION = ("HalfCheetah", "Ant")
@@ -78,11 +78,9 @@ def config_for(env: str, variant: str, seed: int, scale: dict, schedule: dict,
 def run_cell(out: Path, env: str, variant: str, seeds, scale: dict, schedule: dict,
              learner_opt: dict | None = None, stop_after: int | None = None) -> list[dict]:
     """Every seed of one (env, variant), trained together; returns their summaries."""
-    from jaml.stream.run import run_many
-
     configs = [config_for(env, variant, s, scale, schedule, learner_opt) for s in seeds]
     dirs = [out / env / variant / f"seed_{s}" for s in seeds]
-    return run_many(configs, dirs, progress=False, stop_after=stop_after)
+    return _runs.train_seeds(f"{env} {variant}", configs, dirs, stop_after=stop_after)
 
 
 def ld_groups(env: str) -> dict[str, list[str]]:
@@ -108,8 +106,7 @@ def _histories(out: Path, env: str, variants) -> dict[str, list[list[dict]]]:
     """variant → one history per seed run found under OUT/ENV/VARIANT."""
     runs = {}
     for variant in variants:
-        seed_dirs = sorted((out / env / variant).glob("seed_*"))
-        histories = [h for h in (read_history(d / "history.jsonl") for d in seed_dirs) if h]
+        histories = _runs.seed_histories(out / env / variant)
         if histories:
             runs[variant] = histories
     return runs
@@ -184,7 +181,7 @@ def report(out: Path, envs, variants) -> str:
 
 
 @dataclasses.dataclass(frozen=True)
-class Args:
+class Args(_runs.Driver):
     """Paper Fig. 2: every (env, variant) cell trains its seeds together into OUT/ENV/VARIANT/
     seed_N (each resumable), then OUT/fig2.md and the figures are written from the runs."""
 
@@ -225,30 +222,24 @@ class Args:
     report_only: bool = False
     """no training: fig2.md and the figures from the runs under OUT"""
 
-    def run(self) -> int:
+    def train(self) -> None:
         from jaml.cli import key_values
 
-        scale = {k: getattr(self, k) for k in SCALE}
+        scale = self.fields(SCALE)
         schedule = {f: (getattr(self, f"{f}_epochs"), getattr(self, f"{f}_eval_every"))
                     for f in SCHEDULE}
-        if not self.report_only:
-            for env in self.envs:
-                for variant in self.variants:
-                    started = time.perf_counter()
-                    summaries = run_cell(self.out, env, variant, self.seeds, scale, schedule,
-                                         key_values(self.learner_opt), self.stop_after)
-                    statuses = sorted({s["status"] for s in summaries})
-                    print(f"{env} {variant}: {len(summaries)} seeds {'/'.join(statuses)} in "
-                          f"{time.perf_counter() - started:.0f}s", flush=True)
-        print(report(self.out, self.envs, self.variants))
-        return 0
+        for env in self.envs:
+            for variant in self.variants:
+                run_cell(self.out, env, variant, self.seeds, scale, schedule,
+                         key_values(self.learner_opt), self.stop_after)
+
+    def report(self) -> str:
+        return report(self.out, self.envs, self.variants)
 
 
 def main(argv=None) -> int:
     """`python -m jaml.experiments.fig2 ARGS` is `jaml fig2 ARGS`."""
-    from jaml import cli
-
-    return cli.main(["fig2", *(sys.argv[1:] if argv is None else argv)])
+    return _runs.main("fig2", argv)
 
 
 if __name__ == "__main__":

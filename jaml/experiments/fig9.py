@@ -39,7 +39,8 @@ from typing import Literal
 import numpy as np
 
 from jaml.evaluation import plots
-from jaml.experiments._runs import cell, read_history
+from jaml.experiments import _runs
+from jaml.experiments._runs import cell, read_history, welch_interval
 
 SOURCE, TARGET = "geom-on-incline", "MeshOnIncline"
 METHODS = {  # name → (learner, relation set or None)
@@ -133,8 +134,6 @@ def _write_json(path: Path, value) -> None:
 
 def run_method(out: Path, method: str, seeds, penalty: Penalty, run_dir=None) -> None:
     """Every seed of one method, trained together (`run_many`: one program, seeds vmapped)."""
-    from jaml.stream.run import run_many
-
     learner, relation_set = METHODS[method]
     latent_penalty = None
     described = {"method": method, "relations": relation_set}
@@ -148,13 +147,8 @@ def run_method(out: Path, method: str, seeds, penalty: Penalty, run_dir=None) ->
             raise ValueError(f"{directory} was run with {recorded.read_text()}, not {described}; "
                              "use the same options or a new --out")
         _write_json(recorded, described)
-    started = time.perf_counter()
-    summaries = run_many([_config(learner, seed) for seed in seeds], directories,
-                         progress=False, latent_penalty=latent_penalty)
-    for seed, summary in zip(seeds, summaries, strict=True):
-        phases = ", ".join(f"{k} {v:.0f}s" for k, v in summary["seconds_by_phase"].items())
-        print(f"{method} seed {seed}: {summary['status']} ({phases})", flush=True)
-    print(f"{method}: {len(seeds)} seeds in {time.perf_counter() - started:.0f}s", flush=True)
+    _runs.train_seeds(method, [_config(learner, seed) for seed in seeds], directories,
+                      latent_penalty=latent_penalty)
 
 
 def choose_weight(out: Path, weights, pilot_seed: int, form: str) -> Penalty:
@@ -197,28 +191,13 @@ def collect(out: Path, methods) -> dict[str, list[list[dict]]]:
 
 def _last_step(histories: list[list[dict]]) -> int:
     """The last analysis step every seed reached."""
-    return min(max(r["step"] for r in h) for h in histories)
+    return _runs.last_common_step(histories)
 
 
 def _final(histories: list[list[dict]], key) -> list[float]:
     """Per seed: the value at the last analysis step every seed reached."""
     last = _last_step(histories)
     return [key(next(r for r in h if r["step"] == last)) for h in histories]
-
-
-def welch_interval(a, b, confidence: float = 0.90) -> tuple[float, float, float]:
-    """(mean(a) − mean(b), low, high): Welch's interval for the difference of two means
-    (scipy's unequal-variance t-test)."""
-    from scipy import stats
-
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    diff = float(a.mean() - b.mean())
-    if a.size < 2 or b.size < 2:
-        return diff, float("nan"), float("nan")
-    if a.var() == 0 and b.var() == 0:
-        return diff, diff, diff
-    ci = stats.ttest_ind(a, b, equal_var=False).confidence_interval(confidence)
-    return diff, float(ci.low), float(ci.high)
 
 
 def plot(runs: dict[str, list[list[dict]]], path: Path) -> None:
@@ -286,7 +265,7 @@ def report(out: Path, methods) -> str:
 
 
 @dataclasses.dataclass(frozen=True)
-class Args:
+class Args(_runs.Driver):
     """Paper Fig. 9: relations learned on geom-on-incline imposed on PRED trained on
     MeshOnIncline; relations, the penalty-weight pilot, every method's seeds, then OUT/fig9.md
     and OUT/fig9.png (each step resumable in OUT)."""
@@ -326,31 +305,28 @@ class Args:
     regressor_iterations: int = SCALE["regressor_iterations"]
     """alignment regressor steps"""
 
-    def run(self) -> int:
-        SCALE.update({k: getattr(self, k) for k in SCALE})
-        if not self.report_only:
-            started = time.perf_counter()
-            if any(METHODS[m][1] for m in self.methods):
-                learn_relations(self.out)
-            if len(self.weights) > 1:
-                penalty = choose_weight(self.out, self.weights, self.pilot_seed, self.form)
-            else:
-                penalty = Penalty(self.weights[0], self.form)
-            print(f"penalty: {penalty}", flush=True)
-            if self.pilot_only:
-                return 0
-            for method in self.methods:
-                run_method(self.out, method, self.seeds, penalty)
-            print(f"fig9 total {time.perf_counter() - started:.0f}s", flush=True)
-        print(report(self.out, self.methods))
-        return 0
+    def train(self) -> bool:
+        SCALE.update(self.fields(SCALE))  # `_config` reads the module's SCALE
+        if any(METHODS[m][1] for m in self.methods):
+            learn_relations(self.out)
+        if len(self.weights) > 1:
+            penalty = choose_weight(self.out, self.weights, self.pilot_seed, self.form)
+        else:
+            penalty = Penalty(self.weights[0], self.form)
+        print(f"penalty: {penalty}", flush=True)
+        if self.pilot_only:
+            return False
+        for method in self.methods:
+            run_method(self.out, method, self.seeds, penalty)
+        return True
+
+    def report(self) -> str:
+        return report(self.out, self.methods)
 
 
 def main(argv=None) -> int:
     """`python -m jaml.experiments.fig9 ARGS` is `jaml fig9 ARGS`."""
-    from jaml import cli
-
-    return cli.main(["fig9", *(sys.argv[1:] if argv is None else argv)])
+    return _runs.main("fig9", argv)
 
 
 if __name__ == "__main__":

@@ -7,41 +7,59 @@
              Ant); the incline's only input is an external force, so it runs a Python mj_step loop
 (b) Frames/s of physics + rendering: jit(vmap(scan(env.step))) with pixels on (64x64
     envs_mjx.render), batch 1, 64 and 1024 (256 on CPU).
-Compile time (first call: trace + XLA compile + one run) is reported apart from steady state.
+(c) Side by side with the paper's stack (benchmark "envs_vs_pybullet"): the same env with
+    pixels at the largest pixel batch against benchmarks/peers/pybullet_envs.py (PyBullet
+    stepping the reference's scene + a 64x64 TinyRenderer frame per step, one process per
+    core), for the domains that have a PyBullet scene. The two alternate block by block in one
+    process (jaml's calls on all cores, then the PyBullet workers on all cores), so load from
+    other processes falls on both; the row holds both medians, their ratio and the spread of
+    the per-round ratios.
+Compile time (first call: trace + XLA compile + one run) and PyBullet's scene loading are
+reported apart from steady state.
 
-Quoted anchors (not measured here; perf_anchors.md §2, "[2-core]" rows, 1 core, pybullet 3.2.7):
-PyBullet TinyRenderer 64x64 + stepSimulation, cartpole 698 frames/s; r2d2 455 frames/s.
+Quoted anchors are kept in their own column (`quoted_…`), never divided into: perf_anchors.md
+§2, "[2-core]" rows, 1 core, pybullet 3.2.7, PyBullet TinyRenderer 64x64 + stepSimulation,
+cartpole 698 frames/s (quoted, not measured here).
 
 Run from the repo root: PYTHONPATH=. python benchmarks/envs_throughput.py [--quick]
-[--envs CartPole Ant] [--pixel-batches 1024 4096] [--no-record]. Results go to
-benchmarks/results.jsonl unless --no-record (use it on a loaded or shared machine).
+[--envs CartPole Ant] [--pixel-batches 1024 4096] [--parts physics pixels pybullet]
+[--rounds 7] [--no-record]. Results go to benchmarks/results.jsonl unless --no-record (use it
+on a loaded or shared machine for the absolute rows; the side-by-side ratio holds there too).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import statistics
 import time
 
 import jax
+import jax.numpy as jnp
 import mujoco
 import numpy as np
 from mujoco import mjx
 
 import envs_mjx
-from benchmarks.harness import measure, record
+from benchmarks.harness import block, measure, record
+from benchmarks.peers import pybullet_envs
 
-ANCHOR_FPS = {"CartPole": ("PyBullet TinyRenderer 64x64 cartpole, 1 core (quoted)", 698.0)}
+# Quoted, not measured: perf_anchors.md §2 [2-core], pybullet 3.2.7, 1 core.
+QUOTED_FPS = {"CartPole": (698.0, "perf_anchors.md §2 [2-core]: PyBullet TinyRenderer 64x64 + "
+                                  "stepSimulation, cartpole.urdf, 1 core")}
 
 
 def _random_actions(key, steps, batch, size):
     return jax.random.uniform(key, (steps, batch, size), minval=-1.0, maxval=1.0)
 
 
-def _env_rollout(env):
+def _env_rollout(env, whole_frame=False):
     def roll(state, actions):
         def body(s, a):
             s = env.step(s, a)
-            return s, s.pixels[0, 0, 0]  # keep pixels live without storing them
+            # Keep pixels live without storing them; whole_frame sums every pixel, so XLA
+            # cannot narrow the frame to the one pixel read (the side-by-side case uses it).
+            return s, (s.pixels.sum(dtype=jnp.int32) if whole_frame else s.pixels[0, 0, 0])
 
         return jax.lax.scan(body, state, actions)
 
@@ -123,6 +141,76 @@ def bench_pixels(name, batch, steps, repeats):
     return {"frames_per_s": batch * steps / t["median_s"], **t}
 
 
+def bench_vs_pybullet(name, batch, steps, rounds, processes=2):
+    """jaml's env.step with pixels and the PyBullet peer, alternated block by block.
+
+    A jaml block is one blocked call of `batch` envs x `steps` steps; a PyBullet block is
+    `processes` workers x ceil(batch / processes) episodes x `steps` steps, about the same
+    number of frames."""
+    env = envs_mjx.make(name, pixels="required")
+    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
+    actions = _random_actions(jax.random.key(1), steps, batch, env.action_size)
+    fn = _env_rollout(env, whole_frame=True)
+    start = time.perf_counter()
+    block(fn(states, actions))
+    compile_s = time.perf_counter() - start
+    episodes = -(-batch // processes)
+    with pybullet_envs.PeerPool(name, processes, episodes, steps) as pool:
+        jaml_t, pb_t = alternate(lambda: fn(states, actions), pool, rounds)
+    return side_by_side_row(name, batch, steps, batch * steps, jaml_t, pool.frames_per_block,
+                            pb_t, compile_s=compile_s, setup_s=pool.setup_s,
+                            processes=processes)
+
+
+def alternate(jaml_call, pool, rounds):
+    """Wall seconds per round of `jaml_call()` (blocked) and of `pool.block()`, after one
+    warm-up block of the pool (jaml's first call is its compile, made before). Even rounds run
+    jaml first, odd rounds PyBullet first."""
+    pool.block()
+
+    def jaml_block():
+        start = time.perf_counter()
+        block(jaml_call())
+        return time.perf_counter() - start
+
+    jaml_t, pb_t = [], []
+    for r in range(rounds):
+        if r % 2:
+            pb_t.append(pool.block())
+            jaml_t.append(jaml_block())
+        else:
+            jaml_t.append(jaml_block())
+            pb_t.append(pool.block())
+    return jaml_t, pb_t
+
+
+def side_by_side_row(name, batch, steps, jaml_frames, jaml_times, pb_frames, pb_times, *,
+                     compile_s, setup_s, processes):
+    """The recorded row: both sides' median frames/s, their ratio and its per-round spread;
+    the quoted anchor in its own columns, not divided into."""
+    ratios = sorted((jaml_frames / j) / (pb_frames / p)
+                    for j, p in zip(jaml_times, pb_times, strict=True))
+    jaml_fps = jaml_frames / statistics.median(jaml_times)
+    pb_fps = pb_frames / statistics.median(pb_times)
+    quoted, source = QUOTED_FPS.get(name, ("", ""))
+    return {
+        "case": f"{name}/pixels_vs_pybullet/b{batch}",
+        "impl": f"jaml env.step b{batch} vs PyBullet+TinyRenderer x{processes} processes",
+        "jaml_frames_per_s": jaml_fps,
+        "pybullet_frames_per_s": pb_fps,
+        "ratio_jaml_over_pybullet": jaml_fps / pb_fps,
+        "ratio_min": ratios[0],
+        "ratio_max": ratios[-1],
+        "rounds": len(ratios),
+        "steps": steps,
+        "pybullet_scene": pybullet_envs.SCENE_NOTES[name],
+        "jaml_compile_s": compile_s,
+        "pybullet_setup_s": setup_s,
+        "quoted_pybullet_1core_frames_per_s": quoted,
+        "quoted_source": source,
+    }
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--envs", nargs="+", default=list(envs_mjx.ALL_ENVS))
@@ -131,6 +219,14 @@ def main(argv=None):
     parser.add_argument("--pixel-batches", type=int, nargs="+",
                         help="batches of the physics + rendering case (default 1 64 1024; "
                              "256 in place of 1024 on CPU)")
+    parts = ("physics", "pixels", "pybullet")
+    parser.add_argument("--parts", nargs="+", choices=parts, default=list(parts),
+                        help="which cases to run (pybullet: the side-by-side rows, for the "
+                             "domains with a PyBullet scene, when pybullet is installed)")
+    parser.add_argument("--rounds", type=int, default=7,
+                        help="alternated blocks per side in the side-by-side case")
+    parser.add_argument("--processes", type=int, default=os.cpu_count() or 1,
+                        help="PyBullet worker processes (default: one per core)")
     args = parser.parse_args(argv)
     for name in args.envs:
         if name not in envs_mjx.ALL_ENVS:
@@ -143,53 +239,66 @@ def main(argv=None):
         pix_batches, pix_steps = (1, 64, 256 if cpu else 1024), 10
     pix_batches = tuple(args.pixel_batches or pix_batches)
     print(f"jax {jax.__version__}, mujoco {mujoco.__version__}, device {jax.devices()[0]}")
+    # The side-by-side case compares CPU with CPU: on an accelerator the PyBullet workers would
+    # still run on the host's cores.
+    side = "pybullet" in args.parts and cpu and pybullet_envs.available()
+    if "pybullet" in args.parts and not side:
+        print("no side-by-side rows: " + ("pybullet is not installed (pip install -e '.[dev]')"
+                                          if cpu else "they compare CPU with CPU"))
     all_rows = []
     for name in args.envs:
-        rows = []  # recorded per env, so a run cut short keeps the domains it finished
+        rows, side_rows = [], []  # recorded per env: a run cut short keeps the finished domains
         print(f"== {name} ==", flush=True)
-        env_r = bench_env_physics(name, phys_batch, phys_steps, reps)
-        mjx_r = bench_raw_mjx(name, phys_batch, phys_steps, reps)
-        c_r = bench_c(name, phys_batch, phys_steps, reps)
-        print(
-            f"  physics substeps/s, batch {phys_batch}: env.step {env_r['substeps_per_s']:,.0f} "
-            f"(compile {env_r['compile_s']:.1f} s) | raw mjx.step {mjx_r['substeps_per_s']:,.0f} "
-            f"(compile {mjx_r['compile_s']:.1f} s) | C {c_r['substeps_per_s']:,.0f} ({c_r['how']})"
-            f" | env/mjx {env_r['substeps_per_s'] / mjx_r['substeps_per_s']:.2f}, "
-            f"env/C {env_r['substeps_per_s'] / c_r['substeps_per_s']:.3f}",
-            flush=True,
-        )
-        rows.append(
-            {
-                "case": f"{name}/physics/b{phys_batch}",
-                "env_substeps_per_s": env_r["substeps_per_s"],
-                "mjx_substeps_per_s": mjx_r["substeps_per_s"],
-                "c_substeps_per_s": c_r["substeps_per_s"],
-                "c_how": c_r["how"],
-                "env_compile_s": env_r["compile_s"],
-                "mjx_compile_s": mjx_r["compile_s"],
-            }
-        )
-        for b in pix_batches:
+        if "physics" in args.parts:
+            rows.append(_physics_row(name, phys_batch, phys_steps, reps))
+        for b in pix_batches if "pixels" in args.parts else ():
             p = bench_pixels(name, b, pix_steps, reps)
-            line = (
-                f"  physics+render 64x64, batch {b}: {p['frames_per_s']:,.1f} frames/s "
-                f"(compile {p['compile_s']:.1f} s)"
-            )
-            if name in ANCHOR_FPS:
-                label, fps = ANCHOR_FPS[name]
-                line += f" = {p['frames_per_s'] / fps:.2f}x {label} {fps:.0f}"
+            print(f"  physics+render 64x64, batch {b}: {p['frames_per_s']:,.1f} frames/s "
+                  f"(compile {p['compile_s']:.1f} s)", flush=True)
+            rows.append({"case": f"{name}/pixels/b{b}", "frames_per_s": p["frames_per_s"],
+                         "compile_s": p["compile_s"]})
+        if side and name in pybullet_envs.SCENES:
+            r = bench_vs_pybullet(name, max(pix_batches), pix_steps, args.rounds,
+                                  args.processes)
+            line = (f"  side by side, 64x64 frames/s: jaml b{max(pix_batches)} "
+                    f"{r['jaml_frames_per_s']:,.0f} | PyBullet x{args.processes} "
+                    f"{r['pybullet_frames_per_s']:,.0f} | ratio {r['ratio_jaml_over_pybullet']:.2f}"
+                    f" (rounds {r['ratio_min']:.2f}-{r['ratio_max']:.2f})")
+            if quoted := r["quoted_pybullet_1core_frames_per_s"]:
+                line += f"; quoted, not measured: {quoted:.0f} per core"
             print(line, flush=True)
-            rows.append(
-                {
-                    "case": f"{name}/pixels/b{b}",
-                    "frames_per_s": p["frames_per_s"],
-                    "compile_s": p["compile_s"],
-                }
-            )
+            side_rows.append(r)
         if not args.no_record:
-            record("envs_throughput", rows, notes="quick" if args.quick else "")
-        all_rows += rows
+            notes = "quick" if args.quick else ""
+            if rows:
+                record("envs_throughput", rows, notes=notes)
+            if side_rows:
+                record("envs_vs_pybullet", side_rows, notes=notes)
+        all_rows += rows + side_rows
     return all_rows
+
+
+def _physics_row(name, batch, steps, reps):
+    env_r = bench_env_physics(name, batch, steps, reps)
+    mjx_r = bench_raw_mjx(name, batch, steps, reps)
+    c_r = bench_c(name, batch, steps, reps)
+    print(
+        f"  physics substeps/s, batch {batch}: env.step {env_r['substeps_per_s']:,.0f} "
+        f"(compile {env_r['compile_s']:.1f} s) | raw mjx.step {mjx_r['substeps_per_s']:,.0f} "
+        f"(compile {mjx_r['compile_s']:.1f} s) | C {c_r['substeps_per_s']:,.0f} ({c_r['how']})"
+        f" | env/mjx {env_r['substeps_per_s'] / mjx_r['substeps_per_s']:.2f}, "
+        f"env/C {env_r['substeps_per_s'] / c_r['substeps_per_s']:.3f}",
+        flush=True,
+    )
+    return {
+        "case": f"{name}/physics/b{batch}",
+        "env_substeps_per_s": env_r["substeps_per_s"],
+        "mjx_substeps_per_s": mjx_r["substeps_per_s"],
+        "c_substeps_per_s": c_r["substeps_per_s"],
+        "c_how": c_r["how"],
+        "env_compile_s": env_r["compile_s"],
+        "mjx_compile_s": mjx_r["compile_s"],
+    }
 
 
 if __name__ == "__main__":

@@ -31,6 +31,10 @@ def manager(out: Path, max_to_keep: int = 2) -> ocp.CheckpointManager:
     return ocp.CheckpointManager(
         (Path(out) / "checkpoints").absolute(),
         options=ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True),
+        # Named up front: a manager that has not saved in this process otherwise does not know
+        # how to read an item's metadata (`item_metadata` gave None on resume, orbax on the
+        # GPU image), so a restarted run could not resume.
+        item_handlers=ocp.StandardCheckpointHandler(),
         metadata={"format": FORMAT, "content": "jaml.stream.StreamState"},
     )
 

@@ -72,6 +72,9 @@ def test_checkpoint_round_trip_keeps_every_leaf_by_name(tmp_path):
     assert empty, "mjx.Data carries zero-size fields; the checkpoint must handle them"
     mgr = checkpoint.manager(tmp_path)
     checkpoint.save(mgr, 0, state)
+    mgr.close()
+    # A fresh manager, as a resumed process opens it (one that has not saved must still read).
+    mgr = checkpoint.manager(tmp_path)
     assert "learner.params.conv.conv0.kernel" in set(mgr.item_metadata(0).keys())
     assert mgr.metadata().custom_metadata["format"] == checkpoint.FORMAT
     restored = checkpoint.restore(mgr, jax.eval_shape(s.init, jax.random.PRNGKey(0)))
@@ -96,6 +99,8 @@ def test_format_1_checkpoints_with_positional_names_still_restore(tmp_path):
     mgr = checkpoint.manager(tmp_path)
     mgr.save(0, args=ocp.args.StandardSave(old))
     mgr.wait_until_finished()
+    mgr.close()
+    mgr = checkpoint.manager(tmp_path)
     restored = checkpoint.restore(mgr, jax.eval_shape(s.init, jax.random.PRNGKey(0)))
     for a, b in zip(leaves, jax.tree.leaves(restored), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

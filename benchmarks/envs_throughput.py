@@ -141,6 +141,15 @@ def bench_pixels(name, batch, steps, repeats):
     return {"frames_per_s": batch * steps / t["median_s"], **t}
 
 
+SIDE_NOTE = (
+    "Measured side by side in one process, alternated block by block: jaml's env.step with 64x64 "
+    "pixels (XLA on all cores) against benchmarks/peers/pybullet_envs.py (PyBullet 3.2.7 + "
+    "TinyRenderer 64x64, one worker process per core). ratio_jaml_over_pybullet divides the two "
+    "medians; ratio_min / ratio_max are the extreme per-round ratios. The quoted_ columns are "
+    "anchors quoted from perf_anchors.md, not measured here and not divided into."
+)
+
+
 def bench_vs_pybullet(name, batch, steps, rounds, processes=2):
     """jaml's env.step with pixels and the PyBullet peer, alternated block by block.
 
@@ -273,7 +282,8 @@ def main(argv=None):
             if rows:
                 record("envs_throughput", rows, notes=notes)
             if side_rows:
-                record("envs_vs_pybullet", side_rows, notes=notes)
+                record("envs_vs_pybullet", side_rows, notes=SIDE_NOTE + (" Quick run." if
+                                                                         args.quick else ""))
         all_rows += rows + side_rows
     return all_rows
 

@@ -1,4 +1,5 @@
-"""The `jaml` command line: `jaml relations | suite | fig2 | fig9 | demo | envs list|show | info`.
+"""The `jaml` command line: `jaml relations | suite | fig2 | fig3 | fig9 | demo | envs list|show |
+info`.
 
 One mechanism (tyro over dataclasses): each command is a dataclass whose fields, and the library
 configs nested in it (relations.Config, StreamConfig and its PPOConfig, the learners' and the
@@ -468,10 +469,10 @@ class Info:
 
 
 def _commands(argv: list[str]) -> dict[str, type]:
-    from jaml.experiments import fig2, fig9
+    from jaml.experiments import fig2, fig3, fig9
 
     return {"relations": Relations, "suite": _suite_for(argv), "fig2": fig2.Args,
-            "fig9": fig9.Args, "demo": Demo, "envs": Envs, "info": Info}
+            "fig3": fig3.Args, "fig9": fig9.Args, "demo": Demo, "envs": Envs, "info": Info}
 
 
 def _root(argv: list[str]) -> type:

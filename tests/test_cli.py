@@ -57,7 +57,7 @@ TINY = ["--max-relations", "1", "--max-steps", "20", "--chunk-steps", "20", "--b
         "--stop-patience", "1", "--eval-batches", "1", "--no-progress"]
 
 
-@pytest.mark.parametrize("command", ["relations", "suite", "fig2", "fig9", "demo", "envs",
+@pytest.mark.parametrize("command", ["relations", "suite", "fig2", "fig3", "fig9", "demo", "envs",
                                      "envs list", "envs show", "info"])
 def test_every_subcommand_has_help(command, capsys):
     with pytest.raises(SystemExit) as exit_info:

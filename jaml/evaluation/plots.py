@@ -87,7 +87,8 @@ def _save(fig: Figure, path) -> None:
 
 def plot_alignment(history: Iterable[Mapping], path,
                    groups: Mapping[str, Sequence[str]] | None = None) -> Figure:
-    """Alignment error vs training step: one row per test set, one column per dimension.
+    """Alignment error vs epoch (a record's "step": the epochs completed): one row per test
+    set, one column per dimension.
 
     Writes the figure to `path` and returns it (lines carry the per-step means).
 
@@ -123,7 +124,7 @@ def plot_alignment(history: Iterable[Mapping], path,
                 ax.plot(steps, mean, color=colors[learner], label=learner)
                 ax.fill_between(steps, lo, hi, color=colors[learner], alpha=0.2, linewidth=0)
             ax.set_title(f"{title} ({test_set})", fontsize=9)
-            ax.set_xlabel("training step")
+            ax.set_xlabel("epoch")
             if col == 0:
                 ax.set_ylabel("test error (train std)")
             ax.set_ylim(bottom=0.0)
@@ -133,7 +134,7 @@ def plot_alignment(history: Iterable[Mapping], path,
 
 
 def plot_distortion(history: Iterable[Mapping], path) -> Figure:
-    """Distortion Var(ρ) vs training step, one curve per learner (and test set, if several)."""
+    """Distortion Var(ρ) vs epoch, one curve per learner (and test set, if several)."""
     history = [r for r in _check(history) if r.get("distortion") is not None]
     if not history:
         raise ValueError("history has no records with a distortion value")
@@ -150,7 +151,7 @@ def plot_distortion(history: Iterable[Mapping], path) -> Figure:
         label = learner if len(test_sets) == 1 else f"{learner} ({test_set})"
         ax.plot(steps, mean, color=f"C{k % 10}", label=label)
         ax.fill_between(steps, lo, hi, color=f"C{k % 10}", alpha=0.2, linewidth=0)
-    ax.set_xlabel("training step")
+    ax.set_xlabel("epoch")
     ax.set_ylabel("distortion Var(ρ)")
     ax.legend(fontsize=8)
     _save(fig, path)

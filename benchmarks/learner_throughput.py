@@ -1,18 +1,23 @@
 """Training throughput (frames/s) of the VAE train step, jaml vs a PyTorch port of the same net.
 
     python benchmarks/learner_throughput.py [--batches 64 256 1024] [--reps 5] [--steps 3]
+        [--dtypes float32 bfloat16]
 
 Compile time is reported apart; steady state is the median over `reps` blocked repetitions of
 `steps` train steps each. If torch imports, the reference's network (suite_reference.md §4),
 written here in PyTorch, is timed the same way in the same run, on the same device, and the
 ratio recorded. The peer gets what a careful PyTorch user would switch on: cuDNN autotuning and
 TF32 matmuls (XLA already uses TF32 for float32 convolutions and matmuls on this class of GPU;
-PyTorch's convolutions use it by default, its matmuls only when asked).
+PyTorch's convolutions use it by default, its matmuls only when asked). With bfloat16, jaml's
+convolutions compute in bfloat16 (`compute_dtype`; parameters, batch norms, heads, loss and Adam
+float32) and the peer runs its forward pass under `torch.autocast(dtype=torch.bfloat16)`, the
+mixed precision a PyTorch user would reach for (it also casts the MLP and heads).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import platform
 import statistics
 import sys
@@ -45,8 +50,8 @@ def _median_rate(run_steps, frames_per_step: int, reps: int, steps: int) -> floa
     return frames_per_step * steps / statistics.median(times)
 
 
-def bench_jax(b: int, reps: int, steps: int) -> dict:
-    learner = learners.make("VAE_rpl", ld_dim=LD_DIM)
+def bench_jax(b: int, reps: int, steps: int, dtype: str = "float32") -> dict:
+    learner = learners.make("VAE_rpl", ld_dim=LD_DIM, compute_dtype=dtype)
     opt = learners.default_optimizer(learner)
     batch = tuple(jax.device_put(x) for x in _batch(b))
     state = learners.init_train_state(learner, opt, jax.random.key(0), batch)
@@ -66,7 +71,7 @@ def bench_jax(b: int, reps: int, steps: int) -> dict:
     return {"compile_s": compile_s, "fps": _median_rate(run_steps, b, reps, steps)}
 
 
-def bench_torch(b: int, reps: int, steps: int) -> dict | None:
+def bench_torch(b: int, reps: int, steps: int, dtype: str = "float32") -> dict | None:
     try:
         import torch
         from torch import nn
@@ -117,10 +122,15 @@ def bench_torch(b: int, reps: int, steps: int) -> dict | None:
     frames = torch.from_numpy(frames[:, 0]).permute(0, 3, 1, 2).contiguous().to(device)  # NCHW
     actions = torch.from_numpy(actions[:, 0]).to(device)
 
+    autocast = (torch.autocast(device.type, dtype=torch.bfloat16) if dtype == "bfloat16"
+                else contextlib.nullcontext())
+
     def run_steps(n):
         for _ in range(n):
             opt.zero_grad(set_to_none=True)
-            model.loss(frames, actions).backward()
+            with autocast:
+                loss = model.loss(frames, actions)
+            loss.backward()
             opt.step()
         if device.type == "cuda":
             torch.cuda.synchronize()  # time the work, not the launches
@@ -133,11 +143,35 @@ def bench_torch(b: int, reps: int, steps: int) -> dict | None:
             "device": str(device)}
 
 
+def _compare(b: int, dtype: str, reps: int, steps: int) -> list[dict]:
+    """jaml and (if torch imports) the PyTorch peer at one batch size and dtype, in turn."""
+    j = bench_jax(b, reps, steps, dtype)
+    case = f"VAE train step, batch {b}" + ("" if dtype == "float32" else f", {dtype}")
+    rows = [{"case": case, "impl": "jaml", "batch": b, "dtype": dtype,
+             "compile_s": j["compile_s"], "frames_per_s": j["fps"]}]
+    line = (f"batch {b:4d} {dtype}: jaml {j['fps']:8.1f} frames/s "
+            f"(compile {j['compile_s']:.1f} s)")
+    t = bench_torch(b, reps, steps, dtype)
+    if t is not None:
+        rows[0]["speedup_vs_pytorch"] = j["fps"] / t["fps"]
+        rows.append({"case": case, "impl": f"pytorch {t['version']} eager ({t['device']})",
+                     "batch": b, "dtype": dtype, "frames_per_s": t["fps"],
+                     "first_step_s": t["first_step_s"], "torch_threads": t["threads"]})
+        line += (f" | torch {t['version']} on {t['device']} ({t['threads']} threads) "
+                 f"{t['fps']:8.1f} frames/s (first step {t['first_step_s']:.2f} s) | "
+                 f"jaml/torch {j['fps'] / t['fps']:.2f}×")
+    print(line, flush=True)
+    return rows
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batches", type=int, nargs="+", default=[64, 256])
     parser.add_argument("--reps", type=int, default=5)
     parser.add_argument("--steps", type=int, default=3)
+    parser.add_argument("--dtypes", nargs="+", default=["float32"],
+                        choices=["float32", "bfloat16"],
+                        help="convolution compute dtypes, each measured for both sides")
     parser.add_argument("--no-record", action="store_true", help="print only")
     args = parser.parse_args(argv)
     print(f"device: {jax.devices()[0].device_kind} ({jax.default_backend()}), "
@@ -145,28 +179,16 @@ def main(argv=None) -> int:
     print(f"VAE_rpl train step (ld_dim {LD_DIM}, latent {2 * LD_DIM}, Adam), median of "
           f"{args.reps} reps × {args.steps} steps")
     rows = []
-    for b in args.batches:
-        j = bench_jax(b, args.reps, args.steps)
-        case = f"VAE train step, batch {b}"
-        rows.append({"case": case, "impl": "jaml", "batch": b, "compile_s": j["compile_s"],
-                     "frames_per_s": j["fps"]})
-        line = f"batch {b:4d}: jaml {j['fps']:8.1f} frames/s (compile {j['compile_s']:.1f} s)"
-        t = bench_torch(b, args.reps, args.steps)
-        if t is not None:
-            rows[-1]["speedup_vs_pytorch"] = j["fps"] / t["fps"]
-            rows.append({"case": case, "impl": f"pytorch {t['version']} eager ({t['device']})",
-                         "batch": b, "frames_per_s": t["fps"], "first_step_s": t["first_step_s"],
-                         "torch_threads": t["threads"]})
-            line += (f" | torch {t['version']} on {t['device']} ({t['threads']} threads) "
-                     f"{t['fps']:8.1f} frames/s "
-                     f"(first step {t['first_step_s']:.2f} s) | jaml/torch "
-                     f"{j['fps'] / t['fps']:.2f}×")
-        print(line, flush=True)
+    for dtype in args.dtypes:
+        for b in args.batches:
+            rows += _compare(b, dtype, args.reps, args.steps)
     if not args.no_record:
         harness.record("learner_throughput", rows,
                        notes="Frames/s of one VAE_rpl training step (forward, backward, Adam) "
                              "on random 64×64 frames; the PyTorch peer is the same network in "
-                             "the same run on the same device (cuDNN autotune, TF32).")
+                             "the same run on the same device (cuDNN autotune, TF32); "
+                             "bfloat16 rows: jaml's convolutions in bfloat16, the peer under "
+                             "torch.autocast(bfloat16).")
     return 0
 
 

@@ -41,8 +41,11 @@ from jaml.stream.loop import (
 
 
 def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_per_batch: int,
-          replay_slots: int, repeats: int, devices: int | None) -> list[dict]:
+          replay_slots: int, repeats: int, devices: int | None,
+          compute_dtype: str = "float32") -> list[dict]:
     defaults = for_env(env, learner)
+    defaults = defaults.replace(
+        learner_overrides={**defaults.learner_overrides, "compute_dtype": compute_dtype})
     minibatches = defaults.ppo.num_minibatches
     minibatches = minibatches if num_envs % minibatches == 0 else 1
     config = defaults.replace(num_envs=num_envs, replay_slots=replay_slots,
@@ -90,7 +93,8 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
             continue  # the pieces are jitted for one device; only the loop is sharded
         t = harness.measure(fn, repeats=repeats)
         row = {
-            "case": f"{env}/{learner}/{case}",
+            "case": f"{env}/{learner}/{case}"
+                    + ("" if compute_dtype == "float32" else f", {compute_dtype}"),
             "impl": "jaml",
             "batch": num_envs,
             "runs": runs,
@@ -135,6 +139,9 @@ def main(argv=None) -> int:
     parser.add_argument("--frames-per-batch", type=int, default=1024)
     parser.add_argument("--replay-slots", type=int, default=1024)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--dtypes", nargs="+", default=["float32"],
+                        choices=["float32", "bfloat16"],
+                        help="the learner's convolution compute dtypes (one row set each)")
     parser.add_argument("--quick", action="store_true", help="tiny sizes for a CPU smoke run")
     parser.add_argument("--no-record", action="store_true", help="print only")
     args = parser.parse_args(argv)
@@ -144,10 +151,11 @@ def main(argv=None) -> int:
     for env in args.envs:
         for learner in args.learners:
             rows = []
-            for runs in args.runs:
-                rows += bench(env, learner, runs, args.num_envs, args.epochs,
-                              args.frames_per_batch, args.replay_slots, args.repeats,
-                              args.devices)
+            for dtype in args.dtypes:
+                for runs in args.runs:
+                    rows += bench(env, learner, runs, args.num_envs, args.epochs,
+                                  args.frames_per_batch, args.replay_slots, args.repeats,
+                                  args.devices, dtype)
             _speedups(rows)
             if not args.no_record:  # after each pair: a run cut short keeps what it measured
                 harness.record("stream_throughput", rows,

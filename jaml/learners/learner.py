@@ -24,6 +24,9 @@ FRAME_SHAPE = (64, 64, 3)
 LatentPenalty = Callable[[jax.Array, jax.Array], jax.Array]
 
 
+COMPUTE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
+
+
 @dataclasses.dataclass(frozen=True)
 class LearnerConfig:
     """What every learner shares; defaults reproduce the reference (suite_reference.md §4).
@@ -39,6 +42,10 @@ class LearnerConfig:
       paper eq. 4 (log p(x_{1:S} | τ) = Σ_t log p(x_t | τ_t)); "mean" is the reference code's
       average over frames, which weighs the KL S times more per frame and collapsed the
       posteriors of PRED and SVAE (S = 24) in our runs (docs/learners.md). Same for S = 1.
+    compute_dtype: "float32" (default) or "bfloat16": the dtype of the shared conv encoder's
+      and decoder's convolutions (VAEs, PRED, SVAE, DSA; not SPAIR's): mixed precision, with
+      parameters, batch norms, heads, the loss and the optimizer in float32. Not in the
+      reference.
     """
 
     ld_dim: int
@@ -52,8 +59,12 @@ class LearnerConfig:
     deconv_filters: tuple[int, ...] = (256, 128, 128, 64)
     replay_keep_fraction: float = 0.5
     frame_nll: str = "sum"
+    compute_dtype: str = "float32"
 
     def __post_init__(self):
+        if self.compute_dtype not in COMPUTE_DTYPES:
+            raise ValueError(f"compute_dtype must be one of {list(COMPUTE_DTYPES)}, got "
+                             f"{self.compute_dtype!r}")
         if self.frame_nll not in ("sum", "mean"):
             raise ValueError(f"frame_nll must be 'sum' (paper) or 'mean' (reference), got "
                              f"{self.frame_nll!r}")
@@ -68,6 +79,11 @@ class LearnerConfig:
 
     def replace(self, **changes) -> LearnerConfig:
         return dataclasses.replace(self, **changes)
+
+    @property
+    def conv_dtype(self):
+        """compute_dtype as a JAX dtype, for the conv encoder and decoder."""
+        return COMPUTE_DTYPES[self.compute_dtype]
 
     @property
     def z_step(self) -> int:

@@ -28,17 +28,25 @@ class ConvEncoder(nn.Module):
 
     filters: Sequence[int] = (64, 128, 128, 256)
     features: int = 128
+    # The convolutions' input and kernel dtype (bfloat16: mixed precision; parameters, batch
+    # norms and everything after them stay float32).
+    compute_dtype: jnp.dtype = jnp.float32
 
     @nn.compact
     def __call__(self, x: jax.Array, train: bool) -> jax.Array:
         if x.shape[-3:-1] != (64, 64):
             raise ValueError(f"ConvEncoder expects 64×64 frames, got {tuple(x.shape)}")
         for i, f in enumerate(self.filters):
-            x = nn.Conv(f, (4, 4), strides=2, padding=_HALVE, use_bias=False, name=f"conv{i}")(x)
-            x = nn.elu(nn.BatchNorm(use_running_average=not train, name=f"bn{i}", **_BN)(x))
-        x = nn.Conv(self.features, (4, 4), padding="VALID", use_bias=False, name="conv_out")(x)
-        x = nn.elu(nn.BatchNorm(use_running_average=not train, name="bn_out", **_BN)(x))
+            x = nn.Conv(f, (4, 4), strides=2, padding=_HALVE, use_bias=False,
+                        dtype=self.compute_dtype, name=f"conv{i}")(x)
+            x = nn.elu(self._norm(f"bn{i}", train)(x))
+        x = nn.Conv(self.features, (4, 4), padding="VALID", use_bias=False,
+                    dtype=self.compute_dtype, name="conv_out")(x)
+        x = nn.elu(self._norm("bn_out", train)(x))
         return x.reshape(x.shape[0], self.features)
+
+    def _norm(self, name: str, train: bool) -> nn.BatchNorm:
+        return nn.BatchNorm(use_running_average=not train, dtype=jnp.float32, name=name, **_BN)
 
 
 # For a k4 s2 p1 transposed convolution, output 2m + r sums input m − 1 + j times kernel tap
@@ -46,14 +54,17 @@ class ConvEncoder(nn.Module):
 _TAPS = np.array([[3, 1, 4], [4, 2, 0]])
 
 
-def upsample2x(x: jax.Array, kernel: jax.Array) -> jax.Array:
+def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None) -> jax.Array:
     """[N, H, W, I] → [N, 2H, 2W, O]: PyTorch's ConvTranspose2d(k=4, s=2, p=1), kernel [4, 4, I, O].
 
     out[s·i − p + k] += x[i]·w[k] per axis, computed as a stride-1 3×3 convolution onto the four
     output phases followed by depth-to-space. Same result as a transposed convolution, but XLA's
     CPU backend runs input-dilated convolutions (its transposed-conv lowering and their
     gradients) on a slow generic path: the decoder's backward pass was ~10× slower that way.
+    compute_dtype (e.g. bfloat16) is the convolution's input and kernel dtype; None keeps x's.
     """
+    if compute_dtype is not None:
+        x, kernel = x.astype(compute_dtype), kernel.astype(compute_dtype)
     n, h, w, i = x.shape
     o = kernel.shape[-1]
     padded = jnp.pad(kernel, ((0, 1), (0, 1), (0, 0), (0, 0)))  # tap index 4 reads zeros
@@ -70,13 +81,14 @@ class Upsample2x(nn.Module):
     """ConvTranspose2d(k=4, s=2, p=1) with bias, PyTorch semantics; see `upsample2x`."""
 
     features: int
+    compute_dtype: jnp.dtype = jnp.float32
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         kernel = self.param("kernel", nn.initializers.lecun_normal(),
                             (4, 4, x.shape[-1], self.features))
         bias = self.param("bias", nn.initializers.zeros, (self.features,))
-        return upsample2x(x, kernel) + bias
+        return upsample2x(x, kernel, self.compute_dtype) + bias
 
 
 class ConvDecoder(nn.Module):
@@ -88,19 +100,26 @@ class ConvDecoder(nn.Module):
 
     filters: Sequence[int] = (256, 128, 128, 64)
     channels: int = 3
+    # As ConvEncoder's: the transposed convolutions' dtype; the output is float32.
+    compute_dtype: jnp.dtype = jnp.float32
 
     @nn.compact
     def __call__(self, z: jax.Array, train: bool) -> jax.Array:
         first, *middle, last = self.filters
+        dt = self.compute_dtype
         # k4 s1 p0 on a 1×1 input is a dense layer onto a 4×4 map (no input dilation).
-        x = nn.ConvTranspose(first, (4, 4), padding="VALID", name="deconv0")(
+        x = nn.ConvTranspose(first, (4, 4), padding="VALID", dtype=dt, name="deconv0")(
             z.reshape(z.shape[0], 1, 1, z.shape[-1]))
-        x = nn.BatchNorm(use_running_average=not train, name="bn0", **_BN)(nn.elu(x))
+        x = self._norm("bn0", train)(nn.elu(x))
         for i, f in enumerate(middle, start=1):
-            x = nn.elu(Upsample2x(f, name=f"deconv{i}")(x))
-            x = nn.BatchNorm(use_running_average=not train, name=f"bn{i}", **_BN)(x)
-        x = nn.elu(Upsample2x(last, name=f"deconv{len(middle) + 1}")(x))
-        return nn.sigmoid(Upsample2x(self.channels, name="deconv_out")(x))
+            x = nn.elu(Upsample2x(f, dt, name=f"deconv{i}")(x))
+            x = self._norm(f"bn{i}", train)(x)
+        x = nn.elu(Upsample2x(last, dt, name=f"deconv{len(middle) + 1}")(x))
+        out = Upsample2x(self.channels, dt, name="deconv_out")(x)
+        return nn.sigmoid(out.astype(jnp.float32))
+
+    def _norm(self, name: str, train: bool) -> nn.BatchNorm:
+        return nn.BatchNorm(use_running_average=not train, dtype=jnp.float32, name=name, **_BN)
 
 
 class MLP(nn.Module):

@@ -27,10 +27,10 @@ class SequenceVAE(StepwiseGaussianVAE):
 
     def setup(self):
         c = self.config
-        self.conv = ConvEncoder(c.conv_filters, c.conv_features)
+        self.conv = ConvEncoder(c.conv_filters, c.conv_features, c.conv_dtype)
         self.rnn = RNNEncoder(c.rnn_hidden)
         self.head = GaussianHead(c.z_step, "elu" if c.mu_nl else "none", c.logvar_limit)
-        self.decoder = ConvDecoder(c.deconv_filters)
+        self.decoder = ConvDecoder(c.deconv_filters, compute_dtype=c.conv_dtype)
 
     def posterior(self, x, a, train: bool):
         """x [B, T, H, W, C], a [B, T, A] → μ, logvar [B, T, Z]."""

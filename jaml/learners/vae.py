@@ -86,14 +86,14 @@ class FeedForwardVAE(StepwiseGaussianVAE):
 
     def setup(self):
         c = self.config
-        self.conv = ConvEncoder(c.conv_filters, c.conv_features)
+        self.conv = ConvEncoder(c.conv_filters, c.conv_features, c.conv_dtype)
         self.trunk = MLP(c.mlp_widths)
         self.head = GaussianHead(
             c.static_size + c.latent_steps * c.z_step,
             "elu" if c.mu_nl else "none",
             c.logvar_limit,
         )
-        self.decoder = ConvDecoder(c.deconv_filters)
+        self.decoder = ConvDecoder(c.deconv_filters, compute_dtype=c.conv_dtype)
 
     def posterior(self, x, a, train: bool):
         """x [B, T, H, W, C], a [B, T, A] → μ, logvar [B, S, F + Z] from the first `hist`

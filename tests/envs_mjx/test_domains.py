@@ -16,11 +16,12 @@ from brax.envs.wrappers.training import AutoResetWrapper, EpisodeWrapper, VmapWr
 import envs_mjx
 from envs_mjx.base import PixelsUnavailableWarning
 from envs_mjx.domains import incline
+from tests.envs_mjx.rollout_harness import FAST_COMPILE, Harness
 
 B, T = 4, 200
-# Tests run a few hundred steps, so LLVM's backend optimizations cost far more (compile time on
-# 2 CPU cores) than they save; this roughly halves each MJX compile. Applied per jit, not globally.
-FAST_COMPILE = {"xla_backend_optimization_level": 0}
+# What each rollout step records (tests/envs_mjx/rollout_harness.py).
+RECORD = ("ld_state", "obs", "reward", "done", "truncation", "qpos", "qvel", "ctrl",
+          "xfrc_applied", "nonfinite")
 
 
 # Config overrides per env for the shared harness. MeshOnIncline runs its flat domino: the default
@@ -29,52 +30,10 @@ FAST_COMPILE = {"xla_backend_optimization_level": 0}
 # seeds; cause not isolated), while the domino agrees to < 1e-6 m like GeomOnIncline's block.
 # test_mesh_incline.py covers the duck.
 HARNESS_OVERRIDES = {"MeshOnIncline": {"object": "domino"}}
-# The Rearrange domains have their own harness (tests/envs_mjx/test_rearrange.py: 4 domain x arm
-# pairs, resets without settle physics, a short rollout), which sweeps them through the same
-# contract and C MuJoCo checks; their MJX step compiles in ~30 s, so they are not compiled twice.
+# The Rearrange domains build the same harness their own way (tests/envs_mjx/test_rearrange.py:
+# 4 domain x arm pairs, resets without settle physics, a short rollout) and sweep them through
+# the same contract and C MuJoCo checks; their MJX step compiles in ~30 s, so not twice.
 SWEPT = tuple(n for n in envs_mjx.ALL_ENVS if not n.startswith("Rearrange"))
-
-
-class Harness:
-    """One env with a jitted batched reset and a jitted batched T-step rollout."""
-
-    def __init__(self, name):
-        self.env = envs_mjx.make(name, pixels="off", **HARNESS_OVERRIDES.get(name, {}))
-        env = self.env
-        self.reset = jax.jit(jax.vmap(env.reset), compiler_options=FAST_COMPILE)
-
-        def rollout(state, actions):
-            def body(s, a):
-                s = env.step(s, a)
-                d = s.pipeline_state
-                rec = {
-                    "ld_state": s.ld_state,
-                    "obs": s.obs,
-                    "reward": s.reward,
-                    "done": s.done,
-                    "truncation": s.info["truncation"],
-                    "qpos": d.qpos,
-                    "qvel": d.qvel,
-                    "ctrl": d.ctrl,
-                    "xfrc_applied": d.xfrc_applied,
-                    "nonfinite": s.metrics["nonfinite_action"],
-                }
-                return s, rec
-
-            return jax.lax.scan(body, state, actions)
-
-        self.rollout = jax.jit(
-            jax.vmap(rollout, in_axes=(0, 1), out_axes=(0, 1)), compiler_options=FAST_COMPILE
-        )
-
-    @functools.cached_property
-    def random_run(self):
-        """(initial state, actions [T, B, A], final state, trajectory [T, B, ...])."""
-        state0 = self.reset(jax.random.split(jax.random.key(0), B))
-        shape = (T, B, self.env.action_size)
-        actions = jax.random.uniform(jax.random.key(1), shape, minval=-1.0, maxval=1.0)
-        final, traj = self.rollout(state0, actions)
-        return state0, actions, final, jax.tree.map(np.asarray, traj)
 
 
 class Poses(NamedTuple):
@@ -88,7 +47,9 @@ class Poses(NamedTuple):
 
 @functools.cache
 def harness(name) -> Harness:
-    return Harness(name)
+    """One env of the sweep with a jitted batched reset and a jitted batched T-step rollout."""
+    env = envs_mjx.make(name, pixels="off", **HARNESS_OVERRIDES.get(name, {}))
+    return Harness(env, B, T, record=RECORD)
 
 
 def _row(tree, i):

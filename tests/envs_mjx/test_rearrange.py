@@ -23,9 +23,9 @@ from mujoco.mjx._src import mesh as mjx_mesh
 import envs_mjx
 from envs_mjx import render
 from envs_mjx.domains import rearrange
+from tests.envs_mjx.rollout_harness import FAST_COMPILE, Harness
 
 B, T = 4, 10
-FAST_COMPILE = {"xla_backend_optimization_level": 0}
 # The Franka scene's programs at optimisation level 0 compile faster but run pathologically slowly
 # (mjx.kinematics of a 4-env batch: 95 s, against 0.2 s at the default level; cause not isolated),
 # so they keep the default level.
@@ -34,47 +34,12 @@ PAIRS = [(n, a) for n in ("RearrangeGeom", "RearrangeYCB") for a in rearrange.AR
 NO_SETTLE = {"settle_steps": 0, "random_torque_steps": 0}
 
 
-class Harness:
-    """One (domain, arm) env without reset physics, a jitted batch reset and a jitted batched
-    T-step rollout of random actions."""
-
-    def __init__(self, name, arm):
-        self.env = env = envs_mjx.make(name, arm=arm, pixels="off", **NO_SETTLE)
-        options = COMPILE_OPTIONS[arm]
-        self.reset = jax.jit(lambda k: env.reset_batch(k, B), compiler_options=options)
-
-        def rollout(state, actions):
-            def body(s, a):
-                s = env.step(s, a)
-                d = s.pipeline_state
-                rec = {
-                    "ld_state": s.ld_state,
-                    "reward": s.reward,
-                    "done": s.done,
-                    "qpos": d.qpos,
-                    "qvel": d.qvel,
-                    "nonfinite": s.metrics["nonfinite_action"],
-                }
-                return s, rec
-
-            return jax.lax.scan(body, state, actions)
-
-        self.rollout = jax.jit(
-            jax.vmap(rollout, in_axes=(0, 1), out_axes=(0, 1)), compiler_options=options
-        )
-
-    @functools.cached_property
-    def random_run(self):
-        state0 = self.reset(jax.random.key(0))
-        shape = (T, B, self.env.action_size)
-        actions = jax.random.uniform(jax.random.key(1), shape, minval=-1.0, maxval=1.0)
-        final, traj = self.rollout(state0, actions)
-        return state0, np.asarray(actions), final, jax.tree.map(np.asarray, traj)
-
-
 @functools.cache
 def harness(name, arm) -> Harness:
-    return Harness(name, arm)
+    """One (domain, arm) env without reset physics, a jitted batch reset (one key) and a jitted
+    batched T-step rollout of random actions."""
+    env = envs_mjx.make(name, arm=arm, pixels="off", **NO_SETTLE)
+    return Harness(env, B, T, reset_batch=True, compiler_options=COMPILE_OPTIONS[arm])
 
 
 def _row(tree, i):
@@ -303,7 +268,8 @@ def test_mjx_step_matches_c_mujoco(name, arm):
     env = h.env
     state0, actions, _, _ = h.random_run
     state0 = resting_state(env, state0)
-    _, traj = jax.tree.map(np.asarray, h.rollout(state0, jnp.asarray(actions)))
+    _, traj = jax.tree.map(np.asarray, h.rollout(state0, actions))
+    actions = np.asarray(actions)
     errs = []
     for i in range(B):
         info = jax.tree.map(np.asarray, _row(state0.info, i))

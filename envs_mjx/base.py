@@ -57,8 +57,9 @@ class EnvConfig:
 
     episode_length: steps after which `done` is set with `info["truncation"] = 1`; None leaves
       time limits to a wrapper (e.g. Brax's EpisodeWrapper).
-    reward_scale: multiplies the reward. The paper-era Aux wrappers divided the benchmark envs'
-      reward by the episode length, so those domains default to 1 / episode_length.
+    reward_scale: multiplies the reward; None means 1 / episode_length (1 without a time limit).
+      The paper-era Aux wrappers divided the benchmark envs' reward by the episode length, so
+      those domains default to None and follow an overridden episode_length.
     n_frames: physics substeps per action.
     pixels: "auto" uses `envs_mjx.render` when importable and otherwise a zero placeholder with a
       warning; "required" raises if the renderer is missing; "off" is the placeholder, silently.
@@ -66,10 +67,17 @@ class EnvConfig:
     """
 
     episode_length: int | None = 1000
-    reward_scale: float = 1.0
+    reward_scale: float | None = 1.0
     n_frames: int = 1
     pixels: str = "auto"
     image_size: int = 64
+
+    @property
+    def reward_multiplier(self) -> float:
+        """The factor applied to the reward: reward_scale, or 1 / episode_length for None."""
+        if self.reward_scale is not None:
+            return float(self.reward_scale)
+        return 1.0 if self.episode_length is None else 1.0 / self.episode_length
 
 
 class PixelsUnavailableWarning(UserWarning):
@@ -273,7 +281,7 @@ class Env(brax_base.Env):
         new = State(
             pipeline_state=data,
             obs=ld,
-            reward=jnp.asarray(reward * self.config.reward_scale, jnp.float32),
+            reward=jnp.asarray(reward * self.config.reward_multiplier, jnp.float32),
             done=(terminated | truncated).astype(jnp.float32),
             metrics={**metrics, "nonfinite_action": jnp.zeros(())},
             info=info,
@@ -414,7 +422,7 @@ class Env(brax_base.Env):
         return rgba
 
 
-# The suite's 4 colour schemes (suite_reference.md §1): rows are schemes, columns are the slots
+# The suite's colour schemes (suite_reference.md §1: four): rows are schemes, columns are the slots
 # (base, pole, pole2, pole3), RGB in [0, 1].
 COLOUR_SCHEMES = np.array(
     [
@@ -425,7 +433,12 @@ COLOUR_SCHEMES = np.array(
     ],
     np.float32,
 )
-BASE, POLE, POLE2, POLE3 = range(4)
+BASE, POLE, POLE2, POLE3 = range(COLOUR_SCHEMES.shape[1])
+
+
+def random_colour_scheme(key: jax.Array) -> jax.Array:
+    """One of COLOUR_SCHEMES, uniformly: [slots, 3] RGB (the multicolor domains' reset)."""
+    return jnp.asarray(COLOUR_SCHEMES)[jax.random.randint(key, (), 0, len(COLOUR_SCHEMES))]
 
 
 def geom_ids(mj_model: mujoco.MjModel, names: list[str]) -> np.ndarray:

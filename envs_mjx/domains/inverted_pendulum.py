@@ -13,14 +13,14 @@ import jax
 import jax.numpy as jnp
 import mujoco
 
-from envs_mjx.base import BASE, COLOUR_SCHEMES, POLE, Env, EnvConfig, geom_ids
+from envs_mjx.base import BASE, POLE, Env, EnvConfig, geom_ids, random_colour_scheme
 from envs_mjx.domains._assets import asset
 
 
 @dataclasses.dataclass(frozen=True)
 class InvertedPendulumConfig(EnvConfig):
     episode_length: int | None = 1000
-    reward_scale: float = 1.0 / 1000
+    reward_scale: float | None = None  # 1 / episode_length
     n_frames: int = 1
     # The suite's (and the paper's Fig. 2) multicolor version: one of 4 colour schemes drawn per
     # reset, so a learner cannot key on a fixed colour. False: the plain, fixed-colour version.
@@ -51,7 +51,7 @@ class InvertedPendulum(Env):
         noise = self.config.reset_noise
         theta = jax.random.uniform(k_theta, (), minval=-noise, maxval=noise)
         qpos = jnp.stack([jnp.zeros(()), theta])
-        scheme = jnp.asarray(COLOUR_SCHEMES)[jax.random.randint(k_colour, (), 0, 4)]
+        scheme = random_colour_scheme(k_colour)
         rgba = self._rgba_with_scheme(
             self._slots, jnp.stack([scheme[BASE], scheme[POLE]]), self.config.multicolor
         )

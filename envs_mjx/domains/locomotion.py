@@ -8,8 +8,8 @@ LD state (8 + 2J + F entries, clipped to +-5):
   Body position = mean x, y of the robot's bodies with the torso's z; the target is 1 km along +x;
   (vx, vy, vz) is the torso origin's world velocity rotated into the body-yaw frame.
 Reward: alive + progress + electricity (-2 mean|a * 0.1 qdot| - 0.1 mean a^2)
-  - 0.1 * (joints at their limits), times reward_scale (1/1000 by default: the paper-era wrappers
-  divided by the episode length). progress = decrease of the distance to the target / dt.
+  - 0.1 * (joints at their limits), times reward_scale (1 / episode_length by default: the paper-era
+  wrappers divided by the episode length). progress = decrease of the distance to the target / dt.
 Reset: actuated joints ~U(+-0.1) rad from the model's rest pose, zero velocity.
 Kinematic quantities (body positions, contacts) are the ones MJX computed at the start of the last
 substep, i.e. they lag qpos by one physics substep (4.1 ms), as in Brax / Playground envs.
@@ -26,14 +26,21 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from envs_mjx.base import COLOUR_SCHEMES, Env, EnvConfig, body_geom_ids, contact_flags, geom_ids
+from envs_mjx.base import (
+    Env,
+    EnvConfig,
+    body_geom_ids,
+    contact_flags,
+    geom_ids,
+    random_colour_scheme,
+)
 from envs_mjx.domains._assets import asset
 
 
 @dataclasses.dataclass(frozen=True)
 class LocomotionConfig(EnvConfig):
     episode_length: int | None = 1000
-    reward_scale: float = 1.0 / 1000
+    reward_scale: float | None = None  # 1 / episode_length
     n_frames: int = 4
     # The suite's (and the paper's Fig. 2) multicolor version: one of 4 colour schemes drawn per
     # reset, so a learner cannot key on a fixed colour. False: the plain, fixed-colour version.
@@ -109,7 +116,7 @@ class Locomotion(Env):
         qpos = jnp.asarray(self.mj_model.qpos0, jnp.float32)
         dq = jax.random.uniform(k_q, (len(self.joints),), minval=-noise, maxval=noise)
         qpos = qpos.at[self._qadr].add(dq)
-        scheme = jnp.asarray(COLOUR_SCHEMES)[jax.random.randint(k_colour, (), 0, 4)]
+        scheme = random_colour_scheme(k_colour)
         rgba = self._rgba_with_scheme(self._slots, scheme[self._slot_index], self.config.multicolor)
         return qpos, jnp.zeros(self.mj_model.nv), {"geom_rgba": rgba}
 

@@ -41,8 +41,9 @@ x, y ~U(-0.5, 0.5), z ~U(0.05, 0.35), as the reference), objects at xy ~U(+-0.15
 0.075) (z_lo 0.04 Geom, 0.03 YCB) with quaternion normalize(U[0, 1]^4), then 20 Bullet steps of
 zero action and 10 of random torques U(+-0.5 limit).
 
-Reward (per step, times reward_scale = 1/50): 1 - mean_i min(|obj_i,xy - target_i|, 1), target
-(0.2, -0.2) for boxes and cans, (0.2, 0.2) for everything else (fruit and all Geom shapes).
+Reward (per step, times reward_scale, by default 1 / episode_length):
+1 - mean_i min(|obj_i,xy - target_i|, 1), target (0.2, -0.2) for boxes and cans, (0.2, 0.2)
+for everything else (fruit and all Geom shapes).
 Done when an object leaves [-0.45, 0.45]^2 x [-0.05, 0.20]; franka also when the end effector
 rises above 0.2 m + the highest object or leaves |x|, |y| <= 0.5. Episodes last 50 steps.
 
@@ -176,7 +177,7 @@ class RearrangeConfig(EnvConfig):
     uses versions[i mod len(versions)]. n_frames is derived (repeats x BULLET_SUBSTEPS)."""
 
     episode_length: int | None = 50
-    reward_scale: float = 1.0 / 50
+    reward_scale: float | None = None  # 1 / episode_length
     n_frames: int = 8
     arm: str = "reacher"
     version: int | None = None

@@ -76,6 +76,12 @@ def test_registry_names_and_overrides():
         envs_mjx.make("CartPole", bogus=1)
     env = envs_mjx.make("CartPole", episode_length=7, pixels="off")
     assert env.config.episode_length == 7
+    # The reward scale is derived: 1 / episode_length unless given, following an override.
+    assert env.config.reward_multiplier == 1 / 7
+    assert envs_mjx.default_config("HalfCheetah").reward_multiplier == 1 / 1000
+    assert envs_mjx.default_config("GeomOnIncline").reward_multiplier == 1.0
+    assert envs_mjx.make("CartPole", reward_scale=2.0, pixels="off").config.reward_multiplier \
+        == 2.0
     assert envs_mjx.default_config("GeomOnIncline").n_frames == 8
 
 
@@ -282,6 +288,8 @@ def test_cartpole_pole_falls_the_way_it_leans():
     t = np.arange(1, 51) * 0.02
     expected = np.asarray(theta0)[None] * np.cosh(w * t)[:, None]
     np.testing.assert_allclose(theta[:50], expected, rtol=0.02)
+    # Reward 1 per step times 1 / episode_length (the paper-era wrappers), while upright.
+    np.testing.assert_allclose(traj["reward"][:50], 1 / 200)
 
 
 @pytest.mark.parametrize("name,min_feet", [("Ant", 2), ("HalfCheetah", 1)])

@@ -15,6 +15,8 @@ from typing import Any
 from jaml.stream.ppo import PPOConfig
 
 POLICIES = ("ppo", "random")
+# The reference's replay size in columns (suite_reference.md §3).
+REFERENCE_REPLAY_COLUMNS = 5000
 _PENDULUMS = ("CartPole", "InvertedPendulum")
 _INCLINES = ("GeomOnIncline", "MeshOnIncline")
 
@@ -28,7 +30,8 @@ class StreamConfig:
     seed: PRNG seed of the run (envs, policy, learner, replay sampling, test sets).
     num_envs: envs stepped in parallel; each epoch adds one replay column per env.
     rollout_len: steps per env per epoch (a column holds rollout_len + 1 frames).
-    replay_slots: replay columns (the reference's 5000); a multiple of num_envs.
+    replay_slots: replay columns, a multiple of num_envs; None (default): the reference's 5000
+      rounded down to a multiple of num_envs (4992 at 64 envs), see `replay_columns`.
     replay_keep_fraction: share of slots kept from the start; default: the learner's (VAE_v0
       0, others 0.5).
     learner_steps: learner gradient steps per epoch once the replay is full.
@@ -57,7 +60,7 @@ class StreamConfig:
     seed: int = 0
     num_envs: int = 64
     rollout_len: int = 32
-    replay_slots: int = 5000 // 64 * 64
+    replay_slots: int | None = None
     replay_keep_fraction: float | None = None
     learner_steps: int = 10
     frames_per_batch: int = 1024
@@ -78,14 +81,16 @@ class StreamConfig:
         problems = []
         if self.policy not in POLICIES:
             problems.append(f"policy must be one of {POLICIES}, got {self.policy!r}")
-        for name in ("num_envs", "rollout_len", "replay_slots", "learner_steps",
+        for name in ("num_envs", "rollout_len", "learner_steps",
                      "frames_per_batch", "epochs", "eval_every", "eval_train", "eval_rand",
                      "regressor_iterations"):
             if getattr(self, name) < 1:
                 problems.append(f"{name} must be ≥ 1, got {getattr(self, name)}")
+        if self.replay_slots is not None and self.replay_slots < 1:
+            problems.append(f"replay_slots must be ≥ 1 or None, got {self.replay_slots}")
         if self.eval_curr < 0 or self.eval_transient < 0:
             problems.append("eval_curr and eval_transient must be ≥ 0")
-        if self.num_envs >= 1 and self.replay_slots % self.num_envs:
+        if self.num_envs >= 1 and self.replay_slots and self.replay_slots % self.num_envs:
             problems.append(
                 f"replay_slots ({self.replay_slots}) must be a multiple of num_envs "
                 f"({self.num_envs}): each epoch adds num_envs columns"
@@ -103,9 +108,17 @@ class StreamConfig:
         return dataclasses.replace(self, **changes)
 
     @property
+    def replay_columns(self) -> int:
+        """The replay's column count: replay_slots, or the reference's 5000 rounded down to a
+        multiple of num_envs (each epoch adds one column per env)."""
+        if self.replay_slots is not None:
+            return self.replay_slots
+        return max(1, REFERENCE_REPLAY_COLUMNS // self.num_envs) * self.num_envs
+
+    @property
     def fill_epochs(self) -> int:
         """Epochs until the replay is full and the learner starts (reference §3)."""
-        return self.replay_slots // self.num_envs
+        return self.replay_columns // self.num_envs
 
     def program_key(self) -> str:
         """The config without its seed, as canonical JSON: what the compiled loop depends on

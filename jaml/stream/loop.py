@@ -115,7 +115,7 @@ class Stream:
             learner=learners.init_train_state(self.learner, self.optimizer, k_learner,
                                               (frames, actions)),
             replay=replay_lib.init(
-                cfg.replay_slots, cfg.rollout_len + 1, learners.learner.FRAME_SHAPE,
+                cfg.replay_columns, cfg.rollout_len + 1, learners.learner.FRAME_SHAPE,
                 self.env.action_size, len(self.env.ld_state_names), self.keep_fraction,
             ),
         )
@@ -449,10 +449,11 @@ def _build(config: StreamConfig, latent_penalty) -> Stream:
         )
     keep = (learner.config.replay_keep_fraction if config.replay_keep_fraction is None
             else config.replay_keep_fraction)
-    if config.num_envs > config.replay_slots - int(keep * config.replay_slots):
+    columns = config.replay_columns
+    if config.num_envs > columns - int(keep * columns):
         problems.append(
             f"each epoch adds {config.num_envs} columns but only "
-            f"{config.replay_slots - int(keep * config.replay_slots)} replay slots are replaceable"
+            f"{columns - int(keep * columns)} replay slots are replaceable"
         )
     if config.epochs < config.fill_epochs:
         problems.append(

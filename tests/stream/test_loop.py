@@ -52,6 +52,12 @@ def test_bad_configs_raise_before_anything_runs(change, message, tmp_path):
     assert not (tmp_path / "run").exists()  # nothing written for a config that cannot run
 
 
+def test_replay_size_defaults_to_the_references_5000_columns_per_env_count():
+    assert stream.StreamConfig().replay_columns == 4992  # 78 columns of 64 envs
+    assert stream.StreamConfig(num_envs=200).replay_columns == 5000
+    assert stream.StreamConfig(num_envs=96, replay_slots=192).fill_epochs == 2
+
+
 def test_bad_policy_and_sizes_are_named():
     with pytest.raises(ValueError, match="policy must be one of"):
         tiny(policy="greedy")

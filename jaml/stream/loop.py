@@ -18,6 +18,7 @@ Shapes: R runs, E envs, T rollout_len, L = learner.seq_len, B sequences per lear
 
 from __future__ import annotations
 
+import collections
 import concurrent.futures
 import dataclasses
 from typing import Any
@@ -74,15 +75,19 @@ class Stream:
     programs: dict = dataclasses.field(default_factory=dict, repr=False)
 
     def __post_init__(self):
-        parts = (self.env, self.learner, self.ppo, self.optimizer, self.train_step)
-        object.__setattr__(self, "_key", (self.config.program_key(), *map(id, parts),
-                                          self.keep_fraction))
+        object.__setattr__(self, "_program", (self.config.program_key(), self.keep_fraction))
+
+    def _parts(self) -> tuple:
+        return (self.env, self.learner, self.ppo, self.optimizer, self.train_step)
 
     def __hash__(self) -> int:
-        return hash(self._key)
+        return hash((self._program, *map(id, self._parts())))
 
     def __eq__(self, other) -> bool:
-        return isinstance(other, Stream) and self._key == other._key
+        # The parts by identity (they are closures and modules without value equality), held
+        # by both Streams, so the comparison never relies on recycled ids.
+        return (isinstance(other, Stream) and self._program == other._program
+                and all(a is b for a, b in zip(self._parts(), other._parts(), strict=True)))
 
     @property
     def seq_len(self) -> int:
@@ -406,18 +411,24 @@ def _learn_step_runs(stream: Stream, learner_state, replay, keys):
     return jax.vmap(stream.learn_step)(learner_state, replay, keys)
 
 
-_BUILT: dict = {}
+# The last few Streams built, by program: bounded, so a process that builds many configs (a
+# sweep) does not keep every env, learner and compiled program alive.
+_BUILT: collections.OrderedDict = collections.OrderedDict()
+_BUILT_KEPT = 8
 
 
 def build(config: StreamConfig, latent_penalty=None) -> Stream:
     """A Stream for `config`; every size problem is reported here, before anything compiles.
 
     Building a config again in one process, or one that differs only in its seed, reuses the
-    same env, learner and PPO, so jitted functions compiled for one serve the other (see
-    `Stream`)."""
+    same env, learner and PPO (of the last `_BUILT_KEPT` programs built), so jitted functions
+    compiled for one serve the other (see `Stream`)."""
     cache_key = (config.program_key(), latent_penalty)
     if cache_key not in _BUILT:
         _BUILT[cache_key] = _build(config.replace(seed=0), latent_penalty)
+        while len(_BUILT) > _BUILT_KEPT:
+            _BUILT.popitem(last=False)
+    _BUILT.move_to_end(cache_key)
     base = _BUILT[cache_key]
     return base if base.config == config else dataclasses.replace(base, config=config)
 

@@ -141,6 +141,19 @@ def test_sweep_reset_and_random_rollout(name):
 # -- physics against independent references -------------------------------------------------------
 
 
+# The sweep above steps with pixels off (its rollouts would compile the renderer into a 200-step
+# scan per domain); here every domain renders its reset frames. ~30 s each to compile on the
+# 2-core CPU, so CartPole runs by default and the others with the slow tests.
+@pytest.mark.parametrize("name", [pytest.param(n, marks=() if n == "CartPole" else pytest.mark.slow)
+                                  for n in envs_mjx.ALL_ENVS])
+def test_every_domain_renders_its_scene(name):
+    env = envs_mjx.make(name, pixels="required")
+    px = np.asarray(jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), 2)).pixels)
+    assert px.shape == (2, 64, 64, 3) and px.dtype == np.uint8
+    assert (px.reshape(2, -1, 3).std(axis=1) > 5).all(), "a scene, not a blank frame"
+    assert np.abs(px[0].astype(int) - px[1]).mean() > 0.5, "two resets show different frames"
+
+
 @pytest.mark.parametrize("f", [0.0, 0.3])
 def test_incline_slide_matches_closed_form(f):
     """Zero action from rest, contact friction mu = f^2: s(t) = s0 + g (sin(theta) - mu cos(theta))

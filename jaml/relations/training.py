@@ -13,6 +13,7 @@ import dataclasses
 import logging
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import jax
 import jax.numpy as jnp
@@ -65,14 +66,20 @@ def _frozen_relations(rs: RelationSet):
     return [rs.relation(j) for j in range(rs.num_relations)]
 
 
-def _relation_objective(cfg: Config, module: Relation, earlier: Sequence[Callable], num_syz: int):
-    """The per-step loss of g_k: (params, frozen syzygy params, batches) → (loss, aux)."""
-    transversal = cfg.independence == "transversality" and len(earlier) > 0
-    syz_module = SyzygyCoefficients(max(len(earlier), 1), cfg.syzygy_width, cfg.depth)
+def _relation_objective(
+    cfg: Config, module: Relation, earlier_modules: Sequence[Relation], num_syz: int
+):
+    """The per-step loss of g_k: (params, frozen syzygy params, frozen g_j params, batches) →
+    (loss, aux). The frozen relations' parameters are arguments, not constants, so the compiled
+    loop depends only on their shapes (and can be compiled before g_{k−1} is learned)."""
+    transversal = cfg.independence == "transversality" and len(earlier_modules) > 0
+    syz_module = SyzygyCoefficients(max(len(earlier_modules), 1), cfg.syzygy_width, cfg.depth)
     B = cfg.batch_size
 
-    def objective(params, syz_params, on, off, thick):
+    def objective(params, syz_params, earlier_params, on, off, thick):
         g = lambda t: module.apply(params, t)  # noqa: E731
+        pairs = zip(earlier_modules, earlier_params, strict=True)
+        earlier = [(lambda t, m=m, p=p: m.apply(p, t)) for m, p in pairs]
         y_on, v = losses.input_gradients(g, on)
         y_off = g(off)
         metrics = {
@@ -147,13 +154,13 @@ def relation_trainer(
     """
     k = rs.num_relations
     module = Relation(relation_width(k, cfg.base_width, cfg.max_width), cfg.depth)
-    earlier = _frozen_relations(rs)
+    earlier = [Relation(w, rs.depth) for w in rs.widths]
     num_syz = 0 if syz_params is None else int(jax.tree.leaves(syz_params)[0].shape[0])
     objective = _relation_objective(cfg, module, earlier, num_syz)
     optimizer = optax.adam(cfg.learning_rate)
 
     def draw(key, args):
-        rows, _ = args
+        rows = args[0]
         k_on, k_off, k_thick, k_jit = jax.random.split(key, 4)
         thick = None
         if num_syz:  # syzygy push rounds only: skip the extra batch otherwise
@@ -162,11 +169,18 @@ def relation_trainer(
 
     def train_step(state, batch, args):
         return optimizer_step(
-            state, objective, optimizer, max_steps, args[1], *batch, patience=cfg.stop_patience
+            state,
+            objective,
+            optimizer,
+            max_steps,
+            args[1],
+            args[2],
+            *batch,
+            patience=cfg.stop_patience,
         )
 
     chunk = make_chunk(train_step, cfg.chunk_steps, draw)
-    return chunk, init_state(params, optimizer, key), (batches.rows, syz_params)
+    return chunk, init_state(params, optimizer, key), (batches.rows, syz_params, rs.params)
 
 
 def _fit_relation(
@@ -180,11 +194,14 @@ def _fit_relation(
     thickening: float = 0.0,
     callback=None,
     phase="relation",
+    compiled=None,
 ):
     k = rs.num_relations
     chunk, state, args = relation_trainer(
         cfg, batches, rs, params, key, max_steps, syz_params, thickening
     )
+    if compiled is not None:  # the same loop, compiled ahead of time by `_compile_ahead`
+        chunk = compiled
     report = None
     if callback is not None:
         report = lambda s, m, n: callback(phase, k, {"step": int(s.step), "steps": n, **m})  # noqa: E731
@@ -208,7 +225,7 @@ def fit_syzygy(
     1/separation_ratio of mean |g_k| there (the "f ≈ 0" of Algorithm 1).
     """
     module = SyzygyCoefficients(len(earlier), cfg.syzygy_width, cfg.depth)
-    optimizer = optax.adam(cfg.learning_rate)
+    optimizer = optax.adam(cfg.syzygy_learning_rate)
     min_steps = cfg.syzygy_steps // 10  # the reference's early exit waits for a tenth of the budget
 
     def objective(params, step, thick):
@@ -278,17 +295,23 @@ def choose_thickening(cfg, batches: Batches, rs: RelationSet, key) -> float:
 def record_means(cfg, batches: Batches, g: Callable, key):
     """Mean |g| over `eval_batches` fresh on- and off-manifold batches (App. B.3.1)."""
     n = cfg.batch_size * cfg.eval_batches
-    k_on, k_off = jax.random.split(key)
-    on = jnp.mean(jnp.abs(g(batches.on(k_on, batches.rows, n))))
-    off = jnp.mean(jnp.abs(g(batches.off(k_off, n))))
+
+    @jax.jit  # one compiled call; op by op this cost seconds of dispatch on CPU
+    def means(key, rows):
+        k_on, k_off = jax.random.split(key)
+        on = jnp.mean(jnp.abs(g(batches.on(k_on, rows, n))))
+        off = jnp.mean(jnp.abs(g(batches.off(k_off, n))))
+        return on, off
+
+    on, off = jax.device_get(means(key, batches.rows))
     return float(on), float(off)
 
 
 def _pretrain(cfg, batches: Batches, module, params, prior: Callable, key):
     """Supervised warm start: regress g to tanh(prior(τ)) on on- and off-manifold rows (L1)."""
-    # Plain supervised regression tolerates (and needs, within pretrain_steps) a larger step
-    # than the relation losses, whose input-gradient terms are sensitive to it.
-    optimizer = optax.adam(cfg.learning_rate * 10)
+    # Plain supervised regression: the relations' step size (1e-3 by default, the step the
+    # warm start has always used).
+    optimizer = optax.adam(cfg.learning_rate)
 
     def objective(p, tau):
         target = jnp.tanh(prior(tau))
@@ -349,16 +372,60 @@ def fit(
     if priors is not None and not all(p is None or callable(p) for p in priors):
         raise TypeError("priors must be a sequence of callables (or None entries)")
 
+    pool = ThreadPoolExecutor(1, thread_name_prefix="jaml-compile")
+    try:
+        return _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool)
+    finally:
+        pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, pool):
+    """Compile g_{k_next+1}'s training loop in a background thread while g_{k_next} trains.
+
+    The loop depends on the frozen relations only through their shapes, so the still untrained
+    `params` of g_{k_next} stand in for it. Only the plain transversality loop is compiled ahead
+    (syzygy rounds have data-dependent shapes). Returns {k_next: future of the compiled chunk}.
+    """
+    if cfg.independence != "transversality" or k_next >= cfg.max_relations:
+        return {}
+    width = relation_width(rs.num_relations, cfg.base_width, cfg.max_width)
+    stand_in = rs.append(params, 0.0, 0.0, width)
+    next_module = Relation(relation_width(k_next, cfg.base_width, cfg.max_width), cfg.depth)
+
+    def build():
+        next_params = jax.eval_shape(next_module.init, jax.random.key(0), jnp.zeros((1, rs.dim)))
+        next_params = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), next_params)
+        chunk, state, args = relation_trainer(
+            cfg, batches, stand_in, next_params, jax.random.key(0), cfg.max_steps
+        )
+        return chunk.lower(state, args).compile()
+
+    return {k_next: pool.submit(build)}
+
+
+def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool):
+    ahead = {}
     for k in range(rs.num_relations, cfg.max_relations):
         started = time.perf_counter()
         k_key = jax.random.fold_in(key, k)
         k_init, k_pre, k_train, k_syz, k_eval = jax.random.split(k_key, 5)
         width = relation_width(k, cfg.base_width, cfg.max_width)
         module = Relation(width, cfg.depth)
-        params = module.init(k_init, jnp.zeros((1, batches.dim)))
+        params = jax.jit(module.init)(k_init, jnp.zeros((1, batches.dim)))
+        ahead |= _compile_ahead(cfg, batches, rs, params, k + 1, pool)
         if priors is not None and k < len(priors) and priors[k] is not None:
             params = _pretrain(cfg, batches, module, params, priors[k], k_pre)
-        state = _fit_relation(cfg, batches, rs, params, k_train, cfg.max_steps, callback=callback)
+        compiled = ahead.pop(k, None)
+        state = _fit_relation(
+            cfg,
+            batches,
+            rs,
+            params,
+            k_train,
+            cfg.max_steps,
+            callback=callback,
+            compiled=compiled.result() if compiled is not None else None,
+        )
         steps, status, rounds = int(state.step), int(state.status), []
         if cfg.independence == "syzygy" and k > 0 and status != NONFINITE:
             syz_found = []

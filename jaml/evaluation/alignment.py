@@ -186,11 +186,7 @@ def _train(key: jax.Array, x: jax.Array, y: jax.Array, config: RegressorConfig, 
 def fit_regressor(latents, states, seed: int = 0, config: RegressorConfig | None = None,
                   **overrides) -> Regressor:
     """Trains a fresh regressor latents [N, Z] → states [N, D]; deterministic for a given seed."""
-    known = {f.name for f in dataclasses.fields(RegressorConfig)}
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise ValueError(f"unknown regressor override(s) {unknown}; known: {sorted(known)}")
-    config = dataclasses.replace(config or RegressorConfig(), **overrides)
+    config = _resolve(config, overrides)
     x, y = _checks.paired(("latents_train", "states_train"), latents, states)
     n_val = config.split(x.shape[0])
     if x.shape[0] - n_val < 2:
@@ -295,3 +291,76 @@ def alignment_error(latents_train, states_train, latents_test, states_test, seed
         latents_train, states_train, {"test": (latents_test, states_test)}, seed, config,
         **overrides,
     )["test"]
+
+
+def alignment_errors_runs(latents_train, states_train, test_sets: Mapping[str, tuple], seeds,
+                          config: RegressorConfig | None = None, **overrides
+                          ) -> dict[str, jax.Array]:
+    """`alignment_errors` of R independent data sets at once, one fit per run, vmapped.
+
+    latents_train [R, N, Z], states_train [R, N, D], test_sets {name: ([R, Nt, Z], [R, Nt, D])},
+    seeds [R] ints: errors [R, D] per name (and "validation"), where row r is what
+    `alignment_errors` gives for run r's arrays and seeds[r], up to float rounding (here the
+    normalisation stats are computed on the device, there on the host). One compiled program
+    fits every run: on a GPU the fit is latency bound (a scan of small steps), so R fits cost
+    about one.
+    """
+    if not isinstance(test_sets, Mapping) or not test_sets:
+        raise ValueError("test_sets must be a non-empty mapping name → (latents, states)")
+    if "validation" in test_sets:
+        raise ValueError('test_sets: the name "validation" is reserved for the held-out rows')
+    config = _resolve(config, overrides)
+    x = jnp.asarray(latents_train, jnp.float32)
+    y = jnp.asarray(states_train, jnp.float32)
+    seeds = np.asarray(seeds)
+    if x.ndim != 3 or y.ndim != 3 or x.shape[:2] != y.shape[:2] or seeds.shape != x.shape[:1]:
+        raise ValueError(f"expected latents [R, N, Z], states [R, N, D] and seeds [R]; got "
+                         f"{x.shape}, {y.shape} and {seeds.shape}")
+    tests = {}
+    for name, pair in test_sets.items():
+        if not isinstance(pair, tuple | list) or len(pair) != 2:
+            raise ValueError(f"test_sets[{name!r}] must be a pair (latents, states)")
+        xt, yt = (jnp.asarray(a, jnp.float32) for a in pair)
+        if (xt.ndim != 3 or yt.ndim != 3 or xt.shape[:2] != yt.shape[:2]
+                or xt.shape[0] != x.shape[0] or xt.shape[2] != x.shape[2]
+                or yt.shape[2] != y.shape[2]):
+            raise ValueError(f"test set {name!r}: shapes {xt.shape}, {yt.shape} do not match the "
+                             f"training sets' {x.shape}, {y.shape} (same R, Z and D)")
+        tests[name] = (xt, yt)
+    n_val = config.split(x.shape[1])
+    if x.shape[1] - n_val < 2:
+        raise ValueError(f"latents_train/states_train: too few samples, {x.shape[1]} rows leave "
+                         f"{x.shape[1] - n_val} to fit; need at least 2")
+    rotation.check_starts(config.rotation_starts, y.shape[2])
+    keys = jax.vmap(jax.random.key)(jnp.asarray(seeds, jnp.uint32))
+    return _fit_and_score_runs(keys, x, y, tests, config, n_val,
+                               config.batch_for(x.shape[1] - n_val))
+
+
+def _resolve(config: RegressorConfig | None, overrides: dict) -> RegressorConfig:
+    known = {f.name for f in dataclasses.fields(RegressorConfig)}
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise ValueError(f"unknown regressor override(s) {unknown}; known: {sorted(known)}")
+    return dataclasses.replace(config or RegressorConfig(), **overrides)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "n_val", "batch"))
+def _fit_and_score_runs(keys, x, y, tests, config: RegressorConfig, n_val: int, batch: int):
+    """Per run (vmapped): `fit_regressor` then `regressor_error` on each test set."""
+
+    def one(key, x, y, tests):
+        x_fit, y_fit = x[n_val:], y[n_val:]
+        if config.normalize:
+            mean = y_fit.mean(axis=0)
+            std = y_fit.std(axis=0) + config.std_eps
+        else:
+            mean, std = jnp.zeros(y.shape[1], jnp.float32), jnp.ones(y.shape[1], jnp.float32)
+        params, _ = _train(key, x_fit, (y_fit - mean) / std, config, batch)
+        errors = {name: _per_dim_l1(params, xt, (yt - mean) / std)
+                  for name, (xt, yt) in tests.items()}
+        errors["validation"] = (_per_dim_l1(params, x[:n_val], (y[:n_val] - mean) / std)
+                                if n_val > 0 else jnp.full((y.shape[1],), jnp.nan, jnp.float32))
+        return errors
+
+    return jax.vmap(one)(keys, x, y, tests)

@@ -3,10 +3,10 @@
 Encode sequences from the replay (the regressor's training set) and from fresh rollouts of a
 random policy (π_rand, the same set at every analysis: a fixed key) and of the current policy
 (π_curr); fit a fresh regressor latents → LD state of each sequence's last input frame and report
-its per-dimension test error, plus the distortion ρ on π_rand. All functions take one run's
-(unstacked) `StreamState`.
+its per-dimension test error, plus the distortion ρ on π_rand. The functions take one run's
+(unstacked) `StreamState`, except `evaluate_runs`, which analyses R stacked runs at once.
 
-Shapes: E envs, L = learner.seq_len, N sequences, Z latent, D LD state.
+Shapes: R runs, E envs, L = learner.seq_len, N sequences, Z latent, D LD state.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import numpy as np
 
 from envs_mjx.base import Env, State
 from jaml import evaluation
+from jaml.evaluation import alignment
 from jaml.stream import collect
 from jaml.stream import replay as replay_lib
 from jaml.stream.loop import Stream, StreamState
@@ -61,6 +62,40 @@ def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Ar
     }
 
 
+def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
+                  pi_rand_keys: jax.Array) -> list[dict]:
+    """`evaluate` of R stacked runs (states with a leading runs axis, keys [R] and pi_rand_keys
+    [R] raw keys): one report per run, what `evaluate(stream, state_r, keys[r],
+    pi_rand_keys[r])` reports for it alone, up to float rounding.
+
+    On a GPU the per-run analysis is latency bound (hundreds of small chunk calls and a
+    10 000-step regressor scan), so one call for R runs costs about what one run costs. The
+    replay samplers, the rollouts (physics, renderer, policy) and the regressor fits are
+    vmapped over the runs; the encoder is applied run by run inside one jitted call (unrolled
+    over R), see `_encode_runs`."""
+    cfg = stream.config
+    split = jax.vmap(lambda k: jax.random.split(k, 3))(keys)
+    k_train, k_curr, k_reg = split[:, 0], split[:, 1], split[:, 2]
+    train = _encoded_replay_runs(stream, states, k_train, cfg.eval_train)
+    tests = {"pi_rand": _encoded_rollouts_runs(stream, states, pi_rand_keys, cfg.eval_rand,
+                                               random=True)}
+    if cfg.policy == "ppo" and cfg.eval_curr > 0:
+        tests["pi_curr"] = _encoded_rollouts_runs(stream, states, k_curr, cfg.eval_curr,
+                                                  random=False)
+    seeds = jax.vmap(lambda k: jax.random.randint(k, (), 0, 2**31 - 1))(k_reg)
+    errors = alignment.alignment_errors_runs(
+        *train, tests, seeds=np.asarray(seeds).tolist(), seq_len=stream.seq_len,
+        num_iterations=cfg.regressor_iterations, normalize=cfg.regressor_normalize,
+    )
+    errors = {k: np.asarray(v) for k, v in errors.items()}
+    lat, st = tests["pi_rand"]
+    columns = distortion_columns(stream)
+    return [{
+        "errors": {k: v[r].tolist() for k, v in errors.items()},
+        "distortion": float(evaluation.distortion(lat[r], st[r][:, columns])),
+    } for r in range(len(seeds))]
+
+
 def distortion_columns(stream: Stream) -> np.ndarray:
     """Indices of the LD state's τ^true entries for the distortion (all by default)."""
     names = list(stream.env.ld_state_names)
@@ -95,6 +130,33 @@ def _map_chunks(producer, stream: Stream, s: StreamState, carry, keys):
     return tuple(jnp.concatenate(x) for x in zip(*outs, strict=True))
 
 
+def _encoded_replay_runs(stream: Stream, states: StreamState, keys: jax.Array, num: int):
+    """`encoded_replay` of R stacked runs (keys [R]): ([R, N, Z], [R, N, D])."""
+    chunks = jax.vmap(lambda k: jax.random.split(k, _chunks(num, stream.config.num_envs)))(keys)
+    return _map_chunks_runs(_replay_chunk_runs, stream, states, None, chunks)
+
+
+def _encoded_rollouts_runs(stream: Stream, states: StreamState, keys: jax.Array, num: int,
+                           random: bool):
+    """`encoded_rollouts` of R stacked runs (keys [R]): ([R, N, Z], [R, N, D])."""
+    split = jax.vmap(jax.random.split)(keys)
+    random = jnp.asarray(random)
+    env_states = _rollout_start_runs(stream, states, split[:, 0], random)
+    n = _chunks(num, stream.config.num_envs)
+    chunks = jax.vmap(lambda k: jax.random.split(k, n))(split[:, 1])
+    return _map_chunks_runs(_rollout_chunk_runs, stream, states, (env_states, random), chunks)
+
+
+def _map_chunks_runs(producer, stream: Stream, states: StreamState, carry, keys):
+    """`_map_chunks` of R stacked runs: keys [R, C], one producer and one encoder call per
+    chunk for all runs; returns ([R, N, Z], [R, N, D])."""
+    outs = []
+    for c in range(keys.shape[1]):
+        carry, seqs = producer(stream, states, carry, keys[:, c])
+        outs.append(_encode_runs(stream, states.learner.variables, seqs))
+    return tuple(jnp.concatenate(x, axis=1) for x in zip(*outs, strict=True))
+
+
 # Module-level jitted functions keyed on the Stream: a `jax.jit` made per call would recompile
 # at every analysis.
 @jax.jit(static_argnums=0)
@@ -109,22 +171,74 @@ def _encode(stream: Stream, variables, seqs: replay_lib.Columns):
 
 
 @jax.jit(static_argnums=0)
+def _encode_runs(stream: Stream, variables, seqs: replay_lib.Columns):
+    """`_encode` of R stacked runs ([R, E, ...] sequences, per-run variables), the encoder
+    applied run by run in one program (a Python loop over the static R, no device loop).
+
+    Not vmapped: vmapping a convolution over per-run weights turns it into one grouped
+    convolution, which GPU libraries run far slower than R ordinary ones (see
+    `Stream.learn_runs`), and it would change each run's float rounding. Not `lax.map`:
+    XLA:CPU runs convolutions inside loops 20–40× slower (see `run_stacked_epochs`), and on a
+    GPU the unrolled calls are the same R ordinary convolutions without the loop. The
+    forward pass is small, so R copies of it compile quickly."""
+    z = jnp.stack([
+        stream.learner.encode(jax.tree.map(lambda v, r=r: v[r], variables), seqs.frames[r],
+                              seqs.actions[r])
+        for r in range(seqs.frames.shape[0])
+    ])
+    return z, seqs.ld[:, :, stream.hist - 1]
+
+
+def _replay_chunk_one(stream: Stream, s: StreamState, key):
+    return replay_lib.sample(s.replay, key, stream.config.num_envs, stream.seq_len)
+
+
+@jax.jit(static_argnums=0)
 def _replay_chunk(stream: Stream, s: StreamState, carry, key):
-    return carry, replay_lib.sample(s.replay, key, stream.config.num_envs, stream.seq_len)
+    return carry, _replay_chunk_one(stream, s, key)
+
+
+@jax.jit(static_argnums=0)
+def _replay_chunk_runs(stream: Stream, states: StreamState, carry, keys):
+    return carry, jax.vmap(lambda s, k: _replay_chunk_one(stream, s, k))(states, keys)
+
+
+def _rollout_chunk_one(stream: Stream, s: StreamState, env_state: State, random, key):
+    L = stream.seq_len
+    env_state, _, columns, _ = collect.rollout(stream.env, env_state,
+                                               stream.test_policy(s.ppo, random), key, L)
+    return env_state, jax.vmap(replay_lib.window, (0, None, None))(columns, 0, L)
 
 
 @jax.jit(static_argnums=0)
 def _rollout_chunk(stream: Stream, s: StreamState, carry, key):
     """carry (env state, traced π_rand flag) → L steps, one test sequence per env."""
     env_state, random = carry
-    L = stream.seq_len
-    env_state, _, columns, _ = collect.rollout(stream.env, env_state,
-                                               stream.test_policy(s.ppo, random), key, L)
-    return (env_state, random), jax.vmap(replay_lib.window, (0, None, None))(columns, 0, L)
+    env_state, seqs = _rollout_chunk_one(stream, s, env_state, random, key)
+    return (env_state, random), seqs
+
+
+@jax.jit(static_argnums=0)
+def _rollout_chunk_runs(stream: Stream, states: StreamState, carry, keys):
+    """`_rollout_chunk` of R stacked runs: carry (env states [R, E], one traced flag)."""
+    env_states, random = carry
+    env_states, seqs = jax.vmap(
+        lambda s, e, k: _rollout_chunk_one(stream, s, e, random, k))(states, env_states, keys)
+    return (env_states, random), seqs
 
 
 @jax.jit(static_argnums=0)
 def _rollout_start(stream: Stream, s: StreamState, key: jax.Array, random: jax.Array) -> State:
+    return _rollout_start_one(stream, s, key, random)
+
+
+@jax.jit(static_argnums=0)
+def _rollout_start_runs(stream: Stream, states: StreamState, keys: jax.Array,
+                        random: jax.Array) -> State:
+    return jax.vmap(lambda s, k: _rollout_start_one(stream, s, k, random))(states, keys)
+
+
+def _rollout_start_one(stream: Stream, s: StreamState, key: jax.Array, random) -> State:
     k_reset, k_transient = jax.random.split(key)
     env_state = collect.reset(stream.env, k_reset, stream.config.num_envs)
     if stream.config.eval_transient:

@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
@@ -145,12 +146,17 @@ class _RunDir:
         # runs trained together are shared among them.
         self.seconds = {"epochs": 0.0, "analysis": 0.0, "checkpoint": 0.0}
 
-    def analyse(self, stream: Stream, state: StreamState) -> None:
-        """Analysis, figures and an atomic checkpoint at the current epoch."""
+    def eval_key(self) -> jax.Array:
+        """The analysis key of the current epoch."""
+        return jax.random.fold_in(self.k_eval, self.epoch)
+
+    def analyse(self, stream: Stream, state: StreamState, report: dict | None = None) -> None:
+        """Analysis, figures and an atomic checkpoint at the current epoch. `report`: this
+        run's `analysis.evaluate` report when computed already (with other runs', see
+        `_analyse_together`)."""
         with _timed(self.seconds, "analysis"):
-            records = _analyse(stream, state, jax.random.fold_in(self.k_eval, self.epoch),
-                               self.pi_rand_key, list(stream.env.ld_state_names), self.out,
-                               self.epoch)
+            records = _analyse(stream, state, self.eval_key(), self.pi_rand_key,
+                               list(stream.env.ld_state_names), self.out, self.epoch, report)
         self.history += records
         with (self.out / "history.jsonl").open("a") as f:
             f.writelines(json.dumps(r) + "\n" for r in records)
@@ -244,6 +250,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
             metrics = jax.tree.map(np.asarray, metrics)
             share = (time.perf_counter() - tic) / len(group)
             bar.update(n * len(group))
+            due = []  # (index, run) of the runs at an analysis epoch, analysed together
             for i, r in enumerate(group):
                 mine = {k: v[:, i] for k, v in metrics.items()}
                 r.seconds["epochs"] += share
@@ -258,7 +265,8 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                 r.epoch += n
                 if r.epoch == target:
                     r.targets.pop(0)
-                    r.analyse(stream, jax.tree.map(lambda x, i=i: x[i], states))
+                    due.append((i, r))
+            _analyse_together(stream, states, due)
             bar.set_postfix(ret=f"{_last_finite(metrics['episode_return'][:, 0]):.3g}",
                             loss=f"{_last_finite(metrics['learner/loss'][:, 0]):.4g}")
     except KeyboardInterrupt:
@@ -307,9 +315,35 @@ def _non_finite(metrics: dict[str, np.ndarray], first_epoch: int) -> str | None:
             "check the inputs, then start a new --out or resume from the checkpoint)")
 
 
+def _analyse_together(stream: Stream, states: StreamState, due: list) -> None:
+    """Analyses the runs `due` [(index in the stacked states, run)] at their (common) epoch.
+
+    Several runs whose stacked states live on one device are evaluated by one
+    `analysis.evaluate_runs` call (on a GPU about the cost of one run's `evaluate`), the time
+    shared among them; each run then writes its records, figures and checkpoint as alone.
+    A single run, or runs split across devices, are evaluated one by one."""
+    reports = [None] * len(due)
+    if len(due) > 1 and len(states.epoch.sharding.device_set) == 1:
+        tic = time.perf_counter()
+        index = [i for i, _ in due]
+        if index != list(range(states.epoch.shape[0])):  # a run stopped (non-finite loss)
+            states_due = jax.tree.map(lambda x: x[np.asarray(index)], states)
+        else:
+            states_due = states
+        reports = analysis.evaluate_runs(stream, states_due,
+                                         jnp.stack([r.eval_key() for _, r in due]),
+                                         jnp.stack([r.pi_rand_key for _, r in due]))
+        share = (time.perf_counter() - tic) / len(due)
+        for _, r in due:
+            r.seconds["analysis"] += share
+    for (i, r), report in zip(due, reports, strict=True):
+        r.analyse(stream, jax.tree.map(lambda x, i=i: x[i], states), report)
+
+
 def _analyse(stream: Stream, state: StreamState, key, pi_rand_key, names, out: Path,
-             epoch: int) -> list[dict]:
-    report = analysis.evaluate(stream, state, key, pi_rand_key)
+             epoch: int, report: dict | None = None) -> list[dict]:
+    if report is None:
+        report = analysis.evaluate(stream, state, key, pi_rand_key)
     errors = {k: v for k, v in report["errors"].items() if k != "validation"}
     records = plots.history_records(epoch, stream.config.learner, errors, names,
                                     report["distortion"], run=stream.config.seed)

@@ -22,7 +22,7 @@ Quoted anchors are kept in their own column (`quoted_…`), never divided into: 
 cartpole 698 frames/s (quoted, not measured here).
 
 Run from the repo root: PYTHONPATH=. python benchmarks/envs_throughput.py [--quick]
-[--envs CartPole Ant] [--pixel-batches 1024 4096] [--parts physics pixels pybullet]
+[--envs CartPole Ant RearrangeGeom:arm=franka] [--pixel-batches 1024 4096] [--parts physics pixels pybullet]
 [--rounds 7] [--no-record]. Results go to benchmarks/results.jsonl unless --no-record (use it
 on a loaded or shared machine for the absolute rows; the side-by-side ratio holds there too).
 """
@@ -30,6 +30,7 @@ on a loaded or shared machine for the absolute rows; the side-by-side ratio hold
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import time
@@ -66,8 +67,29 @@ def _env_rollout(env, whole_frame=False):
     return jax.jit(jax.vmap(roll, in_axes=(0, 1)))
 
 
+def parse_env(spec: str) -> tuple[str, dict]:
+    """"RearrangeGeom:arm=franka,version=3" → ("RearrangeGeom", {"arm": "franka", "version": 3}):
+    a domain with config overrides (numbers parsed as JSON, the rest kept as strings)."""
+    name, _, opts = spec.partition(":")
+    overrides = {}
+    for item in filter(None, opts.split(",")):
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise ValueError(f"env option {item!r} in {spec!r} is not KEY=VALUE")
+        try:
+            overrides[key] = json.loads(value)
+        except json.JSONDecodeError:
+            overrides[key] = value
+    return name, overrides
+
+
+def make_env(spec: str, **kwargs):
+    name, overrides = parse_env(spec)
+    return envs_mjx.make(name, **overrides, **kwargs)
+
+
 def bench_env_physics(name, batch, steps, repeats):
-    env = envs_mjx.make(name, pixels="off")
+    env = make_env(name, pixels="off")
     states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
     actions = _random_actions(jax.random.key(1), steps, batch, env.action_size)
     fn = _env_rollout(env)
@@ -77,7 +99,7 @@ def bench_env_physics(name, batch, steps, repeats):
 
 
 def bench_raw_mjx(name, batch, steps, repeats):
-    env = envs_mjx.make(name, pixels="off")
+    env = make_env(name, pixels="off")
     model = env.mjx_model
     states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
     data = states.pipeline_state
@@ -99,7 +121,7 @@ def bench_raw_mjx(name, batch, steps, repeats):
 
 def bench_c(name, batch, steps, repeats):
     """MuJoCo C on the env's model, 1 thread: mujoco.rollout when the env acts through ctrl."""
-    env = envs_mjx.make(name, pixels="off")
+    env = make_env(name, pixels="off")
     m = env.mj_model
     n = steps * env.n_frames
     rng = np.random.default_rng(0)
@@ -134,7 +156,7 @@ def bench_c(name, batch, steps, repeats):
 
 
 def bench_pixels(name, batch, steps, repeats):
-    env = envs_mjx.make(name, pixels="required")
+    env = make_env(name, pixels="required")
     states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
     actions = _random_actions(jax.random.key(1), steps, batch, env.action_size)
     t = measure(_env_rollout(env), states, actions, repeats=repeats)
@@ -156,7 +178,7 @@ def bench_vs_pybullet(name, batch, steps, rounds, processes=2):
     A jaml block is one blocked call of `batch` envs x `steps` steps; a PyBullet block is
     `processes` workers x ceil(batch / processes) episodes x `steps` steps, about the same
     number of frames."""
-    env = envs_mjx.make(name, pixels="required")
+    env = make_env(name, pixels="required")
     states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
     actions = _random_actions(jax.random.key(1), steps, batch, env.action_size)
     fn = _env_rollout(env, whole_frame=True)
@@ -222,7 +244,9 @@ def side_by_side_row(name, batch, steps, jaml_frames, jaml_times, pb_frames, pb_
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--envs", nargs="+", default=list(envs_mjx.ALL_ENVS))
+    parser.add_argument("--envs", nargs="+", default=list(envs_mjx.ALL_ENVS),
+                        help="domains, each optionally with config overrides, e.g. "
+                             "RearrangeGeom:arm=franka")
     parser.add_argument("--quick", action="store_true", help="small batches, few steps, 2 reps")
     parser.add_argument("--no-record", action="store_true", help="print only")
     parser.add_argument("--pixel-batches", type=int, nargs="+",
@@ -237,7 +261,11 @@ def main(argv=None):
     parser.add_argument("--processes", type=int, default=os.cpu_count() or 1,
                         help="PyBullet worker processes (default: one per core)")
     args = parser.parse_args(argv)
-    for name in args.envs:
+    for spec in args.envs:
+        try:
+            name = parse_env(spec)[0]
+        except ValueError as e:
+            parser.error(str(e))
         if name not in envs_mjx.ALL_ENVS:
             parser.error(f"unknown env {name!r}; valid: {list(envs_mjx.ALL_ENVS)}")
     cpu = jax.devices()[0].platform == "cpu"

@@ -333,8 +333,11 @@ def alignment_errors_runs(latents_train, states_train, test_sets: Mapping[str, t
                          f"{x.shape[1] - n_val} to fit; need at least 2")
     rotation.check_starts(config.rotation_starts, y.shape[2])
     keys = jax.vmap(jax.random.key)(jnp.asarray(seeds, jnp.uint32))
-    return _fit_and_score_runs(keys, x, y, tests, config, n_val,
-                               config.batch_for(x.shape[1] - n_val))
+    errors = _fit_and_score_runs(keys, x, y, tests, config, n_val,
+                                 config.batch_for(x.shape[1] - n_val))
+    # In `alignment_errors`'s order (test sets as given, then "validation"): a jitted function
+    # returns its dicts with sorted keys, and the run directory writes records in this order.
+    return {name: errors[name] for name in [*test_sets, "validation"]}
 
 
 def _resolve(config: RegressorConfig | None, overrides: dict) -> RegressorConfig:

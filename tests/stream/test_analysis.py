@@ -43,7 +43,7 @@ def test_stacked_regressor_fits_match_each_fit_alone(normalize):
     for r, seed in enumerate(seeds):
         alone = alignment.alignment_errors(x[r], y[r], {"a": (tests["a"][0][r], tests["a"][1][r])},
                                            seed, **options)
-        assert together.keys() == alone.keys()
+        assert list(together) == list(alone)  # the same order: run records follow it
         for k in alone:
             # The same keys and rows; only rounding differs (normalisation stats on the device
             # rather than the host, batched rather than single matmuls): ~1e-7 relative per step,
@@ -63,8 +63,8 @@ def test_stacked_runs_analysed_at_once_match_each_run_alone():
     assert len(together) == len(SEEDS)
     for r, state in enumerate(stream.unstack_runs(states)):
         alone = analysis.evaluate(s, state, keys[r], pi_rand_keys[r])
-        assert together[r]["errors"].keys() == alone["errors"].keys() == {
-            "pi_rand", "pi_curr", "validation"}
+        assert list(together[r]["errors"]) == list(alone["errors"]) == [
+            "pi_rand", "pi_curr", "validation"]
         # The same keys give the same replay rows and rollouts (vmapping the physics, renderer
         # and policy does not change them beyond rounding), each run's encoder is applied alone
         # (the same convolutions), and the regressor fits agree to ~1e-6 (the test above):

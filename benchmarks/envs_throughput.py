@@ -22,9 +22,10 @@ Quoted anchors are kept in their own column (`quoted_…`), never divided into: 
 cartpole 698 frames/s (quoted, not measured here).
 
 Run from the repo root: PYTHONPATH=. python benchmarks/envs_throughput.py [--quick]
-[--envs CartPole Ant RearrangeGeom:arm=franka] [--pixel-batches 1024 4096] [--parts physics pixels pybullet]
-[--rounds 7] [--no-record]. Results go to benchmarks/results.jsonl unless --no-record (use it
-on a loaded or shared machine for the absolute rows; the side-by-side ratio holds there too).
+[--envs CartPole Ant RearrangeGeom:arm=franka] [--pixel-batches 1024 4096]
+[--parts physics pixels pybullet] [--rounds 7] [--no-record]. Results go to
+benchmarks/results.jsonl unless --no-record (use it on a loaded or shared machine for the
+absolute rows; the side-by-side ratio holds there too).
 """
 
 from __future__ import annotations

@@ -392,15 +392,16 @@ def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, 
     stand_in = rs.append(params, 0.0, 0.0, width)
     next_module = Relation(relation_width(k_next, cfg.base_width, cfg.max_width), cfg.depth)
 
-    def build():
-        next_params = jax.eval_shape(next_module.init, jax.random.key(0), jnp.zeros((1, rs.dim)))
-        next_params = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), next_params)
-        chunk, state, args = relation_trainer(
-            cfg, batches, stand_in, next_params, jax.random.key(0), cfg.max_steps
-        )
-        return chunk.lower(state, args).compile()
-
-    return {k_next: pool.submit(build)}
+    # Traced here, in the caller's thread: JAX's config contexts (e.g. a caller's
+    # `jax.threefry_partitionable`, which decides the random bits of the loop's fresh batches)
+    # are thread-local, so a program traced in the pool could differ from one traced here. XLA's
+    # compilation, the expensive part, is what runs in the background.
+    next_params = jax.eval_shape(next_module.init, jax.random.key(0), jnp.zeros((1, rs.dim)))
+    next_params = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), next_params)
+    chunk, state, args = relation_trainer(
+        cfg, batches, stand_in, next_params, jax.random.key(0), cfg.max_steps
+    )
+    return {k_next: pool.submit(chunk.lower(state, args).compile)}
 
 
 def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool):

@@ -18,9 +18,10 @@ The LD groups come from the env's metadata (`ld_state_groups`: position / orient
 and its state names (sin_qJ / cos_qJ are arm joints, objK_* object K's entries); the "largest
 object" is the slot whose shape has the largest bounding box in every version the env uses.
 
-What the paper reports (Fig. 3 caption and §2.2): "VAE_rpl encoded angle of the main robot
-joint, location & partly orientation (major axis) of the largest objects. SPAIR encoded (rough)
-locations quickly, but did not improve with longer training (bounding boxes not tight)."
+What the paper reports (Fig. 3's caption, and §2 "Benchmarking latent state alignment"):
+"VAE_rpl encoded angle of the main robot joint, location & partly orientation (major axis) of
+the largest objects. SPAIR encoded (rough) locations quickly, but did not improve with longer
+training (bounding boxes not tight)."
 
     python -m jaml.experiments.fig3 --out runs/fig3                     # 3 variants × 3 seeds
     python -m jaml.experiments.fig3 --out runs/fig3 --variants SPAIR_4x4 --stop-after 100
@@ -33,6 +34,26 @@ VAE's PARAMS_VAE_REARR latent (53 = D entries, plain μ head, log-variances with
 MLP 256 with 50 × 4 minibatches, LD targets used as is (not z-scored), regressor sets of 10 000 /
 10 048 / 2 500 sequences and 10 000 regressor steps. The paper does not give Fig. 3's training
 length; the default is 300 epochs (222 of them training: 11 100 learner steps), analysed every 50.
+
+The variants share nothing, so on one GPU they can run as parallel processes (fig9's runs got
+2.1× the throughput of one process that way), then one call writes the report:
+
+    for v in VAE_rpl SPAIR_4x4 SPAIR_6x6; do
+      XLA_PYTHON_CLIENT_MEM_FRACTION=0.3 python -m jaml.experiments.fig3 --out runs/fig3 \
+        --variants $v & done; wait
+    python -m jaml.experiments.fig3 --out runs/fig3 --report-only
+
+GPU time, modelled (Rearrange's stream has not been timed on a GPU): fig9's runs on one H100
+(benchmarks/RESULTS.md, MeshOnIncline, 64 envs × 10-step rollouts as here, 3 seeds stacked) took
+2.7 s per epoch and 38 s per run and analysis at 4096 / 4096 / 1024 sequences and 4000 regressor
+steps. Here the VAE trains 3 × 41K more frames per epoch (+1.4 s at the H100's measured 86K
+frames/s): ≈ 4 s × 300 epochs ≈ 20 min; SPAIR trains 3 × 3.2K frames per epoch, at an assumed
+10–30K frames/s (not measured): ≈ 15 min per grid; the 6 analyses of each of the 9 runs at the
+reference's sizes (≈ 2.5× fig9's data and steps) ≈ 95 s each, ≈ 85 min. In all ≈ 2.3 h on one
+H100 run one variant after another, over half of it analyses, before Rearrange's heavier physics
+and PPO's 50 (not 10) passes per epoch, which the model leaves out; about half that as parallel
+processes. `--eval-train 4096 --eval-rand 4096 --eval-curr 1024 --regressor-iterations 4000`
+(fig9's sizes) would cut the analyses to about 35 min.
 
 Deviation: the stream's regressor fits and scores the 9 rotation entries of each object with L1
 like every other entry, so "object orientation" is the mean |error| of those entries, not the
@@ -59,9 +80,10 @@ from jaml.experiments._runs import cell
 
 ENV = "RearrangeGeom"
 # label → (learner, learner config overrides). The VAE takes the reference's PARAMS_VAE_REARR:
-# a latent as wide as the reacher's 53-entry LD state, no ELU/sigmoid on μ, log-variances ±20.
+# no ELU/sigmoid on μ, log-variances within ±20, and a latent as wide as the LD state (D, not
+# the default 2·D: `config_for` sets it from the env).
 VARIANTS = {
-    "VAE_rpl": ("VAE_rpl", {"latent_dim": 53, "mu_nl": False, "logvar_limit": 20.0}),
+    "VAE_rpl": ("VAE_rpl", {"mu_nl": False, "logvar_limit": 20.0}),
     "SPAIR_4x4": ("SPAIR", {"grid_size": 4}),
     "SPAIR_6x6": ("SPAIR", {"grid_size": 6}),
 }
@@ -96,7 +118,8 @@ class Layout:
     joints: joint → its (sin, cos) names, base joint first (the "main" joint: the shoulder).
     positions / rotations: object slot → its position / rotation-entry names.
     shapes: object slot → its shape, or shapes joined by "/" when versions differ.
-    largest: the slot whose shape has the largest bounding box in every version used, or None.
+    largest: the slot whose shape has the largest bounding box in every version used (alone),
+      or None.
     """
 
     joints: dict[str, list[str]]
@@ -127,15 +150,30 @@ def _flat(parts: dict[str, list[str]]) -> list[str]:
     return [n for names in parts.values() for n in names]
 
 
+def layout(env: str = ENV, env_opt: dict | None = None) -> Layout:
+    """The layout of `env` (with config overrides `env_opt`) from its own metadata: the
+    domain's LD group of each entry (position / orientation / other) and its name (sin_qJ,
+    cos_qJ: arm joint J; objK_x/y/z: object K's position; objK_rIJ: its rotation); an entry
+    that fits none of these is an error, not silently dropped."""
+    return _layout(env, _items(env_opt))
+
+
+def _items(options: dict | None) -> tuple:
+    """Config overrides as a hashable key (JSON lists, as config.json holds them, as tuples)."""
+    return tuple(sorted((k, tuple(v) if isinstance(v, list) else v)
+                        for k, v in (options or {}).items()))
+
+
 @functools.cache
-def layout(env: str = ENV) -> Layout:
-    """`env`'s layout from its own metadata: the domain's LD group of each entry (position /
-    orientation / other) and its name (sin_qJ, cos_qJ: arm joint J; objK_x/y/z: object K's
-    position; objK_rIJ: its rotation); an entry that fits none of these is an error, not
-    silently dropped."""
+def _domain(env: str, env_opt: tuple):
     import envs_mjx
 
-    domain = envs_mjx.make(env)
+    return envs_mjx.make(env, **dict(env_opt))
+
+
+@functools.cache
+def _layout(env: str, env_opt: tuple) -> Layout:
+    domain = _domain(env, env_opt)
     joints: dict[str, list[str]] = {}
     positions: dict[str, list[str]] = {}
     rotations: dict[str, list[str]] = {}
@@ -162,14 +200,14 @@ def layout(env: str = ENV) -> Layout:
 
 def _object_shapes(domain, slots: list[str]) -> tuple[dict[str, str], str | None]:
     """Per slot its shapes over the env's versions, and the slot of the largest object (by
-    bounding-box volume) when it is the same in every version."""
+    bounding-box volume) when one slot holds it, the same in every version."""
     from envs_mjx.domains import rearrange
 
     geom = domain.objects_kind == "geom"
     sets = rearrange.GEOM_SETS if geom else rearrange.YCB_SETS
     kinds = rearrange.GEOM_KINDS if geom else rearrange.YCB_KINDS
     by_slot: dict[str, list[str]] = {s: [] for s in slots}
-    largest = set()
+    largest: set[str | None] = set()
     for version in domain.versions:
         names = sets[version % len(sets)]
         if len(names) != len(slots):
@@ -179,7 +217,8 @@ def _object_shapes(domain, slots: list[str]) -> tuple[dict[str, str], str | None
             if name not in by_slot[slot]:
                 by_slot[slot].append(name)
         volumes = [float(np.prod(kinds[n].extent)) for n in names]
-        largest.add(slots[int(np.argmax(volumes))])
+        biggest = [s for s, v in zip(slots, volumes, strict=True) if v == max(volumes)]
+        largest.add(biggest[0] if len(biggest) == 1 else None)  # a tie names no slot
     shapes = {s: "/".join(names) for s, names in by_slot.items()}
     return shapes, (largest.pop() if len(largest) == 1 else None)
 
@@ -197,6 +236,9 @@ def config_for(variant: str, seed: int, scale: dict, schedule: tuple[int, int],
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r}; valid: {', '.join(VARIANTS)}")
     learner, overrides = VARIANTS[variant]
+    if learner == "VAE_rpl":
+        overrides = {"latent_dim": len(_domain(ENV, _items(env_opt)).ld_state_names),
+                     **overrides}
     epochs, eval_every = schedule
     settings = {**REARRANGE, "frames_per_batch": FRAMES_PER_BATCH[learner], **scale}
     return for_env(ENV, learner, seed=seed, epochs=epochs, eval_every=eval_every, **settings,
@@ -379,7 +421,9 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
     if not out.is_dir():
         raise FileNotFoundError(f"{out}: no such directory (train first, or check --out)")
     runs = collect(out, variants)
-    shape = layout()
+    # The env the runs used (their versions decide the objects' shapes).
+    configs = {v: _config(out, v) for v in runs}
+    shape = layout(ENV, next(iter(configs.values()), {}).get("env_overrides"))
     panels = shape.panels()
     lines = ["# Fig. 3: RearrangeGeom (reacher), alignment of VAE_rpl and SPAIR with the true "
              "state", "",
@@ -397,10 +441,9 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
         text = "\n".join(lines)
         (out / "fig3.md").write_text(text)
         return text
-    configs = {v: _config(out, v) for v in runs}
     lines += ["## Settings", ""]
     keys = (*SCALE, "epochs", "eval_every", "rollout_len", "learner_steps", "frames_per_batch",
-            "learner_overrides")
+            "learner_overrides", "env_overrides")
     for variant, config in configs.items():
         lines.append(f"- {variant}: `{json.dumps({k: config.get(k) for k in keys})}`")
     columns = list(panels)

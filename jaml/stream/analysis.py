@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from envs_mjx.base import Env, State
+from envs_mjx.base import State
 from jaml import evaluation
 from jaml.evaluation import alignment
 from jaml.stream import collect
@@ -242,19 +242,7 @@ def _rollout_start_one(stream: Stream, s: StreamState, key: jax.Array, random) -
     k_reset, k_transient = jax.random.split(key)
     env_state = collect.reset(stream.env, k_reset, stream.config.num_envs)
     if stream.config.eval_transient:
-        env_state = _steps(stream.env, env_state, stream.test_policy(s.ppo, random), k_transient,
-                           stream.config.eval_transient)
+        # The transient's frames and transitions are unused (dropped from the program).
+        env_state = collect.rollout(stream.env, env_state, stream.test_policy(s.ppo, random),
+                                    k_transient, stream.config.eval_transient)[0]
     return env_state
-
-
-def _steps(env: Env, state: State, policy, key: jax.Array, n: int) -> State:
-    """n steps with auto-reset, recording nothing (transients before test sequences)."""
-    k_reset, k_steps = jax.random.split(key)
-    fresh = collect.reset(env, k_reset, state.reward.shape[0])
-
-    def body(state, k):
-        actions, _ = policy(state.obs, k)
-        nstate = jax.vmap(env.step)(state, actions)
-        return collect._swap_in(nstate.done > 0, fresh, nstate), None
-
-    return jax.lax.scan(body, state, jax.random.split(k_steps, n))[0]

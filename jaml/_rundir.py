@@ -1,9 +1,20 @@
-"""File helpers shared by the run directories (`jaml relations`, `jaml suite`)."""
+"""The run directory shared by `jaml relations` and `jaml suite` (and the experiment drivers
+built on them): its config check, atomic JSON, and the append-only logs cut back on resume.
+
+    OUT/config.json     the resolved configuration; a different one in the same OUT is refused
+    OUT/metrics.jsonl   one JSON record per logged step, cut back to the checkpoint on resume
+    OUT/tensorboard/    the same scalars for TensorBoard
+
+A run that resumes from its last checkpoint would otherwise append the records logged after that
+checkpoint a second time; `RunLog` drops them first, so the logs read as one uninterrupted run.
+"""
 
 from __future__ import annotations
 
 import json
+import math
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 
@@ -12,3 +23,66 @@ def write_json(path: Path, value) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(json.dumps(value, indent=2, default=float) + "\n")
     os.replace(tmp, path)
+
+
+def claim(out: Path, resolved: dict) -> bool:
+    """Make `out` the directory of the run that `resolved` (JSON-ready) describes: created if
+    missing, config.json written. Returns True when it held this run already (a resume).
+
+    Raises ValueError when `out` holds a run with another configuration, so that resuming never
+    mixes two runs' checkpoints and logs."""
+    config_path = Path(out) / "config.json"
+    resuming = config_path.exists()
+    if resuming and json.loads(config_path.read_text()) != resolved:
+        raise ValueError(f"{out} holds a run with a different configuration ({config_path}); "
+                         "resume with the same options or choose a new --out")
+    Path(out).mkdir(parents=True, exist_ok=True)
+    write_json(config_path, resolved)
+    return resuming
+
+
+def truncate_jsonl(path: Path, keep: Callable[[dict], bool]) -> list[dict]:
+    """Keep the records of a JSON-lines file for which keep(record) holds (atomically); returns
+    them ([] when the file does not exist)."""
+    if not path.exists():
+        return []
+    records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    kept = [r for r in records if keep(r)]
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text("".join(json.dumps(r) + "\n" for r in kept))
+    os.replace(tmp, path)
+    return kept
+
+
+class RunLog:
+    """metrics.jsonl records and TensorBoard scalars of one run.
+
+    `keep` (optional) selects the records of metrics.jsonl that survive a resume: those written
+    up to the checkpoint the run restarts from."""
+
+    def __init__(self, out: Path, keep: Callable[[dict], bool] | None = None):
+        from tensorboardX import SummaryWriter
+
+        if keep is not None:
+            truncate_jsonl(Path(out) / "metrics.jsonl", keep)
+        self.jsonl = (Path(out) / "metrics.jsonl").open("a")
+        self.tb = SummaryWriter(str(Path(out) / "tensorboard"))
+
+    def record(self, record: dict) -> None:
+        """One metrics.jsonl line (flushed with the next `flush`)."""
+        self.jsonl.write(json.dumps(record) + "\n")
+
+    def scalars(self, values: dict[str, float], step: int, prefix: str = "") -> None:
+        """TensorBoard scalars at `step`, named prefix + key; non-finite values are skipped
+        (TensorBoard draws them as gaps at best)."""
+        for name, value in values.items():
+            if math.isfinite(value):
+                self.tb.add_scalar(prefix + name, value, step)
+
+    def flush(self) -> None:
+        self.jsonl.flush()
+        self.tb.flush()
+
+    def close(self) -> None:
+        self.jsonl.close()
+        self.tb.close()

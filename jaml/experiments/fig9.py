@@ -126,7 +126,7 @@ def _config(learner: str, seed: int):
 
 
 def _write_json(path: Path, value) -> None:
-    from jaml._files import write_json
+    from jaml._rundir import write_json
 
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json(path, value)

@@ -15,7 +15,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaml import sources
-from jaml._files import write_json
+from jaml._rundir import RunLog, claim, write_json
 from jaml.relations import checkpoint, plots
 from jaml.relations.config import Config
 from jaml.relations.relation_set import RelationSet
@@ -25,34 +25,23 @@ log = logging.getLogger("jaml.relations")
 
 
 class _Recorder:
-    """Metrics to metrics.jsonl and TensorBoard scalars; a tqdm bar per relation."""
+    """Metrics to metrics.jsonl and TensorBoard scalars; a tqdm bar per relation. On resume,
+    metrics.jsonl keeps the records of the `done` relations the checkpoint holds."""
 
-    def __init__(self, out: Path, cfg: Config, step_offset: int, progress: bool):
-        from tensorboardX import SummaryWriter
-
-        self.jsonl = (out / "metrics.jsonl").open("a")
-        self.tb = SummaryWriter(str(out / "tensorboard"))
+    def __init__(self, out: Path, cfg: Config, done: int, step_offset: int, progress: bool):
+        self.log = RunLog(out, keep=lambda r: r["relation"] <= done)
         self.cfg, self.offset, self.progress = cfg, step_offset, progress
         self.bar, self.bar_key, self.last_step = None, None, 0
 
     def __call__(self, phase: str, k: int, metrics: dict) -> None:
         total = self.offset + metrics["step"]
-        self.jsonl.write(
-            json.dumps(
-                {
-                    "phase": phase,
-                    "relation": k + 1,
-                    "total_step": total,
-                    "time": time.time(),
-                    **metrics,
-                }
-            )
-            + "\n"
+        self.log.record(
+            {"phase": phase, "relation": k + 1, "total_step": total, "time": time.time(),
+             **metrics}
         )
-        self.jsonl.flush()
-        for name, value in metrics.items():
-            if name not in ("step", "steps"):
-                self.tb.add_scalar(f"g{k + 1}/{phase}/{name}", value, total)
+        scalars = {n: v for n, v in metrics.items() if n not in ("step", "steps")}
+        self.log.scalars(scalars, total, prefix=f"g{k + 1}/{phase}/")
+        self.log.flush()
         if self.progress:
             if self.bar_key != (phase, k):
                 self._close_bar()
@@ -80,8 +69,7 @@ class _Recorder:
 
     def close(self):
         self._close_bar()
-        self.jsonl.close()
-        self.tb.close()
+        self.log.close()
 
 
 def _restored_summary(rs: RelationSet, k: int) -> dict:
@@ -122,33 +110,20 @@ def run(
         resolved["source_sha256"] = source.fingerprint()
     if source_options:
         resolved["source_options"] = source_options
-    config_path, summary_path, ckpt_path = (
-        out / "config.json",
-        out / "summary.json",
-        out / "checkpoint",
-    )
+    summary_path, ckpt_path = out / "summary.json", out / "checkpoint"
     start, done = None, []
-    if config_path.exists():
-        previous = json.loads(config_path.read_text())
-        if previous != resolved:
-            raise ValueError(
-                f"{out} holds a run with a different configuration ({config_path}); "
-                "resume with the same options or choose a new --out"
-            )
-        if ckpt_path.exists():
-            start = checkpoint.load(ckpt_path)
-            recorded = []
-            if summary_path.exists():
-                recorded = json.loads(summary_path.read_text())["relations"]
-            done = recorded[: start.num_relations] + [
-                _restored_summary(start, k) for k in range(len(recorded), start.num_relations)
-            ]
-            log.info("resuming %s after %d relations", out, start.num_relations)
-    out.mkdir(parents=True, exist_ok=True)
-    write_json(config_path, resolved)
+    if claim(out, resolved) and ckpt_path.exists():
+        start = checkpoint.load(ckpt_path)
+        recorded = []
+        if summary_path.exists():
+            recorded = json.loads(summary_path.read_text())["relations"]
+        done = recorded[: start.num_relations] + [
+            _restored_summary(start, k) for k in range(len(recorded), start.num_relations)
+        ]
+        log.info("resuming %s after %d relations", out, start.num_relations)
 
     started = time.perf_counter()
-    recorder = _Recorder(out, cfg, sum(r["steps"] for r in done), progress)
+    recorder = _Recorder(out, cfg, len(done), sum(r["steps"] for r in done), progress)
     summaries = list(done)
 
     def write_summary(rs: RelationSet | None, status: str):

@@ -21,7 +21,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import os
 import time
 from pathlib import Path
 
@@ -30,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaml._files import write_json
+from jaml._rundir import RunLog, claim, truncate_jsonl, write_json
 from jaml.evaluation import plots
 from jaml.stream import analysis, checkpoint
 from jaml.stream.config import StreamConfig
@@ -48,18 +47,6 @@ log = logging.getLogger("jaml.stream")
 
 class NonFiniteLoss(RuntimeError):
     """The learner's loss became NaN/inf; the run stopped at its last good checkpoint."""
-
-
-def _truncate_jsonl(path: Path, keep) -> list[dict]:
-    """Keeps the records for which keep(record) holds (atomically); returns them."""
-    if not path.exists():
-        return []
-    records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-    kept = [r for r in records if keep(r)]
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text("".join(json.dumps(r) + "\n" for r in kept))
-    os.replace(tmp, path)
-    return kept
 
 
 def analysis_epochs(config: StreamConfig) -> list[int]:
@@ -81,37 +68,24 @@ def _save_png(path: Path, rows: list[np.ndarray]) -> None:
     imsave(path, np.concatenate(tiles, axis=0))
 
 
-class _Logs:
-    """metrics.jsonl + TensorBoard scalars."""
-
-    def __init__(self, out: Path):
-        from tensorboardX import SummaryWriter
-
-        self.jsonl = (out / "metrics.jsonl").open("a")
-        self.tb = SummaryWriter(str(out / "tensorboard"))
+class _Logs(RunLog):
+    """metrics.jsonl (one line per epoch) + TensorBoard scalars, alignment errors included."""
 
     def epochs(self, first_epoch: int, metrics: dict[str, np.ndarray]) -> None:
         n = len(next(iter(metrics.values())))
         for i in range(n):
             epoch = first_epoch + i + 1  # epochs completed, like an analysis's step
             row = {k: float(v[i]) for k, v in metrics.items()}
-            self.jsonl.write(json.dumps({"epoch": epoch, **row}) + "\n")
-            for k, v in row.items():
-                if np.isfinite(v):
-                    self.tb.add_scalar(k, v, epoch)
-        self.jsonl.flush()
+            self.record({"epoch": epoch, **row})
+            self.scalars(row, epoch)
+        self.flush()
 
     def analysis(self, epoch: int, records: list[dict]) -> None:
         for r in records:
-            for name, v in r["errors"].items():
-                self.tb.add_scalar(f"alignment/{r['test_set']}/{name}", v, epoch)
+            self.scalars(r["errors"], epoch, prefix=f"alignment/{r['test_set']}/")
         if records and records[0].get("distortion") is not None:
-            self.tb.add_scalar("alignment/distortion", records[0]["distortion"], epoch)
-        self.tb.flush()
-
-    def close(self) -> None:
-        self.jsonl.close()
-        self.tb.close()
+            self.scalars({"alignment/distortion": records[0]["distortion"]}, epoch)
+        self.flush()
 
 
 class _RunDir:
@@ -120,13 +94,7 @@ class _RunDir:
 
     def __init__(self, stream: Stream, config: StreamConfig, out: Path):
         self.config, self.out = config, out
-        resolved = config.to_dict()
-        config_path = out / "config.json"
-        if config_path.exists() and json.loads(config_path.read_text()) != resolved:
-            raise ValueError(f"{out} holds a run with a different configuration ({config_path}); "
-                             "resume with the same options or choose a new --out")
-        out.mkdir(parents=True, exist_ok=True)
-        write_json(config_path, resolved)
+        claim(out, config.to_dict())
         (out / "recon").mkdir(exist_ok=True)
         k_init, self.k_eval, self.pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
         self.manager = checkpoint.manager(out)
@@ -136,9 +104,8 @@ class _RunDir:
         else:
             self.state = stream.init(k_init)
         self.epoch = int(self.state.epoch)
-        _truncate_jsonl(out / "metrics.jsonl", lambda r: r["epoch"] <= self.epoch)
-        self.history = _truncate_jsonl(out / "history.jsonl", lambda r: r["step"] <= self.epoch)
-        self.logs = _Logs(out)
+        self.history = truncate_jsonl(out / "history.jsonl", lambda r: r["step"] <= self.epoch)
+        self.logs = _Logs(out, keep=lambda r: r["epoch"] <= self.epoch)
         self.status = "running"
         self.targets = [t for t in analysis_epochs(config) if t > self.epoch]
         self.started = time.perf_counter()

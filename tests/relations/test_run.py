@@ -58,8 +58,15 @@ def test_an_interrupted_run_resumes_after_its_last_finished_relation(tmp_path, m
         run_module.run("ellipse", cfg, out, progress=False, figures=False)
     first = relations.load(out / "checkpoint")
     assert first.num_relations == 1
+    # A line g_2 logged before the kill, after the checkpoint: the resumed run drops it.
+    with (out / "metrics.jsonl").open("a") as f:
+        f.write(json.dumps({"phase": "relation", "relation": 2, "step": 999}) + "\n")
     monkeypatch.setattr(run_module.checkpoint, "save", real_save)
     summary = run_module.run("ellipse", cfg, out, progress=False, figures=False)
+    lines = [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines()]
+    keys = [(r["relation"], r["phase"], r["step"]) for r in lines]
+    assert len(keys) == len(set(keys)) and (2, "relation", 999) not in keys
+    assert {r["relation"] for r in lines} == {1, 2}
     assert summary["num_relations"] == 2 and summary["status"] == "done"
     resumed = relations.load(out / "checkpoint")
     tau = sources.make("ellipse").sample(jax.random.key(0), 16)

@@ -15,6 +15,7 @@ import io
 import logging
 import os
 import re
+import signal
 import sys
 import threading
 import traceback
@@ -556,13 +557,39 @@ def main(argv=None) -> int:
     for line in captured:
         logging.getLogger(__name__).info("import mujoco.mjx: %s", line)
     try:
-        return args.command.run()
+        with _sigterm_as_interrupt():
+            return args.command.run()
     except (ValueError, TypeError, FileNotFoundError) as error:
         if args.debug:
             traceback.print_exc()
         else:
             print(f"jaml: error: {error} (--debug shows the traceback)", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        if args.debug:
+            traceback.print_exc()
+        print("jaml: interrupted; run directories keep their last checkpoint and summary, and "
+              "the same command resumes", file=sys.stderr)
+        return 130
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """SIGTERM (`timeout`, a batch scheduler's preemption) raises KeyboardInterrupt like Ctrl-C,
+    so runs unwind through their `finally` blocks and write their summaries instead of dying
+    mid-epoch. Only the main thread can install handlers; elsewhere this does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

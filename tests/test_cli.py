@@ -1,6 +1,7 @@
 """`jaml info`, and the CLI's stdout free of mujoco.mjx's MuJoCo Warp probe prints."""
 
 import importlib.metadata
+import os
 import subprocess
 import sys
 
@@ -120,6 +121,32 @@ def test_debug_shows_the_traceback(tmp_path, capsys):
     assert cli.main([*argv, "--debug"]) == 2
     err = capsys.readouterr().err
     assert "Traceback (most recent call last)" in err and "FileNotFoundError" in err
+
+
+def test_sigterm_unwinds_like_ctrl_c_and_says_how_to_resume(monkeypatch, capsys):
+    """`timeout` or a scheduler's SIGTERM raises KeyboardInterrupt in the command, so runs
+    write their summaries (their `finally` blocks run); exit 130, and the handler is restored."""
+    import signal
+    import threading
+    import time
+
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signal handlers need the main thread")
+    unwound = []
+
+    def killed(self):
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(30)  # interrupted long before this ends
+        finally:
+            unwound.append(True)
+        return 0
+
+    monkeypatch.setattr(cli.Relations, "run", killed)
+    before = signal.getsignal(signal.SIGTERM)
+    assert cli.main(["relations", "--source", "ellipse", "--out", "unused"]) == 130
+    assert unwound == [True] and signal.getsignal(signal.SIGTERM) is before
+    assert "interrupted" in capsys.readouterr().err
 
 
 def test_relations_fit_a_csv_with_a_header(tmp_path, capsys):

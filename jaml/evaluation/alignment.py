@@ -10,13 +10,15 @@ each dimension's training std.
 
 Rotation blocks (Rearrange: 9 row-major rotation entries per object, `rotation_starts`) are
 fit and scored as the reference does, by the principal-axis error of R_trueᵀ R̂
-(`jaml.evaluation.rotation`); `rotation_errors` reports it per block.
+(`jaml.evaluation.rotation`); `rotation_errors` reports it per block, and `alignment_errors` /
+`alignment_errors_runs` then return per test set [D + J] errors: the D per-entry L1 errors (the
+rotation entries' too), then the J blocks' mean principal-axis errors.
 
 Deviations from the reference, recorded also in `docs/evaluation.md`:
   - minibatch rows are drawn with replacement (the reference's sampler is not pinned down);
   - the normalisation stats come from the rows the regressor is fit on (after the 30 % split).
 
-Shapes: N rows, Z latent width, D LD-state width.
+Shapes: N rows, Z latent width, D LD-state width, J rotation blocks.
 """
 
 from __future__ import annotations
@@ -150,6 +152,16 @@ def _per_dim_l1(params: list, x: jax.Array, y: jax.Array) -> jax.Array:
     return jnp.mean(jnp.abs(_apply_mlp(params, x, 0.0, None) - y), axis=0)
 
 
+def _scores(params: list, x: jax.Array, y: jax.Array, starts: tuple[int, ...]) -> jax.Array:
+    """`_per_dim_l1` [D], then, for rotation blocks at `starts`, each block's mean
+    principal-axis error [J]: [D + J]. y unnormalised when there are blocks."""
+    if not starts:
+        return _per_dim_l1(params, x, y)
+    pred = _apply_mlp(params, x, 0.0, None)
+    return jnp.concatenate([jnp.mean(jnp.abs(pred - y), axis=0),
+                            jnp.mean(rotation.block_errors(pred, y, starts), axis=0)])
+
+
 @functools.partial(jax.jit, static_argnames=("config", "batch"))
 def _train(key: jax.Array, x: jax.Array, y: jax.Array, config: RegressorConfig, batch: int):
     """The whole fit as one compiled scan. x [N, Z], y [N, D] (already normalised) → params."""
@@ -260,6 +272,8 @@ def alignment_errors(latents_train, states_train, test_sets: Mapping[str, tuple]
     """Fits once, then errors [D] on each named test set, e.g. {"pi_curr": (lat, st), "pi_rand": …}.
 
     The result also carries "validation": the error on the held-out leading training rows.
+    With `rotation_starts` (J blocks) each is [D + J]: the per-entry errors, then each block's
+    mean principal-axis error (`rotation_errors`).
     """
     if not isinstance(test_sets, Mapping) or not test_sets:
         raise ValueError("test_sets must be a non-empty mapping name → (latents, states)")
@@ -276,17 +290,28 @@ def alignment_errors(latents_train, states_train, test_sets: Mapping[str, tuple]
                 f"test set {name!r}: widths (Z={xt.shape[1]}, D={yt.shape[1]}) differ from the "
                 f"training set's (Z={x.shape[1]}, D={y.shape[1]})"
             )
-    regressor = fit_regressor(x, y, seed, config, **overrides)
+    config = _resolve(config, overrides)
+    regressor = fit_regressor(x, y, seed, config)
     errors = {
         name: regressor_error(regressor, lat, st, name) for name, (lat, st) in test_sets.items()
     }
     errors["validation"] = regressor.validation_error
+    starts = config.rotation_starts
+    if starts:
+        for name, (lat, st) in test_sets.items():
+            errors[name] = jnp.concatenate(
+                [errors[name], rotation_errors(regressor, lat, st, starts, name)])
+        n_val = config.split(x.shape[0])
+        held_out = (rotation_errors(regressor, x[:n_val], y[:n_val], starts, "validation")
+                    if n_val > 0 else jnp.full((len(starts),), jnp.nan, jnp.float32))
+        errors["validation"] = jnp.concatenate([errors["validation"], held_out])
     return errors
 
 
 def alignment_error(latents_train, states_train, latents_test, states_test, seed: int = 0,
                     config: RegressorConfig | None = None, **overrides) -> jax.Array:
-    """Per-dimension test error [D]: latents [N, Z] → states [N, D], in training-std units."""
+    """Per-dimension test error [D]: latents [N, Z] → states [N, D], in training-std units
+    ([D + J] with `rotation_starts`, see `alignment_errors`)."""
     return alignment_errors(
         latents_train, states_train, {"test": (latents_test, states_test)}, seed, config,
         **overrides,
@@ -300,7 +325,8 @@ def alignment_errors_runs(latents_train, states_train, test_sets: Mapping[str, t
 
     latents_train [R, N, Z], states_train [R, N, D], test_sets {name: ([R, Nt, Z], [R, Nt, D])},
     seeds [R] ints: errors [R, D] per name (and "validation"), where row r is what
-    `alignment_errors` gives for run r's arrays and seeds[r], up to float rounding (here the
+    `alignment_errors` gives for run r's arrays and seeds[r] ([D + J] with `rotation_starts`),
+    up to float rounding (here the
     normalisation stats are computed on the device, there on the host). One compiled program
     fits every run: on a GPU the fit is latency bound (a scan of small steps), so R fits cost
     about one.
@@ -360,10 +386,12 @@ def _fit_and_score_runs(keys, x, y, tests, config: RegressorConfig, n_val: int, 
         else:
             mean, std = jnp.zeros(y.shape[1], jnp.float32), jnp.ones(y.shape[1], jnp.float32)
         params, _ = _train(key, x_fit, (y_fit - mean) / std, config, batch)
-        errors = {name: _per_dim_l1(params, xt, (yt - mean) / std)
+        starts = config.rotation_starts
+        errors = {name: _scores(params, xt, (yt - mean) / std, starts)
                   for name, (xt, yt) in tests.items()}
-        errors["validation"] = (_per_dim_l1(params, x[:n_val], (y[:n_val] - mean) / std)
-                                if n_val > 0 else jnp.full((y.shape[1],), jnp.nan, jnp.float32))
+        errors["validation"] = (
+            _scores(params, x[:n_val], (y[:n_val] - mean) / std, starts) if n_val > 0
+            else jnp.full((y.shape[1] + len(starts),), jnp.nan, jnp.float32))
         return errors
 
     return jax.vmap(one)(keys, x, y, tests)

@@ -61,6 +61,38 @@ def rearrange_rotation_starts(num_objects: int = 4, prefix: int = 5) -> tuple[in
     return tuple(prefix + 12 * i + 3 for i in range(num_objects))
 
 
+def ld_blocks(names: Sequence[str], groups: Sequence[str]) -> tuple[tuple[int, ...],
+                                                                       tuple[str, ...]]:
+    """(starts, labels) of the rotation blocks of an LD state, from an env's metadata
+    (`ld_state_names`, `ld_state_groups`): its "orientation" entries, in blocks of 9 named
+    P_r00, P_r01, …, P_r22 (row-major) in that order; the label of block P is "P_rotation".
+    ((), ()) for an LD state without "orientation" entries (every domain but Rearrange).
+    ValueError if the orientation entries do not form such blocks."""
+    names, groups = list(names), list(groups)
+    if len(names) != len(groups):
+        raise ValueError(f"{len(names)} LD names but {len(groups)} groups")
+    entries = [f"r{i}{j}" for i in range(3) for j in range(3)]
+    starts, labels = [], []
+    k = 0
+    while k < len(names):
+        if groups[k] != "orientation":
+            k += 1
+            continue
+        prefix = names[k].removesuffix("_r00")
+        expected = [f"{prefix}_{e}" for e in entries]
+        if prefix == names[k] or names[k:k + BLOCK] != expected or any(
+                g != "orientation" for g in groups[k:k + BLOCK]):
+            raise ValueError(f"LD entries from {names[k]!r} (index {k}) are not a 9-entry "
+                             f"rotation block {expected[0]} … {expected[-1]} in the "
+                             "\"orientation\" group")
+        if f"{prefix}_rotation" in names:
+            raise ValueError(f"the label {prefix}_rotation of a rotation block is an LD name")
+        starts.append(k)
+        labels.append(f"{prefix}_rotation")
+        k += BLOCK
+    return tuple(starts), tuple(labels)
+
+
 def check_starts(starts: Sequence[int], dim: int) -> tuple[int, ...]:
     """`starts` as sorted ints, or ValueError if a block leaves [0, dim) or two overlap."""
     starts = tuple(sorted(int(s) for s in starts))

@@ -6,7 +6,14 @@ random policy (π_rand, the same set at every analysis: a fixed key) and of the 
 its per-dimension test error, plus the distortion ρ on π_rand. The functions take one run's
 (unstacked) `StreamState`, except `evaluate_runs`, which analyses R stacked runs at once.
 
-Shapes: R runs, E envs, L = learner.seq_len, N sequences, Z latent, D LD state.
+Rotation blocks (Rearrange: the 9 row-major rotation entries of each object, the env's
+"orientation" LD group, `rotation_blocks`) are treated as the reference does (§5): the regressor
+minimises L1 on the other entries plus each block's principal-axis error of R_trueᵀR̂, and the
+report holds, after the D per-entry errors, each block's mean principal-axis error (named by
+`error_names`: objK_rotation). Domains without such blocks are fit and scored as before.
+
+Shapes: R runs, E envs, L = learner.seq_len, N sequences, Z latent, D LD state, J rotation
+blocks.
 """
 
 from __future__ import annotations
@@ -19,7 +26,7 @@ import numpy as np
 
 from envs_mjx.base import State
 from jaml import evaluation
-from jaml.evaluation import alignment
+from jaml.evaluation import alignment, rotation
 from jaml.stream import collect
 from jaml.stream import replay as replay_lib
 from jaml.stream.loop import Stream, StreamState
@@ -41,9 +48,29 @@ def encoded_rollouts(stream: Stream, s: StreamState, key: jax.Array, num: int, r
     return _map_chunks(_rollout_chunk, stream, s, (env_state, random), keys)
 
 
+def rotation_blocks(stream: Stream) -> tuple[tuple[int, ...], tuple[str, ...]]:
+    """(starts, labels) of the LD state's rotation blocks, from the env's metadata
+    (`rotation.ld_blocks`); ((), ()) for every domain but Rearrange."""
+    return rotation.ld_blocks(stream.env.ld_state_names, stream.env.ld_state_groups)
+
+
+def error_names(stream: Stream) -> list[str]:
+    """Names of a report's error entries: the LD state's, then one per rotation block
+    (objK_rotation, its mean principal-axis error)."""
+    return [*stream.env.ld_state_names, *rotation_blocks(stream)[1]]
+
+
+def _regressor_options(stream: Stream) -> dict:
+    cfg = stream.config
+    starts = rotation_blocks(stream)[0]  # with regressor_normalize False (checked by `build`)
+    return dict(seq_len=stream.seq_len, num_iterations=cfg.regressor_iterations,
+                normalize=cfg.regressor_normalize, rotation_starts=starts)
+
+
 def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Array) -> dict:
-    """Alignment errors [D] on π_rand (and π_curr under PPO), the held-out validation error,
-    and the distortion of the π_rand latents. Host-side numbers (floats / lists)."""
+    """Alignment errors [D + J] (`error_names`) on π_rand (and π_curr under PPO), the held-out
+    validation error, and the distortion of the π_rand latents. Host-side numbers (floats /
+    lists)."""
     cfg = stream.config
     k_train, k_curr, k_reg = jax.random.split(key, 3)
     train = encoded_replay(stream, s, k_train, cfg.eval_train)
@@ -52,8 +79,7 @@ def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Ar
         tests["pi_curr"] = encoded_rollouts(stream, s, k_curr, cfg.eval_curr, random=False)
     errors = evaluation.alignment_errors(
         *train, tests, seed=int(jax.random.randint(k_reg, (), 0, 2**31 - 1)),
-        seq_len=stream.seq_len, num_iterations=cfg.regressor_iterations,
-        normalize=cfg.regressor_normalize,
+        **_regressor_options(stream),
     )
     lat, st = tests["pi_rand"]
     return {
@@ -84,8 +110,7 @@ def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
                                                   random=False)
     seeds = jax.vmap(lambda k: jax.random.randint(k, (), 0, 2**31 - 1))(k_reg)
     errors = alignment.alignment_errors_runs(
-        *train, tests, seeds=np.asarray(seeds).tolist(), seq_len=stream.seq_len,
-        num_iterations=cfg.regressor_iterations, normalize=cfg.regressor_normalize,
+        *train, tests, seeds=np.asarray(seeds).tolist(), **_regressor_options(stream),
     )
     errors = {k: np.asarray(v) for k, v in errors.items()}
     lat, st = tests["pi_rand"]

@@ -19,6 +19,7 @@ POLICIES = ("ppo", "random")
 REFERENCE_REPLAY_COLUMNS = 5000
 _PENDULUMS = ("CartPole", "InvertedPendulum")
 _INCLINES = ("GeomOnIncline", "MeshOnIncline")
+_REARRANGES = ("RearrangeGeom", "RearrangeYCB")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,7 +47,8 @@ class StreamConfig:
     regressor_iterations: alignment regressor steps (reference 10 000).
     regressor_normalize: z-score the regressor's targets (errors in training-std units, the
       benchmark envs); False for the domains whose LD state is already in a fixed range
-      (Incline, reference §5), errors then in those units.
+      (Incline, Rearrange, reference §5), errors then in those units. Rearrange needs False:
+      its rotation blocks are fit and scored by the principal-axis error of R_trueᵀR̂.
     distortion_dims: LD-state names whose values are τ^true in the distortion ρ (paper eq. 5;
       the incline's dynamic state, position and velocity); empty means all of them.
     ppo: PPO's hyper-parameters (`for_env` sets the network and passes per domain).
@@ -150,7 +152,8 @@ def for_env(env: str, learner: str = "VAE_rpl", **overrides) -> StreamConfig:
     output sigmoid and with log-variances clipped at ±20; alignment in the LD state's own units
     and the distortion on position and velocity.
     Locomotion: rollout 64, 50 learner steps, PPO MLP 256 with 50 passes × 4 minibatches, 16-frame
-    windows (SEQ16: PRED 4 in, 12 predicted).
+    windows (SEQ16: PRED 4 in, 12 predicted). Rearrange: those, with the LD targets used as is
+    (its positions are normalised, its rotation blocks scored by the principal-axis error).
     """
     learner_defaults: dict[str, Any] = {}
     if env in _PENDULUMS:
@@ -175,6 +178,8 @@ def for_env(env: str, learner: str = "VAE_rpl", **overrides) -> StreamConfig:
                                                                     num_minibatches=4))
         learner_defaults = {"PRED": {"hist": 4, "pred": 12}, "SVAE": {"hist": 16},
                             "DSA": {"hist": 16}}.get(learner, {})
+        if env in _REARRANGES:
+            base |= dict(regressor_normalize=False)
     learner_overrides = {**learner_defaults, **overrides.pop("learner_overrides", {})}
     return StreamConfig(env=env, learner=learner, **{**base, **overrides},
                         learner_overrides=learner_overrides)

@@ -33,6 +33,7 @@ from jax.sharding import PartitionSpec as P
 import envs_mjx
 from envs_mjx.base import Env, State
 from jaml import learners
+from jaml.evaluation import rotation
 from jaml.stream import collect
 from jaml.stream import ppo as ppo_lib
 from jaml.stream import replay as replay_lib
@@ -447,6 +448,10 @@ def _build(config: StreamConfig, latent_penalty) -> Stream:
                          f"{list(env.ld_state_names)}")
     learner = learners.make(config.learner, ld_dim=ld_dim, **config.learner_overrides)
     problems = []
+    if config.regressor_normalize and rotation.ld_blocks(env.ld_state_names,
+                                                         env.ld_state_groups)[0]:
+        problems.append(f"{config.env}'s rotation blocks are scored on the LD state as is "
+                        "(reference §5): set regressor_normalize=False")
     column = config.rollout_len + 1
     if learner.seq_len > column:
         problems.append(

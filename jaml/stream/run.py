@@ -3,7 +3,8 @@
     OUT/config.json       resolved StreamConfig (a different config in the same OUT is refused)
     OUT/metrics.jsonl     one line per epoch (episode return, PPO and learner losses); "epoch"
                           counts epochs completed, as an analysis's "step" does
-    OUT/history.jsonl     one record per analysis and test set (`jaml.evaluation.plots` format)
+    OUT/history.jsonl     one record per analysis and test set (`jaml.evaluation.plots` format;
+                          Rearrange adds objK_rotation, `analysis.error_names`)
     OUT/tensorboard/      the same scalars
     OUT/checkpoints/      Orbax: the whole StreamState (envs, PPO, learner, optimiser states,
                           replay, RNG key) as named arrays, written atomically after every
@@ -123,7 +124,7 @@ class _RunDir:
         `_analyse_together`)."""
         with _timed(self.seconds, "analysis"):
             records = _analyse(stream, state, self.eval_key(), self.pi_rand_key,
-                               list(stream.env.ld_state_names), self.out, self.epoch, report)
+                               analysis.error_names(stream), self.out, self.epoch, report)
         self.history += records
         with (self.out / "history.jsonl").open("a") as f:
             f.writelines(json.dumps(r) + "\n" for r in records)

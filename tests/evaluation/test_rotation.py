@@ -126,3 +126,15 @@ def test_regressor_with_rotation_blocks():
         evaluation.fit_regressor(latents[tr], states[tr], **{**fast, "normalize": True})
     with pytest.raises(ValueError, match="does not fit"):
         evaluation.fit_regressor(latents[tr], states[tr], **{**fast, "rotation_starts": (5,)})
+
+
+def test_rotation_blocks_come_from_the_metadata():
+    names = ["version", "a_x", *(f"a_r{i}{j}" for i in range(3) for j in range(3))]
+    groups = ["other", "position", *["orientation"] * 9]
+    assert rotation.ld_blocks(names, groups) == ((2,), ("a_rotation",))
+    assert rotation.ld_blocks(["x", "v"], ["position", "velocity"]) == ((), ())
+    with pytest.raises(ValueError, match="not a 9-entry rotation block"):
+        rotation.ld_blocks(names[:-1], groups[:-1])  # a block cut short
+    swapped = [*names[:2], names[3], names[2], *names[4:]]
+    with pytest.raises(ValueError, match="not a 9-entry rotation block"):
+        rotation.ld_blocks(swapped, groups)  # not row-major

@@ -1,17 +1,25 @@
 """Stacked analysis: R runs analysed by one `evaluate_runs` call must each get what `evaluate`
 gives that run alone (the same keys: the same replay rows, rollouts and regressor fit).
+Rearrange's rotation blocks: the report's objK_rotation entries are the principal-axis errors of
+the regressor's predictions (reference §5), the same on both paths; other domains' reports are
+what the analysis gave before rotation blocks existed.
 
-The regressor check runs by default (≈ 45 s on 2 shared cores, mostly compilation). The whole
-analysis compiles the env and renderer three times (the epoch that fills the replays, one run's
-rollouts, the vmapped rollouts): ≈ 10 min on 2 cores shared with other jobs, so it is slow.
+The regressor checks run by default (≈ 45 s on 2 shared cores, mostly compilation); the
+rotation-block tests use synthetic encodings shaped like RearrangeGeom's (53-entry LD state)
+instead of compiling its stream. The whole analysis compiles the env and renderer three times
+(the epoch that fills the replays, one run's rollouts, the vmapped rollouts): ≈ 10 min on 2
+cores shared with other jobs, so it is slow.
 """
+
+import types
 
 import jax
 import numpy as np
 import pytest
 
-from jaml import stream
-from jaml.evaluation import alignment
+import envs_mjx
+from jaml import evaluation, stream
+from jaml.evaluation import alignment, rotation
 from jaml.stream import analysis
 from tests.stream.test_loop import tiny
 
@@ -74,3 +82,139 @@ def test_stacked_runs_analysed_at_once_match_each_run_alone():
                                        err_msg=k)
         np.testing.assert_allclose(together[r]["distortion"], alone["distortion"], rtol=1e-4)
     assert together[0]["errors"]["pi_rand"] != together[1]["errors"]["pi_rand"]
+
+
+# ---------------------------------------------------------------------------------------------
+# Rotation blocks, on synthetic encodings (no stream compiled).
+
+Z = 6
+EVAL_TRAIN = 56  # 16 held-out rows, as many as each test set: one compiled scoring shape
+
+
+def _random_rotations(rng, n):
+    """[n, 3, 3] rotations (QR of Gaussian matrices, det +1)."""
+    q, r = np.linalg.qr(rng.normal(size=(n, 3, 3)))
+    q = q * np.sign(np.diagonal(r, axis1=1, axis2=2))[:, None, :]
+    return q * np.linalg.det(q)[:, None, None]
+
+
+def _synthetic(env, key, n):
+    """(latents [n, Z], LD [n, D]) drawn from `key`: LD states in the env's layout (rotation
+    entries: true rotations, the rest in [−1, 1]) and latents a noisy linear map of them."""
+    rng = np.random.default_rng(int(jax.random.randint(key, (), 0, 2**30)))
+    names = list(env.ld_state_names)
+    ld = rng.uniform(-1, 1, size=(n, len(names)))
+    for k in range(sum(n.endswith("_r00") for n in names)):
+        s = names.index(f"obj{k}_r00")
+        ld[:, s:s + 9] = _random_rotations(rng, n).reshape(n, 9)
+    latents = ld @ np.random.default_rng(7).normal(size=(len(names), Z)) / 4
+    latents += 0.1 * rng.normal(size=latents.shape)
+    return latents.astype(np.float32), ld.astype(np.float32)
+
+
+def _fake_stream(monkeypatch, env_name, **changes):
+    """A Stream stand-in (config, env, seq_len) whose encoded data sets are `_synthetic` draws
+    from the keys the analysis passes, for one run and for stacked runs."""
+    env = envs_mjx.make(env_name, pixels="off")
+    config = stream.for_env(env_name, "VAE_rpl", num_envs=8, eval_train=EVAL_TRAIN, eval_rand=16,
+                            eval_curr=16, regressor_iterations=30,
+                            ppo=stream.PPOConfig(num_minibatches=4), **changes)
+    fake = types.SimpleNamespace(config=config, env=env, seq_len=1)
+
+    def one(stream_, s, key, num, random=None):
+        return _synthetic(env, key, num)
+
+    def runs(stream_, states, keys, num, random=None):
+        pairs = [_synthetic(env, k, num) for k in keys]
+        return tuple(np.stack(x) for x in zip(*pairs, strict=True))
+
+    monkeypatch.setattr(analysis, "encoded_replay", one)
+    monkeypatch.setattr(analysis, "encoded_rollouts", one)
+    monkeypatch.setattr(analysis, "_encoded_replay_runs", runs)
+    monkeypatch.setattr(analysis, "_encoded_rollouts_runs", runs)
+    return fake
+
+
+def _predict(params, x):
+    """The regressor's eval-mode predictions, in NumPy: ReLU MLP, linear last layer."""
+    h = np.asarray(x, np.float64)
+    for layer in params[:-1]:
+        h = np.maximum(h @ np.asarray(layer["w"]) + np.asarray(layer["b"]), 0.0)
+    return h @ np.asarray(params[-1]["w"]) + np.asarray(params[-1]["b"])
+
+
+def test_rearrange_rotation_blocks_are_scored_by_their_principal_axis(monkeypatch):
+    fake = _fake_stream(monkeypatch, "RearrangeGeom")
+    names = list(fake.env.ld_state_names)
+    starts = [names.index(f"obj{k}_r00") for k in range(4)]
+    labels = [f"obj{k}_rotation" for k in range(4)]
+    assert not fake.config.regressor_normalize  # for_env: Rearrange's targets used as is
+    assert analysis.rotation_blocks(fake) == (tuple(starts), tuple(labels))
+    assert analysis.error_names(fake) == names + labels
+    key, pi_rand_key = jax.random.PRNGKey(3), jax.random.PRNGKey(5)
+    report = analysis.evaluate(fake, None, key, pi_rand_key)
+    assert list(report["errors"]) == ["pi_rand", "pi_curr", "validation"]
+    # By hand: the regressor (the seed the analysis draws, the reference's loss), its
+    # predictions in NumPy, each block's principal-axis error of R_trueᵀR̂.
+    k_train, k_curr, k_reg = jax.random.split(key, 3)
+    seed = int(jax.random.randint(k_reg, (), 0, 2**31 - 1))
+    train = _synthetic(fake.env, k_train, EVAL_TRAIN)
+    regressor = evaluation.fit_regressor(*train, seed, seq_len=1, num_iterations=30,
+                                         normalize=False, rotation_starts=tuple(starts))
+    held_out = tuple(a[:16] for a in train)  # the leading 30 % (16 of 56 rows)
+    for test_set, (lat, ld) in (("pi_rand", _synthetic(fake.env, pi_rand_key, 16)),
+                                ("pi_curr", _synthetic(fake.env, k_curr, 16)),
+                                ("validation", held_out)):
+        pred = _predict(regressor.params, lat)
+        by_block = [float(np.mean(rotation.principal_axis_error(
+            ld[:, s:s + 9].reshape(-1, 3, 3), pred[:, s:s + 9].reshape(-1, 3, 3))))
+            for s in starts]
+        errors = np.asarray(report["errors"][test_set])
+        assert errors.shape == (len(names) + 4,)
+        np.testing.assert_allclose(errors[len(names):], by_block, rtol=1e-4, err_msg=test_set)
+        np.testing.assert_allclose(errors[:len(names)], np.abs(pred - ld).mean(axis=0),
+                                   rtol=1e-4, atol=1e-6, err_msg=test_set)
+    # The records: the LD entries, then objK_rotation.
+    records = evaluation.history_records(6, "VAE_rpl", {"pi_rand": report["errors"]["pi_rand"]},
+                                         analysis.error_names(fake))
+    assert list(records[0]["errors"])[-5:] == ["obj3_r22", *labels]
+
+
+def test_rearrange_stacked_runs_get_the_rotation_errors_of_each_run_alone(monkeypatch):
+    fake = _fake_stream(monkeypatch, "RearrangeGeom")
+    keys = [jax.random.PRNGKey(3), jax.random.PRNGKey(4)]
+    pi_rand_keys = [jax.random.PRNGKey(5), jax.random.PRNGKey(6)]
+    together = analysis.evaluate_runs(fake, None, jax.numpy.stack(keys),
+                                      jax.numpy.stack(pi_rand_keys))
+    for r in range(2):
+        alone = analysis.evaluate(fake, None, keys[r], pi_rand_keys[r])
+        assert list(alone["errors"]) == list(together[r]["errors"])
+        for k, v in alone["errors"].items():
+            assert len(v) == len(analysis.error_names(fake))
+            np.testing.assert_allclose(together[r]["errors"][k], v, rtol=1e-5, atol=1e-6,
+                                       err_msg=k)
+    assert together[0]["errors"]["pi_rand"][-4:] != together[1]["errors"]["pi_rand"][-4:]
+
+
+def test_other_domains_are_analysed_as_before(monkeypatch):
+    fake = _fake_stream(monkeypatch, "CartPole")
+    assert analysis.rotation_blocks(fake) == ((), ())
+    assert analysis.error_names(fake) == list(fake.env.ld_state_names)
+    key, pi_rand_key = jax.random.PRNGKey(3), jax.random.PRNGKey(5)
+    report = analysis.evaluate(fake, None, key, pi_rand_key)
+    # What the analysis computed before rotation blocks: the same fit, no rotation options.
+    k_train, k_curr, k_reg = jax.random.split(key, 3)
+    tests = {"pi_rand": _synthetic(fake.env, pi_rand_key, 16),
+             "pi_curr": _synthetic(fake.env, k_curr, 16)}
+    before = evaluation.alignment_errors(
+        *_synthetic(fake.env, k_train, EVAL_TRAIN), tests,
+        seed=int(jax.random.randint(k_reg, (), 0, 2**31 - 1)), seq_len=1, num_iterations=30,
+        normalize=True)
+    assert report["errors"] == {k: np.asarray(v).tolist() for k, v in before.items()}
+
+
+def test_rearrange_with_normalised_targets_is_refused():
+    config = stream.for_env("RearrangeGeom", "VAE_rpl", regressor_normalize=True)
+    with pytest.raises(ValueError, match=r"rotation blocks .* set regressor_normalize=False"):
+        stream.build(config)
+

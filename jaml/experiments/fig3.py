@@ -17,6 +17,11 @@ resumable on its own. Then OUT/fig3.md and the images are written from whatever 
 The LD groups come from the env's metadata (`ld_state_groups`: position / orientation / other)
 and its state names (sin_qJ / cos_qJ are arm joints, objK_* object K's entries); the "largest
 object" is the slot whose shape has the largest bounding box in every version the env uses.
+Positions and joints are scored by the mean |prediction − truth| of their entries; an object's
+orientation by the reference's principal-axis error of its rotation block (suite_reference §5,
+`jaml.evaluation.rotation`), which the stream records as objK_rotation: with M = R_trueᵀR̂, the
+mean over i of min(|M[i, 2] − e_z[i]|, |M[i, 2] + e_z[i]|), a number in [0, 1] (the reference
+reports it as is: neither degrees nor radians; 0 when the major axes agree up to sign).
 
 What the paper reports (Fig. 3's caption, and §2 "Benchmarking latent state alignment"):
 "VAE_rpl encoded angle of the main robot joint, location & partly orientation (major axis) of
@@ -54,10 +59,6 @@ H100 run one variant after another, over half of it analyses, before Rearrange's
 and PPO's 50 (not 10) passes per epoch, which the model leaves out; about half that as parallel
 processes. `--eval-train 4096 --eval-rand 4096 --eval-curr 1024 --regressor-iterations 4000`
 (fig9's sizes) would cut the analyses to about 35 min.
-
-Deviation: the stream's regressor fits and scores the 9 rotation entries of each object with L1
-like every other entry, so "object orientation" is the mean |error| of those entries, not the
-reference's principal-axis error (`jaml.evaluation.rotation`, which `jaml.stream` does not use).
 """
 
 from __future__ import annotations
@@ -74,7 +75,7 @@ from typing import Annotated, Literal
 import numpy as np
 import tyro
 
-from jaml.evaluation import plots
+from jaml.evaluation import plots, rotation
 from jaml.experiments import _runs
 from jaml.experiments._runs import cell
 
@@ -117,6 +118,8 @@ class Layout:
 
     joints: joint → its (sin, cos) names, base joint first (the "main" joint: the shoulder).
     positions / rotations: object slot → its position / rotation-entry names.
+    orientations: object slot → the record name of its rotation block's principal-axis error
+      (objK_rotation, `jaml.stream.analysis.error_names`).
     shapes: object slot → its shape, or shapes joined by "/" when versions differ.
     largest: the slot whose shape has the largest bounding box in every version used (alone),
       or None.
@@ -125,11 +128,13 @@ class Layout:
     joints: dict[str, list[str]]
     positions: dict[str, list[str]]
     rotations: dict[str, list[str]]
+    orientations: dict[str, str]
     shapes: dict[str, str]
     largest: str | None
 
     def groups(self) -> dict[str, list[str]]:
-        """Fig. 3's three groups: arm joint angles, object positions, object orientation."""
+        """The LD entries of Fig. 3's three groups: arm joint angles, object positions, object
+        orientation (its rotation entries; the figure scores them by `orientations`)."""
         return {ARM: _flat(self.joints), POSITIONS: _flat(self.positions),
                 ORIENTATION: _flat(self.rotations)}
 
@@ -142,7 +147,7 @@ class Layout:
         if self.largest is not None:
             label = f"{LARGEST} ({self.largest}: {self.shapes[self.largest]})"
             panels[label] = self.positions[self.largest]
-        panels[ORIENTATION] = _flat(self.rotations)
+        panels[ORIENTATION] = list(self.orientations.values())
         return panels
 
 
@@ -194,8 +199,15 @@ def _layout(env: str, env_opt: tuple) -> Layout:
         raise ValueError(f"{env}: expected arm joints and objects with a position and a "
                          f"rotation each, got joints {list(joints)}, positions {list(positions)}, "
                          f"rotations {list(rotations)}")
+    starts, labels = rotation.ld_blocks(domain.ld_state_names, domain.ld_state_groups)
+    names = list(domain.ld_state_names)
+    orientations = {_OBJECT_ROTATION.fullmatch(names[s]).group(1): label
+                    for s, label in zip(starts, labels, strict=True)}
+    if list(orientations) != list(rotations):
+        raise ValueError(f"{env}: rotation blocks {list(orientations)} do not match the objects' "
+                         f"rotation entries {list(rotations)}")
     shapes, largest = _object_shapes(domain, list(positions))
-    return Layout(joints, positions, rotations, shapes, largest)
+    return Layout(joints, positions, rotations, orientations, shapes, largest)
 
 
 def _object_shapes(domain, slots: list[str]) -> tuple[dict[str, str], str | None]:
@@ -293,11 +305,12 @@ def collect(out: Path, variants) -> dict[str, list[list[dict]]]:
 def values_at(histories: list[list[dict]], step: int, test_set: str,
               names: list[str]) -> list[float]:
     """Per seed, the mean error over `names` at `step` on `test_set` (seeds without that
-    record are left out)."""
+    record, or whose record lacks one of the names, are left out: histories written before the
+    stream recorded objK_rotation have no orientation)."""
     values = []
     for h in histories:
         record = next((r for r in h if r["step"] == step and r["test_set"] == test_set), None)
-        if record is not None:
+        if record is not None and all(n in record["errors"] for n in names):
             values.append(float(np.mean([record["errors"][n] for n in names])))
     return values
 
@@ -406,11 +419,15 @@ def plot(runs: dict[str, list[list[dict]]], panels: dict[str, list[str]], path: 
     records = sorted((r for hs in runs.values() for h in hs for r in h),
                      key=lambda r: r["test_set"] != "pi_curr")
     fig = plots.plot_alignment(records, path, groups=panels)
-    # Rearrange targets are not z-scored (reference §5): the errors are in the LD state's units.
+    # Rearrange targets are not z-scored (reference §5): the errors are in the LD state's units,
+    # orientation's the principal-axis error.
     for ax in fig.axes:
         ax.set_xlabel("epoch")
         if ax.get_ylabel():
             ax.set_ylabel("mean |error| (LD units)")
+        if ax.get_title().startswith(ORIENTATION):
+            ax.set_title(ax.get_title().replace(ORIENTATION, f"{ORIENTATION} (principal axis)"),
+                         fontsize=9)
     fig.savefig(path, dpi=100)
 
 
@@ -428,10 +445,13 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
     lines = ["# Fig. 3: RearrangeGeom (reacher), alignment of VAE_rpl and SPAIR with the true "
              "state", "",
              "Errors are mean |prediction − truth| per LD entry in the state's own units "
-             "(positions normalised to [−1, 1], sin/cos of the joints, rotation-matrix entries; "
-             "lower is better), at the last epoch every seed of a variant reached: mean over "
-             "seeds ± the half-width of its 90 % confidence interval. \"Object orientation\" is "
-             "the L1 error of the 9 rotation entries, not the reference's principal-axis error.",
+             "(positions normalised to [−1, 1], sin/cos of the joints; lower is better), at the "
+             "last epoch every seed of a variant reached: mean over seeds ± the half-width of "
+             "its 90 % confidence interval. Orientation is the reference's principal-axis error "
+             "of each object's rotation block (M = R_trueᵀR̂: the mean over i of "
+             "min(|M[i,2] − e_z[i]|, |M[i,2] + e_z[i]|), in [0, 1], neither degrees nor "
+             "radians; 0 when the major axes agree up to sign), averaged over the objects; "
+             "– where the runs did not record it.",
              "", "The paper: \"VAE_rpl encoded angle of the main robot joint, location & partly "
              "orientation (major axis) of the largest objects. SPAIR encoded (rough) locations "
              "quickly, but did not improve with longer training (bounding boxes not tight).\"",
@@ -467,8 +487,9 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
     for variant, histories in runs.items():
         last = _runs.last_common_step(histories)
         for test_set in _test_sets(histories):
-            cells = [values_at(histories, last, test_set, names[k])
-                     for k in shape.positions for names in (shape.positions, shape.rotations)]
+            cells = [values_at(histories, last, test_set, names)
+                     for k in shape.positions
+                     for names in (shape.positions[k], [shape.orientations[k]])]
             lines.append(f"| {variant} | {test_set} | "
                          + " | ".join(cell(v) if v else "–" for v in cells) + " |")
     claims = _claims(runs, shape, configs)

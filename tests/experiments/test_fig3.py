@@ -27,6 +27,8 @@ def test_groups_come_from_the_envs_metadata_and_names():
     assert layout.joints == {"q0": ["sin_q0", "cos_q0"], "q1": ["sin_q1", "cos_q1"]}
     assert layout.positions["obj2"] == ["obj2_x", "obj2_y", "obj2_z"]
     assert layout.rotations["obj0"] == [f"obj0_r{i}{j}" for i in range(3) for j in range(3)]
+    # Orientation is scored by each block's principal-axis error, recorded as objK_rotation.
+    assert layout.orientations == {f"obj{k}": f"obj{k}_rotation" for k in range(4)}
     groups = layout.groups()
     assert list(groups) == [fig3.ARM, fig3.POSITIONS, fig3.ORIENTATION]
     # Every entry but the version id in exactly one group, each group from the env's metadata.
@@ -49,6 +51,7 @@ def test_groups_come_from_the_envs_metadata_and_names():
     panels = layout.panels()
     assert panels["main joint (q0)"] == ["sin_q0", "cos_q0"]
     assert panels["largest object position (obj3: sphere1)"] == ["obj3_x", "obj3_y", "obj3_z"]
+    assert panels[fig3.ORIENTATION] == [f"obj{k}_rotation" for k in range(4)]
 
 
 def test_an_entry_outside_the_layout_is_an_error(monkeypatch):
@@ -118,16 +121,20 @@ NAMES = None
 
 
 def _names():
+    """The names of a Rearrange run's errors: the LD state's, then objK_rotation per object
+    (the principal-axis error of its rotation block)."""
     global NAMES
     if NAMES is None:
         import envs_mjx
 
-        NAMES = list(envs_mjx.make(fig3.ENV).ld_state_names)
+        NAMES = [*envs_mjx.make(fig3.ENV).ld_state_names,
+                 *(f"obj{k}_rotation" for k in range(4))]
     return NAMES
 
 
-def _errors(q0, q1, obj_pos, rot=0.5):
-    """An LD error vector: q0 / q1 on their sin and cos, obj_pos[k] on object k's x, y, z."""
+def _errors(q0, q1, obj_pos, axes=(0.5, 0.5, 0.5, 0.5), rot=0.9):
+    """An error vector: q0 / q1 on their sin and cos, obj_pos[k] on object k's x, y, z, axes[k]
+    on its principal-axis error and `rot` on every rotation entry (which the report ignores)."""
     values = {}
     for n in _names():
         if n.endswith("_q0"):
@@ -136,6 +143,8 @@ def _errors(q0, q1, obj_pos, rot=0.5):
             values[n] = q1
         elif n[-2:] in ("_x", "_y", "_z"):
             values[n] = obj_pos[int(n[3])]
+        elif n.endswith("_rotation"):
+            values[n] = axes[int(n[3])]
         else:
             values[n] = rot
     return [values[n] for n in _names()]
@@ -184,7 +193,8 @@ def fake_grid(tmp_path):
     for seed in range(3):
         steps = {2: _errors(0.9, 0.9, [0.8] * 4),
                  4: _errors(0.5, 0.6, [0.5, 0.5, 0.5, 0.4 + 0.06 * seed]),
-                 6: _errors(q0[seed], 0.4 + 0.1 * seed, [0.3, 0.3, 0.3, 0.1 * seed])}
+                 6: _errors(q0[seed], 0.4 + 0.1 * seed, [0.3, 0.3, 0.3, 0.1 * seed],
+                            axes=[0.1, 0.2, 0.3, 0.2 + 0.1 * seed])}
         _write_run(tmp_path / "VAE_rpl" / f"seed_{seed}", "VAE_rpl", seed, steps)
         spair = {2: _errors(0.9, 0.9, [0.9] * 4), 4: _errors(0.8, 0.8, [0.3 + 0.1 * seed] * 4),
                  6: _errors(0.8, 0.8, [0.2] * 4)}
@@ -208,9 +218,12 @@ def test_report_averages_groups_per_seed_then_seeds_with_a_t_interval(fake_grid)
         f"{largest.mean():.3f} ± {_half(largest):.3f}")
     positions = (0.9 + largest) / 4  # three objects at 0.3, the largest at 0.1·seed
     assert vae["object positions"] == f"{positions.mean():.3f} ± {_half(positions):.3f}"
-    assert vae["object orientation"] == "0.500 ± 0.000"
+    # Per seed the mean of the 4 objects' principal-axis errors (0.1, 0.2, 0.3, 0.2 + 0.1·seed).
+    orientation = np.array([0.2, 0.225, 0.25])
+    assert vae["object orientation"] == f"{orientation.mean():.3f} ± {_half(orientation):.3f}"
     assert (vae["epoch"], vae["seeds"]) == ("6", "3")
-    assert _row(text, "VAE_rpl", "pi_rand", head)["object orientation"] == "0.600 ± 0.000"
+    assert _row(text, "VAE_rpl", "pi_rand", head)["object orientation"] == (
+        f"{orientation.mean() + 0.1:.3f} ± {_half(orientation):.3f}")
     # SPAIR's third seed stopped at epoch 4: the table is at epoch 4, where all three are.
     spair = _row(text, "SPAIR_4x4", "pi_curr", head)
     assert (spair["epoch"], spair["seeds"]) == ("4", "3")
@@ -219,7 +232,9 @@ def test_report_averages_groups_per_seed_then_seeds_with_a_t_interval(fake_grid)
     # Per object: shapes named, position and orientation per slot.
     per_object = _row(text, "VAE_rpl", "pi_curr", "| variant | test set | obj0")
     assert per_object["obj1 (cube) position"] == "0.300 ± 0.000"
-    assert per_object["obj3 (sphere1) orientation"] == "0.500 ± 0.000"
+    assert per_object["obj0 (cylinder) orientation"] == "0.100 ± 0.000"
+    obj3 = np.array([0.2, 0.3, 0.4])
+    assert per_object["obj3 (sphere1) orientation"] == f"{obj3.mean():.3f} ± {_half(obj3):.3f}"
     assert (fake_grid / "fig3.png").stat().st_size > 0
     # The newest image of the first seed, copied next to fig3.md.
     assert "![VAE_rpl, seed_0, epoch 6](fig3_recon_VAE_rpl.png)" in text
@@ -266,6 +281,23 @@ def test_longer_training_row_compares_first_and_last_trained_analyses(tmp_path):
     diffs = np.array([0.05, 0.0, -0.02])
     assert f"| {diffs.mean():+.3f} ± {_half(diffs):.3f} |" in row
     assert "VAE_rpl" not in text.split("## The paper's claims")[1]
+
+
+def test_histories_without_principal_axis_errors_show_no_orientation(tmp_path):
+    """Runs analysed before the stream recorded objK_rotation: orientation is "–", the rest
+    as usual."""
+    global NAMES
+    names = _names()
+    NAMES = names[:-4]  # the LD state's names only
+    try:
+        for seed in range(2):
+            _write_run(tmp_path / "VAE_rpl" / f"seed_{seed}", "VAE_rpl", seed,
+                       {2: _errors(0.5, 0.5, [0.4] * 4)})
+    finally:
+        NAMES = names
+    text = fig3.report(tmp_path, ["VAE_rpl"])
+    row = _row(text, "VAE_rpl", "pi_curr", "| variant | test set | arm joint angles")
+    assert (row["object orientation"], row["object positions"]) == ("–", "0.400 ± 0.000")
 
 
 def test_an_empty_out_says_so(tmp_path):
@@ -347,8 +379,12 @@ def test_tiny_runs_resume_and_report(tmp_path, variant):
     assert sorted({(r["step"], r["test_set"]) for r in history}) == [
         (2, "pi_curr"), (2, "pi_rand"), (4, "pi_curr"), (4, "pi_rand")]
     assert all(np.isfinite(list(r["errors"].values())).all() for r in history)
+    # The stream records each object's principal-axis error after the LD entries.
+    assert all(list(r["errors"])[-4:] == [f"obj{k}_rotation" for k in range(4)]
+               for r in history)
     text = fig3.report(tmp_path, [variant])
     row = _row(text, variant, "pi_rand", "| variant | test set | arm joint angles")
     assert (row["epoch"], row["seeds"]) == ("4", "2")
+    assert row["object orientation"] != "–"
     assert (tmp_path / f"fig3_recon_{variant}.png").stat().st_size > 0
     assert (tmp_path / "fig3.png").stat().st_size > 0

@@ -20,8 +20,9 @@ object" is the slot whose shape has the largest bounding box in every version th
 Positions and joints are scored by the mean |prediction − truth| of their entries; an object's
 orientation by the reference's principal-axis error of its rotation block (suite_reference §5,
 `jaml.evaluation.rotation`), which the stream records as objK_rotation: with M = R_trueᵀR̂, the
-mean over i of min(|M[i, 2] − e_z[i]|, |M[i, 2] + e_z[i]|), a number in [0, 1] (the reference
-reports it as is: neither degrees nor radians; 0 when the major axes agree up to sign).
+mean over i of min(|M[i, 2] − e_z[i]|, |M[i, 2] + e_z[i]|). The reference reports it as is,
+neither degrees nor radians: 0 when the major axes agree up to sign, 2/3 for perpendicular axes,
+1/3 for a zero prediction (R̂ is a regressor output, not re-orthonormalised, so not bounded by 1).
 
 What the paper reports (Fig. 3's caption, and §2 "Benchmarking latent state alignment"):
 "VAE_rpl encoded angle of the main robot joint, location & partly orientation (major axis) of
@@ -449,8 +450,9 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
              "last epoch every seed of a variant reached: mean over seeds ± the half-width of "
              "its 90 % confidence interval. Orientation is the reference's principal-axis error "
              "of each object's rotation block (M = R_trueᵀR̂: the mean over i of "
-             "min(|M[i,2] − e_z[i]|, |M[i,2] + e_z[i]|), in [0, 1], neither degrees nor "
-             "radians; 0 when the major axes agree up to sign), averaged over the objects; "
+             "min(|M[i,2] − e_z[i]|, |M[i,2] + e_z[i]|), neither degrees nor radians: 0 when "
+             "the major axes agree up to sign, 2/3 for perpendicular axes, 1/3 for a zero "
+             "prediction), averaged over the objects; "
              "– where the runs did not record it.",
              "", "The paper: \"VAE_rpl encoded angle of the main robot joint, location & partly "
              "orientation (major axis) of the largest objects. SPAIR encoded (rough) locations "

@@ -1,12 +1,16 @@
 """`jaml info`, and the CLI's stdout free of mujoco.mjx's MuJoCo Warp probe prints."""
 
 import importlib.metadata
+import json
 import os
 import subprocess
 import sys
 
 import jax
+import numpy as np
+import pytest
 
+from jaml import cli
 from jaml.cli import _INFO_PACKAGES, main
 
 
@@ -32,27 +36,51 @@ def test_info_names_the_cpu_device_versions_and_mjx_imports(capsys):
     assert "MJX renderer (envs_mjx.render): import ok" in lines
 
 
-def test_cli_stdout_has_no_warp_probe_lines():
-    """A fresh process: mujoco.mjx's 'Failed to import warp' prints are captured by main."""
+def test_cli_stdout_has_no_warp_probe_lines(tmp_path):
+    """A fresh process: mujoco.mjx's 'Failed to import warp' prints are captured by main; the
+    command line's compilation cache is where JAML_XLA_CACHE says."""
     result = subprocess.run(
         [sys.executable, "-m", "jaml.cli", "info"],
         capture_output=True,
         text=True,
         check=True,
         timeout=300,
+        env={**os.environ, "JAML_XLA_CACHE": str(tmp_path / "xla")},
     )
     assert "Failed to import" not in result.stdout + result.stderr
     assert result.stdout.startswith("jax ")
+    assert f"XLA compilation cache: {tmp_path / 'xla'} (JAML_XLA_CACHE)" in result.stdout
+
+
+@pytest.mark.slow  # two fresh processes that compile: ~1 min on the 2-core machine
+def test_a_second_run_reads_the_compilation_cache(tmp_path):
+    """`jaml relations` writes its compiled programs to the persistent cache, and the same
+    command in a new process finds them there (JAX counts its cache hits; the first run may
+    hit a program it compiled itself)."""
+    script = (
+        "import sys, jax\n"
+        "from jax._src import monitoring\n"
+        "hits = []\n"
+        "monitoring.register_event_listener(lambda e, **kw: hits.append(e) if e =="
+        " '/jax/compilation_cache/cache_hits' else None)\n"
+        "from jaml import cli\n"
+        "code = cli.main(sys.argv[1:])\n"
+        "print('cache hits', len(hits))\n"
+        "sys.exit(code)\n")
+    env = {**os.environ, "JAML_XLA_CACHE": str(tmp_path / "xla"),
+           "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
+    hits = []
+    for run in ("a", "b"):
+        argv = ["relations", "--source", "ellipse", "--out", str(tmp_path / run), *TINY]
+        result = subprocess.run([sys.executable, "-c", script, *argv], capture_output=True,
+                                text=True, timeout=300, env=env)
+        assert result.returncode == 0, result.stderr[-2000:]
+        hits.append(int(result.stdout.rsplit("cache hits", 1)[1]))
+    assert any((tmp_path / "xla").iterdir())
+    assert hits[1] > hits[0], hits
 
 
 # One config/CLI mechanism: typed, complete help; one-line errors; --debug; file sources.
-
-import json  # noqa: E402
-
-import numpy as np  # noqa: E402
-import pytest  # noqa: E402
-
-from jaml import cli  # noqa: E402
 
 TINY = ["--max-relations", "1", "--max-steps", "20", "--chunk-steps", "20", "--batch-size", "32",
         "--stop-patience", "1", "--eval-batches", "1", "--no-progress"]

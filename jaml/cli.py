@@ -77,10 +77,12 @@ def field_docs(cls: type) -> dict[str, str]:
 def _choices() -> dict[tuple[str, str], tuple[str, ...]]:
     """(class name, field) → its valid values, for `str` fields whose set is fixed elsewhere
     (registries, validation in __post_init__)."""
+    from envs_mjx.domains.rearrange import ARMS
     from jaml.stream import POLICIES
 
     return {
         ("StreamConfig", "policy"): POLICIES,
+        ("RearrangeConfig", "arm"): ARMS,
         ("LearnerConfig", "frame_nll"): ("sum", "mean"),
         ("EnvConfig", "pixels"): ("auto", "required", "off"),
     }
@@ -328,15 +330,7 @@ def _suite_for(argv: list[str]) -> type:
     """Suite, or when argv names a valid --env and --learner, a Suite whose defaults are that
     pair's (`for_env`) with the learner's and the env's configs as typed flags."""
 
-    def value(flag: str):
-        for i, arg in enumerate(argv):
-            if arg == flag and i + 1 < len(argv):
-                return argv[i + 1]
-            if arg.startswith(flag + "="):
-                return arg.split("=", 1)[1]
-        return None
-
-    env, learner = value("--env"), value("--learner")
+    env, learner = _flag(argv, "--env"), _flag(argv, "--learner")
     if env not in _envs() or learner not in _learners():
         return Suite
     from jaml.stream import for_env
@@ -396,7 +390,8 @@ class EnvsList:
 class EnvsShow:
     """PNG grid of rendered frames from random-action rollouts: rows are resets (so per-episode
     colours show), columns are time; frames come from the env's own pixels path
-    (envs_mjx.render)."""
+    (envs_mjx.render). `jaml envs show --env ENV --help` lists the env's own options
+    (env-config), e.g. `--env-config.arm franka` for the Rearrange domains."""
 
     env: Literal[_envs()]
     """the MJX domain (`jaml envs list`)"""
@@ -413,9 +408,48 @@ class EnvsShow:
         from envs_mjx.show import show
 
         out = self.out or Path(f"{self.env}.png")
-        path = show(self.env, out, resets=self.resets, steps=self.steps, seed=self.seed)
-        print(f"{self.env}: {self.resets} resets x {self.steps} frames -> {path}")
+        env_config = getattr(self, "env_config", None)
+        overrides = {} if env_config is None else _changed(env_config, _env_default(self.env))
+        path = show(self.env, out, resets=self.resets, steps=self.steps, seed=self.seed,
+                    **overrides)
+        options = "".join(f", {k}={v}" for k, v in overrides.items())
+        print(f"{self.env}{options}: {self.resets} resets x {self.steps} frames -> {path}")
         return 0
+
+
+def _flag(argv: list[str], flag: str) -> str | None:
+    """The value given to `flag` in argv (`--flag VALUE` or `--flag=VALUE`), else None."""
+    for i, arg in enumerate(argv):
+        if arg == flag and i + 1 < len(argv):
+            return argv[i + 1]
+        if arg.startswith(flag + "="):
+            return arg.split("=", 1)[1]
+    return None
+
+
+def _envs_for(argv: list[str]) -> type:
+    """Envs, or when argv names a valid --env, an Envs whose `show` takes that env's config as
+    typed flags (env-config)."""
+    env = _flag(argv, "--env")
+    if env not in _envs():
+        return Envs
+    env_config = _env_default(env)
+    show = dataclasses.make_dataclass(
+        "EnvsShow",
+        [("env_config", type(env_config), dataclasses.field(default=env_config))],
+        bases=(EnvsShow,),
+        frozen=True,
+        namespace={"__doc__": EnvsShow.__doc__, "__module__": __name__},
+    )
+    return dataclasses.make_dataclass(
+        "Envs",
+        [("action", tyro.conf.OmitSubcommandPrefixes[
+            Annotated[EnvsList, tyro.conf.subcommand("list")]
+            | Annotated[show, tyro.conf.subcommand("show")]])],
+        bases=(Envs,),
+        frozen=True,
+        namespace={"__doc__": Envs.__doc__, "__module__": __name__},
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -499,7 +533,8 @@ def _commands(argv: list[str]) -> dict[str, type]:
     from jaml.experiments import fig2, fig3, fig9
 
     return {"relations": Relations, "suite": _suite_for(argv), "fig2": fig2.Args,
-            "fig3": fig3.Args, "fig9": fig9.Args, "demo": Demo, "envs": Envs, "info": Info}
+            "fig3": fig3.Args, "fig9": fig9.Args, "demo": Demo, "envs": _envs_for(argv),
+            "info": Info}
 
 
 def _root(argv: list[str]) -> type:

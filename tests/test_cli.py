@@ -221,6 +221,23 @@ def test_envs_show_positional_name_still_works_with_a_deprecation_note(capsys):
     assert "deprecated; use `envs show --env CartPole`" in capsys.readouterr().err
 
 
+def test_envs_show_takes_the_envs_own_typed_options(monkeypatch, capsys, tmp_path):
+    from envs_mjx import show
+
+    calls = []
+    monkeypatch.setattr(show, "show", lambda name, out, **kw: calls.append((name, kw)) or out)
+    argv = ["envs", "show", "--env", "RearrangeGeom", "--env-config.arm", "franka",
+            "--env-config.version", "7", "--steps", "2", "--out", str(tmp_path / "f.png")]
+    assert cli.main(argv) == 0
+    assert calls == [("RearrangeGeom", {"resets": 4, "steps": 2, "seed": 0, "arm": "franka",
+                                        "version": 7})]
+    assert "RearrangeGeom, arm=franka, version=7: 4 resets x 2 frames" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["envs", "show", "--env", "RearrangeGeom", "--env-config.arm", "ur5"])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and "invalid choice 'ur5'" in err and "franka" in err
+
+
 def test_fig2_and_fig9_are_subcommands_and_modules(capsys):
     from jaml.experiments import fig2, fig9
 

@@ -173,8 +173,24 @@ BULLET_SUBSTEPS = 2  # MJX substeps (5 ms) per Bullet step (10 ms)
 
 @dataclasses.dataclass(frozen=True)
 class RearrangeConfig(EnvConfig):
-    """arm: one of ARMS. version: one version (0-11) for every env; None: env slot i of a batch
-    uses versions[i mod len(versions)]. n_frames is derived (repeats x BULLET_SUBSTEPS)."""
+    """The Rearrange domains' options (suite_reference.md §1-2).
+
+    arm: "reacher" (the reference's 2-link arm, 2 torques) or "franka" (a Franka Panda, 7
+      torques with gravity compensation).
+    version: one version (0-11) for every env; None: env slot i of a batch uses
+      versions[i mod len(versions)].
+    versions: the versions a batch cycles through (the reference trained on 0-3).
+    n_frames: derived, repeats x BULLET_SUBSTEPS MJX substeps per action (a value given here is
+      replaced).
+    repeats: physics steps of the reference's Bullet (10 ms) per action (4).
+    settle_steps: zero-torque physics steps after placing the objects at reset.
+    random_torque_steps: random-torque physics steps after settling, so an episode does not
+      start from rest.
+    reacher_init_range: the reacher's joint angles at reset are uniform in ± this (radians).
+    ik_iterations: damped least-squares iterations that place the Franka's gripper at its random
+      reset target.
+    max_faces: the object meshes' face budget after decimation (the renderer's cost per mesh).
+    """
 
     episode_length: int | None = 50
     reward_scale: float | None = None  # 1 / episode_length

@@ -164,6 +164,9 @@ def bench_pixels(name, batch, steps, repeats):
     return {"frames_per_s": batch * steps / t["median_s"], **t}
 
 
+PEER_FRAME = ("reference: getCameraImage with the reference's renderer and default flags "
+              "(segmentation mask computed), RGB to float 3x64x64 as the reference's wrapper; "
+              "resets untimed")
 SIDE_NOTE = (
     "Measured side by side in one process, alternated block by block: jaml's env.step with 64x64 "
     "pixels (XLA on all cores) against benchmarks/peers/pybullet_envs.py (PyBullet 3.2.7 + "
@@ -176,9 +179,10 @@ SIDE_NOTE = (
 def bench_vs_pybullet(name, batch, steps, rounds, processes=2):
     """jaml's env.step with pixels and the PyBullet peer, alternated block by block.
 
-    A jaml block is one blocked call of `batch` envs x `steps` steps; a PyBullet block is
-    `processes` workers x ceil(batch / processes) episodes x `steps` steps, about the same
-    number of frames."""
+    A jaml block is one blocked call of `batch` envs x `steps` steps from reset states; a
+    PyBullet block is `processes` workers x ceil(batch / processes) episodes x `steps` steps,
+    about the same number of frames, timed over the steps (the resets left out, see
+    pybullet_envs.run_block)."""
     env = make_env(name, pixels="required")
     states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
     actions = _random_actions(jax.random.key(1), steps, batch, env.action_size)
@@ -187,45 +191,49 @@ def bench_vs_pybullet(name, batch, steps, rounds, processes=2):
     block(fn(states, actions))
     compile_s = time.perf_counter() - start
     episodes = -(-batch // processes)
-    with pybullet_envs.PeerPool(name, processes, episodes, steps) as pool:
-        jaml_t, pb_t = alternate(lambda: fn(states, actions), pool, rounds)
-    return side_by_side_row(name, batch, steps, batch * steps, jaml_t, pool.frames_per_block,
-                            pb_t, compile_s=compile_s, setup_s=pool.setup_s,
-                            processes=processes)
+    with pybullet_envs.PeerPool(parse_env(name)[0], processes, episodes, steps) as pool:
+        t = alternate(lambda: fn(states, actions), pool, rounds)
+    return side_by_side_row(name, batch, steps, batch * steps, t["jaml_s"],
+                            pool.frames_per_block, t["pybullet_s"], compile_s=compile_s,
+                            setup_s=pool.setup_s, processes=processes,
+                            jaml_cpu=t["jaml_cpu_s"], pybullet_cpu=t["pybullet_cpu_s"])
 
 
 def alternate(jaml_call, pool, rounds):
-    """Wall seconds per round of `jaml_call()` (blocked) and of `pool.block()`, after one
-    warm-up block of the pool (jaml's first call is its compile, made before). Even rounds run
-    jaml first, odd rounds PyBullet first."""
+    """Seconds per round of `jaml_call()` (blocked) and of `pool.block()`, with the CPU seconds
+    of each (jaml's process, all its threads; the PyBullet workers, summed), after one warm-up
+    block of the pool (jaml's first call is its compile, made before). Even rounds run jaml
+    first, odd rounds PyBullet first."""
     pool.block()
+    out = {"jaml_s": [], "pybullet_s": [], "jaml_cpu_s": [], "pybullet_cpu_s": []}
 
     def jaml_block():
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         block(jaml_call())
-        return time.perf_counter() - start
+        out["jaml_s"].append(time.perf_counter() - start)
+        out["jaml_cpu_s"].append(time.process_time() - start_cpu)
 
-    jaml_t, pb_t = [], []
+    def pb_block():
+        out["pybullet_s"].append(pool.block())
+        out["pybullet_cpu_s"].append(pool.last_cpu_s)
+
     for r in range(rounds):
-        if r % 2:
-            pb_t.append(pool.block())
-            jaml_t.append(jaml_block())
-        else:
-            jaml_t.append(jaml_block())
-            pb_t.append(pool.block())
-    return jaml_t, pb_t
+        for side in (pb_block, jaml_block) if r % 2 else (jaml_block, pb_block):
+            side()
+    return out
 
 
 def side_by_side_row(name, batch, steps, jaml_frames, jaml_times, pb_frames, pb_times, *,
-                     compile_s, setup_s, processes):
+                     compile_s, setup_s, processes, jaml_cpu=(), pybullet_cpu=()):
     """The recorded row: both sides' median frames/s, their ratio and its per-round spread;
-    the quoted anchor in its own columns, not divided into."""
+    frames per CPU second of each side (a per-core view that other processes' load does not
+    lower); the quoted anchor in its own columns, not divided into."""
     ratios = sorted((jaml_frames / j) / (pb_frames / p)
                     for j, p in zip(jaml_times, pb_times, strict=True))
     jaml_fps = jaml_frames / statistics.median(jaml_times)
     pb_fps = pb_frames / statistics.median(pb_times)
     quoted, source = QUOTED_FPS.get(name, ("", ""))
-    return {
+    row = {
         "case": f"{name}/pixels_vs_pybullet/b{batch}",
         "impl": f"jaml env.step b{batch} vs PyBullet+TinyRenderer x{processes} processes",
         "jaml_frames_per_s": jaml_fps,
@@ -235,12 +243,17 @@ def side_by_side_row(name, batch, steps, jaml_frames, jaml_times, pb_frames, pb_
         "ratio_max": ratios[-1],
         "rounds": len(ratios),
         "steps": steps,
-        "pybullet_scene": pybullet_envs.SCENE_NOTES[name],
+        "pybullet_scene": pybullet_envs.SCENE_NOTES[parse_env(name)[0]],
+        "pybullet_frame": PEER_FRAME,
         "jaml_compile_s": compile_s,
         "pybullet_setup_s": setup_s,
         "quoted_pybullet_1core_frames_per_s": quoted,
         "quoted_source": source,
     }
+    if jaml_cpu and pybullet_cpu:
+        row["jaml_frames_per_cpu_s"] = jaml_frames / statistics.median(jaml_cpu)
+        row["pybullet_frames_per_cpu_s"] = pb_frames / statistics.median(pybullet_cpu)
+    return row
 
 
 def main(argv=None):
@@ -295,13 +308,17 @@ def main(argv=None):
                   f"(compile {p['compile_s']:.1f} s)", flush=True)
             rows.append({"case": f"{name}/pixels/b{b}", "frames_per_s": p["frames_per_s"],
                          "compile_s": p["compile_s"]})
-        if side and name in pybullet_envs.SCENES:
-            r = bench_vs_pybullet(name, max(pix_batches), pix_steps, args.rounds,
-                                  args.processes)
-            line = (f"  side by side, 64x64 frames/s: jaml b{max(pix_batches)} "
-                    f"{r['jaml_frames_per_s']:,.0f} | PyBullet x{args.processes} "
+        pairs = [(max(pix_batches), args.processes)]
+        if 1 in pix_batches and max(pix_batches) > 1:
+            pairs.append((1, 1))  # one env against one PyBullet process
+        for b, procs in pairs if side and parse_env(name)[0] in pybullet_envs.SCENES else ():
+            r = bench_vs_pybullet(name, b, pix_steps, args.rounds, procs)
+            line = (f"  side by side, 64x64 frames/s: jaml b{b} "
+                    f"{r['jaml_frames_per_s']:,.0f} | PyBullet x{procs} "
                     f"{r['pybullet_frames_per_s']:,.0f} | ratio {r['ratio_jaml_over_pybullet']:.2f}"
-                    f" (rounds {r['ratio_min']:.2f}-{r['ratio_max']:.2f})")
+                    f" (rounds {r['ratio_min']:.2f}-{r['ratio_max']:.2f}); per CPU second: "
+                    f"jaml {r['jaml_frames_per_cpu_s']:,.0f}, PyBullet "
+                    f"{r['pybullet_frames_per_cpu_s']:,.0f}")
             if quoted := r["quoted_pybullet_1core_frames_per_s"]:
                 line += f"; quoted, not measured: {quoted:.0f} per core"
             print(line, flush=True)

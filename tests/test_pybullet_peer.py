@@ -17,11 +17,39 @@ from benchmarks.peers import pybullet_envs
 def test_each_scene_steps_and_frames_its_robot(name):
     scene = pybullet_envs.SCENES[name](seed=0)
     actions = np.random.default_rng(0).uniform(-1, 1, (2, 3, scene.action_size))
-    assert pybullet_envs.run_block(scene, actions) == 6
+    frames, wall, cpu = pybullet_envs.run_block(scene, actions)
+    assert frames == 6 and wall > 0 and cpu > 0
+    # The reference's observation: float CHW in [0, 1], from a call that computed the mask.
+    obs = scene.frame()
+    assert obs.shape == (3, 64, 64) and obs.dtype == np.float64
+    assert obs.min() >= 0.0 and obs.max() <= 1.0
+    scene.lean, scene.flags = True, scene.pb.ER_NO_SEGMENTATION_MASK
     frame = scene.frame()
     assert frame.shape == (64, 64, 3) and frame.dtype == np.uint8
+    np.testing.assert_allclose(obs, frame.transpose(2, 0, 1) / 255.0)
     # The camera sees the robot (and for the walkers the floor): not a blank white frame.
     assert (frame < 250).any(-1).mean() > 0.01
+
+
+def test_rearrange_frame_shows_the_tray_and_the_four_coloured_objects():
+    scene = pybullet_envs.RearrangeGeom(seed=1, lean=True)
+    scene.reset()
+    for a in np.random.default_rng(0).uniform(-1, 1, (3, 2)):
+        scene.step(a)
+    frame = scene.frame().astype(int)
+    r, g, b = frame[..., 0], frame[..., 1], frame[..., 2]
+    # The top-down camera sees the tray's wood texture almost everywhere (no white background,
+    # no black floor showing through it) ...
+    wood = (r > 120) & (r > b + 30)
+    assert wood.mean() > 0.4
+    assert ((frame > 250).all(-1)).mean() < 0.01
+    # ... and version 0's objects in their colours: blue cylinder, magenta cube, red sphere,
+    # yellow sphere1, each covering some pixels; the objects stay inside the workspace.
+    colours = {"blue": (b > 150) & (r < 80) & (g < 80), "magenta": (r > 150) & (b > 150) & (g < 80),
+               "red": (r > 150) & (g < 60) & (b < 60), "yellow": (r > 150) & (g > 150) & (b < 60)}
+    for name, mask in colours.items():
+        assert mask.sum() >= 4, name
+    assert scene._in_workspace()
 
 
 def test_alternated_blocks_give_a_row_with_the_measured_ratio_and_the_quoted_anchor_apart():
@@ -31,10 +59,14 @@ def test_alternated_blocks_give_a_row_with_the_measured_ratio_and_the_quoted_anc
     x = jnp.ones(4096)
     fn(x).block_until_ready()
     with pybullet_envs.PeerPool("CartPole", processes=2, episodes=2, steps=3) as pool:
-        jaml_t, pb_t = envs_throughput.alternate(lambda: fn(x), pool, rounds=3)
+        t = envs_throughput.alternate(lambda: fn(x), pool, rounds=3)
+    jaml_t, pb_t = t["jaml_s"], t["pybullet_s"]
     assert pool.frames_per_block == 12 and len(jaml_t) == len(pb_t) == 3
+    assert len(t["jaml_cpu_s"]) == len(t["pybullet_cpu_s"]) == 3
     row = envs_throughput.side_by_side_row("CartPole", 4, 3, 12, jaml_t, 12, pb_t,
-                                           compile_s=0.0, setup_s=pool.setup_s, processes=2)
+                                           compile_s=0.0, setup_s=pool.setup_s, processes=2,
+                                           jaml_cpu=t["jaml_cpu_s"],
+                                           pybullet_cpu=t["pybullet_cpu_s"])
     assert row["case"] == "CartPole/pixels_vs_pybullet/b4"
     assert row["jaml_frames_per_s"] == pytest.approx(12 / np.median(jaml_t))
     assert row["pybullet_frames_per_s"] == pytest.approx(12 / np.median(pb_t))
@@ -43,6 +75,7 @@ def test_alternated_blocks_give_a_row_with_the_measured_ratio_and_the_quoted_anc
         row["jaml_frames_per_s"] / row["pybullet_frames_per_s"])
     per_round = [(12 / j) / (12 / p) for j, p in zip(jaml_t, pb_t, strict=True)]
     assert (row["ratio_min"], row["ratio_max"]) == pytest.approx((min(per_round), max(per_round)))
+    assert row["pybullet_frames_per_cpu_s"] == pytest.approx(12 / np.median(t["pybullet_cpu_s"]))
     # The quoted anchor has its own labelled columns; nothing measured is derived from it.
     assert row["quoted_pybullet_1core_frames_per_s"] == 698.0
     assert "perf_anchors" in row["quoted_source"]

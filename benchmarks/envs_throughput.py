@@ -9,11 +9,13 @@
     envs_mjx.render), batch 1, 64 and 1024 (256 on CPU).
 (c) Side by side with the paper's stack (benchmark "envs_vs_pybullet"): the same env with
     pixels at the largest pixel batch against benchmarks/peers/pybullet_envs.py (PyBullet
-    stepping the reference's scene + a 64x64 TinyRenderer frame per step, one process per
-    core), for the domains that have a PyBullet scene. The two alternate block by block in one
-    process (jaml's calls on all cores, then the PyBullet workers on all cores), so load from
-    other processes falls on both; the row holds both medians, their ratio and the spread of
-    the per-round ratios.
+    stepping the reference's scene + a 64x64 TinyRenderer frame per step made as the reference
+    made it, one process per core), and batch 1 against one process, for the domains that have
+    a PyBullet scene. The two alternate block by block in one process (jaml's calls on all
+    cores, then the PyBullet workers on all cores), so load from other processes falls on both;
+    the row holds both medians, their ratio, the spread of the per-round ratios and each
+    side's frames per CPU second (a per-core view that load from other processes does not
+    lower; jaml's counts all its threads, spinning included).
 Compile time (first call: trace + XLA compile + one run) and PyBullet's scene loading are
 reported apart from steady state.
 

@@ -16,22 +16,56 @@ HalfCheetah, Ant  `mjcf/half_cheetah.xml` / `ant.xml` on `plane_stadium.sdf` (fr
                   iterations, ERP 0.9; torque power*100*clip(a) per joint (power 0.9 / 2.5);
                   camera tracking (mean part x, mean part y, torso z), dist 3, pitch -30.
 
-Every reset draws the reference's multicolour scheme (changeVisualShape), as jaml's default
-`multicolor=True` does. After each step the LD-state reads the reference's env makes (joint
-states; for the walkers link states, base velocity and foot contacts) run through PyBullet's
-batched calls, which if anything is cheaper than pybullet_envs' per-part Python. The frame is
-`getCameraImage(64, 64, renderer=ER_TINY_RENDERER, flags=ER_NO_SEGMENTATION_MASK)` kept as a
-64x64x3 uint8 array, the form jaml's env.step returns. Both choices favour the peer: the
-reference's call (ER_BULLET_HARDWARE_OPENGL, which a headless DIRECT client serves with
-TinyRenderer) also computed the segmentation mask (about 20 % of a CartPole frame here;
-`seg_mask=True` restores it), and its wrapper converted each frame to 3x64x64 float32 (about
-3 %), which jaml leaves to the learner as well.
+RearrangeGeom     bulb's ReacherRearrangeEnv, Geom objects of version 0 (suite_reference.md §1-2,
+                  §6; envs_mjx/domains/rearrange.py): pybullet_data `plane.urdf` coloured black;
+                  the reacher restated in the structure of bulb's reacher.xml and loaded through
+                  loadMJCF (capsules, masses 2 / 2 / 1, inertia from the geometry, no damping;
+                  only the hand's cross-bar and fingers collide, as there); the tray of
+                  borders*.urdf at scale 0.8 (four wall boxes 0.04 x 0.84 x 0.08 colliding with
+                  restitution 1 and friction 1, three visual floor panels 4 mm thick); a blue
+                  cylinder (r 0.03, 0.13, 0.2 kg), magenta cube (0.05 x 0.10 x 0.15, 0.05 kg,
+                  friction 1), red sphere (r 0.04, 0.1 kg) and yellow sphere1 (r 0.06, 0.3 kg)
+                  with the reference's friction, rolling friction and restitution. Gravity 9.81,
+                  dt 0.01 in 2 substeps, 5 solver iterations; an action is 4 repeats of (torque
+                  3*clip(a) N m, one stepSimulation, the software joint limits that reverse
+                  qdot), stopping early once an object leaves the workspace, as bulb's step.
+                  Reset: q ~U(+-0.75 pi), objects dropped at random poses, 20 steps, 10 steps of
+                  random torque. After each step the reference's LD-state and reward reads.
+                  Camera target (0,0,0), dist 0.40, yaw 90, pitch -89, fov 90, near 0.01.
+                  Differences from the reference: the tray's texture is jaml's stand-in for birch
+                  (assets/textures/light-wood.png on PyBullet box primitives; the reference drew
+                  textured unit-cube meshes, the same 12 triangles per box); the objects are
+                  PyBullet primitives with the URDFs' sizes, masses and contact values (as the
+                  URDFs declared them) rather than loaded from the URDF files; the action is
+                  jaml's torque 3a (bulb's paper-era mapping clip((a - 0.5) 3) only shifts the
+                  random torques). Differences from jaml's scene (docs/rearrange.md lists them):
+                  jaml's walls collide as planes, its cylinder as a 16-sided prism, nothing
+                  bounces, its shoulder and elbow capsules push objects too, and its batch holds
+                  versions 0-3 (i mod 4; same shapes, other colours and tray textures).
 
-Not covered: the inclines and Rearrange are bulb's own scenes (URDFs and textures not in
-pybullet_data), so they have no peer here.
+Every reset of the first four draws the reference's multicolour scheme (changeVisualShape), as
+jaml's default `multicolor=True` does. After each step the LD-state reads the reference's env
+makes (joint states; for the walkers link states, base velocity and foot contacts) run through
+PyBullet's batched calls, which if anything is cheaper than pybullet_envs' per-part Python.
+
+The frame is made as the reference made it: getCameraImage(64, 64) with the reference's renderer
+(ER_BULLET_HARDWARE_OPENGL for the Aux envs, which a headless DIRECT client serves with
+TinyRenderer; ER_TINY_RENDERER for Rearrange) and default flags, so the segmentation mask is
+computed as it was there; then RGB to float 3x64x64 in [0, 1] (float64, as `astype(float)`),
+clipped to the observation space for the Aux envs. Until 2026-11-23 the peer skipped the mask and
+the float conversion (the `lean` option keeps that frame: 64x64x3 uint8, the form jaml's env.step
+returns); the rows recorded before then measured that lighter frame. Shadows stay off (the
+reference's default). What the peer still leaves out favours it: gym's wrappers and the Aux
+env's per-step Python (reward, done and info bookkeeping).
+
+Timing: run_block times the steps and frames, not the resets, because jaml's side-by-side block
+steps envs reset beforehand; bulb's Rearrange reset alone runs 30 Bullet steps.
+
+Not covered: the inclines (bulb's own URDFs and textures), RearrangeYCB (the YCB scans) and the
+Franka arm.
 
 Run alone: PYTHONPATH=. python -m benchmarks.peers.pybullet_envs [--envs CartPole Ant]
-[--processes 2] [--episodes 128] [--steps 10] [--repeats 5] [--seg-mask]. Nothing is recorded; the
+[--processes 2] [--episodes 128] [--steps 10] [--repeats 5] [--lean]. Nothing is recorded; the
 side-by-side rows come from benchmarks/envs_throughput.py.
 """
 

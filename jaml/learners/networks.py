@@ -5,6 +5,7 @@ Shapes: N frames (B·T flattened), B batch, T time, F conv feature, Z latent.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 
@@ -12,11 +13,87 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 
 # PyTorch BatchNorm2d defaults (momentum 0.1 on the new statistic, eps 1e-5), as in the reference.
 _BN = {"momentum": 0.9, "epsilon": 1e-5}
 # PyTorch's k4 s2 p1 convolution halves the size.
 _HALVE = ((1, 1), (1, 1))
+_NHWC = ("NHWC", "HWIO", "NHWC")
+
+
+def _use_cpu_kernels(cpu_kernels: bool | None) -> bool:
+    """None: the CPU formulation when tracing for the CPU backend (the GPU path is XLA's own)."""
+    return jax.default_backend() == "cpu" if cpu_kernels is None else cpu_kernels
+
+
+def _xla_conv(x, kernel, strides, padding):
+    return lax.conv_general_dilated(x, kernel, strides, padding, dimension_numbers=_NHWC)
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(2, 3))
+def _conv_gemm_grad(x, kernel, strides, padding):
+    return _xla_conv(x, kernel, strides, padding)
+
+
+def _conv_gemm_grad_fwd(x, kernel, strides, padding):
+    return _xla_conv(x, kernel, strides, padding), (x, kernel)
+
+
+def _conv_gemm_grad_bwd(strides, padding, res, g):
+    """The input gradient is XLA's own; the kernel gradient is one matmul per kernel tap.
+
+    XLA:CPU computes a kernel gradient as a convolution whose "kernel" is the whole output
+    gradient, on a path 3–10× slower than PyTorch's (at batch 256 the decoder's 16×16 → 32×32
+    layer took 10–17 s against 1.3 s). Here dW[i, j] = Σ_{n,h,w} x_pad[n, s·h + i, s·w + j]ᵀ
+    g[n, h, w]: kh·kw matmuls [C, N·H'·W'] × [N·H'·W', O], on XLA:CPU's GEMM path.
+    """
+    x, kernel = res
+    dx = jax.vjp(lambda x: _xla_conv(x, kernel, strides, padding), x)[1](g)
+    kh, kw, c, o = kernel.shape
+    (sh, sw), (ho, wo) = strides, g.shape[1:3]
+    xp = jnp.pad(x, ((0, 0), padding[0], padding[1], (0, 0)))
+    g2 = g.reshape(-1, o)
+    taps = [lax.dot_general(
+        xp[:, i:i + sh * (ho - 1) + 1:sh, j:j + sw * (wo - 1) + 1:sw].reshape(-1, c), g2,
+        (((0,), (0,)), ((), ())), preferred_element_type=jnp.float32)
+        for i in range(kh) for j in range(kw)]
+    return dx[0], jnp.stack(taps).reshape(kernel.shape).astype(kernel.dtype)
+
+
+_conv_gemm_grad.defvjp(_conv_gemm_grad_fwd, _conv_gemm_grad_bwd)
+
+
+def conv2d(x: jax.Array, kernel: jax.Array, strides: tuple[int, int] = (1, 1),
+           padding=((0, 0), (0, 0)), cpu_kernels: bool | None = None) -> jax.Array:
+    """[N, H, W, I] × [kh, kw, I, O] → [N, H', W', O]: `lax.conv_general_dilated`, NHWC/HWIO.
+
+    cpu_kernels (None: when the default backend is the CPU) keeps the forward pass and input
+    gradient but computes the kernel gradient as per-tap matmuls (`_conv_gemm_grad_bwd`); same
+    values to float32 rounding. Otherwise (the GPU) it is the plain convolution and its autodiff.
+    """
+    strides, padding = tuple(strides), tuple(tuple(p) for p in padding)
+    if _use_cpu_kernels(cpu_kernels):
+        return _conv_gemm_grad(x, kernel, strides, padding)
+    return _xla_conv(x, kernel, strides, padding)
+
+
+class Conv(nn.Module):
+    """`nn.Conv` without bias (same "kernel" parameter, init and dtype promotion) over `conv2d`."""
+
+    features: int
+    kernel_size: tuple[int, int]
+    strides: tuple[int, int] = (1, 1)
+    padding: tuple[tuple[int, int], tuple[int, int]] = ((0, 0), (0, 0))
+    dtype: jnp.dtype | None = None
+    cpu_kernels: bool | None = None
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        kernel = self.param("kernel", nn.initializers.lecun_normal(),
+                            (*self.kernel_size, x.shape[-1], self.features))
+        x, kernel = nn.dtypes.promote_dtype(x, kernel, dtype=self.dtype)
+        return conv2d(x, kernel, self.strides, self.padding, self.cpu_kernels)
 
 
 class ConvEncoder(nn.Module):
@@ -31,17 +108,19 @@ class ConvEncoder(nn.Module):
     # The convolutions' input and kernel dtype (bfloat16: mixed precision; parameters, batch
     # norms and everything after them stay float32).
     compute_dtype: jnp.dtype = jnp.float32
+    # The CPU formulation of the kernel gradients (`conv2d`); None: when tracing for the CPU.
+    cpu_kernels: bool | None = None
 
     @nn.compact
     def __call__(self, x: jax.Array, train: bool) -> jax.Array:
         if x.shape[-3:-1] != (64, 64):
             raise ValueError(f"ConvEncoder expects 64×64 frames, got {tuple(x.shape)}")
         for i, f in enumerate(self.filters):
-            x = nn.Conv(f, (4, 4), strides=2, padding=_HALVE, use_bias=False,
-                        dtype=self.compute_dtype, name=f"conv{i}")(x)
+            x = Conv(f, (4, 4), (2, 2), _HALVE, self.compute_dtype, self.cpu_kernels,
+                     name=f"conv{i}")(x)
             x = nn.elu(self._norm(f"bn{i}", train)(x))
-        x = nn.Conv(self.features, (4, 4), padding="VALID", use_bias=False,
-                    dtype=self.compute_dtype, name="conv_out")(x)
+        x = Conv(self.features, (4, 4), dtype=self.compute_dtype, cpu_kernels=self.cpu_kernels,
+                 name="conv_out")(x)
         x = nn.elu(self._norm("bn_out", train)(x))
         return x.reshape(x.shape[0], self.features)
 
@@ -52,27 +131,40 @@ class ConvEncoder(nn.Module):
 # For a k4 s2 p1 transposed convolution, output 2m + r sums input m − 1 + j times kernel tap
 # _TAPS[r][j] (4 = no tap): out[2m] = x[m−1]·w3 + x[m]·w1, out[2m+1] = x[m]·w2 + x[m+1]·w0.
 _TAPS = np.array([[3, 1, 4], [4, 2, 0]])
+# The same sums as 2×2 windows over x padded by one (x_pad[q] = x[q − 1]): output 2m + r is the
+# window at q = m + r, (x[m + r − 1], x[m + r]), times taps _TAPS2[j][r] = 3 − 2j − r.
+_TAPS2 = np.array([[3, 2], [1, 0]])
 
 
-def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None) -> jax.Array:
+def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,
+               cpu_kernels: bool | None = None) -> jax.Array:
     """[N, H, W, I] → [N, 2H, 2W, O]: PyTorch's ConvTranspose2d(k=4, s=2, p=1), kernel [4, 4, I, O].
 
-    out[s·i − p + k] += x[i]·w[k] per axis, computed as a stride-1 3×3 convolution onto the four
-    output phases followed by depth-to-space. Same result as a transposed convolution, but XLA's
-    CPU backend runs input-dilated convolutions (its transposed-conv lowering and their
-    gradients) on a slow generic path: the decoder's backward pass was ~10× slower that way.
-    compute_dtype (e.g. bfloat16) is the convolution's input and kernel dtype; None keeps x's.
+    out[s·i − p + k] += x[i]·w[k] per axis, without input dilation: XLA's CPU backend runs
+    input-dilated convolutions (its transposed-conv lowering and their gradients) on a slow
+    generic path (the decoder's backward pass was ~10× slower that way). On the GPU (cpu_kernels
+    False; None: by the default backend) a stride-1 3×3 convolution onto the four output phases,
+    then depth-to-space. On the CPU a 2×2 convolution of the padded input onto the four phases,
+    (H+1)(W+1)·16 taps against H·W·36, each phase read off at its own offset, with `conv2d`'s
+    matmul kernel gradient. compute_dtype (e.g. bfloat16) is the convolution's input and kernel
+    dtype; None keeps x's.
     """
     if compute_dtype is not None:
         x, kernel = x.astype(compute_dtype), kernel.astype(compute_dtype)
     n, h, w, i = x.shape
     o = kernel.shape[-1]
+    if _use_cpu_kernels(cpu_kernels):
+        k2 = kernel[_TAPS2[:, None, :, None], _TAPS2[None, :, None, :]]  # [jh, jw, rh, rw, I, O]
+        k2 = k2.transpose(0, 1, 4, 2, 3, 5).reshape(2, 2, i, 4 * o)
+        y = conv2d(x, k2, (1, 1), _HALVE, cpu_kernels=True).reshape(n, h + 1, w + 1, 2, 2, o)
+        y = jnp.stack([jnp.stack([y[:, rh:rh + h, rw:rw + w, rh, rw] for rw in (0, 1)], axis=3)
+                       for rh in (0, 1)], axis=2)  # [N, H, rh, W, rw, O]
+        return y.reshape(n, 2 * h, 2 * w, o)
     padded = jnp.pad(kernel, ((0, 1), (0, 1), (0, 0), (0, 0)))  # tap index 4 reads zeros
     taps = _TAPS.T  # [j, r]
     k3 = padded[taps[:, None, :, None], taps[None, :, None, :]]  # [jh, jw, rh, rw, I, O]
     k3 = k3.transpose(0, 1, 4, 2, 3, 5).reshape(3, 3, i, 4 * o)
-    y = jax.lax.conv_general_dilated(x, k3, (1, 1), ((1, 1), (1, 1)),
-                                     dimension_numbers=("NHWC", "HWIO", "NHWC"))
+    y = _xla_conv(x, k3, (1, 1), _HALVE)
     y = y.reshape(n, h, w, 2, 2, o).transpose(0, 1, 3, 2, 4, 5)
     return y.reshape(n, 2 * h, 2 * w, o)
 
@@ -82,13 +174,14 @@ class Upsample2x(nn.Module):
 
     features: int
     compute_dtype: jnp.dtype = jnp.float32
+    cpu_kernels: bool | None = None
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         kernel = self.param("kernel", nn.initializers.lecun_normal(),
                             (4, 4, x.shape[-1], self.features))
         bias = self.param("bias", nn.initializers.zeros, (self.features,))
-        return upsample2x(x, kernel, self.compute_dtype) + bias
+        return upsample2x(x, kernel, self.compute_dtype, self.cpu_kernels) + bias
 
 
 class ConvDecoder(nn.Module):
@@ -102,6 +195,8 @@ class ConvDecoder(nn.Module):
     channels: int = 3
     # As ConvEncoder's: the transposed convolutions' dtype; the output is float32.
     compute_dtype: jnp.dtype = jnp.float32
+    # As ConvEncoder's: the CPU formulation (`upsample2x`); None: when tracing for the CPU.
+    cpu_kernels: bool | None = None
 
     @nn.compact
     def __call__(self, z: jax.Array, train: bool) -> jax.Array:
@@ -112,10 +207,10 @@ class ConvDecoder(nn.Module):
             z.reshape(z.shape[0], 1, 1, z.shape[-1]))
         x = self._norm("bn0", train)(nn.elu(x))
         for i, f in enumerate(middle, start=1):
-            x = nn.elu(Upsample2x(f, dt, name=f"deconv{i}")(x))
+            x = nn.elu(Upsample2x(f, dt, self.cpu_kernels, name=f"deconv{i}")(x))
             x = self._norm(f"bn{i}", train)(x)
-        x = nn.elu(Upsample2x(last, dt, name=f"deconv{len(middle) + 1}")(x))
-        out = Upsample2x(self.channels, dt, name="deconv_out")(x)
+        x = nn.elu(Upsample2x(last, dt, self.cpu_kernels, name=f"deconv{len(middle) + 1}")(x))
+        out = Upsample2x(self.channels, dt, self.cpu_kernels, name="deconv_out")(x)
         return nn.sigmoid(out.astype(jnp.float32))
 
     def _norm(self, name: str, train: bool) -> nn.BatchNorm:

@@ -1,15 +1,18 @@
-"""Conv stacks: the sub-pixel transposed convolution against a loop of PyTorch's formula."""
+"""Conv stacks: the sub-pixel transposed convolution against a loop of PyTorch's formula; the CPU
+formulation (matmul kernel gradients, 2×2 phase decoder) against XLA's convolutions and autodiff."""
 
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaml import learners
-from jaml.learners.networks import ConvDecoder, ConvEncoder, upsample2x
+from jaml.learners.networks import Conv, ConvDecoder, ConvEncoder, conv2d, upsample2x
 
 
-def test_upsample2x_is_pytorch_conv_transpose_k4_s2_p1():
+@pytest.mark.parametrize("cpu_kernels", [False, True])
+def test_upsample2x_is_pytorch_conv_transpose_k4_s2_p1(cpu_kernels):
     rng = np.random.default_rng(0)
     x, w = rng.normal(size=(2, 3, 4, 5)), rng.normal(size=(4, 4, 5, 6))
     # ConvTranspose2d: out[s·i − p + k] += x[i]·w[k] per axis, s = 2, p = 1.
@@ -19,7 +22,8 @@ def test_upsample2x_is_pytorch_conv_transpose_k4_s2_p1():
             for kh in range(4):
                 for kw in range(4):
                     full[:, 2 * i + kh, 2 * j + kw] += x[:, i, j] @ w[kh, kw]
-    got = upsample2x(jnp.asarray(x, jnp.float32), jnp.asarray(w, jnp.float32))
+    got = upsample2x(jnp.asarray(x, jnp.float32), jnp.asarray(w, jnp.float32),
+                     cpu_kernels=cpu_kernels)
     assert got.shape == (2, 6, 8, 6)
     np.testing.assert_allclose(got, full[:, 1:-1, 1:-1], atol=1e-5)
 
@@ -60,3 +64,82 @@ def test_compute_dtype_is_checked_and_reaches_the_learner():
         learners.make("VAE_rpl", ld_dim=4, compute_dtype="float16")
     assert learners.make("PRED", ld_dim=4, compute_dtype="bfloat16").config.conv_dtype \
         == jnp.bfloat16
+
+
+def _value_and_grads(f, x, w):
+    y, vjp = jax.vjp(f, x, w)
+    return (y, *vjp(jnp.asarray(np.random.default_rng(1).normal(size=y.shape), y.dtype)))
+
+
+@pytest.mark.parametrize("k, strides, padding", [
+    (4, (2, 2), ((1, 1), (1, 1))),  # the encoder's k4 s2 p1
+    (4, (1, 1), ((0, 0), (0, 0))),  # its k4 s1 p0 onto 1×1
+    (2, (1, 1), ((1, 1), (1, 1))),  # the CPU decoder's 2×2 phase convolution
+    (3, (2, 1), ((0, 1), (2, 0))),  # uneven strides and paddings
+])
+def test_cpu_conv_matches_xla_conv_and_autodiff(k, strides, padding):
+    rng = np.random.default_rng(0)
+    x = jnp.asarray(rng.normal(size=(3, 8, 7, 5)), jnp.float32)
+    w = jnp.asarray(rng.normal(size=(k, k, 5, 6)), jnp.float32)
+
+    def ref(x, w):
+        return jax.lax.conv_general_dilated(x, w, strides, padding,
+                                            dimension_numbers=("NHWC", "HWIO", "NHWC"))
+
+    want = _value_and_grads(ref, x, w)
+    got = jax.jit(lambda x, w: _value_and_grads(
+        lambda x, w: conv2d(x, w, strides, padding, cpu_kernels=True), x, w))(x, w)
+    for g, r, what in zip(got, want, ("output", "input gradient", "kernel gradient"),
+                          strict=True):
+        assert g.shape == r.shape and g.dtype == r.dtype, what
+        np.testing.assert_allclose(g, r, rtol=1e-5, atol=1e-4, err_msg=what)
+
+
+def test_upsample2x_cpu_gradients_match_the_gpu_formulation():
+    rng = np.random.default_rng(0)
+    x = jnp.asarray(rng.normal(size=(2, 4, 3, 5)), jnp.float32)
+    w = jnp.asarray(rng.normal(size=(4, 4, 5, 6)), jnp.float32)
+    want = _value_and_grads(lambda x, w: upsample2x(x, w, cpu_kernels=False), x, w)
+    got = _value_and_grads(lambda x, w: upsample2x(x, w, cpu_kernels=True), x, w)
+    for g, r in zip(got, want, strict=True):
+        np.testing.assert_allclose(g, r, rtol=1e-5, atol=1e-4)
+
+
+def test_conv_module_is_nn_conv_without_bias():
+    x = jnp.asarray(np.random.default_rng(0).normal(size=(2, 8, 8, 3)), jnp.float32)
+    ours = Conv(4, (4, 4), (2, 2), ((1, 1), (1, 1)), jnp.bfloat16, cpu_kernels=True)
+    flax_conv = nn.Conv(4, (4, 4), 2, ((1, 1), (1, 1)), use_bias=False, dtype=jnp.bfloat16)
+    variables = ours.init(jax.random.key(0), x)
+    assert jax.tree.map(jnp.shape, variables) == jax.tree.map(
+        jnp.shape, flax_conv.init(jax.random.key(0), x))
+    np.testing.assert_array_equal(variables["params"]["kernel"],
+                                  flax_conv.init(jax.random.key(0), x)["params"]["kernel"])
+    got, want = ours.apply(variables, x), flax_conv.apply(variables, x)
+    assert got.dtype == want.dtype == jnp.bfloat16
+    np.testing.assert_allclose(got.astype(jnp.float32), want.astype(jnp.float32), rtol=1e-2,
+                               atol=1e-2)
+
+
+def test_cpu_stacks_are_the_same_functions_of_the_same_parameters():
+    """Encoder and decoder (train mode, batch norms) with and without the CPU formulation:
+    one parameter tree, equal outputs and parameter gradients."""
+    rng = np.random.default_rng(0)
+    x = jnp.asarray(rng.uniform(size=(2, 64, 64, 3)), jnp.float32)
+    z = jnp.asarray(rng.normal(size=(2, 5)), jnp.float32)
+    for make, inp in ((lambda c: ConvEncoder((4, 4, 4, 4), 6, cpu_kernels=c), x),
+                      (lambda c: ConvDecoder((4, 4, 4, 4), cpu_kernels=c), z)):
+        variables = make(False).init(jax.random.key(0), inp, True)
+        assert jax.tree.structure(make(True).init(jax.random.key(0), inp, True)) \
+            == jax.tree.structure(variables)
+
+        def loss(params, module, variables=variables, inp=inp):
+            out, _ = module.apply({**variables, "params": params}, inp, True,
+                                  mutable=["batch_stats"])
+            return jnp.sum(out * jnp.cos(out)), out
+
+        (g_xla, out_xla), (g_cpu, out_cpu) = (
+            jax.jit(jax.grad(loss, has_aux=True), static_argnums=1)(variables["params"], make(c))
+            for c in (False, True))
+        np.testing.assert_allclose(out_cpu, out_xla, rtol=1e-5, atol=1e-5)
+        jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-4),
+                     g_cpu, g_xla)

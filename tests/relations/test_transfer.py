@@ -149,14 +149,20 @@ def _posterior_means(learner, variables, frames, actions):
                                 mutable=["batch_stats"])[0][0]
 
 
-def test_penalty_reaches_the_encoder_and_a_tiny_pred_run_lowers_the_residual():
+def _tiny_pred():
+    """A small PRED, the trapezoid penalty at weight 1000 and a first train state."""
     learner = learners.make("PRED", ld_dim=2, learning_rate=1e-3, **SMALL)
     rs = trapezoid_relations()
     pen = latent_penalty(rs, LAYOUT, latent_size=learner.config.penalty_dim, action_size=1,
                          weight=1000.0, form="sum")
-    data = _frames(0)
     opt = learners.default_optimizer(learner)
-    state0 = learners.init_train_state(learner, opt, jax.random.key(0), data)
+    state0 = learners.init_train_state(learner, opt, jax.random.key(0), _frames(0))
+    return learner, rs, pen, opt, state0
+
+
+def test_penalty_reaches_the_encoder_and_not_the_decoder():
+    learner, _, pen, _, state0 = _tiny_pred()
+    data = _frames(0)
 
     # The penalty's gradient reaches the encoder's parameters (the conv stack and the head).
     def penalty_only(params):
@@ -171,6 +177,11 @@ def test_penalty_reaches_the_encoder_and_a_tiny_pred_run_lowers_the_residual():
         norm = sum(float(jnp.sum(g**2)) for g in jax.tree.leaves(grads[part]))
         assert norm > 0, part
     assert all(float(jnp.sum(g**2)) == 0 for g in jax.tree.leaves(grads["decoder"]))
+
+
+@pytest.mark.slow  # two 50-step trainings, each compiled on its own: ~2 min on 2 CPU cores
+def test_a_tiny_pred_run_with_the_penalty_lowers_the_residual():
+    learner, rs, pen, opt, state0 = _tiny_pred()
 
     def train(latent_penalty):
         step = jax.jit(learners.make_train_step(learner, opt, latent_penalty))

@@ -92,6 +92,7 @@ def test_batch_holds_object_i_mod_n_across_resets(env, rollout):
         assert np.all(np.isfinite(np.asarray(x, np.float32)))
 
 
+@pytest.mark.slow  # default-suite time; the MJX-vs-C and renderer checks stay default
 def test_each_object_looks_different(env, reset, segment):
     # One key for every slot: same angle, mass, friction, textures and place; only the object
     # differs.
@@ -114,6 +115,7 @@ def test_each_object_looks_different(env, reset, segment):
     ).save("/tmp/mesh_incline_objects.png")
 
 
+@pytest.mark.slow  # default-suite time; the MJX-vs-C and renderer checks stay default
 def test_texture_draw_varies_per_episode(env, reset, segment, rollout):
     # Per reset: 24 keys, one object; plank top and ground take the drawn pair's texture.
     states = reset(jax.random.split(jax.random.key(3), 24), jnp.zeros(24, jnp.int32))
@@ -259,6 +261,7 @@ def test_mass_constants_match_mj_setconst_for_every_object(physics):
             np.testing.assert_allclose(getattr(m, field), getattr(ref, field), rtol=1e-5)
 
 
+@pytest.mark.slow  # default-suite time; the MJX-vs-C and renderer checks stay default
 def test_every_object_slides_down_a_frictionless_plank(physics):
     """Zero action and friction 0: s(t) = s0 + g sin(theta) t^2 / 2 along the plank, within the
     Euler error of test_domains' block check, for the face-resting objects; the others move

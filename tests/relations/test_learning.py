@@ -65,7 +65,8 @@ def test_where_all_relations_hold_the_true_equations_nearly_hold(ellipse):
     assert (box_residual >= 5 * kept_residual).all(), (kept_residual, box_residual)
 
 
-@pytest.mark.parametrize("preset", ["block45", "block36-drag"])
+@pytest.mark.parametrize("preset", ["block45",
+                                    pytest.param("block36-drag", marks=pytest.mark.slow)])
 def test_block_relations_generalize_beyond_the_training_range(preset):
     src = sources.make(preset)
     rs = relations.fit(src, relations.Config(max_relations=2))

@@ -40,6 +40,7 @@ def test_cli_writes_the_run_directory(tmp_path, capsys):
     assert "block45: 2 relations, done" in capsys.readouterr().out
 
 
+@pytest.mark.slow  # default-suite time; the run directory and resume checks stay default
 def test_three_dimensional_sources_get_zero_level_set_figures(tmp_path):
     run_module.run("ellipse", _tiny_config(max_relations=1), tmp_path / "e", progress=False)
     assert (tmp_path / "e" / "zero_sets.png").stat().st_size > 10_000
@@ -102,6 +103,7 @@ def test_bad_cli_values_give_clear_errors(tmp_path, capsys):
     assert "('transversality', 'syzygy')" in err
 
 
+@pytest.mark.slow  # default-suite time; the run directory and resume checks stay default
 def test_pretraining_towards_a_prior_heuristic():
     src = sources.make("ellipse")
     plane = lambda t: t[..., 1] - 2 * t[..., 2] - 1  # noqa: E731

@@ -93,7 +93,7 @@ def test_batch_holds_object_i_mod_n_across_resets(env, rollout):
 
 
 @pytest.mark.slow  # default-suite time; the MJX-vs-C and renderer checks stay default
-def test_each_object_looks_different(env, reset, segment):
+def test_each_object_looks_different(env, reset, segment, tmp_path):
     # One key for every slot: same angle, mass, friction, textures and place; only the object
     # differs.
     states = reset(jnp.stack([jax.random.key(2)] * N), jnp.arange(N))
@@ -112,7 +112,7 @@ def test_each_object_looks_different(env, reset, segment):
             assert changed >= 10, (i, j, changed)
     Image.fromarray(np.concatenate(list(np.asarray(states.pixels)), 1)).resize(
         (4 * SIZE * N, 4 * SIZE), Image.NEAREST
-    ).save("/tmp/mesh_incline_objects.png")
+    ).save(tmp_path / "mesh_incline_objects.png")  # to look at, with --basetemp
 
 
 @pytest.mark.slow  # default-suite time; the MJX-vs-C and renderer checks stay default

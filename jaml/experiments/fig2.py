@@ -16,6 +16,8 @@ dimension, or every group for locomotion). The paper's findings it checks:
     python -m jaml.experiments.fig2 --out runs/fig2                      # the whole grid
     python -m jaml.experiments.fig2 --out runs/fig2 --envs CartPole --variants PRED VAE_rpl
     python -m jaml.experiments.fig2 --out runs/fig2 --report-only        # figures from the runs
+    python -m jaml.experiments.fig2 --out runs/fig2_bf16 --report-only --compare-with runs/fig2
+        # each cell of one grid against the same cell of another (e.g. a numeric change)
 
 Defaults are the paper's settings where they are sizes of one epoch (64 envs, a 5000-column
 replay, 1024 frames per learner batch, 10 learner steps per epoch and 50 for locomotion, the
@@ -180,6 +182,48 @@ def report(out: Path, envs, variants) -> str:
     return text
 
 
+def _group_means(env: str, histories: list[list[dict]]) -> dict[tuple, list[float]]:
+    """(step, test set, group) → one value per seed: the seed's mean error over the group."""
+    groups = ld_groups(env)
+    values: dict[tuple, list[float]] = {}
+    for history in histories:
+        for r in history:
+            for group, dims in groups.items():
+                values.setdefault((r["step"], r["test_set"], group), []).append(
+                    float(np.mean([r["errors"][d] for d in dims])))
+    return values
+
+
+def compare(out: Path, other: Path, envs, variants) -> str:
+    """Markdown: every (env, variant) cell under both OUT and OTHER, group means of OUT minus
+    OTHER with Welch's 90 % interval at their last common analysis, and at how many of their
+    common analyses that interval excludes 0 (a difference the seeds resolve)."""
+    lines = [f"## {out.name} − {other.name}, cell by cell", "",
+             "Group means (training-std units) over the seeds of each grid; Welch's 90 % "
+             "interval for the difference; `resolved`: analyses (of those both have) whose "
+             "interval excludes 0.", "",
+             f"| cell | test set | group | epoch | {out.name} | {other.name} | difference "
+             "[90 % interval] | resolved |", "|---" * 8 + "|"]
+    for env in envs:
+        mine, theirs = _histories(out, env, variants), _histories(other, env, variants)
+        for variant in (v for v in variants if v in mine and v in theirs):
+            a, b = _group_means(env, mine[variant]), _group_means(env, theirs[variant])
+            common = sorted(k for k in a if k in b and len(a[k]) == len(mine[variant])
+                            and len(b[k]) == len(theirs[variant]))
+            if not common:
+                continue
+            last = max(k[0] for k in common)
+            for key in (k for k in common if k[0] == last):
+                diff, low, high = _runs.welch_interval(a[key], b[key])
+                same = [k for k in common if k[1:] == key[1:]]
+                resolved = sum(not (lo <= 0 <= hi) for _, lo, hi in
+                               (_runs.welch_interval(a[k], b[k]) for k in same))
+                lines.append(f"| {env} · {variant} | {key[1]} | {key[2]} | {last} | "
+                             f"{np.mean(a[key]):.3f} | {np.mean(b[key]):.3f} | "
+                             f"{diff:+.3f} [{low:+.3f}, {high:+.3f}] | {resolved} of {len(same)} |")
+    return "\n".join(lines) + "\n"
+
+
 @dataclasses.dataclass(frozen=True)
 class Args(_runs.Driver):
     """Paper Fig. 2: every (env, variant) cell trains its seeds together into OUT/ENV/VARIANT/
@@ -221,6 +265,9 @@ class Args(_runs.Driver):
     """epochs per cell in this call (a session's share); a rerun resumes"""
     report_only: bool = False
     """no training: fig2.md and the figures from the runs under OUT"""
+    compare_with: Path | None = None
+    """another grid's directory: the report ends with each cell's difference from the same
+    cell there (OUT − OTHER, Welch's 90 % interval), also written to OUT/compare.md"""
 
     def train(self) -> None:
         from jaml.cli import key_values
@@ -234,7 +281,14 @@ class Args(_runs.Driver):
                          key_values(self.learner_opt), self.stop_after)
 
     def report(self) -> str:
-        return report(self.out, self.envs, self.variants)
+        text = report(self.out, self.envs, self.variants)
+        if self.compare_with is None:
+            return text
+        if not self.compare_with.is_dir():
+            raise FileNotFoundError(f"--compare-with {self.compare_with}: no such grid directory")
+        table = compare(self.out, self.compare_with, self.envs, self.variants)
+        (self.out / "compare.md").write_text(table)
+        return text + "\n" + table
 
 
 def main(argv=None) -> int:

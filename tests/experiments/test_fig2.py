@@ -77,3 +77,34 @@ def test_groups_come_from_the_domains_metadata_not_the_names():
                                           "velocity": ["theta_dot", "x_dot"]}
     assert fig2.ld_groups("MeshOnIncline") == {"position": ["position"],
                                                "velocity": ["velocity"]}
+
+
+def test_compare_two_grids_cell_by_cell_with_welch_intervals(tmp_path):
+    """Group means of grid A minus grid B at their last common analysis; the interval is Welch's,
+    computed here from its closed form (Welch–Satterthwaite degrees of freedom)."""
+    from scipy import stats
+
+    a_theta, b_theta = [0.1, 0.2, 0.3], [0.5, 0.6, 0.8, 0.7]
+    for seed, t in enumerate(a_theta):
+        _write_run(tmp_path / "a" / "CartPole" / "PRED" / f"seed_{seed}", "PRED", seed,
+                   [t, 0.5, 0.1, 0.5])
+    for seed, t in enumerate(b_theta):
+        _write_run(tmp_path / "b" / "CartPole" / "PRED" / f"seed_{seed}", "PRED", seed,
+                   [t, 0.5, 0.1, 0.5])
+    _write_run(tmp_path / "a" / "CartPole" / "DSA" / "seed_0", "DSA", 0, [0.1] * 4)  # only in A
+
+    text = fig2.compare(tmp_path / "a", tmp_path / "b", ["CartPole"], ["PRED", "DSA"])
+
+    rows = [line.split(" | ") for line in text.splitlines() if line.startswith("| CartPole")]
+    assert len(rows) == 2  # PRED's position and velocity on π_rand; DSA is in one grid only
+    position = next(r for r in rows if r[2] == "position")
+    a, b = (np.array(a_theta) + 0.1) / 2, (np.array(b_theta) + 0.1) / 2  # mean(theta, x)
+    va, vb = a.var(ddof=1) / 3, b.var(ddof=1) / 4
+    dof = (va + vb) ** 2 / (va**2 / 2 + vb**2 / 3)
+    half = stats.t.ppf(0.95, dof) * math.sqrt(va + vb)
+    diff = a.mean() - b.mean()
+    assert position[3] == "20" and position[4] == f"{a.mean():.3f}"
+    assert position[6] == f"{diff:+.3f} [{diff - half:+.3f}, {diff + half:+.3f}]"
+    assert position[7] == "1 of 2 |"  # resolved at epoch 20, not at epoch 10 (all 0.9)
+    velocity = next(r for r in rows if r[2] == "velocity")
+    assert velocity[6] == "+0.000 [+0.000, +0.000]" and velocity[7] == "0 of 2 |"

@@ -1,22 +1,27 @@
-"""Test-session setup: two XLA:CPU devices, cheap XLA:CPU codegen and a shared XLA cache.
+"""Test-session setup: two XLA:CPU devices, cheap XLA codegen where compiling dominates, and a
+persistent XLA cache shared by the run's workers.
 
 Two host devices let the default suite run the multi-device code (runs split across a mesh,
-`tests/stream/test_stacked.py`) on a CPU-only machine; XLA reads its flags when the backend
-starts, so they are set before JAX is imported. Single-device code is unaffected: arrays live
-on device 0 unless a test shards them.
+`tests/stream/test_stacked.py`) on a CPU-only machine; XLA reads the flag when its backend
+starts, so it is set before JAX is imported. Single-device code is unaffected: arrays live on
+device 0 unless a test shards them.
 
-The suite's tests run small shapes for a few steps, so its wall time is XLA compilation, not
-execution: LLVM's backend optimisation level 0 (XLA:CPU only; HLO passes are untouched, so
-results are the same programs) cut the two-device stacked test from 234 s to 177 s with no step
-measurably slower. The persistent cache is shared by the xdist workers of one run (keyed by
-xdist's run id), so a program one worker compiled is read, not rebuilt, by the other.
+Most tests run small shapes for a few steps, so their time is XLA compilation: they compile
+with `jax_disable_most_optimizations` (LLVM backend level 0; the same HLO passes, so the same
+programs), which cut the learner tests from 240 s to 172 s. Modules that run long training
+loops are marked `xla_optimized` and compile at XLA's full level: at level 0 the relation
+learning tests took 185 s against 118 s. `JAML_TEST_XLA=optimized|fast` forces one setting for
+every module (to compare). The persistent cache is shared by the xdist workers of one run
+(keyed by xdist's run id), so a program one worker compiled is read, not rebuilt, by the other.
 """
 
 import os
 import tempfile
 
-_FLAGS = ("--xla_force_host_platform_device_count=2", "--xla_backend_optimization_level=0")
-os.environ["XLA_FLAGS"] = " ".join([os.environ.get("XLA_FLAGS", ""), *_FLAGS]).strip()
+import pytest
+
+_TWO_DEVICES = "--xla_force_host_platform_device_count=2"
+os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_TWO_DEVICES}".strip()
 
 import jax  # noqa: E402
 
@@ -27,7 +32,23 @@ _cache = (
     else tempfile.mkdtemp(prefix="jaml-xla-cache-")
 )
 # Each `relations.fit` builds fresh jitted closures; with a persistent cache the XLA
-# compilation of an identical program is reused across fits and across the run's workers.
+# compilation of an identical program is reused across fits and across the run's workers
+# (the cache key includes the optimisation setting).
 jax.config.update("jax_compilation_cache_dir", _cache)
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+_FORCED = os.environ.get("JAML_TEST_XLA")
+if _FORCED not in (None, "optimized", "fast"):
+    raise ValueError(f"JAML_TEST_XLA must be 'optimized' or 'fast', got {_FORCED!r}")
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _xla_optimization(request):
+    """Full XLA optimisation for modules marked `xla_optimized`, most of it off for the rest
+    (read at each compile, so it holds for what the module's fixtures and tests compile)."""
+    optimized = request.node.get_closest_marker("xla_optimized") is not None
+    if _FORCED:
+        optimized = _FORCED == "optimized"
+    jax.config.update("jax_disable_most_optimizations", not optimized)
+    yield

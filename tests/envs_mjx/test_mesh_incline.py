@@ -92,7 +92,7 @@ def test_batch_holds_object_i_mod_n_across_resets(env, rollout):
         assert np.all(np.isfinite(np.asarray(x, np.float32)))
 
 
-@pytest.mark.slow  # default-suite time; the MJX-vs-C and renderer checks stay default
+@pytest.mark.slow  # default-suite time; the batch, reset and sweep checks stay default
 def test_each_object_looks_different(env, reset, segment, tmp_path):
     # One key for every slot: same angle, mass, friction, textures and place; only the object
     # differs.
@@ -115,7 +115,7 @@ def test_each_object_looks_different(env, reset, segment, tmp_path):
     ).save(tmp_path / "mesh_incline_objects.png")  # to look at, with --basetemp
 
 
-@pytest.mark.slow  # default-suite time; the MJX-vs-C and renderer checks stay default
+@pytest.mark.slow  # default-suite time; the batch, reset and sweep checks stay default
 def test_texture_draw_varies_per_episode(env, reset, segment, rollout):
     # Per reset: 24 keys, one object; plank top and ground take the drawn pair's texture.
     states = reset(jax.random.split(jax.random.key(3), 24), jnp.zeros(24, jnp.int32))
@@ -140,6 +140,9 @@ def test_texture_draw_varies_per_episode(env, reset, segment, rollout):
     assert any(len(set(row)) > 1 for row in tids)
 
 
+# Slow (default-suite time): textures and meshes against mujoco.Renderer stay default through
+# tests/envs_mjx/test_rearrange.py (Franka meshes, tray texture) and test_render.py.
+@pytest.mark.slow
 def test_renderer_matches_mujoco_on_textured_plank_and_ground(env, reset):
     """Segmentation and colours against mujoco.Renderer at 64 x 64 for every object and several
     texture pairs. Mip-filtered surfaces differ from MuJoCo's mipmapped ones by a mean |rgb| of
@@ -222,6 +225,9 @@ def physics():
     return env, batch, run
 
 
+# Slow (default-suite time): test_domains.py's test_mjx_step_matches_c_mujoco[MeshOnIncline]
+# keeps MJX against C MuJoCo in the default suite for this domain.
+@pytest.mark.slow
 def test_mjx_matches_c_mujoco_for_every_object(physics):
     env, batch, run = physics
     k_steps = 5
@@ -261,7 +267,7 @@ def test_mass_constants_match_mj_setconst_for_every_object(physics):
             np.testing.assert_allclose(getattr(m, field), getattr(ref, field), rtol=1e-5)
 
 
-@pytest.mark.slow  # default-suite time; the MJX-vs-C and renderer checks stay default
+@pytest.mark.slow  # default-suite time; the batch, reset and sweep checks stay default
 def test_every_object_slides_down_a_frictionless_plank(physics):
     """Zero action and friction 0: s(t) = s0 + g sin(theta) t^2 / 2 along the plank, within the
     Euler error of test_domains' block check, for the face-resting objects; the others move

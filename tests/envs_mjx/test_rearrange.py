@@ -93,12 +93,20 @@ def test_contract_jit_vmap(name, arm):
 
 
 def _state_at(env, qpos, slot):
-    """(data, info) of env at qpos (no physics) for version slot `slot`."""
-    _, _, info = env._sample_reset(jax.random.key(0), slot)
-    info.pop("reset_action")
-    model = env.physics_model(info)
-    data = env._initial_data(model, jnp.asarray(qpos, jnp.float32), jnp.zeros(env.mj_model.nv))
-    return data, info
+    """(data, info) of env at qpos (no physics) for version slot `slot`, as one jitted program
+    (run eagerly, each of its hundreds of ops compiled apart: ~30 s of the test)."""
+
+    def at(qpos):
+        _, _, info = env._sample_reset(jax.random.key(0), slot)
+        info = {k: v for k, v in info.items() if k != "reset_action"}
+        return env._initial_data(env.physics_model(info), qpos, jnp.zeros(env.mj_model.nv)), info
+
+    return jax.jit(at)(jnp.asarray(qpos, jnp.float32))
+
+
+def _reward_done(env, data, info):
+    """(reward, done) of a step that ends at `data`, jitted like `_state_at`."""
+    return jax.jit(lambda d, i: env._reward_done(d, d, jnp.zeros(2), i)[:2])(data, info)
 
 
 def test_ld_state_and_reward_hand_computed():
@@ -119,7 +127,7 @@ def test_ld_state_and_reward_hand_computed():
         a = env._obj_qpos[k]
         qpos[a : a + 7] = [*p, *q]
     data, info = _state_at(env, qpos, 2)  # slot 2: version 2 (chef can, sugar box, pear, lemon)
-    ld = np.asarray(env._ld_state(data, info))
+    ld = np.asarray(jax.jit(env._ld_state)(data, info))
     want = [0.2, s(0.3), c(0.3), s(-1.2), c(-1.2)]
     want += [0.2, -0.4, 0.0, 0, -1, 0, 1, 0, 0, 0, 0, 1]  # turned 90 deg about z
     want += [2 * 0.65 / 0.9 - 1, 2 * 0.25 / 0.9 - 1, 2 * 0.1 / 0.25 - 1, *np.eye(3).ravel()]
@@ -130,7 +138,7 @@ def test_ld_state_and_reward_hand_computed():
     assert env.ld_state_names[5:8] == ("obj0_x", "obj0_y", "obj0_z")
     assert env.ld_state_names[8] == "obj0_r00" and env.ld_state_groups[8] == "orientation"
     # Reward: the can and the box aim at (0.2, -0.2), the pear and the lemon at (0.2, 0.2).
-    reward, done, _ = env._reward_done(data, data, jnp.zeros(2), info)
+    reward, done = _reward_done(env, data, info)
     dist = [np.hypot(0.11, 0.02), 0.0, min(np.hypot(0.4, 0.0), 1.0), np.hypot(0.65, 0.25)]
     np.testing.assert_allclose(float(reward), 1 - np.mean(dist), rtol=1e-6)
     assert bool(done)  # obj2 left the workspace (x > 0.45)
@@ -138,7 +146,7 @@ def test_ld_state_and_reward_hand_computed():
     geom = envs_mjx.make("RearrangeGeom", pixels="off")
     qpos[env._obj_qpos[2]] = 0.3
     data, info = _state_at(geom, qpos, 0)
-    reward, done, _ = geom._reward_done(data, data, jnp.zeros(2), info)
+    reward, done = _reward_done(geom, data, info)
     pos = [o[0] for o in objects]
     pos[2] = (0.3, 0.2, 0.0)
     dist = [min(np.hypot(p[0] - 0.2, p[1] - 0.2), 1.0) for p in pos]

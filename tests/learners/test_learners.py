@@ -155,18 +155,19 @@ def test_pred_static_part_is_shared_by_every_step_and_counted_once():
     variables = learners.init_train_state(learner, opt, jax.random.key(0),
                                           (frames, actions)).variables
     x, a = learner.check_batch(frames, actions)
-    out = learner.module.apply(variables, x, a, jax.random.key(1), train=True,
-                               mutable=["batch_stats"])[0]
+    # Jitted: run eagerly, every op of the model compiles apart.
+    out = jax.jit(lambda v: learner.module.apply(v, x, a, jax.random.key(1), train=True,
+                                                 mutable=["batch_stats"])[0])(variables)
     assert out.z.shape == (B, 3, 5)
     np.testing.assert_array_equal(out.z[:, 1:, :3], np.broadcast_to(out.z[:, :1, :3],
                                                                     (B, 2, 3)))
     assert not np.allclose(out.z[:, 0, 3:], out.z[:, 1, 3:])
-    (mu, logvar), _ = learner.module.apply(variables, x, a, True, method="posterior",
-                                           mutable=["batch_stats"])
+    (mu, logvar), _ = jax.jit(lambda v: learner.module.apply(
+        v, x, a, True, method="posterior", mutable=["batch_stats"]))(variables)
     kl = lambda m, lv: 0.5 * np.sum(np.exp(lv) + m**2 - 1.0 - lv, axis=-1)  # noqa: E731
     expected = kl(mu[:, 0, :3], logvar[:, 0, :3]) + kl(mu[..., 3:], logvar[..., 3:]).sum(-1)
     np.testing.assert_allclose(out.kl["kl"], expected, rtol=1e-5)
-    mu, _ = learner.module.apply(variables, x, a, False, method="posterior")
+    mu, _ = jax.jit(lambda v: learner.module.apply(v, x, a, False, method="posterior"))(variables)
     z = learner.encode(variables, frames, actions)
     np.testing.assert_allclose(z, np.concatenate([mu[:, 0, :3], mu[..., 3:].reshape(B, -1)],
                                                  -1), rtol=1e-6)

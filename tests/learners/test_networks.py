@@ -47,11 +47,14 @@ def test_bfloat16_convolutions_keep_float32_parameters_and_outputs():
                                                                        jnp.bfloat16), x),
                            (ConvDecoder((4, 4, 4, 4)), ConvDecoder((4, 4, 4, 4),
                                                                    compute_dtype=jnp.bfloat16), z)):
-        variables = f32.init(jax.random.key(0), inp, True)
-        assert jax.tree.leaves(jax.tree.map(lambda a: a.dtype, bf16.init(
-            jax.random.key(0), inp, True))) == [jnp.float32] * len(jax.tree.leaves(variables))
-        want, _ = f32.apply(variables, inp, True, mutable=["batch_stats"])
-        got, _ = bf16.apply(variables, inp, True, mutable=["batch_stats"])
+        # Jitted: run eagerly, every op of init and apply compiles apart.
+        init = lambda m: jax.jit(lambda k, x, m=m: m.init(k, x, True))  # noqa: E731
+        apply = lambda m: jax.jit(  # noqa: E731
+            lambda v, x, m=m: m.apply(v, x, True, mutable=["batch_stats"])[0])
+        variables = init(f32)(jax.random.key(0), inp)
+        assert jax.tree.leaves(jax.tree.map(lambda a: a.dtype, init(bf16)(
+            jax.random.key(0), inp))) == [jnp.float32] * len(jax.tree.leaves(variables))
+        want, got = apply(f32)(variables, inp), apply(bf16)(variables, inp)
         assert got.dtype == jnp.float32
         # Batch-normalised features of unit scale: bfloat16 rounding (2^-8 relative) of the
         # inputs and kernels moves them by a few hundredths at most.

@@ -17,7 +17,10 @@ FAST_COMPILE = {"xla_backend_optimization_level": 0}
 NAMES = ("theta", "s0", "v0", "a0", "s1", "v1")
 
 
-@pytest.fixture(scope="module", params=["geom-on-incline", "mesh-on-incline"])
+# The mesh preset draws through the same sampler as the geom one with another scene (its own
+# ~21 s compile): slow; tests/envs_mjx/test_mesh_incline.py and test_domains.py cover the scene.
+@pytest.fixture(scope="module", params=["geom-on-incline",
+                                        pytest.param("mesh-on-incline", marks=pytest.mark.slow)])
 def drawn(request):
     """(source, [rows(key 0), rows(key 0), rows(key 1)])."""
     src = sources.make(request.param)

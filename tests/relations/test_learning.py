@@ -16,6 +16,9 @@ from jaml.relations import losses
 from jaml.relations.data import prepare
 from jaml.relations.training import fit_syzygy
 
+# Thousands of training steps per test: compiled at XLA's full level (185 s → 118 s here).
+pytestmark = pytest.mark.xla_optimized
+
 N_FRESH = 20_000
 
 

@@ -13,6 +13,9 @@ loops are marked `xla_optimized` and compile at XLA's full level: at level 0 the
 learning tests took 185 s against 118 s. `JAML_TEST_XLA=optimized|fast` forces one setting for
 every module (to compare). The persistent cache is shared by the xdist workers of one run
 (keyed by xdist's run id), so a program one worker compiled is read, not rebuilt, by the other.
+Modules marked `first` are collected first: xdist's loadfile hands out whole modules in
+collection order, and the two-device stacked test (~3 min alone) ended the run on one worker
+while the other sat idle when it came last.
 """
 
 import os
@@ -52,3 +55,8 @@ def _xla_optimization(request):
         optimized = _FORCED == "optimized"
     jax.config.update("jax_disable_most_optimizations", not optimized)
     yield
+
+
+def pytest_collection_modifyitems(items):
+    """Modules marked `first` before the rest (a stable sort: the order within each is kept)."""
+    items.sort(key=lambda item: item.get_closest_marker("first") is None)

@@ -18,6 +18,10 @@ from envs_mjx.base import PixelsUnavailableWarning
 from envs_mjx.domains import incline
 from tests.envs_mjx.rollout_harness import FAST_COMPILE, Harness
 
+# One of the default suite's longest modules (a compile per domain): scheduled early, see
+# tests/conftest.py.
+pytestmark = pytest.mark.first
+
 B, T = 4, 200
 # What each rollout step records (tests/envs_mjx/rollout_harness.py).
 RECORD = ("ld_state", "obs", "reward", "done", "truncation", "qpos", "qvel", "ctrl",

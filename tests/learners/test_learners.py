@@ -13,6 +13,10 @@ from jaml import learners
 from jaml.relations.networks import Relation
 from jaml.relations.relation_set import RelationSet, penalty
 
+# One of the default suite's longest modules (a compile per learner): scheduled early, see
+# tests/conftest.py.
+pytestmark = pytest.mark.first
+
 B, A, LD = 2, 2, 2
 SMALL_CONV = {"conv_filters": (8, 8, 8, 8), "conv_features": 16, "deconv_filters": (8, 8, 8, 8)}
 # Per learner: tiny overrides, and its encode size worked out by hand (2·LD = 4 per VAE step).

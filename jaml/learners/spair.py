@@ -709,18 +709,22 @@ class SPAIRLearner(Learner):
 
     def boxes(self, variables, frames) -> tuple[jax.Array, jax.Array]:
         """frames uint8 [M, 64, 64, 3] → ([M, N, 4] boxes (x0, y0, x1, y1) in pixels, [M, N]
-        presence probabilities), from the posterior means (BatchNorm in eval mode)."""
+        presence probabilities), from the posterior means (BatchNorm in eval mode). One jitted
+        program (eagerly, the cell scan's ops would compile one by one)."""
+        return self._jit_boxes(variables, frames)
+
+    def _boxes(self, variables, frames):
         frames = jnp.asarray(frames)[:, None]
         x, a = self.check_batch(frames, jnp.zeros((frames.shape[0], 1, 1), jnp.float32))
         return self.module.apply(variables, x, a, method="pixel_boxes")
 
     @functools.cached_property
     def _jit_boxes(self):
-        return jax.jit(self.boxes)
+        return jax.jit(self._boxes)
 
     def draw_boxes(self, variables, frames, threshold: float = 0.5) -> np.ndarray:
         """uint8 [M, 64, 64, 3]: the frames with the boxes of present objects drawn in red."""
-        box_px, presence = self._jit_boxes(variables, frames)
+        box_px, presence = self.boxes(variables, frames)
         return draw_boxes(frames, box_px, presence, threshold)
 
 

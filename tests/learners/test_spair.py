@@ -438,7 +438,7 @@ def test_six_by_six_grid_shapes():
 def test_boxes_hook_decodes_the_encoded_where_means_and_draws_them(run):
     learner, (frames, actions) = run["learner"], run["data"]
     variables = run["state"].variables
-    box_px, presence = map(np.asarray, learner._jit_boxes(variables, frames[:, 0]))
+    box_px, presence = map(np.asarray, learner.boxes(variables, frames[:, 0]))
     assert box_px.shape == (B, 16, 4) and presence.shape == (B, 16)
     cells = np.asarray(jax.jit(learner.encode)(variables, frames, actions))[:, :-Q]
     cells = cells.reshape(B, 16, 4 + 1 + 1 + K)

@@ -130,6 +130,10 @@ class _RunDir:
             f.writelines(json.dumps(r) + "\n" for r in records)
         self.logs.analysis(self.epoch, records)
         _figures(self.history, self.out)
+        self.save(state)
+
+    def save(self, state: StreamState) -> None:
+        """An atomic checkpoint of `state` at the current epoch."""
         with _timed(self.seconds, "checkpoint"):
             checkpoint.save(self.manager, self.epoch, state)
 
@@ -235,6 +239,12 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                     r.targets.pop(0)
                     due.append((i, r))
             _analyse_together(stream, states, due)
+            # A run stopped by `stop_after` between analyses keeps its epochs: checkpointed
+            # here (no analysis), so the next call resumes where this one stopped.
+            for i, r in enumerate(group):
+                if (stop_after is not None and budget[id(r)] == 0 and r.status == "running"
+                        and r.targets and r.manager.latest_step() != r.epoch):
+                    r.save(jax.tree.map(lambda x, i=i: x[i], states))
             bar.set_postfix(ret=f"{_last_finite(metrics['episode_return'][:, 0]):.3g}",
                             loss=f"{_last_finite(metrics['learner/loss'][:, 0]):.4g}")
     except KeyboardInterrupt:

@@ -6,6 +6,7 @@ marked slow; the config checks and the checkpoint round trip run by default.
 
 import dataclasses
 import json
+import shutil
 
 import jax
 import jax.numpy as jnp
@@ -174,8 +175,12 @@ def _learner_params(out, config):
 def test_a_killed_run_resumes_to_the_result_of_an_uninterrupted_one(tmp_path):
     config = tiny()
     first = run_lib.run(config, tmp_path / "a", progress=False, stop_after=3)
-    assert first["status"] == "interrupted" and first["checkpoint_epoch"] == 2
-    # The epoch after the checkpoint was logged, then lost with the process: resume drops it.
+    # A deliberate stop between analyses (epochs 2 and 4) checkpoints where it stopped.
+    assert first["status"] == "interrupted" and first["checkpoint_epoch"] == 3
+    assert not (tmp_path / "a" / "recon" / "epoch_000003.png").exists()  # no analysis at 3
+    # A process killed before that save: its last checkpoint is epoch 2's analysis. The epoch
+    # after it was logged, then lost with the process: resume drops it.
+    shutil.rmtree(tmp_path / "a" / "checkpoints" / "3")
     assert [r["epoch"] for r in _records(tmp_path / "a" / "metrics.jsonl")] == [1, 2, 3]
     resumed = run_lib.run(config, tmp_path / "a", progress=False)
     straight = run_lib.run(config, tmp_path / "b", progress=False)

@@ -49,17 +49,26 @@ The variants share nothing, so on one GPU they can run as parallel processes (fi
         --variants $v & done; wait
     python -m jaml.experiments.fig3 --out runs/fig3 --report-only
 
-GPU time, modelled (Rearrange's stream has not been timed on a GPU): fig9's runs on one H100
-(benchmarks/RESULTS.md, MeshOnIncline, 64 envs × 10-step rollouts as here, 3 seeds stacked) took
-2.7 s per epoch and 38 s per run and analysis at 4096 / 4096 / 1024 sequences and 4000 regressor
-steps. Here the VAE trains 3 × 41K more frames per epoch (+1.4 s at the H100's measured 86K
-frames/s): ≈ 4 s × 300 epochs ≈ 20 min; SPAIR trains 3 × 3.2K frames per epoch, at an assumed
-10–30K frames/s (not measured): ≈ 15 min per grid; the 6 analyses of each of the 9 runs at the
-reference's sizes (≈ 2.5× fig9's data and steps) ≈ 95 s each, ≈ 85 min. In all ≈ 2.3 h on one
-H100 run one variant after another, over half of it analyses, before Rearrange's heavier physics
-and PPO's 50 (not 10) passes per epoch, which the model leaves out; about half that as parallel
-processes. `--eval-train 4096 --eval-rand 4096 --eval-curr 1024 --regressor-iterations 4000`
-(fig9's sizes) would cut the analyses to about 35 min.
+GPU time, measured on one H100 (2026-11-23, commits f2d0df1 / f84e8a3, jax 0.11.2; the three
+variants as parallel processes with fig9's analysis sizes `--eval-train 4096 --eval-rand 4096
+--eval-curr 1024 --regressor-iterations 4000`; from the calls' logs and the run files' times,
+since no call reached its end):
+  - start-up (tracing and compiling the epoch program on a fresh machine, the three processes
+    compiling at once on its 16 cores): 3.5–4 min before the first epoch runs;
+  - fill epochs (acting and PPO only): 64–75 s per 40 epochs of three seeds, ≈ 1.7 s per epoch;
+  - training epochs: ≈ 4.5 s (VAE_rpl) and ≈ 7.4 s (SPAIR 4×4) per epoch of three seeds, the
+    GPU shared by the three processes;
+  - the first analysis also compiles its programs (rollout start, rollout, encoder, regressor):
+    a lone SPAIR_4x4 process on a fresh machine had not finished it 265 s after its start; a
+    later analysis took ≈ 80 s, then ≈ 13 s more per seed (figures, checkpoint).
+At the default 300 epochs (78 fill, 222 training) and 6 analyses, that is ≈ 2.2 min of fill,
+≈ 27 min of training and ≈ 12 min of analyses after the start-up: ≈ 45 min for the three
+variants at once. A run cannot move between machines (its replay is far larger than what a
+call may carry), so it must finish within one machine's hold (here 30 min, in calls of at most
+10 min, each paying the start-up again unless the compilation cache of the previous call is
+kept: set JAX_COMPILATION_CACHE_DIR to a folder outside the checkout). On such a machine run
+one or two variants per hold, with `--stop-after` ending each call on an epoch the run reaches
+in time (a run stopped between analyses checkpoints where it stopped).
 """
 
 from __future__ import annotations

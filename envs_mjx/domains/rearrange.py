@@ -63,9 +63,8 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
-from envs_mjx.base import Env, EnvConfig, drawn_rgba
+from envs_mjx.base import Env, EnvConfig, drawn_rgba, physics_step
 from envs_mjx.domains._assets import ASSETS, asset
 from envs_mjx.domains.mesh_incline import _add_texture, _pad, _texture
 from envs_mjx.domains.mesh_object import load_object
@@ -571,7 +570,7 @@ class Rearrange(Env):
             torque = torque + data.qfrc_bias[:7]
         ctrl = jnp.clip(torque, -self._torque, self._torque)
         data = data.replace(ctrl=ctrl)
-        data = jax.lax.fori_loop(0, BULLET_SUBSTEPS, lambda _, d: mjx.step(model, d), data)
+        data = jax.lax.fori_loop(0, BULLET_SUBSTEPS, lambda _, d: physics_step(model, d), data)
         q = data.qpos[self._arm_qpos]
         qd = data.qvel[self._arm_qpos]
         over = (q < self._qlo) | (q > self._qhi)

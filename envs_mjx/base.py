@@ -15,6 +15,10 @@ Non-finite actions: inside jit, a step whose action has any NaN/Inf is skipped e
 returned state equals the input state (same physics, LD state, pixels, done, info), except that
 `reward` is 0 and `metrics["nonfinite_action"]` is 1. This mirrors the paper-era suite, where a NaN
 action returned the current observation without stepping, and loses no state.
+
+Diverged physics: a step whose new qpos or qvel holds a NaN/Inf keeps the input state too, with
+`reward` 0, `done` 1 and `info["truncation"]` 1 (the episode ends; auto-reset starts a fresh one),
+and `metrics["nonfinite_physics"]` 1, so a solver blow-up in one env never reaches a learner.
 """
 
 from __future__ import annotations
@@ -259,7 +263,8 @@ class Env(brax_base.Env):
         info = self._after_reset(data, info)
         ld = self._ld_state(data, info)
         _, _, metrics = self._reward_done(data, data, jnp.zeros(self.action_size), info)
-        metrics = {**jax.tree.map(jnp.zeros_like, metrics), "nonfinite_action": jnp.zeros(())}
+        metrics = {**jax.tree.map(jnp.zeros_like, metrics), "nonfinite_action": jnp.zeros(()),
+                   "nonfinite_physics": jnp.zeros(())}
         return State(
             pipeline_state=data,
             obs=ld,
@@ -295,14 +300,30 @@ class Env(brax_base.Env):
             obs=ld,
             reward=jnp.asarray(reward * self.config.reward_multiplier, jnp.float32),
             done=(terminated | truncated).astype(jnp.float32),
-            metrics={**metrics, "nonfinite_action": jnp.zeros(())},
+            metrics={**metrics, "nonfinite_action": jnp.zeros(()),
+                     "nonfinite_physics": jnp.zeros(())},
             info=info,
             pixels=self.pixels_fn(data, info),
             ld_state=ld,
         )
         new = jax.tree.map(lambda n, o: jnp.where(finite, n, o), new, state)
         metrics = {**new.metrics, "nonfinite_action": 1.0 - finite.astype(jnp.float32)}
-        return new.replace(reward=jnp.where(finite, new.reward, 0.0), metrics=metrics)
+        new = new.replace(reward=jnp.where(finite, new.reward, 0.0), metrics=metrics)
+        # Physics that diverged (a NaN or inf in qpos / qvel) must not reach a learner (one NaN
+        # observation poisons PPO's running normaliser, and with it every env's policy): the
+        # env keeps its previous, finite state and the episode ends as truncated (not a task
+        # termination, so a value bootstrap reads that finite state); auto-reset replaces it.
+        # Counted in metrics["nonfinite_physics"].
+        sane = jnp.all(jnp.isfinite(new.pipeline_state.qpos)) & jnp.all(
+            jnp.isfinite(new.pipeline_state.qvel))
+        kept = jax.tree.map(lambda n, o: jnp.where(sane, n, o), new, state)
+        info = {**kept.info, "truncation": jnp.where(sane, kept.info["truncation"], 1.0)}
+        return kept.replace(
+            reward=jnp.where(sane, kept.reward, 0.0),
+            done=jnp.where(sane, kept.done, 1.0),
+            info=info,
+            metrics={**new.metrics, "nonfinite_physics": 1.0 - sane.astype(jnp.float32)},
+        )
 
     # -- per-env model ----------------------------------------------------------------------------
 

@@ -18,6 +18,7 @@ STATE_FIELDS = {
     "done": lambda s: s.done,
     "truncation": lambda s: s.info["truncation"],
     "nonfinite": lambda s: s.metrics["nonfinite_action"],
+    "diverged": lambda s: s.metrics["nonfinite_physics"],
 }
 RECORD = ("ld_state", "reward", "done", "qpos", "qvel", "nonfinite")
 

@@ -25,7 +25,7 @@ pytestmark = pytest.mark.first
 B, T = 4, 200
 # What each rollout step records (tests/envs_mjx/rollout_harness.py).
 RECORD = ("ld_state", "obs", "reward", "done", "truncation", "qpos", "qvel", "ctrl",
-          "xfrc_applied", "nonfinite")
+          "xfrc_applied", "nonfinite", "diverged")
 
 
 # Config overrides per env for the shared harness. MeshOnIncline runs its flat domino: the default
@@ -440,3 +440,23 @@ def test_nonfinite_action_skips_the_step_and_is_flagged():
     # The next finite action steps again from the kept state.
     assert np.abs(traj["qpos"][4, 1] - traj["qpos"][3, 1]).max() > 0
     assert np.isfinite(traj["qpos"]).all()
+
+
+def test_diverged_physics_keeps_the_last_finite_state_and_ends_the_episode():
+    # Env 1 starts at a finite but absurd speed: its first substep overflows (the pole's
+    # velocity-product forces exceed float32), as a solver blow-up would.
+    h = harness("CartPole")
+    state0, actions, _, clean = h.random_run
+    data = state0.pipeline_state
+    state0 = state0.replace(pipeline_state=data.replace(qvel=data.qvel.at[1].set(1e30)))
+    _, traj = h.rollout(state0, actions)
+    assert traj["diverged"][0, 1] == 1 and traj["diverged"][0].sum() == 1
+    np.testing.assert_array_equal(traj["qpos"][0, 1], np.asarray(data.qpos[1]))
+    np.testing.assert_array_equal(traj["qvel"][0, 1], np.float32(1e30))
+    assert traj["done"][0, 1] == 1 and traj["truncation"][0, 1] == 1 and traj["reward"][0, 1] == 0
+    assert np.isfinite(traj["qpos"]).all() and np.isfinite(traj["ld_state"]).all()
+    # The other envs step exactly as without the fault.
+    for k in ("qpos", "ld_state", "reward", "done"):
+        np.testing.assert_array_equal(np.delete(traj[k], 1, axis=1), np.delete(clean[k], 1, axis=1))
+    assert clean["diverged"].sum() == 0
+

@@ -306,23 +306,20 @@ class Env(brax_base.Env):
             pixels=self.pixels_fn(data, info),
             ld_state=ld,
         )
-        new = jax.tree.map(lambda n, o: jnp.where(finite, n, o), new, state)
-        metrics = {**new.metrics, "nonfinite_action": 1.0 - finite.astype(jnp.float32)}
-        new = new.replace(reward=jnp.where(finite, new.reward, 0.0), metrics=metrics)
         # Physics that diverged (a NaN or inf in qpos / qvel) must not reach a learner (one NaN
         # observation poisons PPO's running normaliser, and with it every env's policy): the
         # env keeps its previous, finite state and the episode ends as truncated (not a task
         # termination, so a value bootstrap reads that finite state); auto-reset replaces it.
-        # Counted in metrics["nonfinite_physics"].
-        sane = jnp.all(jnp.isfinite(new.pipeline_state.qpos)) & jnp.all(
-            jnp.isfinite(new.pipeline_state.qvel))
-        kept = jax.tree.map(lambda n, o: jnp.where(sane, n, o), new, state)
-        info = {**kept.info, "truncation": jnp.where(sane, kept.info["truncation"], 1.0)}
-        return kept.replace(
-            reward=jnp.where(sane, kept.reward, 0.0),
-            done=jnp.where(sane, kept.done, 1.0),
-            info=info,
-            metrics={**new.metrics, "nonfinite_physics": 1.0 - sane.astype(jnp.float32)},
+        # A non-finite action keeps the previous state too, without ending the episode.
+        diverged = finite & ~(jnp.all(jnp.isfinite(data.qpos)) & jnp.all(jnp.isfinite(data.qvel)))
+        stepped = finite & ~diverged
+        new = jax.tree.map(lambda n, o: jnp.where(stepped, n, o), new, state)
+        return new.replace(
+            reward=jnp.where(stepped, new.reward, 0.0),
+            done=jnp.where(diverged, 1.0, new.done),
+            info={**new.info, "truncation": jnp.where(diverged, 1.0, new.info["truncation"])},
+            metrics={**new.metrics, "nonfinite_action": 1.0 - finite.astype(jnp.float32),
+                     "nonfinite_physics": diverged.astype(jnp.float32)},
         )
 
     # -- per-env model ----------------------------------------------------------------------------

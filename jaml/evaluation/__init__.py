@@ -3,6 +3,7 @@
     from jaml import evaluation
     evaluation.alignment_error(lat_tr, st_tr, lat_te, st_te)     # [D], training-std units
     evaluation.alignment_errors(lat_tr, st_tr, {"pi_curr": (l, s), "pi_rand": (l, s)})
+    evaluation.constant_errors(st_tr, {"pi_rand": s})            # [D]: a latent with no information
     evaluation.distortion(latents, states)                       # Var ρ over random pairs
     evaluation.principal_axis_error(R_true, R_hat)               # Rearrange rotation blocks
     evaluation.plot_alignment(history, "alignment.png"); evaluation.plot_distortion(...)
@@ -13,6 +14,7 @@ from jaml.evaluation.alignment import (
     RegressorConfig,
     alignment_error,
     alignment_errors,
+    constant_errors,
     fit_regressor,
     regressor_error,
     rotation_errors,
@@ -26,6 +28,7 @@ __all__ = [
     "RegressorConfig",
     "alignment_error",
     "alignment_errors",
+    "constant_errors",
     "distortion",
     "distortion_coefficients",
     "fit_regressor",

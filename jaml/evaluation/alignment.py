@@ -366,6 +366,44 @@ def alignment_errors_runs(latents_train, states_train, test_sets: Mapping[str, t
     return {name: errors[name] for name in [*test_sets, "validation"]}
 
 
+def constant_errors(states_train, test_states: Mapping[str, object],
+                    config: RegressorConfig | None = None, **overrides) -> dict[str, np.ndarray]:
+    """The errors of a prediction that ignores the latents: the level an alignment error is read
+    against (what a latent that encodes nothing of the state scores).
+
+    Every test row is predicted as the per-entry median of the training rows the regressor would
+    be fit on (after its validation split): the constant that minimises their L1 error. Scored
+    in the regressor's units (training-std units when `normalize`) and, with `rotation_starts`,
+    followed by each block's mean principal-axis error of that constant block (not the block
+    loss's own optimum: the median of rotation entries is the reference's regressor fed
+    uninformative latents, to first order). states_train [N, D], test_states {name: [Nt, D]}
+    → {name: [D] or [D + J]} numpy arrays.
+    """
+    config = _resolve(config, overrides)
+    y = np.asarray(states_train, np.float64)
+    if y.ndim != 2 or y.shape[0] < 1:
+        raise ValueError(f"states_train must be [N, D] with N ≥ 1, got shape {y.shape}")
+    starts = rotation.check_starts(config.rotation_starts, y.shape[1])
+    n_val = config.split(y.shape[0])
+    y_fit = y[n_val:] if y.shape[0] - n_val >= 1 else y
+    scale = y_fit.std(axis=0) + config.std_eps if config.normalize else np.ones(y.shape[1])
+    constant = np.median(y_fit, axis=0)
+    errors = {}
+    for name, states in test_states.items():
+        yt = np.asarray(states, np.float64)
+        if yt.ndim != 2 or yt.shape[1] != y.shape[1]:
+            raise ValueError(f"test_states[{name!r}] must be [Nt, {y.shape[1]}], got shape "
+                             f"{yt.shape}")
+        per_entry = np.mean(np.abs(yt - constant) / scale, axis=0)
+        if starts:
+            pred = np.broadcast_to(constant, yt.shape).astype(np.float32)
+            blocks = np.asarray(rotation.block_errors(jnp.asarray(pred),
+                                                      jnp.asarray(yt, jnp.float32), starts))
+            per_entry = np.concatenate([per_entry, blocks.mean(axis=0)])
+        errors[name] = per_entry.astype(np.float32)
+    return errors
+
+
 def _resolve(config: RegressorConfig | None, overrides: dict) -> RegressorConfig:
     known = {f.name for f in dataclasses.fields(RegressorConfig)}
     unknown = sorted(set(overrides) - known)

@@ -313,15 +313,16 @@ def collect(out: Path, variants) -> dict[str, list[list[dict]]]:
 
 
 def values_at(histories: list[list[dict]], step: int, test_set: str,
-              names: list[str]) -> list[float]:
+              names: list[str], field: str = "errors") -> list[float]:
     """Per seed, the mean error over `names` at `step` on `test_set` (seeds without that
     record, or whose record lacks one of the names, are left out: histories written before the
-    stream recorded objK_rotation have no orientation)."""
+    stream recorded objK_rotation have no orientation). field="baseline": the latent-free
+    constant's errors on the same rows (recorded since the analysis computes them)."""
     values = []
     for h in histories:
         record = next((r for r in h if r["step"] == step and r["test_set"] == test_set), None)
-        if record is not None and all(n in record["errors"] for n in names):
-            values.append(float(np.mean([record["errors"][n] for n in names])))
+        if record is not None and all(n in record.get(field, {}) for n in names):
+            values.append(float(np.mean([record[field][n] for n in names])))
     return values
 
 
@@ -462,7 +463,9 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
              "min(|M[i,2] − e_z[i]|, |M[i,2] + e_z[i]|), neither degrees nor radians: 0 when "
              "the major axes agree up to sign, 2/3 for perpendicular axes, 1/3 for a zero "
              "prediction), averaged over the objects; "
-             "– where the runs did not record it.",
+             "– where the runs did not record it. A \"constant prediction\" row (runs analysed "
+             "since the analysis records it) is what a latent with no information scores on the "
+             "same rows: every row predicted as the median of the regressor's training targets.",
              "", "The paper: \"VAE_rpl encoded angle of the main robot joint, location & partly "
              "orientation (major axis) of the largest objects. SPAIR encoded (rough) locations "
              "quickly, but did not improve with longer training (bounding boxes not tight).\"",
@@ -488,6 +491,12 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
             lines.append(f"| {variant} | {test_set} | "
                          + " | ".join(cell(v) if v else "–" for v in per_panel)
                          + f" | {last} | {len(per_panel[0])} |")
+            constant = [values_at(histories, last, test_set, panels[c], "baseline")
+                        for c in columns]
+            if any(constant):
+                lines.append(f"| {variant}: constant prediction | {test_set} | "
+                             + " | ".join(cell(v) if v else "–" for v in constant)
+                             + f" | {last} | {len(constant[0])} |")
     plot(runs, panels, out / "fig3.png")
     lines += ["", "![Fig. 3](fig3.png)", "", "## Per object", "",
               "Spheres are one colour: their rotation does not show in a frame.", "",

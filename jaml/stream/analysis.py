@@ -3,8 +3,10 @@
 Encode sequences from the replay (the regressor's training set) and from fresh rollouts of a
 random policy (π_rand, the same set at every analysis: a fixed key) and of the current policy
 (π_curr); fit a fresh regressor latents → LD state of each sequence's last input frame and report
-its per-dimension test error, plus the distortion ρ on π_rand. The functions take one run's
-(unstacked) `StreamState`, except `evaluate_runs`, which analyses R stacked runs at once.
+its per-dimension test error, the error of a constant prediction that ignores the latents (the
+training targets' median, `evaluation.constant_errors`: what the error is read against), and the
+distortion ρ on π_rand. The functions take one run's (unstacked) `StreamState`, except
+`evaluate_runs`, which analyses R stacked runs at once.
 
 Rotation blocks (Rearrange: the 9 row-major rotation entries of each object, the env's
 "orientation" LD group, `rotation_blocks`) are treated as the reference does (§5): the regressor
@@ -81,9 +83,12 @@ def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Ar
         *train, tests, seed=int(jax.random.randint(k_reg, (), 0, 2**31 - 1)),
         **_regressor_options(stream),
     )
+    baseline = evaluation.constant_errors(train[1], {k: st for k, (_, st) in tests.items()},
+                                          **_regressor_options(stream))
     lat, st = tests["pi_rand"]
     return {
         "errors": {k: np.asarray(v).tolist() for k, v in errors.items()},
+        "baseline": {k: v.tolist() for k, v in baseline.items()},
         "distortion": float(evaluation.distortion(lat, st[:, distortion_columns(stream)])),
     }
 
@@ -113,10 +118,15 @@ def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
         *train, tests, seeds=np.asarray(seeds).tolist(), **_regressor_options(stream),
     )
     errors = {k: np.asarray(v) for k, v in errors.items()}
+    train_states = np.asarray(train[1])
+    test_states = {k: np.asarray(st) for k, (_, st) in tests.items()}
     lat, st = tests["pi_rand"]
     columns = distortion_columns(stream)
     return [{
         "errors": {k: v[r].tolist() for k, v in errors.items()},
+        "baseline": {k: v.tolist() for k, v in evaluation.constant_errors(
+            train_states[r], {k: st[r] for k, st in test_states.items()},
+            **_regressor_options(stream)).items()},
         "distortion": float(evaluation.distortion(lat[r], st[r][:, columns])),
     } for r in range(len(seeds))]
 

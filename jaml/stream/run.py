@@ -4,7 +4,8 @@
     OUT/metrics.jsonl     one line per epoch (episode return, PPO and learner losses); "epoch"
                           counts epochs completed, as an analysis's "step" does
     OUT/history.jsonl     one record per analysis and test set (`jaml.evaluation.plots` format;
-                          Rearrange adds objK_rotation, `analysis.error_names`)
+                          Rearrange adds objK_rotation, `analysis.error_names`; "baseline":
+                          a latent-free constant's errors on the same rows)
     OUT/tensorboard/      the same scalars
     OUT/checkpoints/      Orbax: the whole StreamState (envs, PPO, learner, optimiser states,
                           replay, RNG key) as named arrays, written atomically after every
@@ -328,6 +329,9 @@ def _analyse(stream: Stream, state: StreamState, key, pi_rand_key, names, out: P
     # The held-out replay rows' error, for choices made without the test sets.
     validation = dict(zip(names, report["errors"]["validation"], strict=True))
     records = [r | {"validation": validation} for r in records]
+    # What a latent with no information scores on the same rows (`evaluation.constant_errors`).
+    records = [r | {"baseline": dict(zip(names, report["baseline"][r["test_set"]], strict=True))}
+               for r in records]
     truth, recon = analysis.reconstructions(stream, state, jax.random.fold_in(key, 7))
     if hasattr(stream.learner, "draw_boxes"):  # SPAIR: its boxes drawn over the true frames
         truth = stream.learner.draw_boxes(state.learner.variables, truth)

@@ -72,6 +72,37 @@ def test_noise_latents_score_the_median_predictor(data):
     err = np.asarray(evaluation.alignment_error(noise_train, s, noise_test, st, **FAST))
     assert abs(err.mean() - NORMAL_NOISE_LEVEL) < 0.04, err
     assert np.all(np.abs(err - NORMAL_NOISE_LEVEL) < 0.08), err
+    # The regressor fed noise scores what the latent-free constant scores on the same rows.
+    constant = evaluation.constant_errors(s, {"test": st}, **FAST)["test"]
+    np.testing.assert_allclose(err, constant, atol=0.05)
+
+
+def test_constant_errors_by_hand():
+    # 5 rows: the first (30 %, floored) is held out, the median of [1, 2, 3, 10] is 2.5.
+    y = np.array([[0.0], [1.0], [2.0], [3.0], [10.0]])
+    test = np.array([[0.0], [5.0]])  # |0 − 2.5| and |5 − 2.5|
+    raw = evaluation.constant_errors(y, {"t": test}, normalize=False)["t"]
+    np.testing.assert_allclose(raw, [2.5], rtol=1e-6)
+    std = math.sqrt(((1 - 4) ** 2 + (2 - 4) ** 2 + (3 - 4) ** 2 + (10 - 4) ** 2) / 4)
+    z = evaluation.constant_errors(y, {"t": test})["t"]  # training-std units by default
+    np.testing.assert_allclose(z, [2.5 / std], rtol=1e-5)
+
+
+def test_constant_errors_score_rotation_blocks_by_their_principal_axis():
+    identity = np.eye(3).reshape(1, 9)
+    quarter_turn_x = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float).reshape(1, 9)
+    train = np.repeat(identity, 10, axis=0)  # median block: the identity
+    errors = evaluation.constant_errors(
+        train, {"same": identity, "turned": quarter_turn_x}, normalize=False,
+        rotation_starts=(0,))
+    assert errors["same"].shape == (10,)  # 9 entries, then the block's principal-axis error
+    np.testing.assert_allclose(errors["same"], 0.0, atol=1e-7)
+    # The z axis turned onto −y: min(|M[i,2] − e_z[i]|, |M[i,2] + e_z[i]|) = (0, 1, 1) → 2/3.
+    np.testing.assert_allclose(errors["turned"][-1], 2 / 3, rtol=1e-6)
+    np.testing.assert_allclose(errors["turned"][:9],
+                               np.abs(quarter_turn_x - identity)[0], atol=1e-7)
+    with pytest.raises(ValueError, match=r"test_states\['bad'\] must be \[Nt, 9\]"):
+        evaluation.constant_errors(train, {"bad": np.zeros((2, 3))}, normalize=False)
 
 
 def test_half_the_state_is_recovered_per_dimension(data):

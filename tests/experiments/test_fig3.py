@@ -16,6 +16,7 @@ from jaml.evaluation import history_records
 from jaml.experiments import fig3
 
 T_90_2DOF = 2.9199856  # t(0.95, 2 dof): the 90 % half-width of 3 seeds is this · s / √3
+T_90_1DOF = 6.3137515  # t(0.95, 1 dof), for 2 seeds
 
 
 def test_groups_come_from_the_envs_metadata_and_names():
@@ -150,9 +151,10 @@ def _errors(q0, q1, obj_pos, axes=(0.5, 0.5, 0.5, 0.5), rot=0.9):
     return [values[n] for n in _names()]
 
 
-def _write_run(path, variant, seed, by_step, fill=2):
+def _write_run(path, variant, seed, by_step, fill=2, baseline=None):
     """A seed directory: config.json, history.jsonl with π_curr and π_rand records per step
-    (π_rand = π_curr + 0.1), a recon image per step."""
+    (π_rand = π_curr + 0.1; with `baseline`, every record's constant-prediction errors are that
+    value), a recon image per step."""
     learner = fig3.VARIANTS[variant][0]
     path.mkdir(parents=True)
     config = {**fig3.SCALE, "num_envs": 4, "replay_slots": 4 * fill, "epochs": 6,
@@ -163,6 +165,8 @@ def _write_run(path, variant, seed, by_step, fill=2):
         records += history_records(step, learner, {"pi_curr": errors,
                                                    "pi_rand": [e + 0.1 for e in errors]},
                                    _names(), run=seed)
+        if baseline is not None:
+            records = [r | {"baseline": dict.fromkeys(_names(), baseline)} for r in records]
         (path / "recon").mkdir(exist_ok=True)
         imsave(path / "recon" / f"epoch_{step:06d}.png", np.full((8, 16, 3), step, np.uint8))
     (path / "history.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
@@ -241,6 +245,22 @@ def test_report_averages_groups_per_seed_then_seeds_with_a_t_interval(fake_grid)
     assert "![SPAIR_4x4, seed_0, epoch 6](fig3_recon_SPAIR_4x4.png)" in text
     assert (fake_grid / "fig3_recon_SPAIR_4x4.png").read_bytes() == (
         fake_grid / "SPAIR_4x4" / "seed_0" / "recon" / "epoch_000006.png").read_bytes()
+
+
+def test_constant_prediction_rows_come_from_the_records_baselines(tmp_path):
+    for seed in range(2):
+        _write_run(tmp_path / "VAE_rpl" / f"seed_{seed}", "VAE_rpl", seed,
+                   {2: _errors(0.5, 0.5, [0.3] * 4)}, baseline=0.6 + 0.1 * seed)
+        _write_run(tmp_path / "SPAIR_4x4" / f"seed_{seed}", "SPAIR_4x4", seed,
+                   {2: _errors(0.5, 0.5, [0.3] * 4)})  # analysed before baselines existed
+    text = fig3.report(tmp_path)
+    head = "| variant | test set | arm joint angles"
+    row = _row(text, "VAE_rpl: constant prediction", "pi_rand", head)
+    level = np.array([0.6, 0.7])
+    half = T_90_1DOF * np.std(level, ddof=1) / math.sqrt(2)
+    assert row["main joint (q0)"] == f"{level.mean():.3f} ± {half:.3f}"
+    assert (row["epoch"], row["seeds"]) == ("2", "2")
+    assert "SPAIR_4x4: constant prediction" not in text
 
 
 def test_claims_table_pairs_seeds_within_a_variant_and_welch_between(fake_grid):
@@ -379,6 +399,8 @@ def test_tiny_runs_resume_and_report(tmp_path, variant):
     assert sorted({(r["step"], r["test_set"]) for r in history}) == [
         (2, "pi_curr"), (2, "pi_rand"), (4, "pi_curr"), (4, "pi_rand")]
     assert all(np.isfinite(list(r["errors"].values())).all() for r in history)
+    assert all(list(r["baseline"]) == list(r["errors"])
+               and np.isfinite(list(r["baseline"].values())).all() for r in history)
     # The stream records each object's principal-axis error after the LD entries.
     assert all(list(r["errors"])[-4:] == [f"obj{k}_rotation" for k in range(4)]
                for r in history)

@@ -174,6 +174,19 @@ def test_rearrange_rotation_blocks_are_scored_by_their_principal_axis(monkeypatc
         np.testing.assert_allclose(errors[len(names):], by_block, rtol=1e-4, err_msg=test_set)
         np.testing.assert_allclose(errors[:len(names)], np.abs(pred - ld).mean(axis=0),
                                    rtol=1e-4, atol=1e-6, err_msg=test_set)
+        if test_set != "validation":
+            # The latent-free level on the same rows: the fit rows' median (the last 40 of 56),
+            # blocks scored by the same principal-axis error.
+            constant = np.median(train[1][16:], axis=0)
+            baseline = np.asarray(report["baseline"][test_set])
+            np.testing.assert_allclose(baseline[:len(names)], np.abs(constant - ld).mean(axis=0),
+                                       rtol=1e-5, atol=1e-6, err_msg=test_set)
+            const_blocks = np.broadcast_to(constant, ld.shape)
+            np.testing.assert_allclose(baseline[len(names):], [float(np.mean(
+                rotation.principal_axis_error(ld[:, s:s + 9].reshape(-1, 3, 3),
+                                              const_blocks[:, s:s + 9].reshape(-1, 3, 3))))
+                for s in starts], rtol=1e-5, err_msg=test_set)
+    assert list(report["baseline"]) == ["pi_rand", "pi_curr"]
     # The records: the LD entries, then objK_rotation.
     records = evaluation.history_records(6, "VAE_rpl", {"pi_rand": report["errors"]["pi_rand"]},
                                          analysis.error_names(fake))
@@ -193,6 +206,8 @@ def test_rearrange_stacked_runs_get_the_rotation_errors_of_each_run_alone(monkey
             assert len(v) == len(analysis.error_names(fake))
             np.testing.assert_allclose(together[r]["errors"][k], v, rtol=1e-5, atol=1e-6,
                                        err_msg=k)
+        for k, v in alone["baseline"].items():
+            np.testing.assert_allclose(together[r]["baseline"][k], v, rtol=1e-6, err_msg=k)
     assert together[0]["errors"]["pi_rand"][-4:] != together[1]["errors"]["pi_rand"][-4:]
 
 

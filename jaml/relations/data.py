@@ -20,8 +20,19 @@ from jaml.sources.off_manifold import bounding_box, uniform_in_box
 log = logging.getLogger(__name__)
 
 
+class Data(NamedTuple):
+    """The arrays the samplers read: the user's rows (None for a sampler) and the box around the
+    data. Jitted code takes them as an argument and never closes over them, so its programs do
+    not depend on the data or the seed (the calibration sample that sets the box is drawn with
+    the fit's key) and the persistent compilation cache serves them to every later fit."""
+
+    rows: jax.Array | None  # [N, D]
+    low: jax.Array  # [D]
+    high: jax.Array  # [D]
+
+
 class Batches(NamedTuple):
-    """Pure samplers of [B, D] batches. `rows` is an argument, so jitted code never embeds it."""
+    """Pure samplers of [B, D] batches; the arrays they read come in as `data` (`Batches.data`)."""
 
     rows: jax.Array | None  # the user's data [N, D], or None for a sampler
     sampler: Callable[[jax.Array], jax.Array] | None
@@ -35,30 +46,33 @@ class Batches(NamedTuple):
     def dim(self) -> int:
         return int(self.low.shape[0])
 
-    def _noise(self, key, x):
+    @property
+    def data(self) -> Data:
+        """What the samplers below take as `data`."""
+        return Data(self.rows, self.low, self.high)
+
+    def _noise(self, key, x, data: Data):
         if self.noise_scale == 0.0:
             return x
-        return (
-            x + (jax.random.uniform(key, x.shape) - 0.5) * (self.high - self.low) * self.noise_scale
-        )
+        width = data.high - data.low
+        return x + (jax.random.uniform(key, x.shape) - 0.5) * width * self.noise_scale
 
-    def clean_on(self, key, rows, n: int | None = None) -> jax.Array:
+    def clean_on(self, key, data: Data, n: int | None = None) -> jax.Array:
         n = n or self.batch_size
         if self.sampler is not None:
             return self.sampler(key, n)
-        return rows[jax.random.randint(key, (n,), 0, rows.shape[0])]
+        return data.rows[jax.random.randint(key, (n,), 0, data.rows.shape[0])]
 
-    def on(self, key, rows, n: int | None = None) -> jax.Array:
+    def on(self, key, data: Data, n: int | None = None) -> jax.Array:
         """[n, D] on-manifold rows (with noise, if configured)."""
         k_draw, k_noise = jax.random.split(key)
-        return self._noise(k_noise, self.clean_on(k_draw, rows, n))
+        return self._noise(k_noise, self.clean_on(k_draw, data, n), data)
 
-    def off(self, key, n: int | None = None) -> jax.Array:
+    def off(self, key, data: Data, n: int | None = None) -> jax.Array:
         """[n, D] off-manifold rows: uniform in the data's box (with noise, if configured)."""
         k_draw, k_noise = jax.random.split(key)
-        return self._noise(
-            k_noise, uniform_in_box(k_draw, self.low, self.high, n or self.batch_size)
-        )
+        box = uniform_in_box(k_draw, data.low, data.high, n or self.batch_size)
+        return self._noise(k_noise, box, data)
 
 
 def _as_sampler(on_manifold):

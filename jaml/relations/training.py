@@ -160,12 +160,12 @@ def relation_trainer(
     optimizer = optax.adam(cfg.learning_rate)
 
     def draw(key, args):
-        rows = args[0]
+        data = args[0]
         k_on, k_off, k_thick, k_jit = jax.random.split(key, 4)
         thick = None
         if num_syz:  # syzygy push rounds only: skip the extra batch otherwise
-            thick = thicken(k_jit, batches.on(k_thick, rows), batches.low, batches.high, thickening)
-        return batches.on(k_on, rows), batches.off(k_off), thick
+            thick = thicken(k_jit, batches.on(k_thick, data), data.low, data.high, thickening)
+        return batches.on(k_on, data), batches.off(k_off, data), thick
 
     def train_step(state, batch, args):
         return optimizer_step(
@@ -180,7 +180,7 @@ def relation_trainer(
         )
 
     chunk = make_chunk(train_step, cfg.chunk_steps, draw)
-    return chunk, init_state(params, optimizer, key), (batches.rows, syz_params, rs.params)
+    return chunk, init_state(params, optimizer, key), (batches.data, syz_params, rs.params)
 
 
 def _fit_relation(
@@ -237,11 +237,11 @@ def fit_syzygy(
         holds = (loss * cfg.separation_ratio < scale) & (step >= min_steps)
         return loss, ({"residual": loss, "g_scale": scale}, holds)
 
-    def draw(key, rows):
+    def draw(key, data):
         k_on, k_jit = jax.random.split(key)
-        return thicken(k_jit, batches.on(k_on, rows), batches.low, batches.high, thickening)
+        return thicken(k_jit, batches.on(k_on, data), data.low, data.high, thickening)
 
-    def train_step(state, thick, rows):
+    def train_step(state, thick, data):
         return optimizer_step(
             state,
             objective,
@@ -259,9 +259,9 @@ def fit_syzygy(
     if callback is not None:
         report = lambda s, m, n: callback("syzygy", index, {"step": int(s.step), "steps": n, **m})  # noqa: E731
     chunk = make_chunk(train_step, min(cfg.chunk_steps, cfg.syzygy_steps), draw)
-    state = run_until_done(chunk, state, batches.rows, report)
+    state = run_until_done(chunk, state, batches.data, report)
     # Judge on fresh test data (Algorithm 1: "if f ≠ 0 on τ_off^test").
-    test = draw(k_test, batches.rows)
+    test = draw(k_test, batches.data)
     _, (metrics, _) = objective(state.params, jnp.asarray(min_steps), test)
     info = {k: float(v) for k, v in metrics.items()}
     found = info["residual"] * cfg.separation_ratio < info["g_scale"]
@@ -283,7 +283,7 @@ def choose_thickening(cfg, batches: Batches, rs: RelationSet, key) -> float:
         )
 
     k_on, k_jit = jax.random.split(key)
-    on = batches.on(k_on, batches.rows)
+    on = batches.on(k_on, batches.data)
     base = mean_distance(on)
     for level in THICKENING_LEVELS:
         wide = mean_distance(thicken(k_jit, on, batches.low, batches.high, level))
@@ -301,13 +301,13 @@ def record_means(cfg, batches: Batches, module, params, key):
     # an argument rather than baked-in constants: one program per relation width, which the
     # persistent compilation cache can serve again.
     @jax.jit
-    def means(key, rows, params):
+    def means(key, data, params):
         k_on, k_off = jax.random.split(key)
-        on = jnp.mean(jnp.abs(module.apply(params, batches.on(k_on, rows, n))))
-        off = jnp.mean(jnp.abs(module.apply(params, batches.off(k_off, n))))
+        on = jnp.mean(jnp.abs(module.apply(params, batches.on(k_on, data, n))))
+        off = jnp.mean(jnp.abs(module.apply(params, batches.off(k_off, data, n))))
         return on, off
 
-    on, off = jax.device_get(means(key, batches.rows, params))
+    on, off = jax.device_get(means(key, batches.data, params))
     return float(on), float(off)
 
 
@@ -322,16 +322,16 @@ def _pretrain(cfg, batches: Batches, module, params, prior: Callable, key):
         loss = jnp.mean(jnp.abs(module.apply(p, tau) - target))
         return loss, ({}, jnp.asarray(False))
 
-    def draw(key, rows):
+    def draw(key, data):
         k_on, k_off = jax.random.split(key)
-        return jnp.concatenate([batches.on(k_on, rows), batches.off(k_off)])
+        return jnp.concatenate([batches.on(k_on, data), batches.off(k_off, data)])
 
-    def train_step(state, tau, rows):
+    def train_step(state, tau, data):
         return optimizer_step(state, objective, optimizer, cfg.pretrain_steps, tau)
 
     state = init_state(params, optimizer, key)
     chunk = make_chunk(train_step, min(cfg.chunk_steps, cfg.pretrain_steps), draw)
-    return run_until_done(chunk, state, batches.rows).params
+    return run_until_done(chunk, state, batches.data).params
 
 
 def _stack(trees):

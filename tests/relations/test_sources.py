@@ -23,7 +23,7 @@ def test_ellipse_lies_on_hyperboloid_and_plane():
 
 def test_off_manifold_is_uniform_in_the_data_box():
     batches = prepare(sources.make("ellipse"), 1024, 0.0, jax.random.key(0), 4)
-    off = np.asarray(batches.off(jax.random.key(1), 20_000))
+    off = np.asarray(batches.off(jax.random.key(1), batches.data, 20_000))
     low, high = np.asarray(batches.low), np.asarray(batches.high)
     assert (off >= low).all() and (off <= high).all()
     np.testing.assert_allclose(off.mean(0), (low + high) / 2, atol=0.03 * (high - low).max())
@@ -160,7 +160,7 @@ def test_prepare_draws_a_sources_pool_once():
     assert calls == [300] and batches.sampler is None and batches.dim_names == Pooled.dim_names
     np.testing.assert_array_equal(np.asarray(batches.rows), rows)
     np.testing.assert_array_equal(np.asarray(batches.low), rows.min(0))
-    on = np.asarray(batches.on(jax.random.key(1), batches.rows))
+    on = np.asarray(batches.on(jax.random.key(1), batches.data))
     assert on.shape == (64, 4) and np.isin(on[:, 0], rows[:, 0]).all()
     Pooled.pool_size = 1
     with pytest.raises(ValueError, match="pool_size"):

@@ -165,3 +165,24 @@ def test_prepare_draws_a_sources_pool_once():
     Pooled.pool_size = 1
     with pytest.raises(ValueError, match="pool_size"):
         prepare(Pooled(), 64, 0.0, jax.random.key(0), 4)
+
+
+def test_a_fits_programs_do_not_depend_on_its_seed():
+    """The data box comes from a calibration sample drawn with the fit's key; the compiled
+    relation loop must take it as an argument, or every seed compiles its own program and the
+    persistent compilation cache never serves a later fit."""
+    from jaml import relations
+    from jaml.relations.networks import Relation
+    from jaml.relations.training import relation_trainer
+
+    cfg = relations.Config(chunk_steps=2)
+    texts = []
+    for seed in (0, 1):
+        batches = prepare(sources.make("ellipse"), 64, 0.1, jax.random.key(seed), 2)
+        params = Relation(4).init(jax.random.key(seed), jnp.zeros((1, 3)))
+        chunk, state, args = relation_trainer(
+            cfg, batches, relations.RelationSet.empty(3, 3, 1.5), params, jax.random.key(seed), 10)
+        texts.append(chunk.lower(state, args).as_text())
+    assert not np.array_equal(*(np.asarray(prepare(sources.make("ellipse"), 64, 0.1,
+                                                   jax.random.key(s), 2).low) for s in (0, 1)))
+    assert texts[0] == texts[1]

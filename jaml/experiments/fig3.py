@@ -68,7 +68,11 @@ call may carry), so it must finish within one machine's hold (here 30 min, in ca
 10 min, each paying the start-up again unless the compilation cache of the previous call is
 kept: set JAX_COMPILATION_CACHE_DIR to a folder outside the checkout). On such a machine run
 one or two variants per hold, with `--stop-after` ending each call on an epoch the run reaches
-in time (a run stopped between analyses checkpoints where it stopped).
+in time (a run stopped between analyses checkpoints where it stopped). Or start the processes
+detached (`setsid`) so that they outlive a call, and poll: that is how the committed short run
+(`docs/results/fig3.md`: 153 epochs analysed every 25, fig9's analysis sizes, commit 3e30304)
+ran, the three variants at once on one H100 in 1193 s (VAE_rpl), 1401 s (SPAIR 4×4) and
+1415 s (SPAIR 6×6) each, start-up included.
 """
 
 from __future__ import annotations

@@ -384,8 +384,7 @@ def constant_errors(states_train, test_states: Mapping[str, object],
     if y.ndim != 2 or y.shape[0] < 1:
         raise ValueError(f"states_train must be [N, D] with N ≥ 1, got shape {y.shape}")
     starts = rotation.check_starts(config.rotation_starts, y.shape[1])
-    n_val = config.split(y.shape[0])
-    y_fit = y[n_val:] if y.shape[0] - n_val >= 1 else y
+    y_fit = y[config.split(y.shape[0]):]  # the split holds out under 100 %: never empty
     scale = y_fit.std(axis=0) + config.std_eps if config.normalize else np.ones(y.shape[1])
     constant = np.median(y_fit, axis=0)
     errors = {}

@@ -491,16 +491,14 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
     for variant, histories in runs.items():
         last = _runs.last_common_step(histories)
         for test_set in _test_sets(histories):
-            per_panel = [values_at(histories, last, test_set, panels[c]) for c in columns]
-            lines.append(f"| {variant} | {test_set} | "
-                         + " | ".join(cell(v) if v else "–" for v in per_panel)
-                         + f" | {last} | {len(per_panel[0])} |")
-            constant = [values_at(histories, last, test_set, panels[c], "baseline")
-                        for c in columns]
-            if any(constant):
-                lines.append(f"| {variant}: constant prediction | {test_set} | "
-                             + " | ".join(cell(v) if v else "–" for v in constant)
-                             + f" | {last} | {len(constant[0])} |")
+            for label, field in ((variant, "errors"),
+                                 (f"{variant}: constant prediction", "baseline")):
+                per_panel = [values_at(histories, last, test_set, panels[c], field)
+                             for c in columns]
+                if field == "errors" or any(per_panel):  # constants: runs that recorded them
+                    lines.append(f"| {label} | {test_set} | "
+                                 + " | ".join(cell(v) if v else "–" for v in per_panel)
+                                 + f" | {last} | {len(per_panel[0])} |")
     plot(runs, panels, out / "fig3.png")
     lines += ["", "![Fig. 3](fig3.png)", "", "## Per object", "",
               "Spheres are one colour: their rotation does not show in a frame.", "",

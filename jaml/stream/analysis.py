@@ -83,12 +83,10 @@ def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Ar
         *train, tests, seed=int(jax.random.randint(k_reg, (), 0, 2**31 - 1)),
         **_regressor_options(stream),
     )
-    baseline = evaluation.constant_errors(train[1], {k: st for k, (_, st) in tests.items()},
-                                          **_regressor_options(stream))
     lat, st = tests["pi_rand"]
     return {
         "errors": {k: np.asarray(v).tolist() for k, v in errors.items()},
-        "baseline": {k: v.tolist() for k, v in baseline.items()},
+        "baseline": _constant_levels(stream, train[1], {k: t for k, (_, t) in tests.items()}),
         "distortion": float(evaluation.distortion(lat, st[:, distortion_columns(stream)])),
     }
 
@@ -119,16 +117,21 @@ def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
     )
     errors = {k: np.asarray(v) for k, v in errors.items()}
     train_states = np.asarray(train[1])
-    test_states = {k: np.asarray(st) for k, (_, st) in tests.items()}
+    test_states = {k: np.asarray(t) for k, (_, t) in tests.items()}
     lat, st = tests["pi_rand"]
     columns = distortion_columns(stream)
     return [{
         "errors": {k: v[r].tolist() for k, v in errors.items()},
-        "baseline": {k: v.tolist() for k, v in evaluation.constant_errors(
-            train_states[r], {k: st[r] for k, st in test_states.items()},
-            **_regressor_options(stream)).items()},
+        "baseline": _constant_levels(stream, train_states[r],
+                                     {k: t[r] for k, t in test_states.items()}),
         "distortion": float(evaluation.distortion(lat[r], st[r][:, columns])),
     } for r in range(len(seeds))]
+
+
+def _constant_levels(stream: Stream, train_states, test_states: dict) -> dict:
+    """{test set: [D + J] list}: a latent-free constant's errors, in the regressor's units."""
+    levels = evaluation.constant_errors(train_states, test_states, **_regressor_options(stream))
+    return {k: v.tolist() for k, v in levels.items()}
 
 
 def distortion_columns(stream: Stream) -> np.ndarray:

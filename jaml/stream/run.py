@@ -326,11 +326,11 @@ def _analyse(stream: Stream, state: StreamState, key, pi_rand_key, names, out: P
     errors = {k: v for k, v in report["errors"].items() if k != "validation"}
     records = plots.history_records(epoch, stream.config.learner, errors, names,
                                     report["distortion"], run=stream.config.seed)
-    # The held-out replay rows' error, for choices made without the test sets.
+    # The held-out replay rows' error, for choices made without the test sets, and what a latent
+    # with no information scores on each test set's rows (`evaluation.constant_errors`).
     validation = dict(zip(names, report["errors"]["validation"], strict=True))
-    records = [r | {"validation": validation} for r in records]
-    # What a latent with no information scores on the same rows (`evaluation.constant_errors`).
-    records = [r | {"baseline": dict(zip(names, report["baseline"][r["test_set"]], strict=True))}
+    records = [r | {"validation": validation,
+                    "baseline": dict(zip(names, report["baseline"][r["test_set"]], strict=True))}
                for r in records]
     truth, recon = analysis.reconstructions(stream, state, jax.random.fold_in(key, 7))
     if hasattr(stream.learner, "draw_boxes"):  # SPAIR: its boxes drawn over the true frames

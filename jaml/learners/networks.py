@@ -5,7 +5,6 @@ Shapes: N frames (B·T flattened), B batch, T time, F conv feature, Z latent.
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Sequence
 
@@ -31,50 +30,90 @@ def _xla_conv(x, kernel, strides, padding):
     return lax.conv_general_dilated(x, kernel, strides, padding, dimension_numbers=_NHWC)
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=(2, 3))
-def _conv_gemm_grad(x, kernel, strides, padding):
-    return _xla_conv(x, kernel, strides, padding)
+def _swap_io(kernel: jax.Array) -> jax.Array:
+    """[kh, kw, I, O] → [kh, kw, O, I]: the adjoint map's kernel (k4 s2 p1 conv ↔ its transpose)."""
+    return kernel.transpose(0, 1, 3, 2)
 
 
-def _conv_gemm_grad_fwd(x, kernel, strides, padding):
-    return _xla_conv(x, kernel, strides, padding), (x, kernel)
+def _halving_kernel_grad(x: jax.Array, g: jax.Array) -> jax.Array:
+    """x [N, 2H, 2W, C], g [N, H, W, O] → [4, 4, C, O]: Σ_{n,m} x_pad[n, 2m + k]ᵀ g[n, m].
 
-
-def _conv_gemm_grad_bwd(strides, padding, res, g):
-    """The input gradient is XLA's own; the kernel gradient is one matmul per kernel tap.
-
-    XLA:CPU computes a kernel gradient as a convolution whose "kernel" is the whole output
-    gradient, on a path 3–10× slower than PyTorch's (at batch 256 the decoder's 16×16 → 32×32
-    layer took 10–17 s against 1.3 s). Here dW[i, j] = Σ_{n,h,w} x_pad[n, s·h + i, s·w + j]ᵀ
-    g[n, h, w]: kh·kw matmuls [C, N·H'·W'] × [N·H'·W', O], on XLA:CPU's GEMM path.
+    The kernel gradient of the k4 s2 p1 convolution, as XLA computes it (a convolution whose
+    "kernel" is g); `_doubling`'s kernel gradient is the same sum with the roles swapped.
     """
+    kernel = jax.ShapeDtypeStruct((4, 4, x.shape[-1], g.shape[-1]), g.dtype)
+    return jax.linear_transpose(lambda k: _xla_conv(x, k, (2, 2), _HALVE), kernel)(g)[0]
+
+
+# For a k4 s2 p1 transposed convolution, output 2m + r sums input m − 1 + j times kernel tap
+# _TAPS[r][j] (4 = no tap): out[2m] = x[m−1]·w3 + x[m]·w1, out[2m+1] = x[m]·w2 + x[m+1]·w0.
+_TAPS = np.array([[3, 1, 4], [4, 2, 0]])
+# The same sums as 2×2 windows over x padded by one (x_pad[q] = x[q − 1]): output 2m + r is the
+# window at q = m + r, (x[m + r − 1], x[m + r]), times taps _TAPS2[j][r] = 3 − 2j − r.
+_TAPS2 = np.array([[3, 2], [1, 0]])
+
+
+def _phase_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
+    """[N, H, W, I] → [N, 2H, 2W, O]: the k4 s2 p1 transposed convolution as a 2×2 convolution
+    of x padded by one onto the four output phases ((H+1)(W+1)·16 taps against the sub-pixel
+    form's H·W·36), each phase read off at its own offset."""
+    n, h, w, i = x.shape
+    o = kernel.shape[-1]
+    k2 = kernel[_TAPS2[:, None, :, None], _TAPS2[None, :, None, :]]  # [jh, jw, rh, rw, I, O]
+    k2 = k2.transpose(0, 1, 4, 2, 3, 5).reshape(2, 2, i, 4 * o)
+    y = _xla_conv(x, k2, (1, 1), _HALVE).reshape(n, h + 1, w + 1, 2, 2, o)
+    y = jnp.stack([jnp.stack([y[:, rh:rh + h, rw:rw + w, rh, rw] for rw in (0, 1)], axis=3)
+                   for rh in (0, 1)], axis=2)  # [N, H, rh, W, rw, O]
+    return y.reshape(n, 2 * h, 2 * w, o)
+
+
+# The CPU pair: the k4 s2 p1 convolution ("halving") and its transpose ("doubling", PyTorch's
+# ConvTranspose2d(4, 2, 1)) are each other's input gradients, so each one's backward pass runs
+# the other's forward pass, and both kernel gradients are `_halving_kernel_grad`. XLA's own
+# input gradients are input-dilated convolutions, which its CPU backend runs on a slow generic
+# path (the encoder's 32×32 layer: 80 ms against 30 ms at 64 frames on the 2-core CPU).
+@jax.custom_vjp
+def _halving(x: jax.Array, kernel: jax.Array) -> jax.Array:
+    return _xla_conv(x, kernel, (2, 2), _HALVE)
+
+
+@jax.custom_vjp
+def _doubling(x: jax.Array, kernel: jax.Array) -> jax.Array:
+    return _phase_conv(x, kernel)
+
+
+def _halving_bwd(res, g):
     x, kernel = res
-    dx = jax.vjp(lambda x: _xla_conv(x, kernel, strides, padding), x)[1](g)
-    kh, kw, c, o = kernel.shape
-    (sh, sw), (ho, wo) = strides, g.shape[1:3]
-    xp = jnp.pad(x, ((0, 0), padding[0], padding[1], (0, 0)))
-    g2 = g.reshape(-1, o)
-    taps = [lax.dot_general(
-        xp[:, i:i + sh * (ho - 1) + 1:sh, j:j + sw * (wo - 1) + 1:sw].reshape(-1, c), g2,
-        (((0,), (0,)), ((), ())), preferred_element_type=jnp.float32)
-        for i in range(kh) for j in range(kw)]
-    return dx[0], jnp.stack(taps).reshape(kernel.shape).astype(kernel.dtype)
+    return _doubling(g, _swap_io(kernel)), _halving_kernel_grad(x, g)
 
 
-_conv_gemm_grad.defvjp(_conv_gemm_grad_fwd, _conv_gemm_grad_bwd)
+def _doubling_bwd(res, g):
+    x, kernel = res
+    return _halving(g, _swap_io(kernel)), _swap_io(_halving_kernel_grad(g, x))
+
+
+_halving.defvjp(lambda x, kernel: (_halving(x, kernel), (x, kernel)), _halving_bwd)
+_doubling.defvjp(lambda x, kernel: (_doubling(x, kernel), (x, kernel)), _doubling_bwd)
 
 
 def conv2d(x: jax.Array, kernel: jax.Array, strides: tuple[int, int] = (1, 1),
            padding=((0, 0), (0, 0)), cpu_kernels: bool | None = None) -> jax.Array:
     """[N, H, W, I] × [kh, kw, I, O] → [N, H', W', O]: `lax.conv_general_dilated`, NHWC/HWIO.
 
-    cpu_kernels (None: when the default backend is the CPU) keeps the forward pass and input
-    gradient but computes the kernel gradient as per-tap matmuls (`_conv_gemm_grad_bwd`); same
-    values to float32 rounding. Otherwise (the GPU) it is the plain convolution and its autodiff.
+    cpu_kernels (None: when the default backend is the CPU) computes the encoder's two kinds
+    differently, to float32 rounding: k4 s2 p1 on even sizes as `_halving` (its input gradient a
+    transposed-convolution forward pass), a kernel covering the whole input (k4 s1 p0 onto 1×1)
+    as one matmul. Other convolutions, and every convolution otherwise (the GPU), are the plain
+    convolution and its autodiff.
     """
     strides, padding = tuple(strides), tuple(tuple(p) for p in padding)
     if _use_cpu_kernels(cpu_kernels):
-        return _conv_gemm_grad(x, kernel, strides, padding)
+        (kh, kw), (h, w) = kernel.shape[:2], x.shape[1:3]
+        if (kh, kw, strides, padding) == (4, 4, (2, 2), _HALVE) and h % 2 == w % 2 == 0:
+            return _halving(x, kernel)
+        if (kh, kw) == (h, w) and padding == ((0, 0), (0, 0)):
+            out = x.reshape(x.shape[0], -1) @ kernel.reshape(-1, kernel.shape[-1])
+            return out.reshape(x.shape[0], 1, 1, -1)
     return _xla_conv(x, kernel, strides, padding)
 
 
@@ -108,7 +147,7 @@ class ConvEncoder(nn.Module):
     # The convolutions' input and kernel dtype (bfloat16: mixed precision; parameters, batch
     # norms and everything after them stay float32).
     compute_dtype: jnp.dtype = jnp.float32
-    # The CPU formulation of the kernel gradients (`conv2d`); None: when tracing for the CPU.
+    # The CPU formulation of its convolutions (`conv2d`); None: when tracing for the CPU.
     cpu_kernels: bool | None = None
 
     @nn.compact
@@ -128,14 +167,6 @@ class ConvEncoder(nn.Module):
         return nn.BatchNorm(use_running_average=not train, dtype=jnp.float32, name=name, **_BN)
 
 
-# For a k4 s2 p1 transposed convolution, output 2m + r sums input m − 1 + j times kernel tap
-# _TAPS[r][j] (4 = no tap): out[2m] = x[m−1]·w3 + x[m]·w1, out[2m+1] = x[m]·w2 + x[m+1]·w0.
-_TAPS = np.array([[3, 1, 4], [4, 2, 0]])
-# The same sums as 2×2 windows over x padded by one (x_pad[q] = x[q − 1]): output 2m + r is the
-# window at q = m + r, (x[m + r − 1], x[m + r]), times taps _TAPS2[j][r] = 3 − 2j − r.
-_TAPS2 = np.array([[3, 2], [1, 0]])
-
-
 def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,
                cpu_kernels: bool | None = None) -> jax.Array:
     """[N, H, W, I] → [N, 2H, 2W, O]: PyTorch's ConvTranspose2d(k=4, s=2, p=1), kernel [4, 4, I, O].
@@ -144,22 +175,16 @@ def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,
     input-dilated convolutions (its transposed-conv lowering and their gradients) on a slow
     generic path (the decoder's backward pass was ~10× slower that way). On the GPU (cpu_kernels
     False; None: by the default backend) a stride-1 3×3 convolution onto the four output phases,
-    then depth-to-space. On the CPU a 2×2 convolution of the padded input onto the four phases,
-    (H+1)(W+1)·16 taps against H·W·36, each phase read off at its own offset, with `conv2d`'s
-    matmul kernel gradient. compute_dtype (e.g. bfloat16) is the convolution's input and kernel
-    dtype; None keeps x's.
+    then depth-to-space. On the CPU `_doubling`: a 2×2 convolution of the padded input onto the
+    four phases (`_phase_conv`), whose input gradient is the k4 s2 p1 convolution's forward pass.
+    compute_dtype (e.g. bfloat16) is the convolution's input and kernel dtype; None keeps x's.
     """
     if compute_dtype is not None:
         x, kernel = x.astype(compute_dtype), kernel.astype(compute_dtype)
+    if _use_cpu_kernels(cpu_kernels):
+        return _doubling(x, kernel)
     n, h, w, i = x.shape
     o = kernel.shape[-1]
-    if _use_cpu_kernels(cpu_kernels):
-        k2 = kernel[_TAPS2[:, None, :, None], _TAPS2[None, :, None, :]]  # [jh, jw, rh, rw, I, O]
-        k2 = k2.transpose(0, 1, 4, 2, 3, 5).reshape(2, 2, i, 4 * o)
-        y = conv2d(x, k2, (1, 1), _HALVE, cpu_kernels=True).reshape(n, h + 1, w + 1, 2, 2, o)
-        y = jnp.stack([jnp.stack([y[:, rh:rh + h, rw:rw + w, rh, rw] for rw in (0, 1)], axis=3)
-                       for rh in (0, 1)], axis=2)  # [N, H, rh, W, rw, O]
-        return y.reshape(n, 2 * h, 2 * w, o)
     padded = jnp.pad(kernel, ((0, 1), (0, 1), (0, 0), (0, 0)))  # tap index 4 reads zeros
     taps = _TAPS.T  # [j, r]
     k3 = padded[taps[:, None, :, None], taps[None, :, None, :]]  # [jh, jw, rh, rw, I, O]

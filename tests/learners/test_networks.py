@@ -1,5 +1,6 @@
-"""Conv stacks: the sub-pixel transposed convolution against a loop of PyTorch's formula; the CPU
-formulation (matmul kernel gradients, 2×2 phase decoder) against XLA's convolutions and autodiff."""
+"""Conv stacks: the transposed convolution against a loop of PyTorch's formula; the CPU formulation
+(the k4 s2 p1 convolution and its transpose as each other's input gradients, the 1×1 conv as a
+matmul) against XLA's convolutions and autodiff."""
 
 import flax.linen as nn
 import jax
@@ -74,15 +75,15 @@ def _value_and_grads(f, x, w):
     return (y, *vjp(jnp.asarray(np.random.default_rng(1).normal(size=y.shape), y.dtype)))
 
 
-@pytest.mark.parametrize("k, strides, padding", [
-    (4, (2, 2), ((1, 1), (1, 1))),  # the encoder's k4 s2 p1
-    (4, (1, 1), ((0, 0), (0, 0))),  # its k4 s1 p0 onto 1×1
-    (2, (1, 1), ((1, 1), (1, 1))),  # the CPU decoder's 2×2 phase convolution
-    (3, (2, 1), ((0, 1), (2, 0))),  # uneven strides and paddings
+@pytest.mark.parametrize("shape, k, strides, padding", [
+    ((3, 8, 6, 5), 4, (2, 2), ((1, 1), (1, 1))),  # the encoder's k4 s2 p1 (even sizes: CPU form)
+    ((2, 4, 4, 5), 4, (1, 1), ((0, 0), (0, 0))),  # its k4 s1 p0 onto 1×1 (CPU: a matmul)
+    ((3, 8, 7, 5), 4, (2, 2), ((1, 1), (1, 1))),  # k4 s2 p1 on an odd width: XLA's own
+    ((3, 8, 7, 5), 3, (2, 1), ((0, 1), (2, 0))),  # uneven strides and paddings
 ])
-def test_cpu_conv_matches_xla_conv_and_autodiff(k, strides, padding):
+def test_cpu_conv_matches_xla_conv_and_autodiff(shape, k, strides, padding):
     rng = np.random.default_rng(0)
-    x = jnp.asarray(rng.normal(size=(3, 8, 7, 5)), jnp.float32)
+    x = jnp.asarray(rng.normal(size=shape), jnp.float32)
     w = jnp.asarray(rng.normal(size=(k, k, 5, 6)), jnp.float32)
 
     def ref(x, w):
@@ -98,14 +99,47 @@ def test_cpu_conv_matches_xla_conv_and_autodiff(k, strides, padding):
         np.testing.assert_allclose(g, r, rtol=1e-5, atol=1e-4, err_msg=what)
 
 
-def test_upsample2x_cpu_gradients_match_the_gpu_formulation():
+@pytest.mark.parametrize("shape", [(2, 4, 3, 5), (3, 2, 6, 5)])
+def test_upsample2x_cpu_matches_lax_conv_transpose_and_the_gpu_formulation(shape):
+    """Values and both gradients: against `lax.conv_transpose` (ConvTranspose2d(4, 2, 1) is its
+    input-dilated convolution with the spatially flipped kernel, padded by k − 1 − p = 2) and its
+    autodiff, and against the GPU's sub-pixel formulation."""
     rng = np.random.default_rng(0)
-    x = jnp.asarray(rng.normal(size=(2, 4, 3, 5)), jnp.float32)
+    x = jnp.asarray(rng.normal(size=shape), jnp.float32)
     w = jnp.asarray(rng.normal(size=(4, 4, 5, 6)), jnp.float32)
-    want = _value_and_grads(lambda x, w: upsample2x(x, w, cpu_kernels=False), x, w)
-    got = _value_and_grads(lambda x, w: upsample2x(x, w, cpu_kernels=True), x, w)
-    for g, r in zip(got, want, strict=True):
-        np.testing.assert_allclose(g, r, rtol=1e-5, atol=1e-4)
+
+    def lax_ref(x, w):
+        return jax.lax.conv_transpose(x, w[::-1, ::-1], (2, 2), ((2, 2), (2, 2)),
+                                      dimension_numbers=("NHWC", "HWIO", "NHWC"))
+
+    got = jax.jit(lambda x, w: _value_and_grads(
+        lambda x, w: upsample2x(x, w, cpu_kernels=True), x, w))(x, w)
+    for ref in (lax_ref, lambda x, w: upsample2x(x, w, cpu_kernels=False)):
+        want = _value_and_grads(ref, x, w)
+        for g, r, what in zip(got, want, ("output", "input gradient", "kernel gradient"),
+                              strict=True):
+            assert g.shape == r.shape and g.dtype == r.dtype, what
+            np.testing.assert_allclose(g, r, rtol=1e-5, atol=1e-4, err_msg=what)
+
+
+def test_cpu_formulation_second_derivatives_match_xla():
+    """Each custom backward pass is built from differentiable pieces: a gradient of a gradient
+    (through the k4 s2 p1 conv and its transpose) equals XLA's."""
+    rng = np.random.default_rng(0)
+    x = jnp.asarray(rng.normal(size=(2, 4, 4, 3)), jnp.float32)
+    w1 = jnp.asarray(rng.normal(size=(4, 4, 3, 5)), jnp.float32)
+    w2 = jnp.asarray(rng.normal(size=(4, 4, 5, 3)), jnp.float32)
+
+    def grad_norm(cpu):
+        def f(x, w1, w2):
+            h = conv2d(x, w1, (2, 2), ((1, 1), (1, 1)), cpu_kernels=cpu)
+            return jnp.sum(jnp.sin(upsample2x(h, w2, cpu_kernels=cpu)))
+        return lambda *a: sum(jnp.sum(g ** 2) for g in jax.grad(f, argnums=(0, 1, 2))(*a))
+
+    want = jax.grad(grad_norm(False), argnums=(0, 1, 2))(x, w1, w2)
+    got = jax.jit(jax.grad(grad_norm(True), argnums=(0, 1, 2)))(x, w1, w2)
+    for g, r in zip(got, want, strict=True):  # float32 sums of thousands of terms
+        np.testing.assert_allclose(g, r, rtol=1e-4, atol=1e-5 * float(jnp.max(jnp.abs(r))))
 
 
 def test_conv_module_is_nn_conv_without_bias():
@@ -123,21 +157,23 @@ def test_conv_module_is_nn_conv_without_bias():
                                atol=1e-2)
 
 
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.bfloat16])
 @pytest.mark.parametrize("stack", ["encoder", "decoder"])
-def test_cpu_stacks_are_the_same_functions_of_the_same_parameters(stack):
+def test_cpu_stacks_are_the_same_functions_of_the_same_parameters(stack, dtype):
     """Encoder and decoder (train mode, batch norms) with and without the CPU formulation:
-    one parameter tree, equal outputs and parameter gradients."""
+    one parameter tree, equal outputs and parameter gradients (float32 gradients either way;
+    with bfloat16 convolutions, equal to bfloat16 rounding)."""
     rng = np.random.default_rng(0)
     if stack == "encoder":
         inp = jnp.asarray(rng.uniform(size=(2, 64, 64, 3)), jnp.float32)
 
         def make(c):
-            return ConvEncoder((4, 4, 4, 4), 6, cpu_kernels=c)
+            return ConvEncoder((4, 4, 4, 4), 6, dtype, cpu_kernels=c)
     else:
         inp = jnp.asarray(rng.normal(size=(2, 5)), jnp.float32)
 
         def make(c):
-            return ConvDecoder((4, 4, 4, 4), cpu_kernels=c)
+            return ConvDecoder((4, 4, 4, 4), compute_dtype=dtype, cpu_kernels=c)
     variables = make(False).init(jax.random.key(0), inp, True)
     assert jax.tree.structure(make(True).init(jax.random.key(0), inp, True)) \
         == jax.tree.structure(variables)
@@ -149,6 +185,8 @@ def test_cpu_stacks_are_the_same_functions_of_the_same_parameters(stack):
     (g_xla, out_xla), (g_cpu, out_cpu) = (
         jax.jit(jax.grad(loss, has_aux=True), static_argnums=1)(variables["params"], make(c))
         for c in (False, True))
-    np.testing.assert_allclose(out_cpu, out_xla, rtol=1e-5, atol=1e-5)
-    jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-4),
-                 g_cpu, g_xla)
+    tol = 1e-4 if dtype == jnp.float32 else 0.05
+    np.testing.assert_allclose(out_cpu, out_xla, rtol=tol / 10, atol=tol / 10)
+    for a, b in zip(jax.tree.leaves(g_cpu), jax.tree.leaves(g_xla), strict=True):
+        assert a.dtype == b.dtype == jnp.float32
+        np.testing.assert_allclose(a, b, rtol=tol, atol=tol * max(1.0, float(jnp.max(jnp.abs(b)))))

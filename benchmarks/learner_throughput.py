@@ -4,14 +4,16 @@
         [--dtypes float32 bfloat16]
 
 Compile time is reported apart; steady state is the median over `reps` blocked repetitions of
-`steps` train steps each. If torch imports, the reference's network (suite_reference.md §4),
-written here in PyTorch, is timed the same way in the same run, on the same device, and the
-ratio recorded. The peer gets what a careful PyTorch user would switch on: cuDNN autotuning and
-TF32 matmuls (XLA already uses TF32 for float32 convolutions and matmuls on this class of GPU;
-PyTorch's convolutions use it by default, its matmuls only when asked). With bfloat16, jaml's
-convolutions compute in bfloat16 (`compute_dtype`; parameters, batch norms, heads, loss and Adam
-float32) and the peer runs its forward pass under `torch.autocast(dtype=torch.bfloat16)`, the
-mixed precision a PyTorch user would reach for (it also casts the MLP and heads).
+`steps` train steps each. jaml's step is compiled with `learners.compiler_options()` (on the CPU:
+convolutions on XLA's Eigen path, not YNNPACK; elsewhere XLA's defaults). If torch imports, the
+reference's network (suite_reference.md §4), written here in PyTorch, is timed the same way in
+the same run, on the same device, and the ratio recorded. The peer gets what a careful PyTorch
+user would switch on: cuDNN autotuning and TF32 matmuls (XLA already uses TF32 for float32
+convolutions and matmuls on this class of GPU; PyTorch's convolutions use it by default, its
+matmuls only when asked). With bfloat16, jaml's convolutions compute in bfloat16
+(`compute_dtype`; parameters, batch norms, heads, loss and Adam float32) and the peer runs its
+forward pass under `torch.autocast(dtype=torch.bfloat16)`, the mixed precision a PyTorch user
+would reach for (it also casts the MLP and heads).
 """
 
 from __future__ import annotations
@@ -56,7 +58,8 @@ def bench_jax(b: int, reps: int, steps: int, dtype: str = "float32") -> dict:
     batch = tuple(jax.device_put(x) for x in _batch(b))
     state = learners.init_train_state(learner, opt, jax.random.key(0), batch)
     t0 = time.perf_counter()
-    step = jax.jit(learners.make_train_step(learner, opt), donate_argnums=0).lower(
+    step = jax.jit(learners.make_train_step(learner, opt), donate_argnums=0,
+                   compiler_options=learners.compiler_options()).lower(
         state, batch, jax.random.key(0)).compile()
     compile_s = time.perf_counter() - t0
     holder = {"state": state, "i": 0}
@@ -187,6 +190,7 @@ def main(argv=None) -> int:
                        notes="Frames/s of one VAE_rpl training step (forward, backward, Adam) "
                              "on random 64×64 frames; the PyTorch peer is the same network in "
                              "the same run on the same device (cuDNN autotune, TF32); "
+                             "jaml's step compiled with learners.compiler_options(); "
                              "bfloat16 rows: jaml's convolutions in bfloat16, the peer under "
                              "torch.autocast(bfloat16).")
     return 0

@@ -4,7 +4,8 @@
     learner = learners.make("PRED", ld_dim=4)              # any of learners.ALL_LEARNERS
     opt = learners.default_optimizer(learner)
     state = learners.init_train_state(learner, opt, key, (frames, actions))
-    step = jax.jit(learners.make_train_step(learner, opt, latent_penalty=None))
+    step = jax.jit(learners.make_train_step(learner, opt, latent_penalty=None),
+                   compiler_options=learners.compiler_options())  # on the CPU: Eigen convs
     state, metrics = step(state, (frames, actions), key)    # frames uint8 [B, T, 64, 64, 3]
     z = learner.encode(state.variables, frames, actions)    # [B, learner.latent_size]
 """
@@ -19,8 +20,10 @@ from jaml.learners.pred import PREDConfig, make_pred
 from jaml.learners.spair import SPAIRConfig, make_spair
 from jaml.learners.svae import SVAEConfig, make_svae
 from jaml.learners.train import (
+    CPU_COMPILER_OPTIONS,
     Batch,
     TrainState,
+    compiler_options,
     default_optimizer,
     init_train_state,
     make_train_step,
@@ -72,6 +75,7 @@ def make(name: str, config: LearnerConfig | None = None, **overrides) -> Learner
 
 __all__ = [
     "ALL_LEARNERS",
+    "CPU_COMPILER_OPTIONS",
     "Batch",
     "DSAConfig",
     "LatentPenalty",
@@ -83,6 +87,7 @@ __all__ = [
     "SVAEConfig",
     "TrainState",
     "VAEConfig",
+    "compiler_options",
     "default_config",
     "default_optimizer",
     "init_train_state",

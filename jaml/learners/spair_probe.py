@@ -155,7 +155,8 @@ def train(overrides: dict | None = None, steps: int = 2000, batch: int = 16, see
     actions = np.zeros((batch, 1, 1), np.float32)
     first = toy_scenes(rng, batch, texture)
     state = learners.init_train_state(learner, opt, jax.random.key(seed), (first.frames, actions))
-    step_fn = jax.jit(learners.make_train_step(learner, opt))
+    step_fn = jax.jit(learners.make_train_step(learner, opt),
+                      compiler_options=learners.compiler_options())
     boxes_fn = jax.jit(learner.boxes)
     history, sums, count, t0 = [], {}, 0, time.perf_counter()
     scene = first

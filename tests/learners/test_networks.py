@@ -2,6 +2,8 @@
 (the k4 s2 p1 convolution and its transpose as each other's input gradients, the 1×1 conv as a
 matmul) against XLA's convolutions and autodiff."""
 
+import re
+
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
@@ -197,3 +199,31 @@ def test_cpu_elu_is_nn_elu_with_its_gradient_from_the_output():
     np.testing.assert_array_equal(elu(x, cpu_kernels=True), nn.elu(x))
     g = jax.vmap(jax.grad(lambda v: elu(v, cpu_kernels=True)))(x)
     np.testing.assert_allclose(g, jax.vmap(jax.grad(nn.elu))(x), rtol=1e-6, atol=1e-7)
+
+
+def _ynn_convolutions(hlo: str) -> int:
+    """How many convolutions in `hlo` (optimised HLO text) run inside YNNPACK fusions."""
+    called = set(re.findall(r'calls=(%[\w.\-]+)[^\n]*"__ynn_fusion"', hlo))
+    bodies = re.split(r"\n(?=\S)", hlo)  # one top-level computation per chunk
+    return sum(body.count(" convolution(") for body in bodies
+               if body.split(" ", 1)[0] in called)
+
+
+@pytest.mark.skipif(jax.default_backend() != "cpu", reason="CPU compile options")
+def test_cpu_compiler_options_put_the_convolutions_on_xla_s_own_path():
+    """`learners.compiler_options()` keeps the conv stacks' convolutions (forward, both gradients)
+    out of YNNPACK; the compiled program computes the same values."""
+    rng = np.random.default_rng(0)
+    x = jnp.asarray(rng.normal(size=(4, 16, 16, 32)), jnp.float32)
+    w = jnp.asarray(rng.normal(size=(4, 4, 32, 32)), jnp.float32)
+
+    def f(x, w):
+        return _value_and_grads(lambda x, w: upsample2x(conv2d(
+            x, w, (2, 2), ((1, 1), (1, 1)), cpu_kernels=True), w, cpu_kernels=True), x, w)
+
+    options = learners.compiler_options()
+    assert options == learners.CPU_COMPILER_OPTIONS
+    ours = jax.jit(f, compiler_options=options).lower(x, w).compile()
+    assert " convolution(" in ours.as_text() and _ynn_convolutions(ours.as_text()) == 0
+    for a, b in zip(ours(x, w), jax.jit(f)(x, w), strict=True):  # another summation order
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5 * float(jnp.max(jnp.abs(b))))

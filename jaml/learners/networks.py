@@ -19,6 +19,10 @@ _BN = {"momentum": 0.9, "epsilon": 1e-5}
 # PyTorch's k4 s2 p1 convolution halves the size.
 _HALVE = ((1, 1), (1, 1))
 _NHWC = ("NHWC", "HWIO", "NHWC")
+# Few channels: a kernel gradient over up to this many input channels is one patches matmul
+# (`_halving_kernel_grad`), a transposed convolution onto up to this many outputs one 2×2
+# convolution onto the four phases (`_phase_conv`).
+_FEW_CHANNELS = 4
 
 
 def _use_cpu_kernels(cpu_kernels: bool | None) -> bool:
@@ -38,10 +42,22 @@ def _swap_io(kernel: jax.Array) -> jax.Array:
 def _halving_kernel_grad(x: jax.Array, g: jax.Array) -> jax.Array:
     """x [N, 2H, 2W, C], g [N, H, W, O] → [4, 4, C, O]: Σ_{n,m} x_pad[n, 2m + k]ᵀ g[n, m].
 
-    The kernel gradient of the k4 s2 p1 convolution, as XLA computes it (a convolution whose
-    "kernel" is g); `_doubling`'s kernel gradient is the same sum with the roles swapped.
+    The kernel gradient of the k4 s2 p1 convolution; `_doubling`'s is the same sum with the
+    roles swapped. Few channels (the frames' 3): x's 4×4 patches [N·H·W, 16·C] times g, one
+    matmul (XLA's convolution transposes x to [C, …, N] and ran ~3× slower on the 2-core CPU);
+    otherwise as XLA computes it, a convolution whose "kernel" is g.
     """
-    kernel = jax.ShapeDtypeStruct((4, 4, x.shape[-1], g.shape[-1]), g.dtype)
+    n, h, w, o = g.shape
+    c = x.shape[-1]
+    if c <= _FEW_CHANNELS:
+        xp = jnp.pad(x, ((0, 0), (1, 1), (1, 1), (0, 0)))
+        s2d = xp.reshape(n, h + 1, 2, w + 1, 2, c).transpose(0, 1, 3, 2, 4, 5)
+        s2d = s2d.reshape(n, h + 1, w + 1, 4 * c)  # [N, H+1, W+1, (ph, pw, C)]
+        patches = jnp.concatenate([s2d[:, a:a + h, b:b + w] for a in (0, 1) for b in (0, 1)],
+                                  axis=-1).reshape(-1, 16 * c)  # [(N, H, W), (a, b, ph, pw, C)]
+        dk = lax.dot_general(patches, g.reshape(-1, o), (((0,), (0,)), ((), ())))
+        return dk.reshape(2, 2, 2, 2, c, o).transpose(0, 2, 1, 3, 4, 5).reshape(4, 4, c, o)
+    kernel = jax.ShapeDtypeStruct((4, 4, c, o), g.dtype)
     return jax.linear_transpose(lambda k: _xla_conv(x, k, (2, 2), _HALVE), kernel)(g)[0]
 
 
@@ -54,12 +70,22 @@ _TAPS2 = np.array([[3, 2], [1, 0]])
 
 
 def _phase_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
-    """[N, H, W, I] → [N, 2H, 2W, O]: the k4 s2 p1 transposed convolution as a 2×2 convolution
-    of x padded by one onto the four output phases ((H+1)(W+1)·16 taps against the sub-pixel
-    form's H·W·36), each phase read off at its own offset."""
+    """[N, H, W, I] → [N, 2H, 2W, O]: the k4 s2 p1 transposed convolution as 2×2 convolutions of
+    x onto the four output phases (16 taps per output, against the sub-pixel form's 36).
+
+    One convolution per phase (r_h, r_w), x padded by (1 − r, r), then interleaved; with few
+    output channels one convolution of x padded by one onto all four ((H+1)(W+1) windows), each
+    phase read off at its own offset, keeps the matmul wide (the last layer's O = 3: 5 against
+    21 ms at 64 frames; at H = 4, O = 128 the split form took 7 against 12 ms).
+    """
     n, h, w, i = x.shape
     o = kernel.shape[-1]
     k2 = kernel[_TAPS2[:, None, :, None], _TAPS2[None, :, None, :]]  # [jh, jw, rh, rw, I, O]
+    if o > _FEW_CHANNELS:
+        y = jnp.stack([jnp.stack([
+            _xla_conv(x, k2[:, :, rh, rw], (1, 1), ((1 - rh, rh), (1 - rw, rw)))
+            for rw in (0, 1)], axis=3) for rh in (0, 1)], axis=2)  # [N, H, rh, W, rw, O]
+        return y.reshape(n, 2 * h, 2 * w, o)
     k2 = k2.transpose(0, 1, 4, 2, 3, 5).reshape(2, 2, i, 4 * o)
     y = _xla_conv(x, k2, (1, 1), _HALVE).reshape(n, h + 1, w + 1, 2, 2, o)
     y = jnp.stack([jnp.stack([y[:, rh:rh + h, rw:rw + w, rh, rw] for rw in (0, 1)], axis=3)

@@ -79,6 +79,7 @@ def _value_and_grads(f, x, w):
 
 @pytest.mark.parametrize("shape, k, strides, padding", [
     ((3, 8, 6, 5), 4, (2, 2), ((1, 1), (1, 1))),  # the encoder's k4 s2 p1 (even sizes: CPU form)
+    ((3, 8, 6, 3), 4, (2, 2), ((1, 1), (1, 1))),  # ... on few channels (the frames')
     ((2, 4, 4, 5), 4, (1, 1), ((0, 0), (0, 0))),  # its k4 s1 p0 onto 1×1 (CPU: a matmul)
     ((3, 8, 7, 5), 4, (2, 2), ((1, 1), (1, 1))),  # k4 s2 p1 on an odd width: XLA's own
     ((3, 8, 7, 5), 3, (2, 1), ((0, 1), (2, 0))),  # uneven strides and paddings
@@ -86,7 +87,7 @@ def _value_and_grads(f, x, w):
 def test_cpu_conv_matches_xla_conv_and_autodiff(shape, k, strides, padding):
     rng = np.random.default_rng(0)
     x = jnp.asarray(rng.normal(size=shape), jnp.float32)
-    w = jnp.asarray(rng.normal(size=(k, k, 5, 6)), jnp.float32)
+    w = jnp.asarray(rng.normal(size=(k, k, shape[-1], 6)), jnp.float32)
 
     def ref(x, w):
         return jax.lax.conv_general_dilated(x, w, strides, padding,
@@ -101,14 +102,15 @@ def test_cpu_conv_matches_xla_conv_and_autodiff(shape, k, strides, padding):
         np.testing.assert_allclose(g, r, rtol=1e-5, atol=1e-4, err_msg=what)
 
 
-@pytest.mark.parametrize("shape", [(2, 4, 3, 5), (3, 2, 6, 5)])
-def test_upsample2x_cpu_matches_lax_conv_transpose_and_the_gpu_formulation(shape):
+@pytest.mark.parametrize("shape, out", [((2, 4, 3, 5), 6), ((3, 2, 6, 5), 6), ((2, 4, 3, 5), 3)])
+def test_upsample2x_cpu_matches_lax_conv_transpose_and_the_gpu_formulation(shape, out):
     """Values and both gradients: against `lax.conv_transpose` (ConvTranspose2d(4, 2, 1) is its
     input-dilated convolution with the spatially flipped kernel, padded by k − 1 − p = 2) and its
-    autodiff, and against the GPU's sub-pixel formulation."""
+    autodiff, and against the GPU's sub-pixel formulation; per-phase convolutions (6 outputs) and
+    the four phases in one (3, the frames')."""
     rng = np.random.default_rng(0)
     x = jnp.asarray(rng.normal(size=shape), jnp.float32)
-    w = jnp.asarray(rng.normal(size=(4, 4, 5, 6)), jnp.float32)
+    w = jnp.asarray(rng.normal(size=(4, 4, 5, out)), jnp.float32)
 
     def lax_ref(x, w):
         return jax.lax.conv_transpose(x, w[::-1, ::-1], (2, 2), ((2, 2), (2, 2)),

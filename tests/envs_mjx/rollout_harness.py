@@ -19,6 +19,7 @@ STATE_FIELDS = {
     "truncation": lambda s: s.info["truncation"],
     "nonfinite": lambda s: s.metrics["nonfinite_action"],
     "diverged": lambda s: s.metrics["nonfinite_physics"],
+    "contact_dist": lambda s: s.pipeline_state._impl.contact.dist,
 }
 RECORD = ("ld_state", "reward", "done", "qpos", "qvel", "nonfinite")
 

@@ -24,7 +24,7 @@ from mujoco.mjx._src import mesh as mjx_mesh
 import envs_mjx
 from envs_mjx import render
 from envs_mjx.domains import rearrange
-from tests.envs_mjx.rollout_harness import FAST_COMPILE, Harness
+from tests.envs_mjx.rollout_harness import FAST_COMPILE, RECORD, Harness
 
 B, T = 4, 10
 # The Franka scene's programs at optimisation level 0 compile faster but run pathologically slowly
@@ -40,7 +40,8 @@ def harness(name, arm) -> Harness:
     """One (domain, arm) env without reset physics, a jitted batch reset (one key) and a jitted
     batched T-step rollout of random actions."""
     env = envs_mjx.make(name, arm=arm, pixels="off", **NO_SETTLE)
-    return Harness(env, B, T, reset_batch=True, compiler_options=COMPILE_OPTIONS[arm])
+    return Harness(env, B, T, reset_batch=True, compiler_options=COMPILE_OPTIONS[arm],
+                   record=RECORD + ("contact_dist",))
 
 
 def _row(tree, i):
@@ -90,6 +91,17 @@ def check_contract(name, arm):
     )
     # Reward: per step (1 - mean min(distance, 1)) / 50.
     assert (traj["reward"] > 0).all() and (traj["reward"] <= 1 / 50).all()
+    check_contact_cap(env, traj["contact_dist"], "random rollout from reset")
+
+
+def check_contact_cap(env, dist, what):
+    """MJX keeps the `max_contacts` deepest contacts (RearrangeConfig): when fewer of the kept
+    ones touch (distance < 0, MJX's activation at margin 0), every contact it dropped was
+    further apart than one it kept, so none touched and the cap changed nothing."""
+    cap = env.config.max_contacts
+    assert dist.shape[-1] == cap, (dist.shape, cap)
+    touching = (dist < 0).sum(-1)
+    assert touching.max() < cap, f"{what}: {touching.max()} touching contacts fill the cap {cap}"
 
 
 # -- LD state and reward against hand-computed values --------------------------------------------
@@ -285,6 +297,7 @@ def check_mjx_matches_c(name, arm):
     state0, actions, _, _ = h.random_run
     state0 = resting_state(env, state0)
     _, traj = jax.tree.map(np.asarray, h.rollout(state0, actions))
+    check_contact_cap(env, traj["contact_dist"][:K], "rollout from rest")
     actions = np.asarray(actions)
     errs = []
     for i in range(B):
@@ -388,6 +401,8 @@ def test_bad_input_lists_valid_values():
         envs_mjx.make("RearrangeYCB", version=12, pixels="off")
     with pytest.raises(ValueError, match=r"version must be in .*got \[-1\]"):
         envs_mjx.make("RearrangeGeom", versions=(0, -1), pixels="off")
+    with pytest.raises(ValueError, match=r"max_contacts must be a positive int or None, got 0"):
+        envs_mjx.make("RearrangeGeom", max_contacts=0, pixels="off")
     env = harness("RearrangeGeom", "reacher").env
     state0, *_ = harness("RearrangeGeom", "reacher").random_run
     with pytest.raises(ValueError, match=r"action must have shape \(2,\), got \(7,\)"):

@@ -31,8 +31,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import harness
 from jaml.stream import build, for_env
+from jaml import learners
 from jaml.stream.loop import (
     _act_runs,
+    _compiled,
     _learn_step_runs,
     run_stacked_epochs,
     runs_mesh,
@@ -70,7 +72,8 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
         holder["s"], m = run_stacked_epochs(stream, holder["s"], epochs, mesh=mesh)
         return m
 
-    learn_runs = jax.jit(stream.learn_runs, donate_argnums=0)
+    learn_runs = jax.jit(stream.learn_runs, donate_argnums=0,
+                         compiler_options=learners.compiler_options())
 
     def learner_only():  # as the loop trains: one call per epoch (host loop: per step)
         s = holder["s"]
@@ -78,7 +81,7 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
         for k in jax.random.split(jax.random.PRNGKey(1), (epochs, runs)):
             if host_loop:
                 for step_keys in jax.vmap(stream.learn_keys)(k).swapaxes(0, 1):
-                    ls, _ = _learn_step_runs(stream, ls, s.replay, step_keys)
+                    ls, _ = _compiled(stream, _learn_step_runs, ls, s.replay, step_keys)
             else:
                 ls, _ = learn_runs(ls, s.replay, k)
         holder["s"] = s.replace(learner=ls)

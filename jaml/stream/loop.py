@@ -71,7 +71,8 @@ class Stream:
     optimizer: Any
     train_step: Any
     keep_fraction: float
-    # The per-device executables of the multi-device loop, by (device, input avals). Shared by
+    # Compiled programs: the multi-device loop's per device by (device, input avals), the
+    # others by (jitted function, input avals) (`_compiled`). Shared by
     # the Streams that `build` makes for one config's seeds (`dataclasses.replace` keeps it).
     programs: dict = dataclasses.field(default_factory=dict, repr=False)
 
@@ -315,7 +316,7 @@ _BLOCK = 32
 def _blocks_per_device(stream: Stream, mesh: Mesh, states: StreamState, n: int):
     """`_block` on each device's runs; the states stay sharded as they came."""
     if mesh.size == 1:
-        return _device_block(stream, states, jnp.asarray(n, jnp.int32))
+        return _compiled(stream, _device_block, states, jnp.asarray(n, jnp.int32))
     leaves, treedef = jax.tree.flatten(states)
     devices = list(mesh.devices.flat)
     args = {d: (treedef.unflatten([next(s.data for s in x.addressable_shards if s.device == d)
@@ -334,7 +335,8 @@ def _blocks_per_device(stream: Stream, mesh: Mesh, states: StreamState, n: int):
 
     def on(device):
         if device in lowered:
-            stream.programs[device, avals] = lowered[device].compile()
+            stream.programs[device, avals] = lowered[device].compile(
+                compiler_options=learners.compiler_options())
         return jax.block_until_ready(stream.programs[device, avals](*args[device]))
 
     with concurrent.futures.ThreadPoolExecutor(mesh.size) as pool:
@@ -349,6 +351,18 @@ def _blocks_per_device(stream: Stream, mesh: Mesh, states: StreamState, n: int):
     metrics = jax.tree.map(lambda *m: np.concatenate([np.asarray(x) for x in m], axis=1),
                            *(o[1] for o in outs))
     return new, metrics
+
+
+def _compiled(stream: Stream, fn, *args):
+    """`fn(stream, *args)` (a jit with the Stream static) through its executable for these
+    inputs, compiled once into `Stream.programs` with the learner's compiler options
+    (`learners.compiler_options()`: on the CPU convolutions take XLA's Eigen path, not
+    YNNPACK's, which ran the VAE's train step ~1.5x slower; XLA's defaults elsewhere)."""
+    key = (fn, tuple(jax.typeof(x) for x in jax.tree.leaves(args)))
+    if key not in stream.programs:
+        stream.programs[key] = fn.lower(stream, *args).compile(
+            compiler_options=learners.compiler_options())
+    return stream.programs[key](*args)
 
 
 def _block(stream: Stream, states: StreamState, n: jax.Array):
@@ -378,8 +392,8 @@ def _host_loop(stream: Stream, states: StreamState, n: int):
             keys = jax.vmap(stream.learn_keys)(k_learn)  # [R, learner_steps, 2]
             learner_state, steps = states.learner, []
             for i in range(stream.config.learner_steps):
-                learner_state, m = _learn_step_runs(stream, learner_state, states.replay,
-                                                    keys[:, i])
+                learner_state, m = _compiled(stream, _learn_step_runs, learner_state,
+                                             states.replay, keys[:, i])
                 steps.append(m)
             states = states.replace(learner=learner_state)
             learner_metrics = jax.tree.map(lambda *v: jnp.mean(jnp.stack(v), axis=0), *steps)

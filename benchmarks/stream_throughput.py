@@ -30,8 +30,8 @@ import jax
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import harness
-from jaml.stream import build, for_env
 from jaml import learners
+from jaml.stream import build, for_env
 from jaml.stream.loop import (
     _act_runs,
     _compiled,

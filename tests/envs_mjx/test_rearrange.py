@@ -41,7 +41,7 @@ def harness(name, arm) -> Harness:
     batched T-step rollout of random actions."""
     env = envs_mjx.make(name, arm=arm, pixels="off", **NO_SETTLE)
     return Harness(env, B, T, reset_batch=True, compiler_options=COMPILE_OPTIONS[arm],
-                   record=RECORD + ("contact_dist",))
+                   record=(*RECORD, "contact_dist"))
 
 
 def _row(tree, i):

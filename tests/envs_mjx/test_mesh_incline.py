@@ -37,7 +37,10 @@ FACE_RESTING = ("domino", "cereal", "bread")
 
 @pytest.fixture(scope="module")
 def env():
-    return envs_mjx.make("MeshOnIncline", image_size=SIZE)
+    # Episodes of 12 steps: the T-step rollout then swaps fresh resets into every slot whatever
+    # the physics does. The objects' own episode ends (sliding off) differ between machines:
+    # at one commit, 8 of 8 slots ended within 40 steps on one CI machine, 7 on another.
+    return envs_mjx.make("MeshOnIncline", image_size=SIZE, episode_length=12)
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +88,8 @@ def test_batch_holds_object_i_mod_n_across_resets(env, rollout):
         assert s.pixels.shape == (B, SIZE, SIZE, 3) and s.ld_state.shape == (B, 5)
     # Episodes ended during the rollout (fresh states from collect.reset were swapped in), and
     # every recorded frame's LD object id is the slot's object: MESH_OBJECTS index / 6.
-    assert float(episodes.finished) >= B and np.asarray(columns.starts[:, 1:]).any()
+    assert float(episodes.finished) >= B * (T // 12)
+    assert np.asarray(columns.starts[:, 1:]).any(axis=1).all(), "every slot was reset"
     want = np.asarray(env._objects.catalogue_id)[slots] / 6.0
     np.testing.assert_allclose(np.asarray(columns.ld[..., 1]), want[:, None].repeat(T + 1, 1))
     for x in (columns.ld, columns.frames, final.pipeline_state.qpos):

@@ -34,7 +34,6 @@ from jaml import learners
 from jaml.stream import build, for_env
 from jaml.stream.loop import (
     _act_runs,
-    _compiled,
     _learn_step_runs,
     run_stacked_epochs,
     runs_mesh,
@@ -81,7 +80,7 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
         for k in jax.random.split(jax.random.PRNGKey(1), (epochs, runs)):
             if host_loop:
                 for step_keys in jax.vmap(stream.learn_keys)(k).swapaxes(0, 1):
-                    ls, _ = _compiled(stream, _learn_step_runs, ls, s.replay, step_keys)
+                    ls, _ = _learn_step_runs(stream, ls, s.replay, step_keys)
             else:
                 ls, _ = learn_runs(ls, s.replay, k)
         holder["s"] = s.replace(learner=ls)

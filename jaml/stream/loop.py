@@ -21,6 +21,7 @@ from __future__ import annotations
 import collections
 import concurrent.futures
 import dataclasses
+import functools
 from typing import Any
 
 import jax
@@ -71,8 +72,7 @@ class Stream:
     optimizer: Any
     train_step: Any
     keep_fraction: float
-    # Compiled programs: the multi-device loop's per device by (device, input avals), the
-    # others by (jitted function, input avals) (`_compiled`). Shared by
+    # The per-device executables of the multi-device loop, by (device, input avals). Shared by
     # the Streams that `build` makes for one config's seeds (`dataclasses.replace` keeps it).
     programs: dict = dataclasses.field(default_factory=dict, repr=False)
 
@@ -316,7 +316,7 @@ _BLOCK = 32
 def _blocks_per_device(stream: Stream, mesh: Mesh, states: StreamState, n: int):
     """`_block` on each device's runs; the states stay sharded as they came."""
     if mesh.size == 1:
-        return _compiled(stream, _device_block, states, jnp.asarray(n, jnp.int32))
+        return _with_learner_options(_block)(stream, states, jnp.asarray(n, jnp.int32))
     leaves, treedef = jax.tree.flatten(states)
     devices = list(mesh.devices.flat)
     args = {d: (treedef.unflatten([next(s.data for s in x.addressable_shards if s.device == d)
@@ -353,16 +353,14 @@ def _blocks_per_device(stream: Stream, mesh: Mesh, states: StreamState, n: int):
     return new, metrics
 
 
-def _compiled(stream: Stream, fn, *args):
-    """`fn(stream, *args)` (a jit with the Stream static) through its executable for these
-    inputs, compiled once into `Stream.programs` with the learner's compiler options
-    (`learners.compiler_options()`: on the CPU convolutions take XLA's Eigen path, not
-    YNNPACK's, which ran the VAE's train step ~1.5x slower; XLA's defaults elsewhere)."""
-    key = (fn, tuple(jax.typeof(x) for x in jax.tree.leaves(args)))
-    if key not in stream.programs:
-        stream.programs[key] = fn.lower(stream, *args).compile(
-            compiler_options=learners.compiler_options())
-    return stream.programs[key](*args)
+@functools.cache
+def _with_learner_options(fn):
+    """`fn(stream, states, ...)` jitted (the Stream static, the states donated) with the
+    learner's compiler options (`learners.compiler_options()`: on the CPU convolutions take
+    XLA's Eigen path, not YNNPACK's, which ran the VAE's train step ~1.5x slower; XLA's defaults
+    elsewhere). Built at first use, not at import: the options depend on the backend."""
+    return jax.jit(fn, static_argnums=0, donate_argnums=1,
+                   compiler_options=learners.compiler_options())
 
 
 def _block(stream: Stream, states: StreamState, n: jax.Array):
@@ -378,7 +376,6 @@ def _block(stream: Stream, states: StreamState, n: jax.Array):
     return jax.lax.fori_loop(0, n, body, (states, buffers))
 
 
-_device_block = jax.jit(_block, static_argnums=0, donate_argnums=1)
 # For one device's shard of sharded states: its buffers are views of the sharded arrays, which
 # are not donated. Lowered and compiled explicitly, per device, into `Stream.programs`.
 _device_block_kept = jax.jit(_block, static_argnums=0)
@@ -392,8 +389,8 @@ def _host_loop(stream: Stream, states: StreamState, n: int):
             keys = jax.vmap(stream.learn_keys)(k_learn)  # [R, learner_steps, 2]
             learner_state, steps = states.learner, []
             for i in range(stream.config.learner_steps):
-                learner_state, m = _compiled(stream, _learn_step_runs, learner_state,
-                                             states.replay, keys[:, i])
+                learner_state, m = _learn_step_runs(stream, learner_state, states.replay,
+                                                    keys[:, i])
                 steps.append(m)
             states = states.replace(learner=learner_state)
             learner_metrics = jax.tree.map(lambda *v: jnp.mean(jnp.stack(v), axis=0), *steps)
@@ -430,8 +427,11 @@ def _act_runs(stream: Stream, states: StreamState):
     return jax.vmap(stream.act)(states)
 
 
-@jax.jit(static_argnums=0, donate_argnums=1)
 def _learn_step_runs(stream: Stream, learner_state, replay, keys):
+    return _with_learner_options(_vmapped_learn_step)(stream, learner_state, replay, keys)
+
+
+def _vmapped_learn_step(stream: Stream, learner_state, replay, keys):
     return jax.vmap(stream.learn_step)(learner_state, replay, keys)
 
 

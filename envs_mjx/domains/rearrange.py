@@ -63,13 +63,16 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+from mujoco import mjx
 
 from envs_mjx.base import Env, EnvConfig, drawn_rgba, physics_step
+from envs_mjx.c_physics import CPhysics
 from envs_mjx.domains._assets import ASSETS, asset
 from envs_mjx.domains.mesh_incline import _add_texture, _pad, _texture
 from envs_mjx.domains.mesh_object import load_object
 
 ARMS = ("reacher", "franka")
+PHYSICS = ("mjx", "c")
 VERSIONS = tuple(range(12))
 NUM_OBJECTS = 4
 WORKSPACE_LO = np.array([-0.45, -0.45, -0.05], np.float32)
@@ -204,6 +207,12 @@ class RearrangeConfig(EnvConfig):
       16 contacts at once with the reacher, 20 with the Franka; 32 leaves room for more. On the
       2-core CPU it cut an MJX substep of 256 reacher envs from 156 to 105 ms (the constraint
       solve from 112 to 43 ms; see docs/rearrange.md). None: every slot.
+    physics: "mjx" (MJX's JAX physics: any device, differentiable) or "c" (C MuJoCo's substeps
+      through `envs_mjx.c_physics`, a callback into `mujoco.rollout`'s thread pool: the fast
+      path on a CPU; each 2-substep Bullet step starts the solver cold; `max_contacts` does not
+      apply, C MuJoCo keeps every contact). Either way the env's step is one jittable function
+      and the pipeline state holds the positions, velocities and kinematics; with "c" its
+      contacts and constraint forces are not filled.
     """
 
     episode_length: int | None = 50
@@ -220,6 +229,7 @@ class RearrangeConfig(EnvConfig):
     max_faces: int = 200
     max_joint_velocity: float | None = 100.0
     max_contacts: int | None = 32
+    physics: str = "mjx"
 
 
 def default_config() -> RearrangeConfig:
@@ -239,6 +249,8 @@ class Rearrange(Env):
         bad = [v for v in versions if v not in VERSIONS]
         if bad or not versions:
             raise ValueError(f"version must be in {list(VERSIONS)}, got {bad or versions!r}")
+        if config.physics not in PHYSICS:
+            raise ValueError(f"physics must be one of {PHYSICS}, got {config.physics!r}")
         if config.max_contacts is not None and (
             isinstance(config.max_contacts, bool) or not isinstance(config.max_contacts, int)
             or config.max_contacts < 1
@@ -254,6 +266,7 @@ class Rearrange(Env):
         self._models = [self._compile(config, v) for v in versions]
         mj_model = self._models[0]
         self._check_structure()
+        self._c = CPhysics(self._models) if config.physics == "c" else None
         m = mj_model
         self._franka = config.arm == "franka"
         n_arm = 7 if self._franka else 2
@@ -527,8 +540,11 @@ class Rearrange(Env):
         actions = jnp.concatenate(
             [jnp.zeros((self.config.settle_steps, len(self._torque))), info.pop("reset_action")]
         )
-        data, _ = jax.lax.scan(lambda d, a: (self._bullet_step(model, d, a), None), data, actions)
-        return data, info
+        slot = info["version"]
+        data, _ = jax.lax.scan(
+            lambda d, a: (self._bullet_step(model, d, a, slot), None), data, actions
+        )
+        return self._refreshed(model, data), info
 
     def _franka_ik(self, rng):
         """Joint angles that put the gripper, pointing down, at a random point x, y ~U(-0.5, 0.5),
@@ -588,15 +604,20 @@ class Rearrange(Env):
 
     # -- stepping ---------------------------------------------------------------------------------
 
-    def _bullet_step(self, model, data, action):
-        """One reference Bullet step (10 ms): the arm's torque (franka: plus the bias), 2 MJX
-        substeps, then the software joint limits."""
+    def _bullet_step(self, model, data, action, slot):
+        """One reference Bullet step (10 ms): the arm's torque (franka: plus the bias), 2
+        substeps (MJX, or C MuJoCo with physics="c"), then the software joint limits."""
         torque = jnp.asarray(self._torque) * jnp.clip(action, -1.0, 1.0)
         if self._franka:
             torque = torque + data.qfrc_bias[:7]
         ctrl = jnp.clip(torque, -self._torque, self._torque)
         data = data.replace(ctrl=ctrl)
-        data = jax.lax.fori_loop(0, BULLET_SUBSTEPS, lambda _, d: physics_step(model, d), data)
+        if self._c is None:
+            data = jax.lax.fori_loop(
+                0, BULLET_SUBSTEPS, lambda _, d: physics_step(model, d), data
+            )
+        else:
+            data = self._c_substeps(model, data, slot)
         q = data.qpos[self._arm_qpos]
         qd = data.qvel[self._arm_qpos]
         over = (q < self._qlo) | (q > self._qhi)
@@ -608,11 +629,33 @@ class Rearrange(Env):
         qvel = data.qvel.at[self._arm_qpos].set(new_qd)
         return data.replace(qpos=qpos, qvel=qvel)
 
-    def _advance(self, model, data, action, info):
-        del info
-        return jax.lax.fori_loop(
-            0, self.config.repeats, lambda _, d: self._bullet_step(model, d, action), data
+    def _c_substeps(self, model, data, slot):
+        """The Bullet step's substeps in C MuJoCo. For the Franka, qfrc_bias is then the bias
+        the last substep computed, at the state before it, as mjx.step and mj_step leave it."""
+        out = self._c.step(
+            slot, data.qpos, data.qvel, data.ctrl, BULLET_SUBSTEPS, keep_previous=self._franka
         )
+        data = data.replace(
+            qpos=out[0], qvel=out[1], time=data.time + BULLET_SUBSTEPS * model.opt.timestep
+        )
+        if self._franka:
+            before = data.replace(qpos=out[2], qvel=out[3])
+            before = mjx.com_pos(model, mjx.kinematics(model, before))
+            before = mjx.rne(model, mjx.com_vel(model, before))
+            data = data.replace(qfrc_bias=before.qfrc_bias)
+        return data
+
+    def _refreshed(self, model, data):
+        """With physics="c": the poses the LD state, reward and pixels read, from qpos (MJX's
+        own substeps leave them current)."""
+        return data if self._c is None else self._kinematics(model, data)
+
+    def _advance(self, model, data, action, info):
+        slot = info["version"]
+        data = jax.lax.fori_loop(
+            0, self.config.repeats, lambda _, d: self._bullet_step(model, d, action, slot), data
+        )
+        return self._refreshed(model, data)
 
     # -- LD state, reward, done -------------------------------------------------------------------
 

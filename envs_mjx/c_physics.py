@@ -1,0 +1,131 @@
+"""C MuJoCo substeps inside a jitted, vmapped env step: the CPU physics backend.
+
+On a CPU, MJX's JAX physics is many times slower than C MuJoCo stepping the same model (the
+Rearrange scene: one MJX substep of 256 envs 105 ms on two cores, 256 x 8 C substeps 21 ms; see
+docs/rearrange.md). `CPhysics` steps a batch in C instead: `mujoco.rollout` (a C++ thread pool,
+one MjData per thread, each env with its own MjModel) called through `jax.pure_callback`, so the
+env's step stays one pure function that `jax.jit`, `jax.vmap` and `lax.scan` take as before. The
+renderer, the LD state, the reward and everything around the substeps stay JAX.
+
+What the callback carries across: qpos, qvel and the time (through MuJoCo's full-physics state);
+ctrl is held for the call's substeps. Not carried: the constraint solver's warm start (each call
+starts cold; the arms' test against a plain `mj_step` loop measures what that changes) and
+actuator activations (models with `na > 0` are refused). Only the positions and velocities come
+back: contacts, constraint forces and the derived quantities of the returned `mjx.Data` are not
+refreshed by the call (the env recomputes the kinematics it reads).
+
+Under `jax.vmap` the callback is called once with every batch axis (`vmap_method=
+"broadcast_all"`), so a batch of envs is one rollout across the pool's threads. On a GPU the
+callback copies the batch to the host and back each call: use it for CPU runs.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import threading
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
+
+
+class CPhysics:
+    """Steps envs in C MuJoCo: env i of a call uses `models[slot[i]]`.
+
+    models: one compiled MjModel per slot (every model the same sizes: nq, nv, nu, na).
+    nthread: the thread pool's size (default: the machine's CPU count).
+    """
+
+    def __init__(self, models: Sequence[mujoco.MjModel], nthread: int | None = None):
+        if not models:
+            raise ValueError("CPhysics needs at least one MjModel")
+        m = models[0]
+        for other in models[1:]:
+            sizes = [(a.nq, a.nv, a.nu, a.na) for a in (m, other)]
+            if sizes[0] != sizes[1]:
+                raise ValueError(f"CPhysics models differ in (nq, nv, nu, na): {sizes}")
+        if m.na:
+            raise ValueError(f"CPhysics does not carry actuator activations (model has na={m.na})")
+        self._models = list(models)
+        self.nq, self.nv, self.nu = m.nq, m.nv, m.nu
+        # The full-physics state vector is [time, qpos, qvel, (act), mocap, userdata, ...]; a
+        # fresh MjData's gives the parts not carried (mocap poses, equality flags) their defaults.
+        data = mujoco.MjData(m)
+        self._template = np.empty(mujoco.mj_stateSize(m, FULL))
+        mujoco.mj_getState(m, data, self._template, FULL)
+        self._nthread = max(1, nthread or os.cpu_count() or 1)
+        self._pool: rollout.Rollout | None = None  # built at the first call, not per env object
+        self._datas: list[mujoco.MjData] = []
+        self._lock = threading.Lock()
+
+    def __del__(self):
+        pool = getattr(self, "_pool", None)  # absent when __init__ raised
+        if pool is not None:
+            pool.close()
+
+    def step(
+        self, slot: jax.Array, qpos: jax.Array, qvel: jax.Array, ctrl: jax.Array, nstep: int,
+        keep_previous: bool = False,
+    ) -> tuple[jax.Array, ...]:
+        """(qpos, qvel) after `nstep` C substeps with `ctrl` held, for one env (any leading batch
+        axes under vmap). keep_previous: also (qpos, qvel) one substep before the end (the state
+        whose forward pass the last substep computed, e.g. for its bias forces)."""
+        if nstep < 1 or (keep_previous and nstep < 2):
+            raise ValueError(f"nstep must be >= {2 if keep_previous else 1}, got {nstep}")
+        for name, x, n in (("qpos", qpos, self.nq), ("qvel", qvel, self.nv),
+                           ("ctrl", ctrl, self.nu)):
+            if jnp.shape(x) != (n,):
+                raise ValueError(
+                    f"CPhysics.step: {name} must have shape ({n},), got {jnp.shape(x)}"
+                )
+        out = [
+            jax.ShapeDtypeStruct((self.nq,), jnp.float32),
+            jax.ShapeDtypeStruct((self.nv,), jnp.float32),
+        ]
+        host = functools.partial(self._host, nstep=nstep, keep_previous=keep_previous)
+        return jax.pure_callback(
+            host,
+            tuple(out * (2 if keep_previous else 1)),
+            jnp.asarray(slot, jnp.int32),
+            jnp.asarray(qpos, jnp.float32),
+            jnp.asarray(qvel, jnp.float32),
+            jnp.asarray(ctrl, jnp.float32),
+            vmap_method="broadcast_all",
+        )
+
+    def _host(self, slot, qpos, qvel, ctrl, *, nstep: int, keep_previous: bool):
+        # The callback receives jax Arrays: host numpy views from here on.
+        slot, qpos, qvel, ctrl = (np.asarray(x) for x in (slot, qpos, qvel, ctrl))
+        lead = qpos.shape[:-1]
+        n = int(np.prod(lead, dtype=np.int64))
+        slot = np.broadcast_to(np.asarray(slot), lead).reshape(n)
+        state = np.tile(self._template, (n, 1))
+        state[:, 1 : 1 + self.nq] = np.reshape(qpos, (n, self.nq))
+        state[:, 1 + self.nq : 1 + self.nq + self.nv] = np.reshape(qvel, (n, self.nv))
+        control = np.reshape(ctrl, (n, 1, self.nu)).astype(np.float64)
+        models = [self._models[s] for s in slot]
+        with self._lock:
+            if self._pool is None:
+                self._pool = rollout.Rollout(nthread=self._nthread)
+                self._datas = [mujoco.MjData(self._models[0]) for _ in range(self._nthread)]
+            # Checks skipped (every array is built here, C-contiguous float64), outputs given.
+            states = np.empty((n, nstep, len(self._template)))
+            sensors = np.empty((n, nstep, self._models[0].nsensordata))
+            self._pool.rollout(
+                models, self._datas, state, np.repeat(control, nstep, axis=1), nstep=nstep,
+                skip_checks=True, state=states, sensordata=sensors,
+            )
+        picks = [states[:, -1]] + ([states[:, -2]] if keep_previous else [])
+        result = []
+        for s in picks:
+            result.append(s[:, 1 : 1 + self.nq].astype(np.float32).reshape(*lead, self.nq))
+            result.append(
+                s[:, 1 + self.nq : 1 + self.nq + self.nv].astype(np.float32).reshape(*lead, self.nv)
+            )
+        return tuple(result)

@@ -11,8 +11,8 @@ What the callback carries across: qpos, qvel and the time (through MuJoCo's full
 ctrl is held for the call's substeps. Not carried: the constraint solver's warm start (each call
 starts cold; the arms' test against a plain `mj_step` loop measures what that changes) and
 actuator activations (models with `na > 0` are refused). Only the positions and velocities come
-back: contacts, constraint forces and the derived quantities of the returned `mjx.Data` are not
-refreshed by the call (the env recomputes the kinematics it reads).
+back, and on request the bias forces and the poses the caller reads (computed in C after the
+rollout): contacts and constraint forces are not returned.
 
 Under `jax.vmap` the callback is called once with every batch axis (`vmap_method=
 "broadcast_all"`), so a batch of envs is one rollout across the pool's threads. On a GPU the
@@ -62,6 +62,7 @@ class CPhysics:
         self._nthread = max(1, nthread or os.cpu_count() or 1)
         self._pool: rollout.Rollout | None = None  # built at the first call, not per env object
         self._datas: list[mujoco.MjData] = []
+        self._scratch_data: dict[int, mujoco.MjData] = {}
         self._lock = threading.Lock()
 
     def __del__(self):
@@ -71,27 +72,30 @@ class CPhysics:
 
     def step(
         self, slot: jax.Array, qpos: jax.Array, qvel: jax.Array, ctrl: jax.Array, nstep: int,
-        keep_previous: bool = False,
-    ) -> tuple[jax.Array, ...]:
-        """(qpos, qvel) after `nstep` C substeps with `ctrl` held, for one env (any leading batch
-        axes under vmap). keep_previous: also (qpos, qvel) one substep before the end (the state
-        whose forward pass the last substep computed, e.g. for its bias forces)."""
-        if nstep < 1 or (keep_previous and nstep < 2):
-            raise ValueError(f"nstep must be >= {2 if keep_previous else 1}, got {nstep}")
+        *, bias: bool = False,
+    ) -> dict[str, jax.Array]:
+        """`nstep` C substeps with `ctrl` held, for one env (any leading batch axes under vmap).
+
+        Returns {"qpos", "qvel"} of the final state; with `bias`, also "qfrc_bias" as the last
+        substep computed it (at the state one substep before the end, where `mj_step` and
+        `mjx.step` leave it), computed in C: MJX's own kinematics of the Franka scene run
+        pathologically slowly on a CPU (2.2 s for 64 envs).
+        """
+        if nstep < 1 or (bias and nstep < 2):
+            raise ValueError(f"nstep must be >= {2 if bias else 1}, got {nstep}")
         for name, x, n in (("qpos", qpos, self.nq), ("qvel", qvel, self.nv),
                            ("ctrl", ctrl, self.nu)):
             if jnp.shape(x) != (n,):
                 raise ValueError(
                     f"CPhysics.step: {name} must have shape ({n},), got {jnp.shape(x)}"
                 )
-        out = [
-            jax.ShapeDtypeStruct((self.nq,), jnp.float32),
-            jax.ShapeDtypeStruct((self.nv,), jnp.float32),
-        ]
-        host = functools.partial(self._host, nstep=nstep, keep_previous=keep_previous)
+        shapes = {"qpos": (self.nq,), "qvel": (self.nv,)}
+        if bias:
+            shapes["qfrc_bias"] = (self.nv,)
+        host = functools.partial(self._host, nstep=nstep, bias=bias)
         return jax.pure_callback(
             host,
-            tuple(out * (2 if keep_previous else 1)),
+            {k: jax.ShapeDtypeStruct(v, jnp.float32) for k, v in shapes.items()},
             jnp.asarray(slot, jnp.int32),
             jnp.asarray(qpos, jnp.float32),
             jnp.asarray(qvel, jnp.float32),
@@ -99,17 +103,47 @@ class CPhysics:
             vmap_method="broadcast_all",
         )
 
-    def _host(self, slot, qpos, qvel, ctrl, *, nstep: int, keep_previous: bool):
+    def poses(self, slot: jax.Array, qpos: jax.Array, names: Sequence[str]) -> dict[str, jax.Array]:
+        """MjData fields `names` (e.g. "geom_xpos", "cam_xmat") at qpos, from `mj_kinematics`,
+        `mj_comPos` and `mj_camlight` in C; rotation matrices [n, 3, 3] as mjx.Data holds them.
+        One env, any leading batch axes under vmap."""
+        if jnp.shape(qpos) != (self.nq,):
+            raise ValueError(
+                f"CPhysics.poses: qpos must have shape ({self.nq},), got {jnp.shape(qpos)}"
+            )
+        shapes = {name: self._pose_shape(name) for name in names}
+        return jax.pure_callback(
+            functools.partial(self._host_poses, names=tuple(names)),
+            {k: jax.ShapeDtypeStruct(v, jnp.float32) for k, v in shapes.items()},
+            jnp.asarray(slot, jnp.int32),
+            jnp.asarray(qpos, jnp.float32),
+            vmap_method="broadcast_all",
+        )
+
+    def _pose_shape(self, name: str) -> tuple[int, ...]:
+        value = getattr(self._scratch(0), name, None)
+        if not isinstance(value, np.ndarray) or name in ("qpos", "qvel", "qfrc_bias"):
+            raise ValueError(f"CPhysics.step: {name!r} is not a pose field of MjData")
+        return (len(value), 3, 3) if name.endswith("xmat") else value.shape
+
+    def _scratch(self, slot: int) -> mujoco.MjData:
+        """An MjData per slot's model, for the forward computations after a rollout."""
+        if slot not in self._scratch_data:
+            self._scratch_data[slot] = mujoco.MjData(self._models[slot])
+        return self._scratch_data[slot]
+
+    def _host(self, slot, qpos, qvel, ctrl, *, nstep: int, bias: bool):
         # The callback receives jax Arrays: host numpy views from here on.
         slot, qpos, qvel, ctrl = (np.asarray(x) for x in (slot, qpos, qvel, ctrl))
         lead = qpos.shape[:-1]
         n = int(np.prod(lead, dtype=np.int64))
-        slot = np.broadcast_to(np.asarray(slot), lead).reshape(n)
+        slot = np.broadcast_to(slot, lead).reshape(n)
         state = np.tile(self._template, (n, 1))
         state[:, 1 : 1 + self.nq] = np.reshape(qpos, (n, self.nq))
         state[:, 1 + self.nq : 1 + self.nq + self.nv] = np.reshape(qvel, (n, self.nv))
         control = np.reshape(ctrl, (n, 1, self.nu)).astype(np.float64)
         models = [self._models[s] for s in slot]
+        out = {}
         with self._lock:
             if self._pool is None:
                 self._pool = rollout.Rollout(nthread=self._nthread)
@@ -121,11 +155,34 @@ class CPhysics:
                 models, self._datas, state, np.repeat(control, nstep, axis=1), nstep=nstep,
                 skip_checks=True, state=states, sensordata=sensors,
             )
-        picks = [states[:, -1]] + ([states[:, -2]] if keep_previous else [])
-        result = []
-        for s in picks:
-            result.append(s[:, 1 : 1 + self.nq].astype(np.float32).reshape(*lead, self.nq))
-            result.append(
-                s[:, 1 + self.nq : 1 + self.nq + self.nv].astype(np.float32).reshape(*lead, self.nv)
-            )
-        return tuple(result)
+            if bias:
+                out["qfrc_bias"] = np.empty((n, self.nv))
+                for i in range(n):
+                    m, d = models[i], self._scratch(slot[i])
+                    mujoco.mj_setState(m, d, states[i, -2], FULL)
+                    mujoco.mj_kinematics(m, d)
+                    mujoco.mj_comPos(m, d)
+                    mujoco.mj_comVel(m, d)
+                    mujoco.mj_rne(m, d, 0, out["qfrc_bias"][i])
+        last = states[:, -1]
+        out["qpos"] = last[:, 1 : 1 + self.nq]
+        out["qvel"] = last[:, 1 + self.nq : 1 + self.nq + self.nv]
+        return {k: v.astype(np.float32).reshape(*lead, *v.shape[1:]) for k, v in out.items()}
+
+    def _host_poses(self, slot, qpos, *, names: tuple[str, ...]):
+        slot, qpos = np.asarray(slot), np.asarray(qpos)
+        lead = qpos.shape[:-1]
+        n = int(np.prod(lead, dtype=np.int64))
+        slot = np.broadcast_to(slot, lead).reshape(n)
+        qpos = np.reshape(qpos, (n, self.nq))
+        out = {name: np.empty((n, *self._pose_shape(name)), np.float32) for name in names}
+        with self._lock:
+            for i in range(n):
+                m, d = self._models[slot[i]], self._scratch(slot[i])
+                d.qpos[:] = qpos[i]
+                mujoco.mj_kinematics(m, d)
+                mujoco.mj_comPos(m, d)
+                mujoco.mj_camlight(m, d)
+                for name in names:
+                    out[name][i] = getattr(d, name).reshape(out[name].shape[1:])
+        return {k: v.reshape(*lead, *v.shape[1:]) for k, v in out.items()}

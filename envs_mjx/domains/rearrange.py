@@ -63,7 +63,6 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
 from envs_mjx.base import Env, EnvConfig, drawn_rgba, physics_step
 from envs_mjx.c_physics import CPhysics
@@ -73,6 +72,9 @@ from envs_mjx.domains.mesh_object import load_object
 
 ARMS = ("reacher", "franka")
 PHYSICS = ("mjx", "c")
+# What physics="c" brings back after an env step besides qpos / qvel: what the LD state, reward
+# (the Franka's end-effector site) and renderer (geom and camera poses) read.
+C_POSES = ("geom_xpos", "geom_xmat", "site_xpos", "cam_xpos", "cam_xmat")
 VERSIONS = tuple(range(12))
 NUM_OBJECTS = 4
 WORKSPACE_LO = np.array([-0.45, -0.45, -0.05], np.float32)
@@ -210,9 +212,9 @@ class RearrangeConfig(EnvConfig):
     physics: "mjx" (MJX's JAX physics: any device, differentiable) or "c" (C MuJoCo's substeps
       through `envs_mjx.c_physics`, a callback into `mujoco.rollout`'s thread pool: the fast
       path on a CPU; each 2-substep Bullet step starts the solver cold; `max_contacts` does not
-      apply, C MuJoCo keeps every contact). Either way the env's step is one jittable function
-      and the pipeline state holds the positions, velocities and kinematics; with "c" its
-      contacts and constraint forces are not filled.
+      apply, C MuJoCo keeps every contact). Either way the env's step is one jittable function;
+      with "c" the pipeline state holds qpos, qvel and the geom, site and camera poses (of the
+      final state), not the contacts, constraint forces or body poses.
     """
 
     episode_length: int | None = 50
@@ -544,7 +546,7 @@ class Rearrange(Env):
         data, _ = jax.lax.scan(
             lambda d, a: (self._bullet_step(model, d, a, slot), None), data, actions
         )
-        return self._refreshed(model, data), info
+        return self._refreshed(data, slot), info
 
     def _franka_ik(self, rng):
         """Joint angles that put the gripper, pointing down, at a random point x, y ~U(-0.5, 0.5),
@@ -630,32 +632,28 @@ class Rearrange(Env):
         return data.replace(qpos=qpos, qvel=qvel)
 
     def _c_substeps(self, model, data, slot):
-        """The Bullet step's substeps in C MuJoCo. For the Franka, qfrc_bias is then the bias
-        the last substep computed, at the state before it, as mjx.step and mj_step leave it."""
+        """The Bullet step's substeps in C MuJoCo; for the Franka, qfrc_bias as the last substep
+        computed it (as mjx.step leaves it)."""
         out = self._c.step(
-            slot, data.qpos, data.qvel, data.ctrl, BULLET_SUBSTEPS, keep_previous=self._franka
+            slot, data.qpos, data.qvel, data.ctrl, BULLET_SUBSTEPS, bias=self._franka
         )
-        data = data.replace(
-            qpos=out[0], qvel=out[1], time=data.time + BULLET_SUBSTEPS * model.opt.timestep
-        )
-        if self._franka:
-            before = data.replace(qpos=out[2], qvel=out[3])
-            before = mjx.com_pos(model, mjx.kinematics(model, before))
-            before = mjx.rne(model, mjx.com_vel(model, before))
-            data = data.replace(qfrc_bias=before.qfrc_bias)
-        return data
+        time = data.time + BULLET_SUBSTEPS * model.opt.timestep
+        return data.replace(time=time, **out)
 
-    def _refreshed(self, model, data):
-        """With physics="c": the poses the LD state, reward and pixels read, from qpos (MJX's
-        own substeps leave them current)."""
-        return data if self._c is None else self._kinematics(model, data)
+    def _refreshed(self, data, slot):
+        """With physics="c": the poses the LD state, reward and pixels read, from C MuJoCo at the
+        final qpos (MJX's substeps leave them at the state before its last substep, 5 ms
+        earlier)."""
+        if self._c is None:
+            return data
+        return data.replace(**self._c.poses(slot, data.qpos, C_POSES))
 
     def _advance(self, model, data, action, info):
         slot = info["version"]
         data = jax.lax.fori_loop(
             0, self.config.repeats, lambda _, d: self._bullet_step(model, d, action, slot), data
         )
-        return self._refreshed(model, data)
+        return self._refreshed(data, slot)
 
     # -- LD state, reward, done -------------------------------------------------------------------
 

@@ -81,8 +81,9 @@ def test_steps_as_a_plain_mj_step_loop(arm):
     assert np.abs(moved).max() > 1e-2
 
 
-def test_callback_batch_axes():
-    """One call per step whatever the batch axes: unbatched, vmapped, vmapped twice agree."""
+def test_callback_batch_axes_bias_and_poses():
+    """One call per step whatever the batch axes: unbatched, vmapped, vmapped twice agree; the
+    state, bias and poses against mj_step from each state (an independent loop)."""
     env = envs_mjx.make("RearrangeGeom", physics="c", pixels="off")
     c = CPhysics([env.mj_model_for({"version": v}) for v in range(len(env.versions))])
     rng = np.random.default_rng(1)
@@ -91,22 +92,33 @@ def test_callback_batch_axes():
     qvel = rng.normal(0, 0.5, (B, env.mj_model.nv)).astype(np.float32)
     ctrl = rng.uniform(-3, 3, (B, 2)).astype(np.float32)
     slot = np.arange(B) % 4
-    flat = jax.jit(jax.vmap(lambda *a: c.step(*a, nstep=3)))(slot, qpos, qvel, ctrl)
-    one = [c.step(slot[i], qpos[i], qvel[i], ctrl[i], nstep=3) for i in range(B)]
-    two = jax.vmap(jax.vmap(lambda *a: c.step(*a, nstep=3)))(
+    poses = ("geom_xpos", "cam_xmat", "site_xpos")
+
+    def run(slot, qpos, qvel, ctrl):
+        out = c.step(slot, qpos, qvel, ctrl, nstep=3, bias=True)
+        return {**out, **c.poses(slot, out["qpos"], poses)}
+
+    flat = jax.jit(jax.vmap(run))(slot, qpos, qvel, ctrl)
+    one = [run(slot[i], qpos[i], qvel[i], ctrl[i]) for i in range(B)]
+    two = jax.vmap(jax.vmap(run))(
         *(x.reshape(2, B // 2, *x.shape[1:]) for x in (slot, qpos, qvel, ctrl))
     )
-    for j in range(2):
-        np.testing.assert_array_equal(np.stack([o[j] for o in one]), flat[j])
-        np.testing.assert_array_equal(np.asarray(two[j]).reshape(flat[j].shape), flat[j])
-    # An independent reference: 3 mj_steps from each state, ctrl held.
+    assert set(flat) == {"qpos", "qvel", "qfrc_bias", *poses}
+    assert flat["cam_xmat"].shape == (B, env.mj_model.ncam, 3, 3)
+    for k, v in flat.items():
+        np.testing.assert_array_equal(np.stack([o[k] for o in one]), v)
+        np.testing.assert_array_equal(np.asarray(two[k]).reshape(v.shape), v)
     for i in range(B):
         m = env.mj_model_for({"version": slot[i]})
         d = mujoco.MjData(m)
         d.qpos[:], d.qvel[:], d.ctrl[:] = qpos[i], qvel[i], ctrl[i]
         mujoco.mj_step(m, d, 3)
-        np.testing.assert_allclose(flat[0][i], d.qpos, atol=1e-6)
-        np.testing.assert_allclose(flat[1][i], d.qvel, atol=1e-5)
+        np.testing.assert_allclose(flat["qpos"][i], d.qpos, atol=1e-6)
+        np.testing.assert_allclose(flat["qvel"][i], d.qvel, atol=1e-5)
+        np.testing.assert_allclose(flat["qfrc_bias"][i], d.qfrc_bias, rtol=1e-5, atol=1e-5)
+        mujoco.mj_forward(m, d)
+        for k in poses:
+            np.testing.assert_allclose(flat[k][i].ravel(), getattr(d, k).ravel(), atol=1e-6)
 
 
 def test_bad_input():
@@ -118,5 +130,6 @@ def test_bad_input():
     with pytest.raises(ValueError, match=r"qpos must have shape \(30,\)"):
         CPhysics([m]).step(0, jnp.zeros(3), jnp.zeros(m.nv), jnp.zeros(m.nu), 2)
     with pytest.raises(ValueError, match="nstep must be >= 2"):
-        CPhysics([m]).step(0, jnp.zeros(m.nq), jnp.zeros(m.nv), jnp.zeros(m.nu), 1,
-                           keep_previous=True)
+        CPhysics([m]).step(0, jnp.zeros(m.nq), jnp.zeros(m.nv), jnp.zeros(m.nu), 1, bias=True)
+    with pytest.raises(ValueError, match="'nefc' is not a pose field"):
+        CPhysics([m]).poses(0, jnp.zeros(m.nq), ("nefc",))

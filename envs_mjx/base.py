@@ -343,15 +343,13 @@ class Env(brax_base.Env):
         and contacts when `reset_contacts` is set. Not a full mjx.forward: the next mjx.step
         recomputes everything from qpos / qvel, and skipping the constraint solve here roughly
         halves the compile time of `reset`."""
-        data = self._kinematics(model, self._data0.replace(qpos=qpos, qvel=qvel))
+        data = self._data0.replace(qpos=qpos, qvel=qvel)
+        data = mjx.kinematics(model, data)
+        data = mjx.com_pos(model, data)
+        data = mjx.camlight(model, data)
         if self.reset_contacts:
             data = mjx.collision(model, data)
         return data
-
-    @staticmethod
-    def _kinematics(model: mjx.Model, data: mjx.Data) -> mjx.Data:
-        """Body, geom, site and camera poses (and the com-based quantities) from data.qpos."""
-        return mjx.camlight(model, mjx.com_pos(model, mjx.kinematics(model, data)))
 
     def _settle(
         self, model: mjx.Model, data: mjx.Data, info: dict[str, Any]

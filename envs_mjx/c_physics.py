@@ -123,7 +123,7 @@ class CPhysics:
     def _pose_shape(self, name: str) -> tuple[int, ...]:
         value = getattr(self._scratch(0), name, None)
         if not isinstance(value, np.ndarray) or name in ("qpos", "qvel", "qfrc_bias"):
-            raise ValueError(f"CPhysics.step: {name!r} is not a pose field of MjData")
+            raise ValueError(f"CPhysics.poses: {name!r} is not a pose field of MjData")
         return (len(value), 3, 3) if name.endswith("xmat") else value.shape
 
     def _scratch(self, slot: int) -> mujoco.MjData:
@@ -132,16 +132,22 @@ class CPhysics:
             self._scratch_data[slot] = mujoco.MjData(self._models[slot])
         return self._scratch_data[slot]
 
-    def _host(self, slot, qpos, qvel, ctrl, *, nstep: int, bias: bool):
-        # The callback receives jax Arrays: host numpy views from here on.
-        slot, qpos, qvel, ctrl = (np.asarray(x) for x in (slot, qpos, qvel, ctrl))
-        lead = qpos.shape[:-1]
+    @staticmethod
+    def _flat(slot, *arrays):
+        """The callback's inputs (jax Arrays, any leading batch axes) as host numpy arrays with
+        one batch axis: (lead shape, slot [n], each array [n, size])."""
+        lead = np.shape(arrays[0])[:-1]
         n = int(np.prod(lead, dtype=np.int64))
-        slot = np.broadcast_to(slot, lead).reshape(n)
+        slot = np.broadcast_to(np.asarray(slot), lead).reshape(n)
+        return lead, slot, *(np.asarray(x).reshape(n, -1) for x in arrays)
+
+    def _host(self, slot, qpos, qvel, ctrl, *, nstep: int, bias: bool):
+        lead, slot, qpos, qvel, ctrl = self._flat(slot, qpos, qvel, ctrl)
+        n = len(slot)
         state = np.tile(self._template, (n, 1))
-        state[:, 1 : 1 + self.nq] = np.reshape(qpos, (n, self.nq))
-        state[:, 1 + self.nq : 1 + self.nq + self.nv] = np.reshape(qvel, (n, self.nv))
-        control = np.reshape(ctrl, (n, 1, self.nu)).astype(np.float64)
+        state[:, 1 : 1 + self.nq] = qpos
+        state[:, 1 + self.nq : 1 + self.nq + self.nv] = qvel
+        control = ctrl[:, None, :].astype(np.float64)
         models = [self._models[s] for s in slot]
         out = {}
         with self._lock:
@@ -170,11 +176,8 @@ class CPhysics:
         return {k: v.astype(np.float32).reshape(*lead, *v.shape[1:]) for k, v in out.items()}
 
     def _host_poses(self, slot, qpos, *, names: tuple[str, ...]):
-        slot, qpos = np.asarray(slot), np.asarray(qpos)
-        lead = qpos.shape[:-1]
-        n = int(np.prod(lead, dtype=np.int64))
-        slot = np.broadcast_to(slot, lead).reshape(n)
-        qpos = np.reshape(qpos, (n, self.nq))
+        lead, slot, qpos = self._flat(slot, qpos)
+        n = len(slot)
         out = {name: np.empty((n, *self._pose_shape(name)), np.float32) for name in names}
         with self._lock:
             for i in range(n):

@@ -16,6 +16,10 @@ from envs_mjx.base import BASE, POLE, POLE2, POLE3
 from envs_mjx.domains.locomotion import Locomotion, LocomotionConfig
 
 
+# LD entries the planar model holds constant (see HalfCheetah._ld_groups).
+_CONSTANT = ("sin_to_target", "cos_to_target", "vy", "roll")
+
+
 def default_config() -> LocomotionConfig:
     return LocomotionConfig()
 
@@ -36,6 +40,15 @@ class HalfCheetah(Locomotion):
 
     def __init__(self, config: LocomotionConfig | None = None, pixels_fn=None):
         super().__init__(config or default_config(), pixels_fn)
+
+    def _ld_groups(self):
+        # The planar runner has no sideways, roll or yaw freedom: vy, roll and the heading to the
+        # target (1 km along +x: sin 0, cos 1) stay constant, unless the torso turns past
+        # vertical and the Euler angles jump by π. They keep their place in the reference's LD
+        # state but join no aggregate: an alignment error on a constant says nothing about a
+        # latent, and 4 constants among 11 "position" entries would pull its mean towards 0.
+        return tuple("other" if n in _CONSTANT else g
+                     for n, g in zip(self.ld_state_names, super()._ld_groups(), strict=True))
 
     def _torso_linvel(self, data):
         # Planar root: qvel = (x slide, z slide, y hinge, ...).

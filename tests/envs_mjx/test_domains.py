@@ -140,6 +140,18 @@ def test_sweep_reset_and_random_rollout(name):
     assert not traj["nonfinite"].any()
     # The state moves: random actions change the LD state.
     assert np.abs(traj["ld_state"][-1] - np.asarray(state0.ld_state)).max() > 1e-3
+    # Entries a domain leaves out of every aggregate as constant by construction are constant
+    # over the random run; the aggregated position and velocity entries all move.
+    ld = np.asarray(traj["ld_state"]).reshape(T * B, d)
+    spread = dict(zip(env.ld_state_names, ld.max(0) - ld.min(0), strict=True))
+    for n, g in zip(env.ld_state_names, env.ld_state_groups, strict=True):
+        if g in ("position", "velocity"):
+            assert spread[n] > 1e-3, (n, g)
+    if name == "HalfCheetah":
+        constants = [n for n, g in zip(env.ld_state_names, env.ld_state_groups, strict=True)
+                     if g == "other"]
+        assert constants == ["sin_to_target", "cos_to_target", "vy", "roll"]
+        assert max(spread[n] for n in constants) < 1e-6
 
 
 # -- physics against independent references -------------------------------------------------------

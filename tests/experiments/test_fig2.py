@@ -68,10 +68,14 @@ def test_grid_configs_follow_the_paper_per_family():
 
 def test_groups_come_from_the_domains_metadata_not_the_names():
     """vx/vy/vz are velocities and the foot flags contacts (a name rule counted both as
-    position); the incline's scene parameters are in no group."""
+    position); the incline's scene parameters and the planar cheetah's constants are in no
+    group."""
     cheetah = fig2.ld_groups("HalfCheetah")
-    assert {"vx", "vy", "vz", "bthigh_vel"} <= set(cheetah["velocity"])
-    assert {"z_rel", "roll", "bthigh_pos"} <= set(cheetah["position"])
+    assert {"vx", "vz", "bthigh_vel"} <= set(cheetah["velocity"])
+    assert {"z_rel", "pitch", "bthigh_pos"} <= set(cheetah["position"])
+    grouped = {n for names in cheetah.values() for n in names}
+    assert not grouped & {"vy", "roll", "sin_to_target", "cos_to_target"}
+    assert {"vy", "roll"} <= set(fig2.ld_groups("Ant")["velocity"] + fig2.ld_groups("Ant")["position"])
     assert len(cheetah["contact"]) == 6 and all(n.endswith("_contact") for n in cheetah["contact"])
     assert fig2.ld_groups("CartPole") == {"position": ["theta", "x"],
                                           "velocity": ["theta_dot", "x_dot"]}

@@ -78,11 +78,13 @@ def config_for(env: str, variant: str, seed: int, scale: dict, schedule: dict,
 
 
 def run_cell(out: Path, env: str, variant: str, seeds, scale: dict, schedule: dict,
-             learner_opt: dict | None = None, stop_after: int | None = None) -> list[dict]:
+             learner_opt: dict | None = None, stop_after: int | None = None,
+             checkpoint_every: int | None = None) -> list[dict]:
     """Every seed of one (env, variant), trained together; returns their summaries."""
     configs = [config_for(env, variant, s, scale, schedule, learner_opt) for s in seeds]
     dirs = [out / env / variant / f"seed_{s}" for s in seeds]
-    return _runs.train_seeds(f"{env} {variant}", configs, dirs, stop_after=stop_after)
+    return _runs.train_seeds(f"{env} {variant}", configs, dirs, stop_after=stop_after,
+                             checkpoint_every=checkpoint_every)
 
 
 def ld_groups(env: str) -> dict[str, list[str]]:
@@ -263,6 +265,10 @@ class Args(_runs.Driver):
     """epochs between their analyses"""
     stop_after: int | None = None
     """epochs per cell in this call (a session's share); a rerun resumes"""
+    checkpoint_every: int | None = None
+    """epochs between checkpoints (default: one with every analysis); the last analysis and a
+    --stop-after stop always checkpoint. A checkpoint holds each run's replay (2–4 GB): thin
+    them on a machine whose disk does not outlive the call"""
     report_only: bool = False
     """no training: fig2.md and the figures from the runs under OUT"""
     compare_with: Path | None = None
@@ -278,7 +284,7 @@ class Args(_runs.Driver):
         for env in self.envs:
             for variant in self.variants:
                 run_cell(self.out, env, variant, self.seeds, scale, schedule,
-                         key_values(self.learner_opt), self.stop_after)
+                         key_values(self.learner_opt), self.stop_after, self.checkpoint_every)
 
     def report(self) -> str:
         text = report(self.out, self.envs, self.variants)

@@ -293,11 +293,12 @@ def learner_options(items, variants) -> dict[str, dict]:
 
 def run_cell(out: Path, variant: str, seeds, scale: dict, schedule: tuple[int, int],
              learner_opt: dict | None = None, env_opt: dict | None = None,
-             stop_after: int | None = None) -> list[dict]:
+             stop_after: int | None = None, checkpoint_every: int | None = None) -> list[dict]:
     """Every seed of one variant, trained together into OUT/VARIANT/seed_N; their summaries."""
     configs = [config_for(variant, s, scale, schedule, learner_opt, env_opt) for s in seeds]
     dirs = [out / variant / f"seed_{s}" for s in seeds]
-    return _runs.train_seeds(variant, configs, dirs, stop_after=stop_after)
+    return _runs.train_seeds(variant, configs, dirs, stop_after=stop_after,
+                             checkpoint_every=checkpoint_every)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -572,6 +573,10 @@ class Args(_runs.Driver):
     """epochs between analyses"""
     stop_after: int | None = None
     """epochs per variant in this call (a session's share); a rerun resumes"""
+    checkpoint_every: int | None = None
+    """epochs between checkpoints (default: one with every analysis); the last analysis and a
+    --stop-after stop always checkpoint. A checkpoint holds each run's replay (2–4 GB): thin
+    them on a machine whose disk does not outlive the call"""
     report_only: bool = False
     """no training: fig3.md and the images from the runs under OUT"""
 
@@ -583,7 +588,7 @@ class Args(_runs.Driver):
         for variant in self.variants:
             run_cell(self.out, variant, self.seeds, self.fields(SCALE),
                      (self.epochs, self.eval_every), options[variant], env_opt,
-                     self.stop_after)
+                     self.stop_after, self.checkpoint_every)
 
     def report(self) -> str:
         return report(self.out, self.variants)

@@ -119,10 +119,11 @@ class _RunDir:
         """The analysis key of the current epoch."""
         return jax.random.fold_in(self.k_eval, self.epoch)
 
-    def analyse(self, stream: Stream, state: StreamState, report: dict | None = None) -> None:
-        """Analysis, figures and an atomic checkpoint at the current epoch. `report`: this
-        run's `analysis.evaluate` report when computed already (with other runs', see
-        `_analyse_together`)."""
+    def analyse(self, stream: Stream, state: StreamState, report: dict | None = None,
+                checkpoint_every: int | None = None) -> None:
+        """Analysis, figures and (see `checkpoint_due`) an atomic checkpoint at the current
+        epoch. `report`: this run's `analysis.evaluate` report when computed already (with other
+        runs', see `_analyse_together`)."""
         with _timed(self.seconds, "analysis"):
             records = _analyse(stream, state, self.eval_key(), self.pi_rand_key,
                                analysis.error_names(stream), self.out, self.epoch, report)
@@ -131,7 +132,9 @@ class _RunDir:
             f.writelines(json.dumps(r) + "\n" for r in records)
         self.logs.analysis(self.epoch, records)
         _figures(self.history, self.out)
-        self.save(state)
+        if checkpoint_due(self.epoch, self.manager.latest_step(), checkpoint_every,
+                          last=not self.targets):
+            self.save(state)
 
     def save(self, state: StreamState) -> None:
         """An atomic checkpoint of `state` at the current epoch."""
@@ -155,28 +158,38 @@ class _RunDir:
 
 
 def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | None = None,
-        latent_penalty=None) -> dict:
+        checkpoint_every: int | None = None, latent_penalty=None) -> dict:
     """Runs (or resumes) the loop in `out`; returns the summary. `stop_after` ends the process's
     work after that many epochs in this call (a deliberate interruption, for tests and jobs
     with a time limit); the next call resumes. A non-finite loss raises `NonFiniteLoss`."""
     summary = run_many([config], [out], progress=progress, stop_after=stop_after,
-                       latent_penalty=latent_penalty)[0]
+                       checkpoint_every=checkpoint_every, latent_penalty=latent_penalty)[0]
     if summary["status"] == "nonfinite":
         raise NonFiniteLoss(summary["error"])
     return summary
 
 
 def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
-             stop_after: int | None = None, latent_penalty=None, mesh=None) -> list[dict]:
+             stop_after: int | None = None, checkpoint_every: int | None = None,
+             latent_penalty=None, mesh=None) -> list[dict]:
     """Runs (or resumes) several runs of one program, each in its own directory, trained
     together: the configs may differ only in their seeds, and their states are stacked and
     advanced by one compiled loop (`run_stacked_epochs`; several devices split the runs, see
     `mesh`). Runs resumed at different epochs first advance in groups by epoch until they meet.
     Returns one summary per run; a run whose loss turns non-finite stops alone (status
-    "nonfinite", its last good checkpoint kept) and the others go on."""
+    "nonfinite", its last good checkpoint kept) and the others go on.
+
+    Checkpoints are written with the analyses; `checkpoint_every` (epochs) thins them to the
+    first analysis at least that many epochs after the last checkpoint, plus each run's last
+    analysis and where `stop_after` stops it. A checkpoint holds the replay (≈ 2 GB per
+    pendulum run, 4 GB per locomotion run at 64×64), so on a machine that is not kept, whose
+    disk goes with the runs, writing one at every analysis buys little and costs minutes."""
     if len(configs) != len(outs) or not configs:
         raise ValueError(f"run_many needs one out directory per config, got {len(configs)} "
                          f"configs and {len(outs)} directories")
+    if checkpoint_every is not None and checkpoint_every < 1:
+        raise ValueError(f"checkpoint_every must be a positive number of epochs or None, got "
+                         f"{checkpoint_every}")
     keys = {c.program_key() for c in configs}
     if len(keys) > 1:
         raise ValueError("runs trained together must differ only in their seeds; got "
@@ -239,7 +252,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                 if r.epoch == target:
                     r.targets.pop(0)
                     due.append((i, r))
-            _analyse_together(stream, states, due)
+            _analyse_together(stream, states, due, checkpoint_every)
             # A run stopped by `stop_after` between analyses keeps its epochs: checkpointed
             # here (no analysis), so the next call resumes where this one stopped.
             for i, r in enumerate(group):
@@ -265,6 +278,16 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                 summary["error"] = r.error
             summaries.append(summary)
     return summaries
+
+
+def checkpoint_due(epoch: int, last_checkpoint: int | None, every: int | None, *,
+                   last: bool) -> bool:
+    """Whether the analysis at `epoch` also checkpoints: always with `every` None; otherwise
+    once `every` epochs have passed since the last checkpoint (a fresh run's epoch 0 counting
+    as one), and at the run's `last` analysis."""
+    if every is None or last:
+        return True
+    return epoch - (last_checkpoint or 0) >= every
 
 
 @contextlib.contextmanager
@@ -294,7 +317,8 @@ def _non_finite(metrics: dict[str, np.ndarray], first_epoch: int) -> str | None:
             "check the inputs, then start a new --out or resume from the checkpoint)")
 
 
-def _analyse_together(stream: Stream, states: StreamState, due: list) -> None:
+def _analyse_together(stream: Stream, states: StreamState, due: list,
+                      checkpoint_every: int | None = None) -> None:
     """Analyses the runs `due` [(index in the stacked states, run)] at their (common) epoch.
 
     Several runs whose stacked states live on one device are evaluated by one
@@ -316,7 +340,7 @@ def _analyse_together(stream: Stream, states: StreamState, due: list) -> None:
         for _, r in due:
             r.seconds["analysis"] += share
     for (i, r), report in zip(due, reports, strict=True):
-        r.analyse(stream, jax.tree.map(lambda x, i=i: x[i], states), report)
+        r.analyse(stream, jax.tree.map(lambda x, i=i: x[i], states), report, checkpoint_every)
 
 
 def _analyse(stream: Stream, state: StreamState, key, pi_rand_key, names, out: Path,

@@ -334,9 +334,10 @@ def test_the_command_trains_each_variant_then_reports(tmp_path, monkeypatch, cap
 
     calls = []
 
-    def fake_run_many(configs, outs, *, progress, stop_after, latent_penalty):
+    def fake_run_many(configs, outs, *, progress, stop_after, checkpoint_every, latent_penalty):
         calls.append(([c.seed for c in configs], [str(o) for o in outs], stop_after,
                       configs[0]))
+        assert checkpoint_every == 100
         summaries = []
         for c, o in zip(configs, outs, strict=True):
             _write_run(o, o.parent.name, c.seed, {2: _errors(0.5, 0.5, [0.5] * 4)})
@@ -347,7 +348,8 @@ def test_the_command_trains_each_variant_then_reports(tmp_path, monkeypatch, cap
     monkeypatch.setattr(run_lib, "run_many", fake_run_many)
     argv = ["fig3", "--out", str(tmp_path), "--variants", "SPAIR_6x6", "VAE_rpl", "--seeds", "3",
             "5", "--stop-after", "7", "--epochs", "20", "--eval-every", "5",
-            "--learner-opt", "SPAIR.beta=0.3", "--env-opt", "versions=[0,1]"]
+            "--learner-opt", "SPAIR.beta=0.3", "--env-opt", "versions=[0,1]",
+            "--checkpoint-every", "100"]
     assert cli.main(argv) == 0
     assert [c[:3] for c in calls] == [
         ([3, 5], [str(tmp_path / "SPAIR_6x6" / "seed_3"), str(tmp_path / "SPAIR_6x6" / "seed_5")],

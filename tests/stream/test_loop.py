@@ -163,6 +163,26 @@ def _records(path):
     return [json.loads(line) for line in path.read_text().splitlines()]
 
 
+def test_thinned_checkpoints_fall_on_the_first_analysis_due_and_the_last():
+    """Fig. 2's locomotion schedule: analyses at 78 (replay full), 128, …, 278, 300."""
+    analyses = [78, 128, 178, 228, 278, 300]
+
+    def written(every):
+        last, out = None, []
+        for epoch in analyses:
+            if run_lib.checkpoint_due(epoch, last, every, last=epoch == analyses[-1]):
+                last = epoch
+                out.append(epoch)
+        return out
+
+    assert written(None) == analyses
+    assert written(100) == [128, 228, 300]
+    assert written(50) == analyses
+    assert written(10_000) == [300]
+    with pytest.raises(ValueError, match="checkpoint_every must be a positive"):
+        run_lib.run_many([tiny()], ["unused"], checkpoint_every=0)
+
+
 def _learner_params(out, config):
     s = stream.build(config)
     mgr = checkpoint.manager(out)

@@ -15,7 +15,6 @@ import jax.numpy as jnp
 from envs_mjx.base import BASE, POLE, POLE2, POLE3
 from envs_mjx.domains.locomotion import Locomotion, LocomotionConfig
 
-
 # LD entries the planar model holds constant (see HalfCheetah._ld_groups).
 _CONSTANT = ("sin_to_target", "cos_to_target", "vy", "roll")
 

@@ -75,7 +75,8 @@ def test_groups_come_from_the_domains_metadata_not_the_names():
     assert {"z_rel", "pitch", "bthigh_pos"} <= set(cheetah["position"])
     grouped = {n for names in cheetah.values() for n in names}
     assert not grouped & {"vy", "roll", "sin_to_target", "cos_to_target"}
-    assert {"vy", "roll"} <= set(fig2.ld_groups("Ant")["velocity"] + fig2.ld_groups("Ant")["position"])
+    ant = fig2.ld_groups("Ant")
+    assert "vy" in ant["velocity"] and "roll" in ant["position"]  # the Ant moves in 3-D
     assert len(cheetah["contact"]) == 6 and all(n.endswith("_contact") for n in cheetah["contact"])
     assert fig2.ld_groups("CartPole") == {"position": ["theta", "x"],
                                           "velocity": ["theta_dot", "x_dot"]}

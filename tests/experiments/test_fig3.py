@@ -84,6 +84,12 @@ def test_configs_follow_the_reference_for_rearrange():
     assert spair.env_overrides == {"versions": (0, 1)}
     assert fig3.config_for("SPAIR_4x4", 0, fig3.SCALE, fig3.SCHEDULE).learner_overrides == {
         "grid_size": 4}
+    ycb = fig3.config_for("VAE_rpl", 0, fig3.SCALE, fig3.SCHEDULE, env="RearrangeYCB")
+    assert (ycb.env, ycb.learner_overrides["latent_dim"], ycb.rollout_len) == (
+        "RearrangeYCB", 53, 10)
+    with pytest.raises(ValueError, match=r"unknown env 'RearrangeToys' for Fig\. 3; valid: "
+                                         r"RearrangeGeom, RearrangeYCB"):
+        fig3.config_for("VAE_rpl", 0, fig3.SCALE, fig3.SCHEDULE, env="RearrangeToys")
 
 
 def test_learner_options_go_to_every_variant_or_the_named_ones():
@@ -101,6 +107,7 @@ def test_learner_options_go_to_every_variant_or_the_named_ones():
     (["--learner-opt", "beta"], "expected KEY=VALUE, got 'beta'"),
     (["--learner-opt", "PRED.hist=2"], "'PRED' is no variant or learner"),
     (["--report-only"], "no such directory"),
+    (["--env", "RearrangeToys"], "invalid choice 'RearrangeToys'"),
 ])
 def test_bad_input_is_one_clear_line(tmp_path, capsys, argv, message):
     code = None
@@ -151,14 +158,14 @@ def _errors(q0, q1, obj_pos, axes=(0.5, 0.5, 0.5, 0.5), rot=0.9):
     return [values[n] for n in _names()]
 
 
-def _write_run(path, variant, seed, by_step, fill=2, baseline=None):
+def _write_run(path, variant, seed, by_step, fill=2, baseline=None, env=fig3.ENV):
     """A seed directory: config.json, history.jsonl with π_curr and π_rand records per step
     (π_rand = π_curr + 0.1; with `baseline`, every record's constant-prediction errors are that
     value), a recon image per step."""
     learner = fig3.VARIANTS[variant][0]
     path.mkdir(parents=True)
     config = {**fig3.SCALE, "num_envs": 4, "replay_slots": 4 * fill, "epochs": 6,
-              "eval_every": 2, "learner": learner, "seed": seed}
+              "eval_every": 2, "learner": learner, "seed": seed, "env": env}
     (path / "config.json").write_text(json.dumps(config))
     records = []
     for step, errors in by_step.items():
@@ -320,6 +327,14 @@ def test_histories_without_principal_axis_errors_show_no_orientation(tmp_path):
     assert (row["object orientation"], row["object positions"]) == ("–", "0.400 ± 0.000")
 
 
+def test_one_out_directory_holds_one_env(tmp_path):
+    _write_run(tmp_path / "VAE_rpl" / "seed_0", "VAE_rpl", 0, {2: _errors(0.5, 0.5, [0.5] * 4)})
+    _write_run(tmp_path / "SPAIR_4x4" / "seed_0", "SPAIR_4x4", 0,
+               {2: _errors(0.5, 0.5, [0.5] * 4)}, env="RearrangeYCB")
+    with pytest.raises(ValueError, match=r"runs of several envs \(RearrangeGeom, RearrangeYCB\)"):
+        fig3.report(tmp_path)
+
+
 def test_an_empty_out_says_so(tmp_path):
     assert "No analysed runs" in fig3.report(tmp_path)
     assert (tmp_path / "fig3.md").exists() and not (tmp_path / "fig3.png").exists()
@@ -340,7 +355,7 @@ def test_the_command_trains_each_variant_then_reports(tmp_path, monkeypatch, cap
         assert checkpoint_every == 100
         summaries = []
         for c, o in zip(configs, outs, strict=True):
-            _write_run(o, o.parent.name, c.seed, {2: _errors(0.5, 0.5, [0.5] * 4)})
+            _write_run(o, o.parent.name, c.seed, {2: _errors(0.5, 0.5, [0.5] * 4)}, env=c.env)
             summaries.append({"status": "interrupted", "epoch": 2,
                               "seconds_by_phase": {"epochs": 1.0}})
         return summaries
@@ -349,7 +364,7 @@ def test_the_command_trains_each_variant_then_reports(tmp_path, monkeypatch, cap
     argv = ["fig3", "--out", str(tmp_path), "--variants", "SPAIR_6x6", "VAE_rpl", "--seeds", "3",
             "5", "--stop-after", "7", "--epochs", "20", "--eval-every", "5",
             "--learner-opt", "SPAIR.beta=0.3", "--env-opt", "versions=[0,1]",
-            "--checkpoint-every", "100"]
+            "--checkpoint-every", "100", "--env", "RearrangeYCB"]
     assert cli.main(argv) == 0
     assert [c[:3] for c in calls] == [
         ([3, 5], [str(tmp_path / "SPAIR_6x6" / "seed_3"), str(tmp_path / "SPAIR_6x6" / "seed_5")],
@@ -359,9 +374,10 @@ def test_the_command_trains_each_variant_then_reports(tmp_path, monkeypatch, cap
     assert spair.learner_overrides == {"grid_size": 6, "beta": 0.3}
     assert "beta" not in vae.learner_overrides
     assert (spair.epochs, spair.eval_every, spair.env_overrides) == (20, 5, {"versions": (0, 1)})
+    assert spair.env == vae.env == "RearrangeYCB"
     out = capsys.readouterr().out
     assert "SPAIR_6x6 seed 3: interrupted at epoch 2" in out
-    assert "# Fig. 3" in out and (tmp_path / "fig3.md").exists()
+    assert "# Fig. 3: RearrangeYCB (reacher)" in out and (tmp_path / "fig3.md").exists()
     calls.clear()
     assert cli.main(["fig3", "--out", str(tmp_path), "--report-only"]) == 0
     assert not calls  # --report-only trains nothing

@@ -3,6 +3,9 @@
 (a) Physics substeps/s (no pixels), three peers on the same MJCF model:
     env      jit(vmap(scan(env.step))) with pixels="off" (per-env model fields, LD state, reward)
     mjx      jit(vmap(scan(mjx.step))) on env.mjx_model (raw physics, shared model)
+    warp     the same scan on MuJoCo Warp (MJX's impl="warp"; needs the warp-lang package, the
+             `bench` extra), from the same start states with the same controls: the GPU peer a
+             user would otherwise pick. Every contact kept, up to WARP_CONTACTS per env.
     C        mujoco.rollout, 1 thread, random controls (CartPole, InvertedPendulum, HalfCheetah,
              Ant); the incline's only input is an external force, so it runs a Python mj_step loop
 (b) Frames/s of physics + rendering: jit(vmap(scan(env.step))) with pixels on (64x64
@@ -25,7 +28,7 @@ cartpole 698 frames/s (quoted, not measured here).
 
 Run from the repo root: PYTHONPATH=. python benchmarks/envs_throughput.py [--quick]
 [--envs CartPole Ant RearrangeGeom:arm=franka] [--pixel-batches 1024 4096]
-[--parts physics pixels pybullet] [--rounds 7] [--no-record]. Results go to
+[--parts physics pixels pybullet] [--physics-batch 4096] [--rounds 7] [--no-record]. Results go to
 benchmarks/results.jsonl unless --no-record (use it on a loaded or shared machine for the
 absolute rows; the side-by-side ratio holds there too).
 """
@@ -106,6 +109,54 @@ def bench_raw_mjx(name, batch, steps, repeats):
     model = env.mjx_model
     states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
     data = states.pipeline_state
+    n = steps * env.n_frames
+    ctrl = _random_actions(jax.random.key(1), n, batch, model.nu) if model.nu else None
+
+    def roll(d, c):
+        def body(d, ci):
+            if ci is not None:
+                d = d.replace(ctrl=ci)
+            return mjx.step(model, d), None
+
+        return jax.lax.scan(body, d, c, length=n)[0]
+
+    fn = jax.jit(jax.vmap(roll, in_axes=(0, 1 if ctrl is not None else None)))
+    t = measure(fn, data, ctrl, repeats=repeats)
+    return {"substeps_per_s": batch * n / t["median_s"], **t}
+
+
+# MuJoCo Warp keeps every contact in one buffer shared by the batch (`naconmax`), sized here
+# as this many per env (MJX's capped Rearrange scenes keep 32), and 4 constraint rows per
+# contact per env (`njmax`: a pyramidal friction cone of condim 3).
+WARP_CONTACTS = 32
+
+
+def warp_available() -> bool:
+    try:
+        import warp  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def bench_raw_warp(name, batch, steps, repeats):
+    """`bench_raw_mjx` on MuJoCo Warp: the env's MjModel put with impl="warp"."""
+    import warp
+
+    warp.config.quiet = True  # no line per kernel module loaded
+    env = make_env(name, pixels="off")
+    model = mjx.put_model(env.mj_model, impl="warp")
+    # Warp warns on every step whose solver stops at its iteration limit (Rearrange's 6 Newton
+    # iterations, as the JAX path runs them): the benchmark keeps the limit and the quiet.
+    from mujoco.mjx.third_party.mujoco_warp._src.types import OverflowType
+
+    quiet = int(OverflowType.ALL & ~(OverflowType.ITERATIONS | OverflowType.LS_ITERATIONS))
+    model = model.tree_replace({"opt._impl.warn_overflow": quiet})
+    data0 = mjx.make_data(env.mj_model, impl="warp", naconmax=batch * WARP_CONTACTS,
+                          njmax=4 * WARP_CONTACTS)
+    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
+    start = states.pipeline_state
+    data = jax.jit(jax.vmap(lambda q, v: data0.replace(qpos=q, qvel=v)))(start.qpos, start.qvel)
     n = steps * env.n_frames
     ctrl = _random_actions(jax.random.key(1), n, batch, model.nu) if model.nu else None
 
@@ -268,6 +319,8 @@ def main(argv=None):
     parser.add_argument("--pixel-batches", type=int, nargs="+",
                         help="batches of the physics + rendering case (default 1 64 1024; "
                              "256 in place of 1024 on CPU)")
+    parser.add_argument("--physics-batch", type=int,
+                        help="batch of the physics case (default 1024; 64 with --quick)")
     parts = ("physics", "pixels", "pybullet")
     parser.add_argument("--parts", nargs="+", choices=parts, default=list(parts),
                         help="which cases to run (pybullet: the side-by-side rows, for the "
@@ -291,6 +344,7 @@ def main(argv=None):
         phys_batch, phys_steps, reps = 1024, 50, 5
         pix_batches, pix_steps = (1, 64, 256 if cpu else 1024), 10
     pix_batches = tuple(args.pixel_batches or pix_batches)
+    phys_batch = args.physics_batch or phys_batch
     print(f"jax {jax.__version__}, mujoco {mujoco.__version__}, device {jax.devices()[0]}")
     # The side-by-side case compares CPU with CPU: on an accelerator the PyBullet workers would
     # still run on the host's cores.
@@ -340,15 +394,23 @@ def _physics_row(name, batch, steps, reps):
     env_r = bench_env_physics(name, batch, steps, reps)
     mjx_r = bench_raw_mjx(name, batch, steps, reps)
     c_r = bench_c(name, batch, steps, reps)
+    warp_r = bench_raw_warp(name, batch, steps, reps) if warp_available() else None
+    warp_text = ("warp not installed" if warp_r is None else
+                 f"raw MuJoCo Warp {warp_r['substeps_per_s']:,.0f} (compile "
+                 f"{warp_r['compile_s']:.1f} s), mjx/warp "
+                 f"{mjx_r['substeps_per_s'] / warp_r['substeps_per_s']:.2f}")
     print(
         f"  physics substeps/s, batch {batch}: env.step {env_r['substeps_per_s']:,.0f} "
         f"(compile {env_r['compile_s']:.1f} s) | raw mjx.step {mjx_r['substeps_per_s']:,.0f} "
         f"(compile {mjx_r['compile_s']:.1f} s) | C {c_r['substeps_per_s']:,.0f} ({c_r['how']})"
-        f" | env/mjx {env_r['substeps_per_s'] / mjx_r['substeps_per_s']:.2f}, "
+        f" | {warp_text} | env/mjx {env_r['substeps_per_s'] / mjx_r['substeps_per_s']:.2f}, "
         f"env/C {env_r['substeps_per_s'] / c_r['substeps_per_s']:.3f}",
         flush=True,
     )
-    return {
+    warp_cols = {} if warp_r is None else {
+        "warp_substeps_per_s": warp_r["substeps_per_s"], "warp_compile_s": warp_r["compile_s"],
+        "mjx_over_warp": mjx_r["substeps_per_s"] / warp_r["substeps_per_s"]}
+    return {**warp_cols,
         "case": f"{name}/physics/b{batch}",
         "env_substeps_per_s": env_r["substeps_per_s"],
         "mjx_substeps_per_s": mjx_r["substeps_per_s"],

@@ -85,6 +85,17 @@ def _save(fig: Figure, path) -> None:
     fig.savefig(path, dpi=100)
 
 
+# Largest over smallest curve mean beyond which a panel of `plot_alignment` is drawn log-scaled.
+LOG_SPAN = 10.0
+
+
+def _spans_decades(curves) -> bool:
+    """Whether the positive means of `curves` span more than LOG_SPAN."""
+    values = np.concatenate([np.asarray(c, float) for c in curves]) if curves else np.zeros(0)
+    values = values[np.isfinite(values) & (values > 0)]
+    return values.size > 0 and values.max() > LOG_SPAN * values.min()
+
+
 def plot_alignment(history: Iterable[Mapping], path,
                    groups: Mapping[str, Sequence[str]] | None = None) -> Figure:
     """Alignment error vs epoch (a record's "step": the epochs completed): one row per test
@@ -94,6 +105,10 @@ def plot_alignment(history: Iterable[Mapping], path,
 
     groups: optional panel title → state names; the panel shows the mean error over those names
     (the paper aggregates position / velocity / contacts this way for the locomotion domains).
+
+    A panel whose curves span more than LOG_SPAN (largest over smallest mean) is drawn on a log
+    axis, "(log)" in its title: one learner that forgets (errors of 5 and more) would otherwise
+    flatten the others' curves near 0.1 into one line.
     """
     history = [r for r in _check(history) if r.get("errors")]
     if not history:
@@ -111,6 +126,7 @@ def plot_alignment(history: Iterable[Mapping], path,
     for row, test_set in enumerate(test_sets):
         for col, (title, dims) in enumerate(groups.items()):
             ax = axes[row, col]
+            drawn = []
             for learner in learners:
                 points = defaultdict(list)
                 for r in history:
@@ -123,11 +139,16 @@ def plot_alignment(history: Iterable[Mapping], path,
                 steps, mean, lo, hi = _curves(points)
                 ax.plot(steps, mean, color=colors[learner], label=learner)
                 ax.fill_between(steps, lo, hi, color=colors[learner], alpha=0.2, linewidth=0)
-            ax.set_title(f"{title} ({test_set})", fontsize=9)
+                drawn.append(mean)
+            log = _spans_decades(drawn)
+            ax.set_title(f"{title} ({test_set})" + (" (log)" if log else ""), fontsize=9)
             ax.set_xlabel("epoch")
             if col == 0:
                 ax.set_ylabel("test error (train std)")
-            ax.set_ylim(bottom=0.0)
+            if log:
+                ax.set_yscale("log")
+            else:
+                ax.set_ylim(bottom=0.0)
     axes[0, 0].legend(fontsize=8)
     _save(fig, path)
     return fig

@@ -62,6 +62,21 @@ def test_alignment_plot_groups_dimensions(tmp_path):
     assert pred_velocity.get_ydata()[0] == pytest.approx(np.mean(at_0))
 
 
+def test_a_panel_spanning_more_than_a_decade_is_log_scaled(tmp_path):
+    """One learner 40x worse than another (a forgetting VAE_v0 against PRED): that panel is
+    drawn on a log axis, the others stay linear from 0."""
+    history = _history()
+    for r in history:
+        if r["learner"] == "VAE" and r["test_set"] == "pi_rand":
+            r["errors"]["x"] = 12.0
+    fig = evaluation.plot_alignment(history, tmp_path / "log.png")
+    by_title = {ax.get_title(): ax for ax in fig.axes}
+    assert by_title["x (pi_rand) (log)"].get_yscale() == "log"
+    assert by_title["x (pi_curr)"].get_yscale() == "linear"
+    assert by_title["x (pi_curr)"].get_ylim()[0] == 0.0
+    assert by_title["theta (pi_rand)"].get_yscale() == "linear"
+
+
 def test_distortion_plot_band_is_a_90_percent_interval(tmp_path):
     fig = evaluation.plot_distortion(_history(), tmp_path / "distortion.png")
     assert _png(tmp_path / "distortion.png")

@@ -104,12 +104,10 @@ def bench_env_physics(name, batch, steps, repeats):
     return {"substeps_per_s": substeps / t["median_s"], "compile_s": t["compile_s"], **t}
 
 
-def bench_raw_mjx(name, batch, steps, repeats):
-    env = make_env(name, pixels="off")
-    model = env.mjx_model
-    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
-    data = states.pipeline_state
-    n = steps * env.n_frames
+def _time_steps(model, data, n, repeats):
+    """Substeps/s of jit(vmap(scan of n mjx.step)) from the batched `data`, random controls
+    (key 1, the same for every backend)."""
+    batch = data.qpos.shape[0]
     ctrl = _random_actions(jax.random.key(1), n, batch, model.nu) if model.nu else None
 
     def roll(d, c):
@@ -123,6 +121,14 @@ def bench_raw_mjx(name, batch, steps, repeats):
     fn = jax.jit(jax.vmap(roll, in_axes=(0, 1 if ctrl is not None else None)))
     t = measure(fn, data, ctrl, repeats=repeats)
     return {"substeps_per_s": batch * n / t["median_s"], **t}
+
+
+def bench_raw_mjx(name, batch, steps, repeats):
+    env = make_env(name, pixels="off")
+    model = env.mjx_model
+    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
+    data = states.pipeline_state
+    return _time_steps(model, data, steps * env.n_frames, repeats)
 
 
 # MuJoCo Warp keeps every contact in one buffer shared by the batch (`naconmax`), sized here
@@ -157,20 +163,7 @@ def bench_raw_warp(name, batch, steps, repeats):
     states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
     start = states.pipeline_state
     data = jax.jit(jax.vmap(lambda q, v: data0.replace(qpos=q, qvel=v)))(start.qpos, start.qvel)
-    n = steps * env.n_frames
-    ctrl = _random_actions(jax.random.key(1), n, batch, model.nu) if model.nu else None
-
-    def roll(d, c):
-        def body(d, ci):
-            if ci is not None:
-                d = d.replace(ctrl=ci)
-            return mjx.step(model, d), None
-
-        return jax.lax.scan(body, d, c, length=n)[0]
-
-    fn = jax.jit(jax.vmap(roll, in_axes=(0, 1 if ctrl is not None else None)))
-    t = measure(fn, data, ctrl, repeats=repeats)
-    return {"substeps_per_s": batch * n / t["median_s"], **t}
+    return _time_steps(model, data, steps * env.n_frames, repeats)
 
 
 def bench_c(name, batch, steps, repeats):

@@ -126,7 +126,8 @@ class _RunDir:
         runs', see `_analyse_together`)."""
         with _timed(self.seconds, "analysis"):
             records = _analyse(stream, state, self.eval_key(), self.pi_rand_key,
-                               analysis.error_names(stream), self.out, self.epoch, report)
+                               analysis.error_names(stream), self.out, self.epoch, report,
+                               seed=self.config.seed)
         self.history += records
         with (self.out / "history.jsonl").open("a") as f:
             f.writelines(json.dumps(r) + "\n" for r in records)
@@ -321,35 +322,64 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
                       checkpoint_every: int | None = None) -> None:
     """Analyses the runs `due` [(index in the stacked states, run)] at their (common) epoch.
 
-    Several runs whose stacked states live on one device are evaluated by one
-    `analysis.evaluate_runs` call (on a GPU about the cost of one run's `evaluate`), the time
-    shared among them; each run then writes its records, figures and checkpoint as alone.
-    A single run, or runs split across devices, are evaluated one by one."""
-    reports = [None] * len(due)
-    if len(due) > 1 and len(states.epoch.sharding.device_set) == 1:
+    The runs that one device holds are evaluated by one `analysis.evaluate_runs` call on that
+    device (on a GPU about the cost of one run's `evaluate`: the analysis is latency bound), the
+    time shared among them; with the runs split across devices that is one call per device, the
+    devices taken in turn. A device holding a single due run evaluates it alone. Each run then
+    writes its records, figures and checkpoint as alone."""
+    reports = {}
+    for device_states, members in _due_by_device(states, due):
+        if len(members) == 1:
+            continue
         tic = time.perf_counter()
-        index = [i for i, _ in due]
-        if index != list(range(states.epoch.shape[0])):  # a run stopped (non-finite loss)
-            states_due = jax.tree.map(lambda x: x[np.asarray(index)], states)
-        else:
-            states_due = states
-        reports = analysis.evaluate_runs(stream, states_due,
-                                         jnp.stack([r.eval_key() for _, r in due]),
-                                         jnp.stack([r.pi_rand_key for _, r in due]))
-        share = (time.perf_counter() - tic) / len(due)
-        for _, r in due:
+        runs = [r for _, r in members]
+        evaluated = analysis.evaluate_runs(stream, device_states,
+                                           jnp.stack([r.eval_key() for r in runs]),
+                                           jnp.stack([r.pi_rand_key for r in runs]))
+        share = (time.perf_counter() - tic) / len(members)
+        for (i, r), report in zip(members, evaluated, strict=True):
             r.seconds["analysis"] += share
-    for (i, r), report in zip(due, reports, strict=True):
-        r.analyse(stream, jax.tree.map(lambda x, i=i: x[i], states), report, checkpoint_every)
+            reports[i] = report
+    for i, r in due:
+        r.analyse(stream, jax.tree.map(lambda x, i=i: x[i], states), reports.get(i),
+                  checkpoint_every)
+
+
+def _due_by_device(states: StreamState, due: list) -> list[tuple[StreamState, list]]:
+    """The runs `due` grouped by the device that holds them (the first, where the states are
+    replicated): per device, its due runs' states stacked on it and their entries of `due`.
+
+    Taken from each device's own shard, so nothing crosses devices; a device's whole shard is
+    used as is (no copy of its replays) when every run in it is due."""
+    owner = {}
+    for shard in states.epoch.addressable_shards:
+        start, stop, _ = shard.index[0].indices(states.epoch.shape[0])
+        for i in range(start, stop):
+            owner.setdefault(i, shard.device)
+    groups: dict = {}
+    for i, r in due:
+        groups.setdefault(owner[i], []).append((i, r))
+
+    def local(x, device, index):
+        shard = next(s for s in x.addressable_shards if s.device == device)
+        start, stop, _ = shard.index[0].indices(x.shape[0])
+        if index == list(range(start, stop)):
+            return shard.data
+        return shard.data[np.asarray(index) - start]
+
+    return [(jax.tree.map(lambda x, d=device, m=members: local(x, d, [i for i, _ in m]), states),
+             members) for device, members in groups.items()]
 
 
 def _analyse(stream: Stream, state: StreamState, key, pi_rand_key, names, out: Path,
-             epoch: int, report: dict | None = None) -> list[dict]:
+             epoch: int, report: dict | None = None, *, seed: int) -> list[dict]:
+    # `seed` is the run's own: runs trained together share one Stream, whose config carries
+    # the first run's seed.
     if report is None:
         report = analysis.evaluate(stream, state, key, pi_rand_key)
     errors = {k: v for k, v in report["errors"].items() if k != "validation"}
     records = plots.history_records(epoch, stream.config.learner, errors, names,
-                                    report["distortion"], run=stream.config.seed)
+                                    report["distortion"], run=seed)
     # The held-out replay rows' error, for choices made without the test sets, and what a latent
     # with no information scores on each test set's rows (`evaluation.constant_errors`).
     validation = dict(zip(names, report["errors"]["validation"], strict=True))

@@ -6,6 +6,7 @@ with the runs split across two devices (the two XLA:CPU devices of
 tests/conftest.py), must reproduce every run's PPO and learner losses.
 """
 
+import dataclasses
 import json
 
 import jax
@@ -107,3 +108,71 @@ def _numbers(record) -> list[float]:
     if isinstance(record, list):
         return [x for v in record for x in _numbers(v)]
     return [float(record)] if isinstance(record, int | float) else []
+
+
+def test_due_runs_are_analysed_in_one_call_per_device():
+    """`_due_by_device` hands each device its due runs' states, taken from its own shard."""
+    from typing import NamedTuple
+
+    from jax.sharding import NamedSharding
+    from jax.sharding import PartitionSpec as P
+
+    class State(NamedTuple):  # the two things `_due_by_device` reads of a StreamState
+        epoch: jax.Array
+        replay: jax.Array
+
+    runs = State(np.arange(4, dtype=np.int32), np.arange(4 * 3, dtype=np.float32).reshape(4, 3))
+    mesh = stream.runs_mesh(4)
+    sharded = jax.device_put(jax.tree.map(jax.numpy.asarray, runs),
+                             NamedSharding(mesh, P(loop.RUNS_AXIS)))
+    devices = list(mesh.devices.flat)
+
+    def grouped(states, due):
+        return [(sorted(d.id for d in s.replay.devices()), np.asarray(s.replay).tolist(),
+                 [i for i, _ in members])
+                for s, members in run_lib._due_by_device(states, [(i, f"run{i}") for i in due])]
+
+    rows = runs.replay.tolist()
+    # Every run due: one group per device, each its own shard (runs 0, 1 and 2, 3).
+    assert grouped(sharded, range(4)) == [([devices[0].id], rows[:2], [0, 1]),
+                                          ([devices[1].id], rows[2:], [2, 3])]
+    # Run 3 stopped: device 1's group is run 2 alone, gathered from device 1's shard (its row 0).
+    assert grouped(sharded, [0, 1, 2]) == [([devices[0].id], rows[:2], [0, 1]),
+                                           ([devices[1].id], rows[2:3], [2])]
+    # Replicated states (what trimming a padded stack leaves): the first device takes them all.
+    replicated = jax.tree.map(lambda x: x[:3], sharded)
+    assert grouped(replicated, [0, 2]) == [([devices[0].id], [rows[0], rows[2]], [0, 2])]
+    # One device: one group, as the single-device path always had.
+    assert grouped(jax.tree.map(jax.numpy.asarray, runs), [1, 2]) == [
+        ([devices[0].id], rows[1:3], [1, 2])]
+
+
+@pytest.mark.slow
+def test_runs_split_across_devices_are_analysed_per_device_as_alone(tmp_path, monkeypatch):
+    """Four runs on two devices (the device loop, as on GPUs): one `evaluate_runs` call per
+    device and analysis, and every run's records as it writes them alone (its own seed too)."""
+    import functools
+
+    calls = []
+    evaluate_runs = run_lib.analysis.evaluate_runs
+
+    def spy(stream_, states, *keys):
+        calls.append((int(states.epoch.shape[0]), sorted(d.id for d in states.epoch.devices())))
+        return evaluate_runs(stream_, states, *keys)
+
+    monkeypatch.setattr(run_lib.analysis, "evaluate_runs", spy)
+    monkeypatch.setattr(run_lib, "run_stacked_epochs",
+                        functools.partial(run_lib.run_stacked_epochs, host_loop=False))
+    configs = [dataclasses.replace(small(), seed=s) for s in range(4)]
+    run_lib.run_many(configs, [tmp_path / "many" / str(s) for s in range(4)], progress=False)
+    analyses = len(run_lib.analysis_epochs(configs[0]))
+    assert calls == [(2, [0]), (2, [1])] * analyses
+    for seed in (0, 2):  # the first run of each device
+        run_lib.run(configs[seed], tmp_path / "alone" / str(seed), progress=False)
+        many = (tmp_path / "many" / str(seed) / "history.jsonl").read_text().splitlines()
+        single = (tmp_path / "alone" / str(seed) / "history.jsonl").read_text().splitlines()
+        assert len(many) == len(single) == 2 * analyses
+        for a, b in zip(many, single, strict=True):
+            a, b = json.loads(a), json.loads(b)
+            assert a["run"] == b["run"] == seed
+            np.testing.assert_allclose(_numbers(a), _numbers(b), rtol=1e-4, atol=1e-5)

@@ -3,7 +3,9 @@
     python benchmarks/learner_throughput.py [--batches 64 256 1024] [--reps 5] [--steps 3]
         [--dtypes float32 bfloat16]
 
-Compile time is reported apart; steady state is the median over `reps` blocked repetitions of
+jaml's row also carries XLA's FLOP count of the compiled step (`cost_analysis`, per frame) and
+the rate it implies, to set the frames/s against the device's peak. Compile time is reported
+apart; steady state is the median over `reps` blocked repetitions of
 `steps` train steps each. jaml's step is compiled with `learners.compiler_options()` (on the CPU:
 convolutions on XLA's Eigen path, not YNNPACK; elsewhere XLA's defaults). If torch imports, the
 reference's network (suite_reference.md §4), written here in PyTorch, is timed the same way in
@@ -63,6 +65,10 @@ def bench_jax(b: int, reps: int, steps: int, dtype: str = "float32") -> dict:
         state, batch, jax.random.key(0)).compile()
     compile_s = time.perf_counter() - t0
     holder = {"state": state, "i": 0}
+    # XLA's own count for the program it compiled for this device (the GPU's formulation of
+    # the transposed convolutions does 2.25x the decoder's multiply-adds of the CPU's).
+    cost = step.cost_analysis()
+    flops = (cost[0] if isinstance(cost, list) else cost or {}).get("flops", float("nan"))
 
     def run_steps(n):
         for _ in range(n):
@@ -71,7 +77,8 @@ def bench_jax(b: int, reps: int, steps: int, dtype: str = "float32") -> dict:
         jax.block_until_ready((holder["state"], metrics))
 
     run_steps(1)  # warm-up
-    return {"compile_s": compile_s, "fps": _median_rate(run_steps, b, reps, steps)}
+    return {"compile_s": compile_s, "fps": _median_rate(run_steps, b, reps, steps),
+            "gflop_per_frame": flops / b / 1e9}
 
 
 def bench_torch(b: int, reps: int, steps: int, dtype: str = "float32") -> dict | None:
@@ -151,9 +158,12 @@ def _compare(b: int, dtype: str, reps: int, steps: int) -> list[dict]:
     j = bench_jax(b, reps, steps, dtype)
     case = f"VAE train step, batch {b}" + ("" if dtype == "float32" else f", {dtype}")
     rows = [{"case": case, "impl": "jaml", "batch": b, "dtype": dtype,
-             "compile_s": j["compile_s"], "frames_per_s": j["fps"]}]
+             "compile_s": j["compile_s"], "frames_per_s": j["fps"],
+             "xla_gflop_per_frame": j["gflop_per_frame"],
+             "xla_tflop_per_s": j["gflop_per_frame"] * j["fps"] / 1e3}]
     line = (f"batch {b:4d} {dtype}: jaml {j['fps']:8.1f} frames/s "
-            f"(compile {j['compile_s']:.1f} s)")
+            f"(compile {j['compile_s']:.1f} s; XLA counts {j['gflop_per_frame']:.3f} GFLOP/frame, "
+            f"{rows[0]['xla_tflop_per_s']:.2f} TFLOP/s)")
     t = bench_torch(b, reps, steps, dtype)
     if t is not None:
         rows[0]["speedup_vs_pytorch"] = j["fps"] / t["fps"]

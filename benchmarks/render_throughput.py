@@ -1,7 +1,9 @@
 """Frames per second of the JAX ray caster at 64×64, batch 1/64/256, on the default JAX device.
 
-Run from the repo root: PYTHONPATH=. python benchmarks/render_throughput.py [--reps 5]
-[--batches 1 64 256] [--large] [--outputs all seg] [--scenes cartpole mesh half_cheetah ant].
+Run from the repo root: python -m benchmarks.render_throughput [--reps 5]
+[--batches 1 64 256] [--large] [--outputs all seg] [--scenes cartpole mesh half_cheetah ant]
+[--no-record]. Rows are recorded through the harness (`benchmarks/results.jsonl`, RESULTS.md)
+unless --no-record.
 `--large` adds batches 1024 and 4096 (for a GPU). `--outputs seg` also times a jitted function
 that returns only the segmentation (XLA drops the unused shading). Compile time is reported
 apart; throughput is the median over blocked repetitions, and for the CPU the frames per
@@ -15,6 +17,7 @@ from __future__ import annotations
 import argparse
 import platform
 import statistics
+import sys
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -23,6 +26,9 @@ import jax
 import mujoco
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks import harness
 from envs_mjx import render
 
 CARTPOLE = """<mujoco><worldbody><light pos="0 0 4" dir="0 0 -1"/>
@@ -83,7 +89,9 @@ BEFORE_2CORE = {("cartpole", 1): 279, ("cartpole", 64): 229, ("cartpole", 256): 
 OUTPUTS = {"all": lambda out: out, "seg": lambda out: out.segmentation}
 
 
-def bench(name: str, xml: str, batches, reps: int, outputs, camera: str = "cam"):
+def bench(name: str, xml: str, batches, reps: int, outputs, camera: str = "cam") -> list[dict]:
+    """Prints one line per (batch, outputs) and returns them as harness rows."""
+    rows = []
     m = mujoco.MjModel.from_xml_string(xml)
     ctx = render.make_context(m, camera, 64, 64)
     rng = np.random.default_rng(0)
@@ -105,13 +113,18 @@ def bench(name: str, xml: str, batches, reps: int, outputs, camera: str = "cam")
                 times.append(time.perf_counter() - t0)
                 cpu_times.append(time.process_time() - c0)
             med = statistics.median(times)
+            row = {"case": f"{name}/render/{which}", "impl": "jaml renderer", "batch": b,
+                   "compile_s": compile_s, "median_s": med, "frames_per_s": b / med}
             line = (f"  batch {b:4d} {which:>3}: {b / med:10.1f} frames/s  (median"
                     f" {med * 1e3:8.2f} ms over {reps} reps; compile {compile_s:5.2f} s)")
             if cpu:
                 line += f"; {b / statistics.median(cpu_times):8.1f} frames/cpu-s"
+                row["frames_per_cpu_s"] = b / statistics.median(cpu_times)
                 if which == "all" and (name, b) in BEFORE_2CORE:
                     line += f"; before {BEFORE_2CORE[name, b]}"
             print(line)
+            rows.append(row)
+    return rows
 
 
 def main():
@@ -122,25 +135,32 @@ def main():
     parser.add_argument("--outputs", nargs="+", default=["all"], choices=sorted(OUTPUTS))
     parser.add_argument("--scenes", nargs="+", default=["cartpole", "mesh"],
                         choices=["cartpole", "mesh", "half_cheetah", "ant"])
+    parser.add_argument("--no-record", action="store_true", help="print only")
     args = parser.parse_args()
     batches = list(args.batches) + ([1024, 4096] if args.large else [])
     dev = jax.devices()[0]
     print(f"jax {jax.__version__}, mujoco {mujoco.__version__}, device {dev.platform}:"
           f" {dev.device_kind}, host {platform.processor() or platform.machine()}")
+    rows = []
     if "cartpole" in args.scenes:
         print("cartpole (3 boxes + plane), 64x64:")
-        bench("cartpole", CARTPOLE, batches, args.reps, args.outputs)
+        rows += bench("cartpole", CARTPOLE, batches, args.reps, args.outputs)
     if "mesh" in args.scenes:
         print("mesh (256-triangle torus + plane), 64x64:")
-        bench("mesh", mesh_scene(), batches, args.reps, args.outputs)
+        rows += bench("mesh", mesh_scene(), batches, args.reps, args.outputs)
     if "half_cheetah" in args.scenes:
         print("half_cheetah (assets/half_cheetah.xml: 9 capsules + checker floor), 64x64:")
         xml = (Path(__file__).resolve().parents[1] / "assets" / "half_cheetah.xml").read_text()
-        bench("half_cheetah", xml, batches, args.reps, args.outputs, camera="pixels")
+        rows += bench("half_cheetah", xml, batches, args.reps, args.outputs, camera="pixels")
     if "ant" in args.scenes:
         print("ant (assets/ant.xml: sphere + 12 capsules + checker floor), 64x64:")
         xml = (Path(__file__).resolve().parents[1] / "assets" / "ant.xml").read_text()
-        bench("ant", xml, batches, args.reps, args.outputs, camera="pixels")
+        rows += bench("ant", xml, batches, args.reps, args.outputs, camera="pixels")
+
+    if not args.no_record:
+        harness.record("render_throughput", rows,
+                       notes="The renderer alone (jit(vmap(render))) on random poses of each "
+                             "scene, 64x64, compile apart, median of blocked repetitions.")
 
 
 if __name__ == "__main__":

@@ -408,6 +408,21 @@ def _claims(runs, shape: Layout, configs) -> list[str]:
                                   values_at(h, last, t, rest)))
     positions = _flat(shape.positions)
     for variant, h in runs.items():
+        # From the first analysis (the replay just full, no learner step yet): what training
+        # changed at all, for every variant.
+        common = sorted(set.intersection(*({r["step"] for r in run} for run in h)))
+        if len(common) >= 2:
+            first, last = common[0], common[-1]
+            row("(what training changed)", f"object position error, epoch {last} − epoch "
+                f"{first} (no learner step yet)", variant,
+                lambda t, h=h, first=first, last=last: _paired(
+                    values_at(h, last, t, positions), values_at(h, first, t, positions)))
+            if variant == "VAE_rpl" and shape.largest is not None:
+                largest = shape.positions[shape.largest]
+                row("(what training changed)", f"{shape.largest} position error, epoch {last} "
+                    f"− epoch {first}", variant,
+                    lambda t, h=h, first=first, last=last, largest=largest: _paired(
+                        values_at(h, last, t, largest), values_at(h, first, t, largest)))
         if VARIANTS[variant][0] != "SPAIR":
             continue
         steps = _training_steps(h, configs[variant])

@@ -289,7 +289,18 @@ def test_claims_table_pairs_seeds_within_a_variant_and_welch_between(fake_grid):
     assert largest[3] == f"{diffs.mean():.3f} ± {_half(diffs):.3f}"
     # SPAIR: position error at the last common epoch (4; the first trained analysis is also 4,
     # the fill ends at 2): one trained step only, so no "longer training" row.
-    assert not any(k.startswith("object position error, epoch") for k in claims)
+    assert not any(k.startswith("object position error, epoch 4 − epoch 4") for k in claims)
+    # What training changed, from the first analysis (epoch 2, no learner step) to the last
+    # common one: per seed mean position error over the four objects.
+    vae_change = (0.9 + 0.1 * np.arange(3)) / 4 - 0.8
+    row = claims["object position error, epoch 6 − epoch 2 (no learner step yet) / VAE_rpl"]
+    assert row[3] == f"{vae_change.mean():+.3f} ± {_half(vae_change):.3f}"
+    obj3 = claims["obj3 position error, epoch 6 − epoch 2 / VAE_rpl"]
+    obj3_change = 0.1 * np.arange(3) - 0.8
+    assert obj3[3] == f"{obj3_change.mean():+.3f} ± {_half(obj3_change):.3f}"
+    spair_change = 0.3 + 0.1 * np.arange(3) - 0.9  # seed 2 stops at 4: epoch 4 − epoch 2
+    row = claims["object position error, epoch 4 − epoch 2 (no learner step yet) / SPAIR_4x4"]
+    assert row[3] == f"{spair_change.mean():+.3f} ± {_half(spair_change):.3f}"
     # SPAIR against VAE_rpl at epoch 4, Welch's interval over the seeds' position errors.
     against = claims["object position error − VAE_rpl's, epoch 4 / SPAIR_4x4"]
     spair, vae = np.array([0.3, 0.4, 0.5]), 0.475 + 0.015 * np.arange(3)

@@ -118,8 +118,8 @@ def bench(name: str, xml: str, batches, reps: int, outputs, camera: str = "cam")
             line = (f"  batch {b:4d} {which:>3}: {b / med:10.1f} frames/s  (median"
                     f" {med * 1e3:8.2f} ms over {reps} reps; compile {compile_s:5.2f} s)")
             if cpu:
-                line += f"; {b / statistics.median(cpu_times):8.1f} frames/cpu-s"
                 row["frames_per_cpu_s"] = b / statistics.median(cpu_times)
+                line += f"; {row['frames_per_cpu_s']:8.1f} frames/cpu-s"
                 if which == "all" and (name, b) in BEFORE_2CORE:
                     line += f"; before {BEFORE_2CORE[name, b]}"
             print(line)

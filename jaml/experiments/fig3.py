@@ -351,11 +351,15 @@ def _config(out: Path, variant: str) -> dict:
     return json.loads(path.read_text())
 
 
+def _common_steps(histories) -> list[int]:
+    """The analysis steps every seed reached, in order."""
+    return sorted(set.intersection(*({r["step"] for r in h} for h in histories)))
+
+
 def _training_steps(histories, config: dict) -> list[int]:
     """The analysis steps every seed reached after its learner started (the replay full)."""
     fill = config["replay_slots"] // config["num_envs"]
-    common = set.intersection(*({r["step"] for r in h} for h in histories))
-    return sorted(s for s in common if s > fill)
+    return [s for s in _common_steps(histories) if s > fill]
 
 
 def _paired(a: list[float], b: list[float]) -> str:
@@ -410,7 +414,7 @@ def _claims(runs, shape: Layout, configs) -> list[str]:
     for variant, h in runs.items():
         # From the first analysis (the replay just full, no learner step yet): what training
         # changed at all, for every variant.
-        common = sorted(set.intersection(*({r["step"] for r in run} for run in h)))
+        common = _common_steps(h)
         if len(common) >= 2:
             first, last = common[0], common[-1]
             row("(what training changed)", f"object position error, epoch {last} − epoch "

@@ -10,7 +10,9 @@
     OUT/checkpoints/      Orbax: the whole StreamState (envs, PPO, learner, optimiser states,
                           replay, RNG key) as named arrays, written atomically after every
                           analysis (`jaml.stream.checkpoint`)
-    OUT/alignment.png, distortion.png, recon/epoch_XXXXXX.png, summary.json
+    OUT/alignment.png, distortion.png, recon/epoch_XXXXXX.png
+    OUT/summary.json      status, epoch, wall seconds of this call by phase, the last analysis's
+                          records; rewritten after every analysis (status "running") and at the end
 
 Restarted with the same config, a run resumes from its newest checkpoint and drops the JSON-lines
 records written after it, so the logs and the state agree and nothing is counted twice
@@ -136,17 +138,19 @@ class _RunDir:
         if checkpoint_due(self.epoch, self.manager.latest_step(), checkpoint_every,
                           last=not self.targets):
             self.save(state)
+        # A progress summary (status "running"): a process that dies without reaching `close`
+        # (a machine taken back, SIGKILL) still leaves its epoch, phase times and last records.
+        write_json(self.out / "summary.json", self.summary())
 
     def save(self, state: StreamState) -> None:
         """An atomic checkpoint of `state` at the current epoch."""
         with _timed(self.seconds, "checkpoint"):
             checkpoint.save(self.manager, self.epoch, state)
 
-    def close(self) -> dict:
-        self.logs.close()
-        self.manager.close()
+    def summary(self) -> dict:
+        """summary.json's record of this call so far."""
         last = max((h["step"] for h in self.history), default=-1)
-        summary = {
+        return {
             "status": self.status,
             "epoch": self.epoch,
             "seconds_this_call": time.perf_counter() - self.started,
@@ -154,6 +158,11 @@ class _RunDir:
             "checkpoint_epoch": self.manager.latest_step(),
             "final": [r for r in self.history if r["step"] == last],
         }
+
+    def close(self) -> dict:
+        self.logs.close()
+        self.manager.close()
+        summary = self.summary()
         write_json(self.out / "summary.json", summary)
         return summary
 

@@ -192,8 +192,22 @@ def _learner_params(out, config):
 
 
 @pytest.mark.slow
-def test_a_killed_run_resumes_to_the_result_of_an_uninterrupted_one(tmp_path):
+def test_a_killed_run_resumes_to_the_result_of_an_uninterrupted_one(tmp_path, monkeypatch):
     config = tiny()
+    # A process that dies before `close` (SIGKILL, its machine taken back) still leaves the
+    # summary written at its last analysis: epoch, phase times, that analysis's records.
+    def died(run_dir):
+        run_dir.logs.close()
+        run_dir.manager.close()
+        return run_dir.summary()
+
+    with monkeypatch.context() as patch:
+        patch.setattr(run_lib._RunDir, "close", died)
+        run_lib.run(config, tmp_path / "died", progress=False, stop_after=3)
+    progress = json.loads((tmp_path / "died" / "summary.json").read_text())
+    assert progress["status"] == "running" and progress["epoch"] == 2
+    assert progress["checkpoint_epoch"] == 2 and [r["step"] for r in progress["final"]] == [2, 2]
+    assert all(progress["seconds_by_phase"][k] > 0 for k in ("epochs", "analysis"))
     first = run_lib.run(config, tmp_path / "a", progress=False, stop_after=3)
     # A deliberate stop between analyses (epochs 2 and 4) checkpoints where it stopped.
     assert first["status"] == "interrupted" and first["checkpoint_epoch"] == 3

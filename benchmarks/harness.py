@@ -76,6 +76,26 @@ def _cpu_model() -> str:
     return platform.processor() or "unknown"
 
 
+def git_commit(directory: Path, ignore: tuple[str, ...] = ()) -> str:
+    """The short HEAD of the checkout holding `directory`, with "+dirty" when tracked files have
+    uncommitted changes (the commit alone does not name the code), "" without git. `ignore`:
+    paths relative to `directory` whose changes do not count, the harness's own outputs, which
+    the first rows of a run change before the later rows are recorded."""
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=directory, text=True, capture_output=True,
+                              check=False).stdout.strip()
+
+    try:
+        commit = git("rev-parse", "--short", "HEAD")
+        exclude = [f":(exclude){path}" for path in ignore]
+        if commit and git("status", "--porcelain", "--untracked-files=no", "--", ":(top)",
+                          *exclude):
+            commit += "+dirty"
+    except OSError:
+        return ""
+    return commit
+
+
 def environment() -> dict:
     """Device, host and library versions for a results record."""
     import jax
@@ -87,23 +107,8 @@ def environment() -> dict:
     device = jax.devices()[0]
     # JAML_COMMIT names the commit where the checkout's git does not (a copied working tree on a
     # remote machine can carry a stale .git).
-    commit = os.environ.get("JAML_COMMIT", "")
-    try:
-        commit = commit or subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"],
-            cwd=HERE,
-            text=True,
-            capture_output=True,
-            check=False,
-        ).stdout.strip()
-        # Uncommitted changes to tracked files: the commit alone does not name the code.
-        if commit and not os.environ.get("JAML_COMMIT") and subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=HERE, text=True, capture_output=True, check=False,
-        ).stdout.strip():
-            commit += "+dirty"
-    except OSError:
-        commit = ""
+    outputs = ("results.jsonl", "RESULTS.md")
+    commit = os.environ.get("JAML_COMMIT") or git_commit(HERE, ignore=outputs)
     return {
         "device": f"{device.platform}:{getattr(device, 'device_kind', '')}",
         "device_count": jax.device_count(),

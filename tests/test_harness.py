@@ -1,6 +1,8 @@
-"""The benchmark harness refuses results that name no commit, and writes those that do."""
+"""The benchmark harness refuses results that name no commit, writes those that do, and names
+the code a row ran as its commit, "+dirty" for uncommitted changes other than its own outputs."""
 
 import json
+import subprocess
 
 import pytest
 
@@ -21,3 +23,26 @@ def test_record_refuses_rows_without_a_commit_and_writes_rows_with_one(tmp_path,
     row = json.loads((tmp_path / "results.jsonl").read_text())
     assert row["commit"] == "abc1234" and row["modelled_wall_s"] == 2.0
     assert "modelled_wall_s" in (tmp_path / "RESULTS.md").read_text()
+
+
+def test_a_commit_is_dirty_for_changed_code_not_for_the_harness_outputs(tmp_path):
+    def git(*args):
+        subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *args], cwd=tmp_path,
+                       check=True, capture_output=True)
+
+    bench = tmp_path / "benchmarks"
+    bench.mkdir()
+    for path in (bench / "results.jsonl", bench / "bench.py", tmp_path / "lib.py"):
+        path.write_text("0\n")
+    git("init", "-q")
+    git("add", ".")
+    git("commit", "-q", "-m", "first")
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=tmp_path, text=True,
+                          capture_output=True, check=True).stdout.strip()
+    assert harness.git_commit(bench, ignore=("results.jsonl",)) == head
+    (bench / "results.jsonl").write_text("0\n1\n")  # an earlier row of the same run
+    (tmp_path / "untracked.txt").write_text("x")
+    assert harness.git_commit(bench, ignore=("results.jsonl",)) == head
+    (tmp_path / "lib.py").write_text("1\n")  # code outside the benchmarks folder counts
+    assert harness.git_commit(bench, ignore=("results.jsonl",)) == head + "+dirty"
+    assert harness.git_commit(tmp_path / "nowhere") == ""

@@ -100,10 +100,38 @@ def ld_groups(env: str) -> dict[str, list[str]]:
     return groups
 
 
-def final_errors(history: list[dict]) -> dict[str, dict[str, float]]:
-    """test set → {dim: error} at the last analysed step of one run."""
-    last = max(r["step"] for r in history)
-    return {r["test_set"]: r["errors"] for r in history if r["step"] == last}
+def final_errors(history: list[dict], step: int | None = None) -> dict[str, dict[str, float]]:
+    """test set → {dim: error} at `step` (default: the last analysed step) of one run."""
+    step = max(r["step"] for r in history) if step is None else step
+    return {r["test_set"]: r["errors"] for r in history if r["step"] == step}
+
+
+def grid_status(out: Path, envs, variants, seeds: int = len(SEEDS)) -> list[str]:
+    """Markdown lines: per cell, its seeds found under OUT and the epoch all of them reached,
+    against the epochs their configs schedule: what a grid run over several sessions has left.
+    A cell is complete with at least `seeds` seeds at their last epoch."""
+    lines = ["| domain | " + " | ".join(variants) + " |", "|---" * (len(variants) + 1) + "|"]
+    complete = 0
+    for env in envs:
+        row = []
+        for variant in variants:
+            directory = out / env / variant
+            histories = _runs.seed_histories(directory)
+            if not histories:
+                row.append("—")
+                continue
+            config = next(directory.glob("seed_*/config.json"))
+            scheduled = json.loads(config.read_text())["epochs"]
+            reached = _runs.last_common_step(histories)
+            done = len(histories) >= seeds and reached == scheduled
+            complete += done
+            row.append(f"{len(histories)} × {reached}"
+                       + ("" if reached == scheduled else f" of {scheduled}")
+                       + (" ✓" if done else ""))
+        lines.append(f"| {env} | " + " | ".join(row) + " |")
+    total = len(envs) * len(variants)
+    return [f"Cells: seeds × the epoch they all reached; ✓ = {seeds} seeds at their last epoch. "
+            f"{complete} of {total} complete.", "", *lines, ""]
 
 
 def _histories(out: Path, env: str, variants) -> dict[str, list[list[dict]]]:
@@ -144,7 +172,9 @@ def figure_records(out: Path, envs, variants) -> list[dict]:
 def report(out: Path, envs, variants) -> str:
     """fig2.md and the figures from every run under OUT; returns the markdown."""
     lines = ["# Fig. 2: alignment error (training-std units; lower is better)", "",
-             "Several seeds: mean ± the half-width of its 90 % confidence interval.", ""]
+             *grid_status(out, envs, variants),
+             "Several seeds: mean ± the half-width of its 90 % confidence interval, at the last",
+             "epoch all of a cell's seeds reached.", ""]
     for env in envs:
         runs = _histories(out, env, variants)
         if not runs:
@@ -161,8 +191,10 @@ def report(out: Path, envs, variants) -> str:
                   + " | epoch | seeds |",
                   "|---" * (len(show) + len(groups) + 4) + "|"]
         for variant, histories in runs.items():
-            finals = [final_errors(h) for h in histories]
-            last = min(max(r["step"] for r in h) for h in histories)
+            # A seed that went further than the others (an unfinished call) is read at the
+            # epoch they all reached, so a row never mixes epochs.
+            last = _runs.last_common_step(histories)
+            finals = [final_errors(h, last) for h in histories]
             for test_set in finals[0]:
                 per_seed = [f[test_set] for f in finals if test_set in f]
                 dims = [[e[n] for e in per_seed] for n in show]

@@ -11,12 +11,14 @@ from jaml.experiments import fig2
 NAMES = ["theta", "theta_dot", "x", "x_dot"]
 
 
-def _write_run(path, learner, seed, errors_at_end):
+def _write_run(path, learner, seed, errors_at_end, finished=True):
+    """Analyses at epochs 10 (errors 0.9) and, when finished, 20 of the 20 scheduled."""
     path.mkdir(parents=True)
-    config = {k: 1 for k in fig2.SCALE}
+    config = {k: 1 for k in fig2.SCALE} | {"epochs": 20}
     (path / "config.json").write_text(json.dumps(config))
     records = history_records(10, learner, {"pi_rand": [0.9] * 4}, NAMES, run=seed)
-    records += history_records(20, learner, {"pi_rand": errors_at_end}, NAMES, run=seed)
+    if finished:
+        records += history_records(20, learner, {"pi_rand": errors_at_end}, NAMES, run=seed)
     (path / "history.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
 
 
@@ -39,10 +41,27 @@ def test_report_averages_seeds_with_a_t_interval(tmp_path):
     assert rows["PRED"][7].startswith(f"{np.mean(velocity):.3f} ± ")
     assert rows["PRED"][-2:] == ["20", "3 |"]  # the last analysed epoch, seeds counted
     assert rows["VAE_rpl"][2] == "0.400" and rows["VAE_rpl"][-1] == "1 |"  # one seed: no ±
-    assert "InvertedPendulum" not in text  # no runs, no section
+    assert "## InvertedPendulum" not in text  # no runs, no section (a status row only)
     assert (tmp_path / "fig2.md").read_text() == text
     assert (tmp_path / "CartPole_alignment.png").stat().st_size > 0
     assert (tmp_path / "fig2.png").stat().st_size > 0
+
+
+def test_report_shows_each_cells_progress_and_reads_a_cell_at_its_seeds_common_epoch(tmp_path):
+    for seed in range(6):
+        _write_run(tmp_path / "CartPole" / "PRED" / f"seed_{seed}", "PRED", seed, [0.1] * 4)
+    for seed in range(3):  # an unfinished call: seed 2 stopped after its first analysis
+        _write_run(tmp_path / "CartPole" / "VAE_rpl" / f"seed_{seed}", "VAE_rpl", seed,
+                   [0.2] * 4, finished=seed < 2)
+
+    text = fig2.report(tmp_path, ["CartPole", "Ant"], ["PRED", "VAE_rpl", "DSA"])
+
+    assert "1 of 6 complete" in text
+    assert "| CartPole | 6 × 20 ✓ | 3 × 10 of 20 | — |" in text
+    assert "| Ant | — | — | — |" in text
+    vae = next(line for line in text.splitlines() if line.startswith("| VAE_rpl"))
+    # Every seed read at epoch 10 (errors 0.9), not seeds 0 and 1 at 20 (0.2) mixed in.
+    assert vae.split(" | ")[2] == "0.900 ± 0.000" and vae.endswith("| 10 | 3 |")
 
 
 def test_figure_panels_average_the_groups_of_each_domain(tmp_path):

@@ -13,8 +13,9 @@
 (c) Side by side with the paper's stack (benchmark "envs_vs_pybullet"): the same env with
     pixels at the largest pixel batch against benchmarks/peers/pybullet_envs.py (PyBullet
     stepping the reference's scene + a 64x64 TinyRenderer frame per step made as the reference
-    made it, one process per core), and batch 1 against one process, for the domains that have
-    a PyBullet scene. The two alternate block by block in one process (jaml's calls on all
+    made it, one process per core), and batch 1 against one process (blocks of 200 steps, so
+    that the steps and not a call's fixed cost are timed), for the domains that have a PyBullet
+    scene. The two alternate block by block in one process (jaml's calls on all
     cores, then the PyBullet workers on all cores), so load from other processes falls on both;
     the row holds both medians, their ratio, the spread of the per-round ratios and each
     side's frames per CPU second (a per-core view that load from other processes does not
@@ -320,6 +321,9 @@ def main(argv=None):
                              "domains with a PyBullet scene, when pybullet is installed)")
     parser.add_argument("--rounds", type=int, default=7,
                         help="alternated blocks per side in the side-by-side case")
+    parser.add_argument("--single-env-steps", type=int, default=200,
+                        help="steps per block of the one-env side-by-side pair (10 steps of one "
+                             "env, ~3 ms, would time the call's fixed cost more than the steps)")
     parser.add_argument("--processes", type=int, default=os.cpu_count() or 1,
                         help="PyBullet worker processes (default: one per core)")
     args = parser.parse_args(argv)
@@ -361,7 +365,8 @@ def main(argv=None):
         if 1 in pix_batches and max(pix_batches) > 1:
             pairs.append((1, 1))  # one env against one PyBullet process
         for b, procs in pairs if side and parse_env(name)[0] in pybullet_envs.SCENES else ():
-            r = bench_vs_pybullet(name, b, pix_steps, args.rounds, procs)
+            steps = pix_steps if b > 1 or args.quick else args.single_env_steps
+            r = bench_vs_pybullet(name, b, steps, args.rounds, procs)
             line = (f"  side by side, 64x64 frames/s: jaml b{b} "
                     f"{r['jaml_frames_per_s']:,.0f} | PyBullet x{procs} "
                     f"{r['pybullet_frames_per_s']:,.0f} | ratio {r['ratio_jaml_over_pybullet']:.2f}"

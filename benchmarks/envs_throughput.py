@@ -246,15 +246,48 @@ def bench_vs_pybullet(name, batch, steps, rounds, processes=2):
                             jaml_cpu=t["jaml_cpu_s"], pybullet_cpu=t["pybullet_cpu_s"])
 
 
-def alternate(jaml_call, pool, rounds):
+def bench_gym_vs_pybullet(name, steps, rounds):
+    """One env stepped through jaml's Gymnasium interface (`envs_mjx.to_gymnasium`: a jitted
+    call and a host copy of the frame per step, as a user's Python loop runs it) against one
+    PyBullet process, alternated block by block; each block resets untimed, then steps `steps`
+    random actions with a frame each, as the peer does (neither side resets within a block)."""
+    env_name, overrides = parse_env(name)
+    gym_env = envs_mjx.to_gymnasium(env_name, None, seed=0, pixels="required", **overrides)
+    actions = np.random.default_rng(0).uniform(-1, 1, (steps, *gym_env.action_space.shape))
+    actions = actions.astype(np.float32)
+
+    def episode():
+        obs = None
+        for a in actions:
+            obs = gym_env.step(a)[0]
+        return obs
+
+    start = time.perf_counter()
+    gym_env.reset(seed=0)
+    episode()
+    compile_s = time.perf_counter() - start
+    with pybullet_envs.PeerPool(env_name, 1, 1, steps) as pool:
+        t = alternate(episode, pool, rounds, before=lambda: gym_env.reset(seed=0))
+    row = side_by_side_row(name, 1, steps, steps, t["jaml_s"], pool.frames_per_block,
+                           t["pybullet_s"], compile_s=compile_s, setup_s=pool.setup_s,
+                           processes=1, jaml_cpu=t["jaml_cpu_s"],
+                           pybullet_cpu=t["pybullet_cpu_s"])
+    row["case"] = f"{name}/gym_vs_pybullet/b1"
+    row["impl"] = "jaml Gymnasium env.step (one env) vs PyBullet+TinyRenderer x1 process"
+    return row
+
+
+def alternate(jaml_call, pool, rounds, before=None):
     """Seconds per round of `jaml_call()` (blocked) and of `pool.block()`, with the CPU seconds
     of each (jaml's process, all its threads; the PyBullet workers, summed), after one warm-up
     block of the pool (jaml's first call is its compile, made before). Even rounds run jaml
-    first, odd rounds PyBullet first."""
+    first, odd rounds PyBullet first. `before` (optional) runs untimed ahead of each jaml block."""
     pool.block()
     out = {"jaml_s": [], "pybullet_s": [], "jaml_cpu_s": [], "pybullet_cpu_s": []}
 
     def jaml_block():
+        if before is not None:  # untimed set-up of the block (a reset)
+            before()
         start, start_cpu = time.perf_counter(), time.process_time()
         block(jaml_call())
         out["jaml_s"].append(time.perf_counter() - start)
@@ -324,6 +357,9 @@ def main(argv=None):
     parser.add_argument("--single-env-steps", type=int, default=200,
                         help="steps per block of the one-env side-by-side pair (10 steps of one "
                              "env, ~3 ms, would time the call's fixed cost more than the steps)")
+    parser.add_argument("--gym", action="store_true",
+                        help="with batch 1: also one env stepped through the Gymnasium "
+                             "interface, one Python call per step, against one PyBullet process")
     parser.add_argument("--processes", type=int, default=os.cpu_count() or 1,
                         help="PyBullet worker processes (default: one per core)")
     args = parser.parse_args(argv)
@@ -376,6 +412,15 @@ def main(argv=None):
             if quoted := r["quoted_pybullet_1core_frames_per_s"]:
                 line += f"; quoted, not measured: {quoted:.0f} per core"
             print(line, flush=True)
+            side_rows.append(r)
+        if (side and parse_env(name)[0] in pybullet_envs.SCENES and 1 in pix_batches
+                and args.gym):
+            r = bench_gym_vs_pybullet(name, 20 if args.quick else args.single_env_steps,
+                                      args.rounds)
+            print(f"  Gymnasium, one env: jaml {r['jaml_frames_per_s']:,.0f} | PyBullet x1 "
+                  f"{r['pybullet_frames_per_s']:,.0f} frames/s | ratio "
+                  f"{r['ratio_jaml_over_pybullet']:.2f} (rounds {r['ratio_min']:.2f}-"
+                  f"{r['ratio_max']:.2f})", flush=True)
             side_rows.append(r)
         if not args.no_record:
             notes = "quick" if args.quick else ""

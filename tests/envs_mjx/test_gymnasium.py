@@ -10,7 +10,7 @@ from gymnasium.utils.env_checker import check_env
 from gymnasium.vector import AutoresetMode, VectorEnv
 
 import envs_mjx
-from envs_mjx.gym import _flags
+from envs_mjx.gym import _flags, _Packing
 
 N = 4
 
@@ -149,3 +149,15 @@ def test_flags_split_done_by_truncation():
     term, trunc = _flags(s)
     np.testing.assert_array_equal(term, [False, True, False])
     np.testing.assert_array_equal(trunc, [False, False, True])
+
+
+def test_packed_state_round_trips_exactly_in_one_buffer_per_dtype(direct):
+    reset, step = direct
+    state = step(reset(jax.random.PRNGKey(3)), np.array([0.4], np.float32))
+    packing = _Packing(state)
+    packed = jax.jit(packing.pack)(state)
+    assert [p.dtype for p in packed] == [np.dtype(d) for d in ("bool", "float32", "int32",
+                                                                "uint8")]
+    back = jax.jit(packing.unpack)(packed)
+    assert jax.tree.structure(back) == jax.tree.structure(state)
+    jax.tree.map(np.testing.assert_array_equal, back, state)

@@ -65,8 +65,8 @@ def _split_done(done, truncation) -> tuple[np.ndarray, np.ndarray]:
 class _Packing:
     """An env state as one flat buffer per dtype, and back (exactly: slices and reshapes).
 
-    A jitted call pays a fixed cost per argument and result buffer: on the 2-core CPU an identity
-    `jax.jit` over the CartPole state's 95 leaves took ~430 µs, twice the step's own work inside
+    A jitted call pays a fixed cost per argument and result buffer: on the 2-core CPU `jax.jit`
+    of x + 0 over the CartPole state's 95 leaves took ~430 µs, twice the step's own work inside
     a scan (~210 µs with pixels). The single env runs one call per Gymnasium step, so it passes
     its state packed: four buffers (float32, int32, bool, uint8) instead of 95."""
 

@@ -91,16 +91,20 @@ def test_envs_throughput_records_a_side_by_side_row_for_cartpole(tmp_path, monke
     monkeypatch.setattr(harness, "RESULTS_JSONL", tmp_path / "results.jsonl")
     monkeypatch.setattr(harness, "RESULTS_MD", tmp_path / "RESULTS.md")
     monkeypatch.setattr(harness, "environment", lambda: dict(env))
-    row, single = envs_throughput.main(["--envs", "CartPole", "--parts", "pybullet",
-                                        "--pixel-batches", "1", "2", "--rounds", "2",
-                                        "--processes", "2", "--single-env-steps", "7"])
+    row, single, gym = envs_throughput.main(["--envs", "CartPole", "--parts", "pybullet",
+                                             "--pixel-batches", "1", "2", "--rounds", "2",
+                                             "--processes", "2", "--single-env-steps", "7",
+                                             "--gym"])
     assert row["case"] == "CartPole/pixels_vs_pybullet/b2" and row["steps"] == 10
     # One env against one process, over longer blocks than the batched pair's.
     assert single["case"] == "CartPole/pixels_vs_pybullet/b1" and single["steps"] == 7
+    # The same one env stepped through the Gymnasium interface, one call per step.
+    assert gym["case"] == "CartPole/gym_vs_pybullet/b1" and gym["steps"] == 7
+    assert gym["jaml_frames_per_s"] > 0 and gym["rounds"] == 2
     assert row["jaml_frames_per_s"] > 0 and row["pybullet_frames_per_s"] > 0
     assert row["ratio_jaml_over_pybullet"] == pytest.approx(
         row["jaml_frames_per_s"] / row["pybullet_frames_per_s"])
-    recorded, _ = [json.loads(line)
+    recorded, _, _ = [json.loads(line)
                    for line in (tmp_path / "results.jsonl").read_text().splitlines()]
     assert recorded["benchmark"] == "envs_vs_pybullet"
     assert recorded["ratio_jaml_over_pybullet"] == row["ratio_jaml_over_pybullet"]

@@ -400,7 +400,8 @@ def main(argv=None):
         pairs = [(max(pix_batches), args.processes)]
         if 1 in pix_batches and max(pix_batches) > 1:
             pairs.append((1, 1))  # one env against one PyBullet process
-        for b, procs in pairs if side and parse_env(name)[0] in pybullet_envs.SCENES else ():
+        has_peer = side and parse_env(name)[0] in pybullet_envs.SCENES
+        for b, procs in pairs if has_peer else ():
             steps = pix_steps if b > 1 or args.quick else args.single_env_steps
             r = bench_vs_pybullet(name, b, steps, args.rounds, procs)
             line = (f"  side by side, 64x64 frames/s: jaml b{b} "
@@ -413,8 +414,7 @@ def main(argv=None):
                 line += f"; quoted, not measured: {quoted:.0f} per core"
             print(line, flush=True)
             side_rows.append(r)
-        if (side and parse_env(name)[0] in pybullet_envs.SCENES and 1 in pix_batches
-                and args.gym):
+        if has_peer and args.gym and 1 in pix_batches:
             r = bench_gym_vs_pybullet(name, 20 if args.quick else args.single_env_steps,
                                       args.rounds)
             print(f"  Gymnasium, one env: jaml {r['jaml_frames_per_s']:,.0f} | PyBullet x1 "

@@ -92,24 +92,27 @@ class _Packing:
         return jax.tree.unflatten(self.treedef, leaves)
 
 
-def _observation(env: Env, state) -> tuple[np.ndarray, dict[str, Any]]:
-    """(uint8 frames, info with the LD state and its names) of a (batched) state."""
-    info = {"ld_state": np.asarray(state.ld_state, np.float32),
-            "ld_state_names": env.ld_state_names}
-    return np.asarray(state.pixels, np.uint8), info
+def _observation(env: Env, pixels, ld_state) -> tuple[np.ndarray, dict[str, Any]]:
+    """(uint8 frames, info with the LD state and its names) of a (batched) state's fields."""
+    info = {"ld_state": np.asarray(ld_state, np.float32), "ld_state_names": env.ld_state_names}
+    return np.asarray(pixels, np.uint8), info
 
 
 class _KeyedState:
     """What both env kinds share: the explicit PRNG key, resets from it, the observation."""
 
     def _obs_info(self) -> tuple[np.ndarray, dict[str, Any]]:
-        return _observation(self.env, self._state)
+        return _observation(self.env, self._state.pixels, self._state.ld_state)
 
     def _reset_state(self, seed: int | None) -> None:
         if seed is not None:
             self._key = jax.random.PRNGKey(seed)
         self._key, sub = jax.random.split(self._key)
-        self._state = self._reset_fn(sub)
+        self._take(self._reset_fn(sub))
+
+    def _take(self, result) -> None:
+        """Keep what the jitted reset returned."""
+        self._state = result
 
 
 class MjxGymEnv(_KeyedState, gymnasium.Env):
@@ -145,16 +148,13 @@ class MjxGymEnv(_KeyedState, gymnasium.Env):
         self._state = None  # the packed state
         self._reported = None  # host copies of `reported(state)`
 
-    def _reset_state(self, seed: int | None) -> None:
-        super()._reset_state(seed)
-        self._state, reported = self._state
+    def _take(self, result) -> None:
+        """Keep the packed state on the device and the report on the host (one transfer)."""
+        self._state, reported = result
         self._reported = jax.device_get(reported)
 
     def _obs_info(self) -> tuple[np.ndarray, dict[str, Any]]:
-        pixels, ld_state = self._reported[:2]
-        info = {"ld_state": np.asarray(ld_state, np.float32),
-                "ld_state_names": self.env.ld_state_names}
-        return np.asarray(pixels, np.uint8), info
+        return _observation(self.env, *self._reported[:2])
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
@@ -165,8 +165,7 @@ class MjxGymEnv(_KeyedState, gymnasium.Env):
         if self._state is None:
             raise RuntimeError("call reset() before step()")
         action = np.asarray(action, np.float32).reshape(self.action_space.shape)
-        self._state, reported = self._step_fn(self._state, action)
-        self._reported = jax.device_get(reported)
+        self._take(self._step_fn(self._state, action))
         obs, info = self._obs_info()
         _, _, reward, done, truncation = self._reported
         terminated, truncated = _split_done(done, truncation)

@@ -100,9 +100,8 @@ def ld_groups(env: str) -> dict[str, list[str]]:
     return groups
 
 
-def final_errors(history: list[dict], step: int | None = None) -> dict[str, dict[str, float]]:
-    """test set → {dim: error} at `step` (default: the last analysed step) of one run."""
-    step = max(r["step"] for r in history) if step is None else step
+def final_errors(history: list[dict], step: int) -> dict[str, dict[str, float]]:
+    """test set → {dim: error} of one run's analysis at `step`."""
     return {r["test_set"]: r["errors"] for r in history if r["step"] == step}
 
 

@@ -21,6 +21,7 @@ from collections.abc import Iterable, Mapping, Sequence
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from scipy import stats
 
 
@@ -149,7 +150,10 @@ def plot_alignment(history: Iterable[Mapping], path,
                 ax.set_yscale("log")
             else:
                 ax.set_ylim(bottom=0.0)
-    axes[0, 0].legend(fontsize=8)
+    # Every learner in the legend, also one absent from the first panel (a grid whose first
+    # domain has fewer cells than a later one).
+    axes[0, 0].legend(handles=[Line2D([], [], color=colors[n], label=n) for n in learners],
+                      fontsize=8)
     _save(fig, path)
     return fig
 

@@ -105,6 +105,13 @@ def final_errors(history: list[dict], step: int) -> dict[str, dict[str, float]]:
     return {r["test_set"]: r["errors"] for r in history if r["step"] == step}
 
 
+def extra_options(variant: str, config: dict) -> dict:
+    """The learner options a cell's runs were given beyond its variant's own (--learner-opt),
+    e.g. {"compute_dtype": "bfloat16"}: shown beside the cell, since they change the experiment."""
+    own = VARIANTS[variant][1]
+    return {k: v for k, v in config.get("learner_overrides", {}).items() if own.get(k) != v}
+
+
 def grid_status(out: Path, envs, variants, seeds: int = len(SEEDS)) -> list[str]:
     """Markdown lines: per cell, its seeds found under OUT and the epoch all of them reached,
     against the epochs their configs schedule: what a grid run over several sessions has left.
@@ -119,17 +126,21 @@ def grid_status(out: Path, envs, variants, seeds: int = len(SEEDS)) -> list[str]
             if not histories:
                 row.append("—")
                 continue
-            config = next(directory.glob("seed_*/config.json"))
-            scheduled = json.loads(config.read_text())["epochs"]
+            config = _runs.cell_config(directory)
+            scheduled = config["epochs"]
             reached = _runs.last_common_step(histories)
             done = len(histories) >= seeds and reached == scheduled
             complete += done
+            extra = extra_options(variant, config)
             row.append(f"{len(histories)} × {reached}"
                        + ("" if reached == scheduled else f" of {scheduled}")
-                       + (" ✓" if done else ""))
+                       + (" ✓" if done else "")
+                       + (f" ({', '.join(f'{k}={v}' for k, v in extra.items())})"
+                          if extra else ""))
         lines.append(f"| {env} | " + " | ".join(row) + " |")
     total = len(envs) * len(variants)
-    return [f"Cells: seeds × the epoch they all reached; ✓ = {seeds} seeds at their last epoch. "
+    return [f"Cells: seeds × the epoch they all reached; ✓ = {seeds} seeds at their last epoch; "
+            "in brackets the learner options given beyond the variant's. "
             f"{complete} of {total} complete.", "", *lines, ""]
 
 
@@ -302,9 +313,9 @@ class Args(_runs.Driver):
     them on a machine whose disk does not outlive the call"""
     report_only: bool = False
     """no training: fig2.md and the figures from the runs under OUT"""
-    compare_with: Path | None = None
-    """another grid's directory: the report ends with each cell's difference from the same
-    cell there (OUT − OTHER, Welch's 90 % interval), also written to OUT/compare.md"""
+    compare_with: Annotated[tuple[Path, ...], tyro.conf.UseAppendAction] = ()
+    """another grid's directory (repeatable): the report ends with each cell's difference from
+    the same cell there (OUT − OTHER, Welch's 90 % interval), also written to OUT/compare.md"""
 
     def train(self) -> None:
         from jaml.cli import key_values
@@ -318,12 +329,14 @@ class Args(_runs.Driver):
                          key_values(self.learner_opt), self.stop_after, self.checkpoint_every)
 
     def report(self) -> str:
+        for other in self.compare_with:
+            if not other.is_dir():
+                raise FileNotFoundError(f"--compare-with {other}: no such grid directory")
         text = report(self.out, self.envs, self.variants)
-        if self.compare_with is None:
+        if not self.compare_with:
             return text
-        if not self.compare_with.is_dir():
-            raise FileNotFoundError(f"--compare-with {self.compare_with}: no such grid directory")
-        table = compare(self.out, self.compare_with, self.envs, self.variants)
+        table = "\n".join(compare(self.out, other, self.envs, self.variants)
+                          for other in self.compare_with)
         (self.out / "compare.md").write_text(table)
         return text + "\n" + table
 

@@ -62,6 +62,15 @@ def test_alignment_plot_groups_dimensions(tmp_path):
     assert pred_velocity.get_ydata()[0] == pytest.approx(np.mean(at_0))
 
 
+def test_the_legend_names_every_learner_even_one_absent_from_the_first_panel(tmp_path):
+    """Fig. 2's layout: CartPole's panels first, with one learner, HalfCheetah's with two."""
+    history = [{"step": 0, "learner": "VAE_rpl", "test_set": "pi_curr", "errors": {"a": 0.1}},
+               {"step": 0, "learner": "VAE_v0", "test_set": "pi_curr", "errors": {"b": 0.2}}]
+    fig = evaluation.plot_alignment(history, tmp_path / "legend.png")
+    assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == ["VAE_rpl", "VAE_v0"]
+    assert [line.get_label() for line in fig.axes[0].lines] == ["VAE_rpl"]  # drawn: its own
+
+
 def test_a_panel_spanning_more_than_a_decade_is_log_scaled(tmp_path):
     """One learner 40x worse than another (a forgetting VAE_v0 against PRED): that panel is
     drawn on a log axis, the others stay linear from 0."""

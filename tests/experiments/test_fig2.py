@@ -4,6 +4,7 @@ import json
 import math
 
 import numpy as np
+import pytest
 
 from jaml.evaluation import history_records
 from jaml.experiments import fig2
@@ -11,10 +12,11 @@ from jaml.experiments import fig2
 NAMES = ["theta", "theta_dot", "x", "x_dot"]
 
 
-def _write_run(path, learner, seed, errors_at_end, finished=True):
+def _write_run(path, learner, seed, errors_at_end, finished=True, learner_overrides=None):
     """Analyses at epochs 10 (errors 0.9) and, when finished, 20 of the 20 scheduled."""
     path.mkdir(parents=True)
-    config = {k: 1 for k in fig2.SCALE} | {"epochs": 20}
+    config = {k: 1 for k in fig2.SCALE} | {"epochs": 20, "seed": seed,
+                                          "learner_overrides": learner_overrides or {}}
     (path / "config.json").write_text(json.dumps(config))
     records = history_records(10, learner, {"pi_rand": [0.9] * 4}, NAMES, run=seed)
     if finished:
@@ -62,6 +64,20 @@ def test_report_shows_each_cells_progress_and_reads_a_cell_at_its_seeds_common_e
     vae = next(line for line in text.splitlines() if line.startswith("| VAE_rpl"))
     # Every seed read at epoch 10 (errors 0.9), not seeds 0 and 1 at 20 (0.2) mixed in.
     assert vae.split(" | ")[2] == "0.900 ± 0.000" and vae.endswith("| 10 | 3 |")
+
+
+def test_a_cells_extra_learner_options_are_shown_and_seeds_that_differ_are_refused(tmp_path):
+    for seed in range(6):  # β-VAE_5's own β is not an extra; bfloat16 is
+        _write_run(tmp_path / "CartPole" / "beta-VAE_5" / f"seed_{seed}", "beta-VAE", seed,
+                   [0.1] * 4, learner_overrides={"beta": 5.0, "compute_dtype": "bfloat16"})
+    text = fig2.report(tmp_path, ["CartPole"], ["beta-VAE_5"])
+    assert "| CartPole | 6 × 20 ✓ (compute_dtype=bfloat16) |" in text
+
+    _write_run(tmp_path / "CartPole" / "PRED" / "seed_0", "PRED", 0, [0.1] * 4)
+    _write_run(tmp_path / "CartPole" / "PRED" / "seed_1", "PRED", 1, [0.1] * 4,
+               learner_overrides={"compute_dtype": "bfloat16"})
+    with pytest.raises(ValueError, match="seed_0 and seed_1 differ in learner_overrides"):
+        fig2.report(tmp_path, ["CartPole"], ["PRED"])
 
 
 def test_figure_panels_average_the_groups_of_each_domain(tmp_path):
@@ -132,3 +148,18 @@ def test_compare_two_grids_cell_by_cell_with_welch_intervals(tmp_path):
     assert position[7] == "1 of 2 |"  # resolved at epoch 20, not at epoch 10 (all 0.9)
     velocity = next(r for r in rows if r[2] == "velocity")
     assert velocity[6] == "+0.000 [+0.000, +0.000]" and velocity[7] == "0 of 2 |"
+
+
+def test_report_only_compares_with_each_grid_given(tmp_path, capsys):
+    for grid in "abc":
+        _write_run(tmp_path / grid / "CartPole" / "PRED" / "seed_0", "PRED", 0, [0.1] * 4)
+    argv = ["--out", str(tmp_path / "a"), "--envs", "CartPole", "--variants", "PRED",
+            "--report-only", "--compare-with", str(tmp_path / "b"),
+            "--compare-with", str(tmp_path / "c")]
+    assert fig2.main(argv) == 0
+    table = (tmp_path / "a" / "compare.md").read_text()
+    assert "## a − b, cell by cell" in table and "## a − c, cell by cell" in table
+
+    bad = [*argv[:6], "--report-only", "--compare-with", str(tmp_path / "nowhere")]
+    assert fig2.main(bad) != 0
+    assert "nowhere: no such grid directory" in capsys.readouterr().err

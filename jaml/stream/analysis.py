@@ -21,6 +21,7 @@ blocks.
 from __future__ import annotations
 
 import math
+import time
 
 import jax
 import jax.numpy as jnp
@@ -69,20 +70,34 @@ def _regressor_options(stream: Stream) -> dict:
                 normalize=cfg.regressor_normalize, rotation_starts=starts)
 
 
-def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Array) -> dict:
+def _part(seconds: dict | None, name: str, fn, *args, **kwargs):
+    """fn(*args, **kwargs), its results ready, its wall time added to seconds[name] (when
+    `seconds` is a dict): where an analysis spends its time, in a run's summary.json."""
+    if seconds is None:
+        return fn(*args, **kwargs)
+    tic = time.perf_counter()
+    out = jax.block_until_ready(fn(*args, **kwargs))
+    seconds[name] = seconds.get(name, 0.0) + time.perf_counter() - tic
+    return out
+
+
+def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Array, *,
+             seconds: dict | None = None) -> dict:
     """Alignment errors [D + J] (`error_names`) on π_rand (and π_curr under PPO), the held-out
     validation error, and the distortion of the π_rand latents. Host-side numbers (floats /
-    lists)."""
+    lists). `seconds`: a dict that gets each part's wall time added (train_set, pi_rand,
+    pi_curr, regressor)."""
     cfg = stream.config
     k_train, k_curr, k_reg = jax.random.split(key, 3)
-    train = encoded_replay(stream, s, k_train, cfg.eval_train)
-    tests = {"pi_rand": encoded_rollouts(stream, s, pi_rand_key, cfg.eval_rand, random=True)}
+    train = _part(seconds, "train_set", encoded_replay, stream, s, k_train, cfg.eval_train)
+    tests = {"pi_rand": _part(seconds, "pi_rand", encoded_rollouts, stream, s, pi_rand_key,
+                              cfg.eval_rand, random=True)}
     if cfg.policy == "ppo" and cfg.eval_curr > 0:
-        tests["pi_curr"] = encoded_rollouts(stream, s, k_curr, cfg.eval_curr, random=False)
-    errors = evaluation.alignment_errors(
-        *train, tests, seed=int(jax.random.randint(k_reg, (), 0, 2**31 - 1)),
-        **_regressor_options(stream),
-    )
+        tests["pi_curr"] = _part(seconds, "pi_curr", encoded_rollouts, stream, s, k_curr,
+                                 cfg.eval_curr, random=False)
+    errors = _part(seconds, "regressor", evaluation.alignment_errors,
+                   *train, tests, seed=int(jax.random.randint(k_reg, (), 0, 2**31 - 1)),
+                   **_regressor_options(stream))
     lat, st = tests["pi_rand"]
     return {
         "errors": {k: np.asarray(v).tolist() for k, v in errors.items()},
@@ -92,10 +107,11 @@ def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Ar
 
 
 def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
-                  pi_rand_keys: jax.Array) -> list[dict]:
+                  pi_rand_keys: jax.Array, *, seconds: dict | None = None) -> list[dict]:
     """`evaluate` of R stacked runs (states with a leading runs axis, keys [R] and pi_rand_keys
     [R] raw keys): one report per run, what `evaluate(stream, state_r, keys[r],
-    pi_rand_keys[r])` reports for it alone, up to float rounding.
+    pi_rand_keys[r])` reports for it alone, up to float rounding. `seconds` as `evaluate`'s
+    (the R runs' parts together).
 
     On a GPU the per-run analysis is latency bound (hundreds of small chunk calls and a
     10 000-step regressor scan), so one call for R runs costs about what one run costs. The
@@ -105,16 +121,16 @@ def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
     cfg = stream.config
     split = jax.vmap(lambda k: jax.random.split(k, 3))(keys)
     k_train, k_curr, k_reg = split[:, 0], split[:, 1], split[:, 2]
-    train = _encoded_replay_runs(stream, states, k_train, cfg.eval_train)
-    tests = {"pi_rand": _encoded_rollouts_runs(stream, states, pi_rand_keys, cfg.eval_rand,
-                                               random=True)}
+    train = _part(seconds, "train_set", _encoded_replay_runs, stream, states, k_train,
+                  cfg.eval_train)
+    tests = {"pi_rand": _part(seconds, "pi_rand", _encoded_rollouts_runs, stream, states,
+                              pi_rand_keys, cfg.eval_rand, random=True)}
     if cfg.policy == "ppo" and cfg.eval_curr > 0:
-        tests["pi_curr"] = _encoded_rollouts_runs(stream, states, k_curr, cfg.eval_curr,
-                                                  random=False)
+        tests["pi_curr"] = _part(seconds, "pi_curr", _encoded_rollouts_runs, stream, states,
+                                 k_curr, cfg.eval_curr, random=False)
     seeds = jax.vmap(lambda k: jax.random.randint(k, (), 0, 2**31 - 1))(k_reg)
-    errors = alignment.alignment_errors_runs(
-        *train, tests, seeds=np.asarray(seeds).tolist(), **_regressor_options(stream),
-    )
+    errors = _part(seconds, "regressor", alignment.alignment_errors_runs,
+                   *train, tests, seeds=np.asarray(seeds).tolist(), **_regressor_options(stream))
     errors = {k: np.asarray(v) for k, v in errors.items()}
     train_states = np.asarray(train[1])
     test_states = {k: np.asarray(t) for k, (_, t) in tests.items()}

@@ -116,6 +116,9 @@ class _RunDir:
         # Wall seconds of this call by phase (first calls include compilation); the epochs of
         # runs trained together are shared among them.
         self.seconds = {"epochs": 0.0, "analysis": 0.0, "checkpoint": 0.0}
+        # The analysis phase by part (`analysis.evaluate`'s, then this run's records, images
+        # and figures): where a speed-up of the analysis would come from.
+        self.analysis_parts: dict[str, float] = {}
 
     def eval_key(self) -> jax.Array:
         """The analysis key of the current epoch."""
@@ -129,12 +132,13 @@ class _RunDir:
         with _timed(self.seconds, "analysis"):
             records = _analyse(stream, state, self.eval_key(), self.pi_rand_key,
                                analysis.error_names(stream), self.out, self.epoch, report,
-                               seed=self.config.seed)
-        self.history += records
-        with (self.out / "history.jsonl").open("a") as f:
-            f.writelines(json.dumps(r) + "\n" for r in records)
-        self.logs.analysis(self.epoch, records)
-        _figures(self.history, self.out)
+                               seed=self.config.seed, seconds=self.analysis_parts)
+            with _timed(self.analysis_parts, "records_figures"):
+                self.history += records
+                with (self.out / "history.jsonl").open("a") as f:
+                    f.writelines(json.dumps(r) + "\n" for r in records)
+                self.logs.analysis(self.epoch, records)
+                _figures(self.history, self.out)
         if checkpoint_due(self.epoch, self.manager.latest_step(), checkpoint_every,
                           last=not self.targets):
             self.save(state)
@@ -155,6 +159,7 @@ class _RunDir:
             "epoch": self.epoch,
             "seconds_this_call": time.perf_counter() - self.started,
             "seconds_by_phase": self.seconds,
+            "seconds_in_analysis": self.analysis_parts,
             "checkpoint_epoch": self.manager.latest_step(),
             "final": [r for r in self.history if r["step"] == last],
         }
@@ -307,7 +312,7 @@ def _timed(seconds: dict[str, float], phase: str):
     try:
         yield
     finally:
-        seconds[phase] += time.perf_counter() - tic
+        seconds[phase] = seconds.get(phase, 0.0) + time.perf_counter() - tic
 
 
 def _last_finite(values: np.ndarray) -> float:
@@ -342,12 +347,16 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
             continue
         tic = time.perf_counter()
         runs = [r for _, r in members]
+        parts: dict[str, float] = {}
         evaluated = analysis.evaluate_runs(stream, device_states,
                                            jnp.stack([r.eval_key() for r in runs]),
-                                           jnp.stack([r.pi_rand_key for r in runs]))
+                                           jnp.stack([r.pi_rand_key for r in runs]),
+                                           seconds=parts)
         share = (time.perf_counter() - tic) / len(members)
         for (i, r), report in zip(members, evaluated, strict=True):
             r.seconds["analysis"] += share
+            for part, seconds in parts.items():
+                r.analysis_parts[part] = r.analysis_parts.get(part, 0.0) + seconds / len(members)
             reports[i] = report
     for i, r in due:
         r.analyse(stream, jax.tree.map(lambda x, i=i: x[i], states), reports.get(i),
@@ -381,11 +390,12 @@ def _due_by_device(states: StreamState, due: list) -> list[tuple[StreamState, li
 
 
 def _analyse(stream: Stream, state: StreamState, key, pi_rand_key, names, out: Path,
-             epoch: int, report: dict | None = None, *, seed: int) -> list[dict]:
+             epoch: int, report: dict | None = None, *, seed: int,
+             seconds: dict | None = None) -> list[dict]:
     # `seed` is the run's own: runs trained together share one Stream, whose config carries
-    # the first run's seed.
+    # the first run's seed. `seconds`: the analysis parts' wall times (`analysis.evaluate`).
     if report is None:
-        report = analysis.evaluate(stream, state, key, pi_rand_key)
+        report = analysis.evaluate(stream, state, key, pi_rand_key, seconds=seconds)
     errors = {k: v for k, v in report["errors"].items() if k != "validation"}
     records = plots.history_records(epoch, stream.config.learner, errors, names,
                                     report["distortion"], run=seed)
@@ -395,10 +405,11 @@ def _analyse(stream: Stream, state: StreamState, key, pi_rand_key, names, out: P
     records = [r | {"validation": validation,
                     "baseline": dict(zip(names, report["baseline"][r["test_set"]], strict=True))}
                for r in records]
-    truth, recon = analysis.reconstructions(stream, state, jax.random.fold_in(key, 7))
-    if hasattr(stream.learner, "draw_boxes"):  # SPAIR: its boxes drawn over the true frames
-        truth = stream.learner.draw_boxes(state.learner.variables, truth)
-    _save_png(out / "recon" / f"epoch_{epoch:06d}.png", [truth, recon])
+    with _timed({} if seconds is None else seconds, "reconstructions"):
+        truth, recon = analysis.reconstructions(stream, state, jax.random.fold_in(key, 7))
+        if hasattr(stream.learner, "draw_boxes"):  # SPAIR: its boxes drawn over the frames
+            truth = stream.learner.draw_boxes(state.learner.variables, truth)
+        _save_png(out / "recon" / f"epoch_{epoch:06d}.png", [truth, recon])
     return records
 
 

@@ -93,7 +93,7 @@ def test_run_many_writes_what_each_run_writes_alone_and_regroups_resumed_runs(tm
     for summary in summaries:  # the analysis phase by part, the runs' shares of shared calls
         parts = summary["seconds_in_analysis"]
         assert {"train_set", "pi_rand", "regressor", "reconstructions",
-                "records_figures"} <= set(parts) and min(parts.values()) > 0
+                "records"} <= set(parts) and min(parts.values()) > 0
         assert sum(parts.values()) <= summary["seconds_by_phase"]["analysis"]
     for seed, config in enumerate(configs):
         run_lib.run(config, tmp_path / "alone" / str(seed), progress=False)

@@ -100,9 +100,9 @@ class _FigureWriter:
     loop's next epochs run while matplotlib draws.
 
     Drawn in line, they held the loop up at every analysis of every run: on the host of one
-    H100, a HalfCheetah run's alignment figure (26 dimensions, 52 panels) took ≈ 5 s, 10.5–11.1 s
-    of a run's 50 s analysis phase over two analyses (`seconds_in_analysis`, commit 175b49e),
-    so a 3-seed locomotion call spent about as long drawing as evaluating. A run's figures are
+    H100, a HalfCheetah run's figures (26 dimensions, 52 alignment panels) took 10.5–11.1 s of
+    its 50 s analysis phase over two analyses, the first of which compiled
+    (`seconds_in_analysis`, commit 175b49e), one run after another. A run's figures are
     drawn from its newest history only: a request still queued when a newer one for the same
     run arrives is skipped. `wait` drains the queue; `check` raises the first drawing error."""
 

@@ -49,7 +49,8 @@ def main(command: str, argv=None) -> int:
 
 
 def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,
-                checkpoint_every: int | None = None, latent_penalty=None) -> list[dict]:
+                checkpoint_every: int | None = None, final_checkpoint: bool = True,
+                latent_penalty=None) -> list[dict]:
     """Every seed of one cell trained together (`run_many`: one program, the seeds stacked),
     each in its resumable directory; prints one line per seed (status, seconds by phase) and
     one for the cell. Returns the runs' summaries."""
@@ -57,7 +58,8 @@ def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,
 
     started = time.perf_counter()
     summaries = run_many(list(configs), list(dirs), progress=False, stop_after=stop_after,
-                         checkpoint_every=checkpoint_every, latent_penalty=latent_penalty)
+                         checkpoint_every=checkpoint_every, final_checkpoint=final_checkpoint,
+                         latent_penalty=latent_penalty)
     for config, summary in zip(configs, summaries, strict=True):
         phases = ", ".join(f"{k} {v:.0f}s" for k, v in summary["seconds_by_phase"].items())
         print(f"{label} seed {config.seed}: {summary['status']} at epoch {summary['epoch']} "

@@ -79,12 +79,13 @@ def config_for(env: str, variant: str, seed: int, scale: dict, schedule: dict,
 
 def run_cell(out: Path, env: str, variant: str, seeds, scale: dict, schedule: dict,
              learner_opt: dict | None = None, stop_after: int | None = None,
-             checkpoint_every: int | None = None) -> list[dict]:
+             checkpoint_every: int | None = None, final_checkpoint: bool = True) -> list[dict]:
     """Every seed of one (env, variant), trained together; returns their summaries."""
     configs = [config_for(env, variant, s, scale, schedule, learner_opt) for s in seeds]
     dirs = [out / env / variant / f"seed_{s}" for s in seeds]
     return _runs.train_seeds(f"{env} {variant}", configs, dirs, stop_after=stop_after,
-                             checkpoint_every=checkpoint_every)
+                             checkpoint_every=checkpoint_every,
+                             final_checkpoint=final_checkpoint)
 
 
 def ld_groups(env: str) -> dict[str, list[str]]:
@@ -311,6 +312,10 @@ class Args(_runs.Driver):
     """epochs between checkpoints (default: one with every analysis); the last analysis and a
     --stop-after stop always checkpoint. A checkpoint holds each run's replay (2–4 GB): thin
     them on a machine whose disk does not outlive the call"""
+    final_checkpoint: bool = True
+    """checkpoint each run at its last analysis (--no-final-checkpoint: only where
+    --checkpoint-every says so; for a machine whose disk goes with the runs, ≈ 15 s per
+    locomotion run saved)"""
     report_only: bool = False
     """no training: fig2.md and the figures from the runs under OUT"""
     compare_with: Annotated[tuple[Path, ...], tyro.conf.UseAppendAction] = ()
@@ -326,7 +331,8 @@ class Args(_runs.Driver):
         for env in self.envs:
             for variant in self.variants:
                 run_cell(self.out, env, variant, self.seeds, scale, schedule,
-                         key_values(self.learner_opt), self.stop_after, self.checkpoint_every)
+                         key_values(self.learner_opt), self.stop_after, self.checkpoint_every,
+                         self.final_checkpoint)
 
     def report(self) -> str:
         for other in self.compare_with:

@@ -132,8 +132,10 @@ class _RunDir:
     """One run's directory: its config check, keys, state (restored or fresh), logs, analyses,
     checkpoints and summary. Its figures go to `figures`, drawn in the background."""
 
-    def __init__(self, stream: Stream, config: StreamConfig, out: Path, figures: _FigureWriter):
+    def __init__(self, stream: Stream, config: StreamConfig, out: Path, figures: _FigureWriter,
+                 final_checkpoint: bool = True):
         self.config, self.out, self.figures = config, out, figures
+        self.final_checkpoint = final_checkpoint
         claim(out, config.to_dict())
         (out / "recon").mkdir(exist_ok=True)
         k_init, self.k_eval, self.pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
@@ -176,7 +178,7 @@ class _RunDir:
                 self.logs.analysis(self.epoch, records)
                 self.figures.submit(self.out, list(self.history))
         if checkpoint_due(self.epoch, self.manager.latest_step(), checkpoint_every,
-                          last=not self.targets):
+                          last=not self.targets and self.final_checkpoint):
             self.save(state)
         # A progress summary (status "running"): a process that dies without reaching `close`
         # (a machine taken back, SIGKILL) still leaves its epoch, phase times and last records.
@@ -209,12 +211,14 @@ class _RunDir:
 
 
 def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | None = None,
-        checkpoint_every: int | None = None, latent_penalty=None) -> dict:
+        checkpoint_every: int | None = None, final_checkpoint: bool = True,
+        latent_penalty=None) -> dict:
     """Runs (or resumes) the loop in `out`; returns the summary. `stop_after` ends the process's
     work after that many epochs in this call (a deliberate interruption, for tests and jobs
     with a time limit); the next call resumes. A non-finite loss raises `NonFiniteLoss`."""
     summary = run_many([config], [out], progress=progress, stop_after=stop_after,
-                       checkpoint_every=checkpoint_every, latent_penalty=latent_penalty)[0]
+                       checkpoint_every=checkpoint_every, final_checkpoint=final_checkpoint,
+                       latent_penalty=latent_penalty)[0]
     if summary["status"] == "nonfinite":
         raise NonFiniteLoss(summary["error"])
     return summary
@@ -222,7 +226,7 @@ def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | N
 
 def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
              stop_after: int | None = None, checkpoint_every: int | None = None,
-             latent_penalty=None, mesh=None) -> list[dict]:
+             final_checkpoint: bool = True, latent_penalty=None, mesh=None) -> list[dict]:
     """Runs (or resumes) several runs of one program, each in its own directory, trained
     together: the configs may differ only in their seeds, and their states are stacked and
     advanced by one compiled loop (`run_stacked_epochs`; several devices split the runs, see
@@ -234,7 +238,10 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     first analysis at least that many epochs after the last checkpoint, plus each run's last
     analysis and where `stop_after` stops it. A checkpoint holds the replay (≈ 2 GB per
     pendulum run, 4 GB per locomotion run at 64×64), so on a machine that is not kept, whose
-    disk goes with the runs, writing one at every analysis buys little and costs minutes."""
+    disk goes with the runs, writing one at every analysis buys little and costs minutes.
+    There, `final_checkpoint=False` also drops the forced one at the last analysis (≈ 15 s per
+    locomotion run on an H100; the run's records and summary are written as always): the last
+    analysis then checkpoints only where `checkpoint_every` says so."""
     if len(configs) != len(outs) or not configs:
         raise ValueError(f"run_many needs one out directory per config, got {len(configs)} "
                          f"configs and {len(outs)} directories")
@@ -250,7 +257,8 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
         raise ValueError(f"two runs share an out directory: {[str(o) for o in outs]}")
     stream = build(configs[0], latent_penalty)  # every config problem surfaces before any file
     figures = _FigureWriter()
-    runs = [_RunDir(stream, c, o, figures) for c, o in zip(configs, outs, strict=True)]
+    runs = [_RunDir(stream, c, o, figures, final_checkpoint)
+            for c, o in zip(configs, outs, strict=True)]
     label = f"{configs[0].env} {configs[0].learner}" + (f" ×{len(runs)}" if len(runs) > 1 else "")
     bar = tqdm(total=configs[0].epochs * len(runs), initial=sum(r.epoch for r in runs),
                desc=label, unit="epoch", disable=not progress)

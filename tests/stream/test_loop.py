@@ -184,6 +184,16 @@ def test_thinned_checkpoints_fall_on_the_first_analysis_due_and_the_last():
         run_lib.run_many([tiny()], ["unused"], checkpoint_every=0)
 
 
+def test_without_a_final_checkpoint_a_run_writes_its_records_and_no_checkpoint(tmp_path):
+    """--no-final-checkpoint on a machine whose disk goes with the run: the last analysis does
+    not force one, so with checkpoints thinned past the run's length none is written."""
+    summary = run_lib.run(tiny(epochs=2), tmp_path, progress=False, checkpoint_every=100,
+                          final_checkpoint=False)
+    assert summary["status"] == "finished" and summary["checkpoint_epoch"] is None
+    assert {r["step"] for r in _records(tmp_path / "history.jsonl")} == {2}
+    assert not [p for p in (tmp_path / "checkpoints").iterdir() if p.name.isdigit()]  # no step
+
+
 def _learner_params(out, config):
     s = stream.build(config)
     mgr = checkpoint.manager(out)

@@ -43,13 +43,15 @@ def _fast_compiling_prng():
 
 def test_runs_split_across_two_devices_match_each_run_alone():
     s = stream.build(small())
+    learn_step = loop._with_learner_options(loop._vmapped_learn_step)
+    compiled_before = learn_step._cache_size()  # other modules on this worker may have run
     alone = []
     for seed in SEEDS:
         _, metrics = s.run_epochs(s.init(jax.random.PRNGKey(seed)), EPOCHS)
         alone.append(metrics)
-    # The CPU's host loop compiled its learner step once (with the learner's compiler options,
-    # `loop._with_learner_options`) and reused it for every step of every seed.
-    assert loop._with_learner_options(loop._vmapped_learn_step)._cache_size() == 1
+    # The CPU's host loop compiled its learner step at most once (with the learner's compiler
+    # options, `loop._with_learner_options`) and reused it for every step of every seed.
+    assert learn_step._cache_size() - compiled_before <= 1
     # Three runs on two devices: one device steps two runs, the other one run and a padding copy.
     assert jax.device_count() == 2, "tests/conftest.py asks XLA for two CPU devices"
     mesh = stream.runs_mesh(len(SEEDS))

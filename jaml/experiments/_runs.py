@@ -87,16 +87,14 @@ def cell_config(directory: Path) -> dict:
     """The settings every seed_N run under `directory` shares: its config.json without the seed.
     Seeds that disagree (say one call trained in bfloat16, another in float32) are not one cell:
     pooling them would mix two experiments, so this raises, naming the runs and the settings."""
-    configs = {d.name: json.loads((d / "config.json").read_text())
-               for d in sorted(directory.glob("seed_*")) if (d / "config.json").exists()}
+    configs = [(d.name, json.loads((d / "config.json").read_text()))
+               for d in sorted(directory.glob("seed_*")) if (d / "config.json").exists()]
     if not configs:
         raise FileNotFoundError(f"no seed_*/config.json under {directory}")
-    shared = None
-    for name, config in configs.items():
-        config = {k: v for k, v in config.items() if k != "seed"}
-        if shared is None:
-            first, shared = name, config
-        elif config != shared:
+    (first, shared), *others = [(n, {k: v for k, v in c.items() if k != "seed"})
+                                for n, c in configs]
+    for name, config in others:
+        if config != shared:
             keys = sorted(k for k in shared.keys() | config.keys()
                           if shared.get(k) != config.get(k))
             raise ValueError(f"{directory}: {first} and {name} differ in {', '.join(keys)}; "

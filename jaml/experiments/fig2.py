@@ -101,9 +101,9 @@ def ld_groups(env: str) -> dict[str, list[str]]:
     return groups
 
 
-def final_errors(history: list[dict], step: int) -> dict[str, dict[str, float]]:
-    """test set → {dim: error} of one run's analysis at `step`."""
-    return {r["test_set"]: r["errors"] for r in history if r["step"] == step}
+def final_records(history: list[dict], step: int) -> dict[str, dict]:
+    """test set → the record of one run's analysis at `step`."""
+    return {r["test_set"]: r for r in history if r["step"] == step}
 
 
 def extra_options(variant: str, config: dict) -> dict:
@@ -205,16 +205,16 @@ def report(out: Path, envs, variants) -> str:
             # A seed that went further than the others (an unfinished call) is read at the
             # epoch they all reached, so a row never mixes epochs.
             last = _runs.last_common_step(histories)
-            finals = [final_errors(h, last) for h in histories]
+            finals = [final_records(h, last) for h in histories]
             for test_set in finals[0]:
-                per_seed = [f[test_set] for f in finals if test_set in f]
+                per_seed = [f[test_set]["errors"] for f in finals if test_set in f]
                 dims = [[e[n] for e in per_seed] for n in show]
                 means = [[np.mean([e[k] for k in dims_of]) for e in per_seed]
                          for dims_of in groups.values()]
                 lines.append(f"| {variant} | {test_set} | "
                              + " | ".join(cell(v) for v in (*dims, *means))
                              + f" | {last} | {len(per_seed)} |")
-        lines.append("")
+        lines += ["", *_relative_table(env, runs), ""]
         plots.plot_alignment(
             [r | {"learner": v} for v, hs in runs.items() for h in hs for r in h],
             out / f"{env}_alignment.png", groups=None if show else groups)
@@ -227,24 +227,71 @@ def report(out: Path, envs, variants) -> str:
     return text
 
 
-def _group_means(env: str, histories: list[list[dict]]) -> dict[tuple, list[float]]:
-    """(step, test set, group) → one value per seed: the seed's mean error over the group."""
+def group_value(record: dict, dims, relative: bool = False) -> float | None:
+    """A record's mean error over `dims`, or (relative) that over the mean error of a constant
+    prediction on the same test rows (the record's `baseline`), None where the record has none.
+
+    Errors are in units of each run's regressor training targets, which come from its replay:
+    VAE_v0's replay holds only current-policy frames, VAE_rpl's keeps early random-policy ones,
+    and two runs' PPO streams differ, so the same error means different things across cells
+    (on HalfCheetah a constant scored 1.57 on π_rand position in VAE_v0's units, 1.15 in
+    VAE_rpl's). The fraction of the constant's error puts them on one scale."""
+    error = float(np.mean([record["errors"][d] for d in dims]))
+    if not relative:
+        return error
+    baseline = record.get("baseline")
+    if not baseline:
+        return None  # runs recorded before the analysis wrote baselines
+    return error / float(np.mean([baseline[d] for d in dims]))
+
+
+def _relative_table(env: str, runs: dict[str, list[list[dict]]]) -> list[str]:
+    """Markdown lines: each cell's group means at its last common epoch as fractions of a
+    constant predictor's error (`group_value`), mean ± 90 % half-width over seeds; "—" for cells
+    recorded without baselines."""
+    groups = ld_groups(env)
+    lines = [f"{env}, group means as a fraction of a constant predictor's error (1 = the "
+             "latents tell the regressor nothing):", "",
+             "| variant | test set | " + " | ".join(groups) + " | epoch | seeds |",
+             "|---" * (len(groups) + 4) + "|"]
+    for variant, histories in runs.items():
+        last = _runs.last_common_step(histories)
+        finals = [final_records(h, last) for h in histories]
+        for test_set in finals[0]:
+            per_seed = [f[test_set] for f in finals if test_set in f]
+            values = [[group_value(r, dims, relative=True) for r in per_seed]
+                      for dims in groups.values()]
+            lines.append(f"| {variant} | {test_set} | "
+                         + " | ".join("—" if None in v else cell(v) for v in values)
+                         + f" | {last} | {len(per_seed)} |")
+    return lines
+
+
+def _group_means(env: str, histories: list[list[dict]],
+                 relative: bool = False) -> dict[tuple, list[float]]:
+    """(step, test set, group) → one value per seed: the seed's mean error over the group (or
+    its fraction of a constant predictor's, `group_value`)."""
     groups = ld_groups(env)
     values: dict[tuple, list[float]] = {}
     for history in histories:
         for r in history:
             for group, dims in groups.items():
-                values.setdefault((r["step"], r["test_set"], group), []).append(
-                    float(np.mean([r["errors"][d] for d in dims])))
+                value = group_value(r, dims, relative)
+                if value is not None:
+                    values.setdefault((r["step"], r["test_set"], group), []).append(value)
     return values
 
 
-def compare(out: Path, other: Path, envs, variants) -> str:
+def compare(out: Path, other: Path, envs, variants, relative: bool = False) -> str:
     """Markdown: every (env, variant) cell under both OUT and OTHER, group means of OUT minus
     OTHER with Welch's 90 % interval at their last common analysis, and at how many of their
-    common analyses that interval excludes 0 (a difference the seeds resolve)."""
-    lines = [f"## {out.name} − {other.name}, cell by cell", "",
-             "Group means (training-std units) over the seeds of each grid; Welch's 90 % "
+    common analyses that interval excludes 0 (a difference the seeds resolve). `relative`: each
+    group mean as a fraction of its run's constant predictor's (`group_value`), where the two
+    grids' runs have different streams and so different units."""
+    units = ("as a fraction of each run's constant predictor's error" if relative
+             else "training-std units")
+    lines = [f"## {out.name} − {other.name}, cell by cell ({units})", "",
+             f"Group means ({units}) over the seeds of each grid; Welch's 90 % "
              "interval for the difference; `resolved`: analyses (of those both have) whose "
              "interval excludes 0.", "",
              f"| cell | test set | group | epoch | {out.name} | {other.name} | difference "
@@ -252,7 +299,8 @@ def compare(out: Path, other: Path, envs, variants) -> str:
     for env in envs:
         mine, theirs = _histories(out, env, variants), _histories(other, env, variants)
         for variant in (v for v in variants if v in mine and v in theirs):
-            a, b = _group_means(env, mine[variant]), _group_means(env, theirs[variant])
+            a = _group_means(env, mine[variant], relative)
+            b = _group_means(env, theirs[variant], relative)
             common = sorted(k for k in a if k in b and len(a[k]) == len(mine[variant])
                             and len(b[k]) == len(theirs[variant]))
             if not common:
@@ -341,8 +389,8 @@ class Args(_runs.Driver):
         text = report(self.out, self.envs, self.variants)
         if not self.compare_with:
             return text
-        table = "\n".join(compare(self.out, other, self.envs, self.variants)
-                          for other in self.compare_with)
+        table = "\n".join(compare(self.out, other, self.envs, self.variants, relative)
+                          for other in self.compare_with for relative in (False, True))
         (self.out / "compare.md").write_text(table)
         return text + "\n" + table
 

@@ -12,8 +12,10 @@ from jaml.experiments import fig2
 NAMES = ["theta", "theta_dot", "x", "x_dot"]
 
 
-def _write_run(path, learner, seed, errors_at_end, finished=True, learner_overrides=None):
-    """Analyses at epochs 10 (errors 0.9) and, when finished, 20 of the 20 scheduled."""
+def _write_run(path, learner, seed, errors_at_end, finished=True, learner_overrides=None,
+               baseline=None):
+    """Analyses at epochs 10 (errors 0.9) and, when finished, 20 of the 20 scheduled; with a
+    constant predictor's errors `baseline` (one list, every analysis), as stream.run records."""
     path.mkdir(parents=True)
     config = {k: 1 for k in fig2.SCALE} | {"epochs": 20, "seed": seed,
                                           "learner_overrides": learner_overrides or {}}
@@ -21,6 +23,8 @@ def _write_run(path, learner, seed, errors_at_end, finished=True, learner_overri
     records = history_records(10, learner, {"pi_rand": [0.9] * 4}, NAMES, run=seed)
     if finished:
         records += history_records(20, learner, {"pi_rand": errors_at_end}, NAMES, run=seed)
+    if baseline is not None:
+        records = [r | {"baseline": dict(zip(NAMES, baseline, strict=True))} for r in records]
     (path / "history.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
 
 
@@ -32,8 +36,9 @@ def test_report_averages_seeds_with_a_t_interval(tmp_path):
 
     text = fig2.report(tmp_path, ["CartPole", "InvertedPendulum"], ["PRED", "VAE_rpl", "DSA"])
 
+    errors_table = text[:text.index("fraction of a constant")]  # the raw table, not the next
     rows = {line.split(" | ")[0].strip("| "): line.split(" | ")
-            for line in text.splitlines() if line.startswith("| PRED") or
+            for line in errors_table.splitlines() if line.startswith("| PRED") or
             line.startswith("| VAE_rpl")}
     theta = np.array([0.1, 0.2, 0.3])
     half = 2.9199856 * theta.std(ddof=1) / math.sqrt(3)  # t(0.95, 2 dof) · s / √n
@@ -163,3 +168,31 @@ def test_report_only_compares_with_each_grid_given(tmp_path, capsys):
     bad = [*argv[:6], "--report-only", "--compare-with", str(tmp_path / "nowhere")]
     assert fig2.main(bad) != 0
     assert "nowhere: no such grid directory" in capsys.readouterr().err
+
+
+def test_group_means_as_fractions_of_the_constant_predictors_error(tmp_path):
+    """Two runs whose regressors' units differ (their constants score 0.8 and 0.4 on position):
+    the report and --compare-with put them on one scale; runs without baselines show "—"."""
+    _write_run(tmp_path / "a" / "CartPole" / "VAE_v0" / "seed_0", "VAE_v0", 0,
+               [0.2, 1.0, 0.2, 1.0], baseline=[0.8, 1.0, 0.8, 1.0])
+    _write_run(tmp_path / "b" / "CartPole" / "VAE_v0" / "seed_0", "VAE_v0", 0,
+               [0.1, 0.5, 0.1, 0.5], baseline=[0.4, 0.5, 0.4, 0.5])
+    _write_run(tmp_path / "a" / "CartPole" / "PRED" / "seed_0", "PRED", 0, [0.1] * 4)
+
+    record = {"errors": dict(zip(NAMES, [0.2, 1.0, 0.3, 1.0], strict=True)),
+              "baseline": dict(zip(NAMES, [0.8, 1.0, 0.2, 1.0], strict=True))}
+    assert fig2.group_value(record, ["theta", "x"]) == pytest.approx(0.25)  # raw mean
+    assert fig2.group_value(record, ["theta", "x"], relative=True) == pytest.approx(0.5)
+    assert fig2.group_value({"errors": record["errors"]}, ["x"], relative=True) is None
+
+    text = fig2.report(tmp_path / "a", ["CartPole"], ["VAE_v0", "PRED"])
+    table = text[text.index("fraction of a constant"):]
+    assert "| VAE_v0 | pi_rand | 0.250 | 1.000 | 20 | 1 |" in table
+    assert "| PRED | pi_rand | — | — | 20 | 1 |" in table
+
+    raw = fig2.compare(tmp_path / "a", tmp_path / "b", ["CartPole"], ["VAE_v0"])
+    fraction = fig2.compare(tmp_path / "a", tmp_path / "b", ["CartPole"], ["VAE_v0"],
+                            relative=True)
+    assert "| CartPole · VAE_v0 | pi_rand | position | 20 | 0.200 | 0.100 |" in raw
+    assert "| CartPole · VAE_v0 | pi_rand | position | 20 | 0.250 | 0.250 |" in fraction
+    assert "fraction of each run's constant" in fraction.splitlines()[0]

@@ -296,6 +296,7 @@ def compare(out: Path, other: Path, envs, variants, relative: bool = False) -> s
              "interval excludes 0.", "",
              f"| cell | test set | group | epoch | {out.name} | {other.name} | difference "
              "[90 % interval] | resolved |", "|---" * 8 + "|"]
+    unscored = []  # cells in both grids with no analysis every seed of both can be read at
     for env in envs:
         mine, theirs = _histories(out, env, variants), _histories(other, env, variants)
         for variant in (v for v in variants if v in mine and v in theirs):
@@ -304,6 +305,7 @@ def compare(out: Path, other: Path, envs, variants, relative: bool = False) -> s
             common = sorted(k for k in a if k in b and len(a[k]) == len(mine[variant])
                             and len(b[k]) == len(theirs[variant]))
             if not common:
+                unscored.append(f"{env} · {variant}")
                 continue
             last = max(k[0] for k in common)
             for key in (k for k in common if k[0] == last):
@@ -314,6 +316,9 @@ def compare(out: Path, other: Path, envs, variants, relative: bool = False) -> s
                 lines.append(f"| {env} · {variant} | {key[1]} | {key[2]} | {last} | "
                              f"{np.mean(a[key]):.3f} | {np.mean(b[key]):.3f} | "
                              f"{diff:+.3f} [{low:+.3f}, {high:+.3f}] | {resolved} of {len(same)} |")
+    if unscored:
+        why = " (runs recorded without baselines)" if relative else ""
+        lines += ["", f"In both grids but not compared{why}: {', '.join(unscored)}."]
     return "\n".join(lines) + "\n"
 
 

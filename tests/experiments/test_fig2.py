@@ -196,3 +196,7 @@ def test_group_means_as_fractions_of_the_constant_predictors_error(tmp_path):
     assert "| CartPole · VAE_v0 | pi_rand | position | 20 | 0.200 | 0.100 |" in raw
     assert "| CartPole · VAE_v0 | pi_rand | position | 20 | 0.250 | 0.250 |" in fraction
     assert "fraction of each run's constant" in fraction.splitlines()[0]
+    _write_run(tmp_path / "b" / "CartPole" / "PRED" / "seed_0", "PRED", 0, [0.1] * 4)
+    fraction = fig2.compare(tmp_path / "a", tmp_path / "b", ["CartPole"], ["VAE_v0", "PRED"],
+                            relative=True)
+    assert "not compared (runs recorded without baselines): CartPole · PRED." in fraction

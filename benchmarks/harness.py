@@ -167,7 +167,8 @@ def write_markdown() -> None:
         "measured (e.g. a peer's step count times its measured steps/s), and ratios against "
         "them are named so too.",
         "",
-        "Experiment results (not timings): [Fig. 2, the paper-scale grid](../docs/results/fig2.md), "
+        "Experiment results (not timings): "
+        "[Fig. 2, the paper-scale grid](../docs/results/fig2.md), "
         "[Fig. 9](../docs/results/fig9.md); "
         "what the learning-loop figures mean: [docs/stream.md](../docs/stream.md#speed).",
         "",

@@ -106,6 +106,17 @@ def final_records(history: list[dict], step: int) -> dict[str, dict]:
     return {r["test_set"]: r for r in history if r["step"] == step}
 
 
+def _final_rows(runs: dict[str, list[list[dict]]]):
+    """(variant, test set, one record per seed, epoch) of each cell at the last epoch all its
+    seeds reached: a seed that went further (an unfinished call) is read there too, so a row
+    never mixes epochs."""
+    for variant, histories in runs.items():
+        last = _runs.last_common_step(histories)
+        finals = [final_records(h, last) for h in histories]
+        for test_set in finals[0]:
+            yield variant, test_set, [f[test_set] for f in finals if test_set in f], last
+
+
 def extra_options(variant: str, config: dict) -> dict:
     """The learner options a cell's runs were given beyond its variant's own (--learner-opt),
     e.g. {"compute_dtype": "bfloat16"}: shown beside the cell, since they change the experiment."""
@@ -201,20 +212,13 @@ def report(out: Path, envs, variants) -> str:
                   "| variant | test set | " + " | ".join([*show, *(f"{g} mean" for g in groups)])
                   + " | epoch | seeds |",
                   "|---" * (len(show) + len(groups) + 4) + "|"]
-        for variant, histories in runs.items():
-            # A seed that went further than the others (an unfinished call) is read at the
-            # epoch they all reached, so a row never mixes epochs.
-            last = _runs.last_common_step(histories)
-            finals = [final_records(h, last) for h in histories]
-            for test_set in finals[0]:
-                per_seed = [f[test_set]["errors"] for f in finals if test_set in f]
-                dims = [[e[n] for e in per_seed] for n in show]
-                means = [[np.mean([e[k] for k in dims_of]) for e in per_seed]
-                         for dims_of in groups.values()]
-                lines.append(f"| {variant} | {test_set} | "
-                             + " | ".join(cell(v) for v in (*dims, *means))
-                             + f" | {last} | {len(per_seed)} |")
-        lines += ["", *_relative_table(env, runs), ""]
+        for variant, test_set, per_seed, last in _final_rows(runs):
+            dims = [[r["errors"][n] for r in per_seed] for n in show]
+            means = [[group_value(r, dims_of) for r in per_seed] for dims_of in groups.values()]
+            lines.append(f"| {variant} | {test_set} | "
+                         + " | ".join(cell(v) for v in (*dims, *means))
+                         + f" | {last} | {len(per_seed)} |")
+        lines += ["", *_relative_table(env, groups, runs), ""]
         plots.plot_alignment(
             [r | {"learner": v} for v, hs in runs.items() for h in hs for r in h],
             out / f"{env}_alignment.png", groups=None if show else groups)
@@ -245,25 +249,21 @@ def group_value(record: dict, dims, relative: bool = False) -> float | None:
     return error / float(np.mean([baseline[d] for d in dims]))
 
 
-def _relative_table(env: str, runs: dict[str, list[list[dict]]]) -> list[str]:
+def _relative_table(env: str, groups: dict[str, list[str]],
+                    runs: dict[str, list[list[dict]]]) -> list[str]:
     """Markdown lines: each cell's group means at its last common epoch as fractions of a
     constant predictor's error (`group_value`), mean ± 90 % half-width over seeds; "—" for cells
     recorded without baselines."""
-    groups = ld_groups(env)
     lines = [f"{env}, group means as a fraction of a constant predictor's error (1 = the "
              "latents tell the regressor nothing):", "",
              "| variant | test set | " + " | ".join(groups) + " | epoch | seeds |",
              "|---" * (len(groups) + 4) + "|"]
-    for variant, histories in runs.items():
-        last = _runs.last_common_step(histories)
-        finals = [final_records(h, last) for h in histories]
-        for test_set in finals[0]:
-            per_seed = [f[test_set] for f in finals if test_set in f]
-            values = [[group_value(r, dims, relative=True) for r in per_seed]
-                      for dims in groups.values()]
-            lines.append(f"| {variant} | {test_set} | "
-                         + " | ".join("—" if None in v else cell(v) for v in values)
-                         + f" | {last} | {len(per_seed)} |")
+    for variant, test_set, per_seed, last in _final_rows(runs):
+        values = [[group_value(r, dims, relative=True) for r in per_seed]
+                  for dims in groups.values()]
+        lines.append(f"| {variant} | {test_set} | "
+                     + " | ".join("—" if None in v else cell(v) for v in values)
+                     + f" | {last} | {len(per_seed)} |")
     return lines
 
 

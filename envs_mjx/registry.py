@@ -41,6 +41,8 @@ def make(name: str, pixels_fn: PixelsFn | None = None, **overrides) -> Env:
 
     `pixels_fn(data, info) -> uint8 [H, W, 3]` replaces the default pixel source (the
     `envs_mjx.render` renderer when importable). Unknown names or override keys raise ValueError.
+    A list value becomes a tuple (overrides read back from a run's JSON config arrive as lists;
+    configs stay hashable and compare equal to the ones they were written from).
     """
     cls, config_fn = _lookup(name)
     config = config_fn()
@@ -48,6 +50,7 @@ def make(name: str, pixels_fn: PixelsFn | None = None, **overrides) -> Env:
     unknown = sorted(set(overrides) - valid)
     if unknown:
         raise ValueError(f"{name}: unknown config overrides {unknown}; valid: {sorted(valid)}")
+    overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in overrides.items()}
     return cls(dataclasses.replace(config, **overrides), pixels_fn=pixels_fn)
 
 

@@ -87,6 +87,11 @@ def test_registry_names_and_overrides():
     assert envs_mjx.make("CartPole", reward_scale=2.0, pixels="off").config.reward_multiplier \
         == 2.0
     assert envs_mjx.default_config("GeomOnIncline").n_frames == 8
+    # An override read back from a run's JSON config is a list: the config gets the tuple, so it
+    # equals (and hashes like) the one written.
+    from_json = envs_mjx.make("GeomOnIncline", mass_range=[0.2, 0.2], pixels="off").config
+    assert from_json.mass_range == (0.2, 0.2) and hash(from_json) == hash(
+        envs_mjx.make("GeomOnIncline", mass_range=(0.2, 0.2), pixels="off").config)
 
 
 def test_pixels_placeholder_is_marked(monkeypatch):

@@ -3,10 +3,12 @@
 import json
 import math
 
+import jax
 import numpy as np
 import pytest
 from scipy import stats
 
+import envs_mjx
 from jaml.evaluation import history_records
 from jaml.experiments import fig9
 from jaml.relations.transfer import LatentLayout
@@ -62,3 +64,17 @@ def test_the_layout_reads_every_relation_coordinate_from_the_incline_pred():
     plan = LatentLayout(**fig9.LAYOUT).gather(("theta", "s0", "v0", "a0", "s1", "v1"), 5, 1)
     assert [p[:3] for p in plan] == [("z", 2, 0), ("z", 3, 0), ("z", 4, 0), ("a", 0, 0),
                                      ("z", 3, 1), ("z", 4, 1)]
+
+
+def test_fixed_dynamics_fix_the_targets_mass_and_friction_at_every_reset():
+    """`--dynamics fixed` reaches the target's envs (and the source's rows through the same
+    env config): every reset draws the one mass and friction; an unknown name is refused."""
+    config = fig9._config("PRED", 0, "fixed")
+    assert config.env == fig9.TARGET and config.env_overrides == fig9._dynamics("fixed")
+    env = envs_mjx.make(fig9.TARGET, **config.env_overrides, pixels="off")
+    infos = [env.reset(jax.random.key(k)).info for k in range(3)]
+    assert {round(float(i["mass"]), 6) for i in infos} == {0.2}  # float32
+    assert {round(float(i["friction"]), 6) for i in infos} == {0.3}
+    assert fig9._config("PRED", 0).env_overrides == {}  # "drawn": the domains' own ranges
+    with pytest.raises(ValueError, match=r"dynamics must be one of \['drawn', 'fixed'\]"):
+        fig9._config("PRED", 0, "frozen")

@@ -5,7 +5,12 @@ The paper computes it on 10K test points and reports the variance; the reference
 
 Zero distances: a pair with τ1 = τ2 has no ratio and is skipped (repeated frames at episode ends
 give such pairs). A pair with τ1 ≠ τ2 but φ1 = φ2 has ρ = −∞: the encoder collapses distinct
-states, and the distortion is then +inf, as the definition says.
+states, and the distortion is then +inf, as the definition says. Unless the encoder could not
+tell them apart: two states a fraction of a pixel apart render the same 64×64 frame, and every
+encoder gives both one latent. `inputs` (a fingerprint per point of what the encoder read,
+e.g. `jaml.stream.analysis`'s hash of the input frames and actions) skips pairs with equal
+inputs as pairs with τ1 = τ2 are skipped; skipping equal latents instead would also hide an
+encoder's real collapse of distinct inputs.
 
 Shapes: N points, Z latent width, D LD-state width, P pairs.
 """
@@ -34,34 +39,48 @@ def sample_pairs(num_points: int, num_pairs: int, seed: int = 0) -> tuple[jax.Ar
 
 
 @jax.jit
-def _coefficients(latents, states, i, j):
-    """ρ [P] and its validity mask [P] (False where τ_i = τ_j) for given pairs."""
+def _coefficients(latents, states, inputs, i, j):
+    """ρ [P] and its validity mask [P] (False where τ_i = τ_j or the inputs are equal) for given
+    pairs."""
     d_latent = jnp.linalg.norm(latents[i] - latents[j], axis=-1)
     d_state = jnp.linalg.norm(states[i] - states[j], axis=-1)
-    valid = d_state > 0
+    valid = (d_state > 0) & jnp.any(inputs[i] != inputs[j], axis=-1)
     # log 0 = −inf on purpose where only the latent distance vanishes (see module docstring).
     rho = jnp.log(d_latent) - jnp.log(jnp.where(valid, d_state, 1.0))
     return jnp.where(valid, rho, jnp.nan), valid
 
 
-def distortion_coefficients(latents, states, num_pairs: int = DEFAULT_NUM_PAIRS, seed: int = 0):
-    """ρ [P] for pairs drawn with `seed` (NaN where τ1 = τ2) and the mask of valid pairs [P].
+def distortion_coefficients(latents, states, num_pairs: int = DEFAULT_NUM_PAIRS, seed: int = 0,
+                            inputs=None):
+    """ρ [P] for pairs drawn with `seed` (NaN where τ1 = τ2 or the inputs are equal) and the mask
+    of valid pairs [P].
 
-    latents [N, Z] = φ(x), states [N, D] = τ. The same (N, num_pairs, seed) gives the same pairs,
-    so coefficients of different maps over the same points can be compared pairwise.
+    latents [N, Z] = φ(x), states [N, D] = τ, inputs [N, K] (optional): a fingerprint of each
+    point's encoder input, any dtype (see the module docstring). The same (N, num_pairs, seed)
+    gives the same pairs, so coefficients of different maps over the same points can be
+    compared pairwise.
     """
     lat, st = _checks.paired(("latents", "states"), latents, states, min_rows=2)
+    if inputs is None:
+        inputs = jnp.arange(lat.shape[0])[:, None]  # every point's input its own
+    inputs = jnp.asarray(inputs)
+    if inputs.ndim != 2 or inputs.shape[0] != lat.shape[0]:
+        raise ValueError(f"inputs must be [N, K] with N = {lat.shape[0]} (one fingerprint per "
+                         f"point), got shape {inputs.shape}")
     i, j = sample_pairs(lat.shape[0], num_pairs, seed)
-    return _coefficients(jnp.asarray(lat), jnp.asarray(st), i, j)
+    return _coefficients(jnp.asarray(lat), jnp.asarray(st), inputs, i, j)
 
 
-def distortion(latents, states, num_pairs: int = DEFAULT_NUM_PAIRS, seed: int = 0) -> float:
-    """Var(ρ) over `num_pairs` random pairs of distinct points, skipping pairs with τ1 = τ2."""
-    rho, valid = distortion_coefficients(latents, states, num_pairs, seed)
+def distortion(latents, states, num_pairs: int = DEFAULT_NUM_PAIRS, seed: int = 0,
+               inputs=None) -> float:
+    """Var(ρ) over `num_pairs` random pairs of distinct points, skipping pairs with τ1 = τ2 and
+    (given `inputs`) pairs whose encoder inputs are equal."""
+    rho, valid = distortion_coefficients(latents, states, num_pairs, seed, inputs)
     rho = np.asarray(rho, np.float64)[np.asarray(valid)]
     if rho.size < 2:
         raise ValueError(
-            f"too few non-coincident pairs: {rho.size} of {num_pairs} have τ1 ≠ τ2; need at least 2"
+            f"too few non-coincident pairs: {rho.size} of {num_pairs} have τ1 ≠ τ2 (and distinct "
+            "inputs); need at least 2"
         )
     if np.isneginf(rho).any():
         return float("inf")

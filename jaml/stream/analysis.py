@@ -36,14 +36,16 @@ from jaml.stream.loop import Stream, StreamState
 
 
 def encoded_replay(stream: Stream, s: StreamState, key: jax.Array, num: int):
-    """(latents [N, Z], LD targets [N, D]) of N ≈ num sequences sampled from the replay."""
+    """(latents [N, Z], LD targets [N, D], input fingerprints [N, 2]) of N ≈ num sequences
+    sampled from the replay (`input_fingerprints`)."""
     keys = jax.random.split(key, _chunks(num, stream.config.num_envs))
     return _map_chunks(_replay_chunk, stream, s, None, keys)
 
 
 def encoded_rollouts(stream: Stream, s: StreamState, key: jax.Array, num: int, random: bool):
-    """(latents, LD targets) of sequences cut from fresh rollouts: reset, `eval_transient`
-    steps, then consecutive L-step rollouts per env (reference §5, start t = 0)."""
+    """(latents, LD targets, input fingerprints) of sequences cut from fresh rollouts: reset,
+    `eval_transient` steps, then consecutive L-step rollouts per env (reference §5, start
+    t = 0)."""
     k_start, k_chunks = jax.random.split(key)
     random = jnp.asarray(random)
     env_state = _rollout_start(stream, s, k_start, random)
@@ -89,20 +91,21 @@ def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Ar
     pi_curr, regressor)."""
     cfg = stream.config
     k_train, k_curr, k_reg = jax.random.split(key, 3)
-    train = _part(seconds, "train_set", encoded_replay, stream, s, k_train, cfg.eval_train)
-    tests = {"pi_rand": _part(seconds, "pi_rand", encoded_rollouts, stream, s, pi_rand_key,
-                              cfg.eval_rand, random=True)}
+    train = _part(seconds, "train_set", encoded_replay, stream, s, k_train, cfg.eval_train)[:2]
+    lat, st, inputs = _part(seconds, "pi_rand", encoded_rollouts, stream, s, pi_rand_key,
+                            cfg.eval_rand, random=True)
+    tests = {"pi_rand": (lat, st)}
     if cfg.policy == "ppo" and cfg.eval_curr > 0:
         tests["pi_curr"] = _part(seconds, "pi_curr", encoded_rollouts, stream, s, k_curr,
-                                 cfg.eval_curr, random=False)
+                                 cfg.eval_curr, random=False)[:2]
     errors = _part(seconds, "regressor", evaluation.alignment_errors,
                    *train, tests, seed=int(jax.random.randint(k_reg, (), 0, 2**31 - 1)),
                    **_regressor_options(stream))
-    lat, st = tests["pi_rand"]
     return {
         "errors": {k: np.asarray(v).tolist() for k, v in errors.items()},
         "baseline": _constant_levels(stream, train[1], {k: t for k, (_, t) in tests.items()}),
-        "distortion": float(evaluation.distortion(lat, st[:, distortion_columns(stream)])),
+        "distortion": float(evaluation.distortion(lat, st[:, distortion_columns(stream)],
+                                                  inputs=inputs)),
     }
 
 
@@ -122,25 +125,25 @@ def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
     split = jax.vmap(lambda k: jax.random.split(k, 3))(keys)
     k_train, k_curr, k_reg = split[:, 0], split[:, 1], split[:, 2]
     train = _part(seconds, "train_set", _encoded_replay_runs, stream, states, k_train,
-                  cfg.eval_train)
-    tests = {"pi_rand": _part(seconds, "pi_rand", _encoded_rollouts_runs, stream, states,
-                              pi_rand_keys, cfg.eval_rand, random=True)}
+                  cfg.eval_train)[:2]
+    lat, st, inputs = _part(seconds, "pi_rand", _encoded_rollouts_runs, stream, states,
+                            pi_rand_keys, cfg.eval_rand, random=True)
+    tests = {"pi_rand": (lat, st)}
     if cfg.policy == "ppo" and cfg.eval_curr > 0:
         tests["pi_curr"] = _part(seconds, "pi_curr", _encoded_rollouts_runs, stream, states,
-                                 k_curr, cfg.eval_curr, random=False)
+                                 k_curr, cfg.eval_curr, random=False)[:2]
     seeds = jax.vmap(lambda k: jax.random.randint(k, (), 0, 2**31 - 1))(k_reg)
     errors = _part(seconds, "regressor", alignment.alignment_errors_runs,
                    *train, tests, seeds=np.asarray(seeds).tolist(), **_regressor_options(stream))
     errors = {k: np.asarray(v) for k, v in errors.items()}
     train_states = np.asarray(train[1])
     test_states = {k: np.asarray(t) for k, (_, t) in tests.items()}
-    lat, st = tests["pi_rand"]
     columns = distortion_columns(stream)
     return [{
         "errors": {k: v[r].tolist() for k, v in errors.items()},
         "baseline": _constant_levels(stream, train_states[r],
                                      {k: t[r] for k, t in test_states.items()}),
-        "distortion": float(evaluation.distortion(lat[r], st[r][:, columns])),
+        "distortion": float(evaluation.distortion(lat[r], st[r][:, columns], inputs=inputs[r])),
     } for r in range(len(seeds))]
 
 
@@ -171,7 +174,7 @@ def _chunks(num: int, num_envs: int) -> int:
 
 def _map_chunks(producer, stream: Stream, s: StreamState, carry, keys):
     """For each key, `producer(stream, s, carry, key) -> (carry, Columns [E, L])`, encoded;
-    returns (latents [N, Z], LD targets [N, D]) with N = E · len(keys).
+    returns (latents [N, Z], LD targets [N, D], input fingerprints [N, 2]) with N = E · len(keys).
 
     A host loop over one jitted producer and one jitted encoder on every backend: a scan over
     the chunks would compile the encoder once per data set (its length is static), and the
@@ -185,14 +188,14 @@ def _map_chunks(producer, stream: Stream, s: StreamState, carry, keys):
 
 
 def _encoded_replay_runs(stream: Stream, states: StreamState, keys: jax.Array, num: int):
-    """`encoded_replay` of R stacked runs (keys [R]): ([R, N, Z], [R, N, D])."""
+    """`encoded_replay` of R stacked runs (keys [R]): ([R, N, Z], [R, N, D], [R, N, 2])."""
     chunks = jax.vmap(lambda k: jax.random.split(k, _chunks(num, stream.config.num_envs)))(keys)
     return _map_chunks_runs(_replay_chunk_runs, stream, states, None, chunks)
 
 
 def _encoded_rollouts_runs(stream: Stream, states: StreamState, keys: jax.Array, num: int,
                            random: bool):
-    """`encoded_rollouts` of R stacked runs (keys [R]): ([R, N, Z], [R, N, D])."""
+    """`encoded_rollouts` of R stacked runs (keys [R]): ([R, N, Z], [R, N, D], [R, N, 2])."""
     split = jax.vmap(jax.random.split)(keys)
     random = jnp.asarray(random)
     env_states = _rollout_start_runs(stream, states, split[:, 0], random)
@@ -203,7 +206,7 @@ def _encoded_rollouts_runs(stream: Stream, states: StreamState, keys: jax.Array,
 
 def _map_chunks_runs(producer, stream: Stream, states: StreamState, carry, keys):
     """`_map_chunks` of R stacked runs: keys [R, C], one producer and one encoder call per
-    chunk for all runs; returns ([R, N, Z], [R, N, D])."""
+    chunk for all runs; returns ([R, N, Z], [R, N, D], [R, N, 2])."""
     outs = []
     for c in range(keys.shape[1]):
         carry, seqs = producer(stream, states, carry, keys[:, c])
@@ -218,10 +221,29 @@ def _reconstruct(stream: Stream, variables, frames, actions):
     return stream.learner.reconstruct(variables, frames, actions)
 
 
+def input_fingerprints(hist: int, frames, actions) -> jax.Array:
+    """uint32 [..., B, 2]: two hashes of what an encoder with `hist` input frames reads of each
+    sequence (frames [..., B, T, H, W, C] uint8, actions [..., B, T, A]): its first `hist` frames
+    and the actions before the last of them (later ones are zeroed, `elbo.encoder_actions`).
+
+    Equal inputs give equal fingerprints; different ones collide with probability ≈ 2⁻⁶⁴ (two
+    random linear hashes mod 2³²). The distortion skips pairs with equal fingerprints: states a
+    fraction of a pixel apart render the same frame, which no encoder can tell apart."""
+    lead = frames.shape[:-4]
+    words = [frames[..., :hist, :, :, :].reshape(*lead, -1).astype(jnp.uint32)]
+    if hist > 1:
+        seen = actions[..., :hist - 1, :].astype(jnp.float32)
+        words.append(jax.lax.bitcast_convert_type(seen, jnp.uint32).reshape(*lead, -1))
+    words = jnp.concatenate(words, axis=-1)
+    weights = jax.random.bits(jax.random.key(0), (2, words.shape[-1]), jnp.uint32) | 1
+    return jnp.stack([jnp.sum(words * w, axis=-1, dtype=jnp.uint32) for w in weights], axis=-1)
+
+
 @jax.jit(static_argnums=0)
 def _encode(stream: Stream, variables, seqs: replay_lib.Columns):
     z = stream.learner.encode(variables, seqs.frames, seqs.actions)
-    return z, seqs.ld[:, stream.hist - 1]
+    return (z, seqs.ld[:, stream.hist - 1],
+            input_fingerprints(stream.hist, seqs.frames, seqs.actions))
 
 
 @jax.jit(static_argnums=0)
@@ -240,7 +262,8 @@ def _encode_runs(stream: Stream, variables, seqs: replay_lib.Columns):
                               seqs.actions[r])
         for r in range(seqs.frames.shape[0])
     ])
-    return z, seqs.ld[:, :, stream.hist - 1]
+    return (z, seqs.ld[:, :, stream.hist - 1],
+            input_fingerprints(stream.hist, seqs.frames, seqs.actions))
 
 
 def _replay_chunk_one(stream: Stream, s: StreamState, key):

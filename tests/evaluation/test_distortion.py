@@ -92,6 +92,27 @@ def test_collapsed_distinct_states_give_infinite_distortion():
     assert math.isfinite(evaluation.distortion(t, t, num_pairs=num_pairs))
 
 
+def test_pairs_with_equal_inputs_are_skipped_not_infinite():
+    """States a fraction of a pixel apart give one frame and so one latent: with `inputs`
+    saying so, those pairs are skipped (as τ1 = τ2 is); a collapse of distinct inputs stays +∞."""
+    t = _states(n=50)
+    lat = t.copy()
+    lat[1:10] = lat[0]
+    same_frame = np.arange(50)[:, None]
+    same_frame[1:10] = 0  # the ten states rendered one frame
+    value = evaluation.distortion(lat, t, num_pairs=2000, inputs=same_frame)
+    # By hand: ρ over the sampled pairs outside the ten, and between them and the rest.
+    i, j = (np.asarray(x) for x in evaluation.sample_pairs(50, 2000, seed=0))
+    keep = same_frame[i, 0] != same_frame[j, 0]
+    rho = np.log(np.linalg.norm(lat[i] - lat[j], axis=-1)[keep]
+                 / np.linalg.norm(t[i] - t[j], axis=-1)[keep])
+    assert keep.sum() < 2000 and value == pytest.approx(np.var(rho), rel=1e-5)
+    distinct = np.arange(50)[:, None]  # the same latents from ten distinct inputs: a collapse
+    assert evaluation.distortion(lat, t, num_pairs=2000, inputs=distinct) == math.inf
+    with pytest.raises(ValueError, match=r"inputs must be \[N, K\] with N = 50"):
+        evaluation.distortion(lat, t, inputs=np.arange(49)[:, None])
+
+
 def test_same_seed_same_result():
     t = _states()
     warped = np.tanh(2.0 * t)

@@ -121,12 +121,12 @@ def _fake_stream(monkeypatch, env_name, **changes):
                             ppo=stream.PPOConfig(num_minibatches=4), **changes)
     fake = types.SimpleNamespace(config=config, env=env, seq_len=1)
 
-    def one(stream_, s, key, num, random=None):
-        return _synthetic(env, key, num)
+    def one(stream_, s, key, num, random=None):  # + input fingerprints, all distinct
+        return *_synthetic(env, key, num), np.arange(num, dtype=np.uint32)[:, None]
 
     def runs(stream_, states, keys, num, random=None):
-        pairs = [_synthetic(env, k, num) for k in keys]
-        return tuple(np.stack(x) for x in zip(*pairs, strict=True))
+        sets = [one(stream_, None, k, num) for k in keys]
+        return tuple(np.stack(x) for x in zip(*sets, strict=True))
 
     monkeypatch.setattr(analysis, "encoded_replay", one)
     monkeypatch.setattr(analysis, "encoded_rollouts", one)
@@ -233,3 +233,22 @@ def test_rearrange_with_normalised_targets_is_refused():
     with pytest.raises(ValueError, match=r"rotation blocks .* set regressor_normalize=False"):
         stream.build(config)
 
+
+
+def test_input_fingerprints_follow_what_the_encoder_reads():
+    """Equal for sequences that differ only after the last input frame (frames after it, the
+    action at it); different for one pixel or one earlier action; stacked runs as one by one."""
+    rng = np.random.default_rng(0)
+    frames = np.repeat(rng.integers(0, 256, (1, 3, 64, 64, 3), dtype=np.uint8), 4, axis=0)
+    actions = np.repeat(rng.uniform(-1, 1, (1, 3, 2)).astype(np.float32), 4, axis=0)
+    frames[1, 2] = 0  # after the two input frames
+    actions[1, 1] = 0.5  # at the last input frame (the encoder zeroes it)
+    frames[2, 0, 10, 20, 1] ^= 1  # one pixel of an input frame
+    actions[3, 0, 1] += 1e-3  # the action between the input frames
+    fp = np.asarray(analysis.input_fingerprints(2, frames, actions))
+    assert fp.shape == (4, 2) and fp.dtype == np.uint32
+    assert (fp[1] == fp[0]).all()
+    assert (fp[2] != fp[0]).any() and (fp[3] != fp[0]).any() and (fp[2] != fp[3]).any()
+    runs = np.asarray(analysis.input_fingerprints(2, np.stack([frames, frames[::-1]]),
+                                                  np.stack([actions, actions[::-1]])))
+    np.testing.assert_array_equal(runs, np.stack([fp, fp[::-1]]))

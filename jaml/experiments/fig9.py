@@ -16,6 +16,7 @@ The sim-to-sim transfer of paper §5. Four steps, each resumable in OUT:
 
     python -m jaml.experiments.fig9 --out runs/fig9                 # GPU-sized defaults
     python -m jaml.experiments.fig9 --out runs/fig9 --report-only   # tables from finished runs
+    python -m jaml.experiments.fig9 --out runs/fig9f --dynamics fixed  # one mass and friction
 
 The methods share nothing but the relations and the chosen weight, so on one GPU they can run
 as parallel processes (what docs/results/fig9.md did, 2.1× the throughput of one process):
@@ -132,6 +133,8 @@ def converged(out: Path, relation_set: str) -> list[int]:
 
 
 def _dynamics(dynamics: str) -> dict:
+    """The env (and source) overrides of a `DYNAMICS` name, as lists: what a run's JSON config
+    reads back, so a resumed run's recorded options compare equal."""
     if dynamics not in DYNAMICS:
         raise ValueError(f"dynamics must be one of {sorted(DYNAMICS)}, got {dynamics!r}")
     return {k: list(v) for k, v in DYNAMICS[dynamics].items()}

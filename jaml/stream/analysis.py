@@ -36,21 +36,21 @@ from jaml.stream.loop import Stream, StreamState
 
 
 def encoded_replay(stream: Stream, s: StreamState, key: jax.Array, num: int):
-    """(latents [N, Z], LD targets [N, D], input fingerprints [N, 2]) of N ≈ num sequences
-    sampled from the replay (`input_fingerprints`)."""
+    """(latents [N, Z], LD targets [N, D]) of N ≈ num sequences sampled from the replay."""
     keys = jax.random.split(key, _chunks(num, stream.config.num_envs))
     return _map_chunks(_replay_chunk, stream, s, None, keys)
 
 
-def encoded_rollouts(stream: Stream, s: StreamState, key: jax.Array, num: int, random: bool):
-    """(latents, LD targets, input fingerprints) of sequences cut from fresh rollouts: reset,
-    `eval_transient` steps, then consecutive L-step rollouts per env (reference §5, start
-    t = 0)."""
+def encoded_rollouts(stream: Stream, s: StreamState, key: jax.Array, num: int, random: bool,
+                     fingerprints: bool = False):
+    """(latents, LD targets) of sequences cut from fresh rollouts: reset, `eval_transient`
+    steps, then consecutive L-step rollouts per env (reference §5, start t = 0); with
+    `fingerprints`, also each sequence's `input_fingerprints` [N, 2] (for the distortion)."""
     k_start, k_chunks = jax.random.split(key)
     random = jnp.asarray(random)
     env_state = _rollout_start(stream, s, k_start, random)
     keys = jax.random.split(k_chunks, _chunks(num, stream.config.num_envs))
-    return _map_chunks(_rollout_chunk, stream, s, (env_state, random), keys)
+    return _map_chunks(_rollout_chunk, stream, s, (env_state, random), keys, fingerprints)
 
 
 def rotation_blocks(stream: Stream) -> tuple[tuple[int, ...], tuple[str, ...]]:
@@ -91,13 +91,13 @@ def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Ar
     pi_curr, regressor)."""
     cfg = stream.config
     k_train, k_curr, k_reg = jax.random.split(key, 3)
-    train = _part(seconds, "train_set", encoded_replay, stream, s, k_train, cfg.eval_train)[:2]
+    train = _part(seconds, "train_set", encoded_replay, stream, s, k_train, cfg.eval_train)
     lat, st, inputs = _part(seconds, "pi_rand", encoded_rollouts, stream, s, pi_rand_key,
-                            cfg.eval_rand, random=True)
+                            cfg.eval_rand, random=True, fingerprints=True)
     tests = {"pi_rand": (lat, st)}
     if cfg.policy == "ppo" and cfg.eval_curr > 0:
         tests["pi_curr"] = _part(seconds, "pi_curr", encoded_rollouts, stream, s, k_curr,
-                                 cfg.eval_curr, random=False)[:2]
+                                 cfg.eval_curr, random=False)
     errors = _part(seconds, "regressor", evaluation.alignment_errors,
                    *train, tests, seed=int(jax.random.randint(k_reg, (), 0, 2**31 - 1)),
                    **_regressor_options(stream))
@@ -125,13 +125,13 @@ def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
     split = jax.vmap(lambda k: jax.random.split(k, 3))(keys)
     k_train, k_curr, k_reg = split[:, 0], split[:, 1], split[:, 2]
     train = _part(seconds, "train_set", _encoded_replay_runs, stream, states, k_train,
-                  cfg.eval_train)[:2]
+                  cfg.eval_train)
     lat, st, inputs = _part(seconds, "pi_rand", _encoded_rollouts_runs, stream, states,
-                            pi_rand_keys, cfg.eval_rand, random=True)
+                            pi_rand_keys, cfg.eval_rand, random=True, fingerprints=True)
     tests = {"pi_rand": (lat, st)}
     if cfg.policy == "ppo" and cfg.eval_curr > 0:
         tests["pi_curr"] = _part(seconds, "pi_curr", _encoded_rollouts_runs, stream, states,
-                                 k_curr, cfg.eval_curr, random=False)[:2]
+                                 k_curr, cfg.eval_curr, random=False)
     seeds = jax.vmap(lambda k: jax.random.randint(k, (), 0, 2**31 - 1))(k_reg)
     errors = _part(seconds, "regressor", alignment.alignment_errors_runs,
                    *train, tests, seeds=np.asarray(seeds).tolist(), **_regressor_options(stream))
@@ -172,9 +172,11 @@ def _chunks(num: int, num_envs: int) -> int:
     return max(1, math.ceil(num / num_envs))
 
 
-def _map_chunks(producer, stream: Stream, s: StreamState, carry, keys):
+def _map_chunks(producer, stream: Stream, s: StreamState, carry, keys,
+                fingerprints: bool = False):
     """For each key, `producer(stream, s, carry, key) -> (carry, Columns [E, L])`, encoded;
-    returns (latents [N, Z], LD targets [N, D], input fingerprints [N, 2]) with N = E · len(keys).
+    returns (latents [N, Z], LD targets [N, D]) with N = E · len(keys), and with `fingerprints`
+    the input fingerprints [N, 2].
 
     A host loop over one jitted producer and one jitted encoder on every backend: a scan over
     the chunks would compile the encoder once per data set (its length is static), and the
@@ -183,34 +185,37 @@ def _map_chunks(producer, stream: Stream, s: StreamState, carry, keys):
     outs = []
     for k in keys:
         carry, seqs = producer(stream, s, carry, k)
-        outs.append(_encode(stream, s.learner.variables, seqs))
+        outs.append(_encode(stream, s.learner.variables, seqs, fingerprints))
     return tuple(jnp.concatenate(x) for x in zip(*outs, strict=True))
 
 
 def _encoded_replay_runs(stream: Stream, states: StreamState, keys: jax.Array, num: int):
-    """`encoded_replay` of R stacked runs (keys [R]): ([R, N, Z], [R, N, D], [R, N, 2])."""
+    """`encoded_replay` of R stacked runs (keys [R]): ([R, N, Z], [R, N, D])."""
     chunks = jax.vmap(lambda k: jax.random.split(k, _chunks(num, stream.config.num_envs)))(keys)
     return _map_chunks_runs(_replay_chunk_runs, stream, states, None, chunks)
 
 
 def _encoded_rollouts_runs(stream: Stream, states: StreamState, keys: jax.Array, num: int,
-                           random: bool):
-    """`encoded_rollouts` of R stacked runs (keys [R]): ([R, N, Z], [R, N, D], [R, N, 2])."""
+                           random: bool, fingerprints: bool = False):
+    """`encoded_rollouts` of R stacked runs (keys [R]): ([R, N, Z], [R, N, D]) and with
+    `fingerprints` [R, N, 2]."""
     split = jax.vmap(jax.random.split)(keys)
     random = jnp.asarray(random)
     env_states = _rollout_start_runs(stream, states, split[:, 0], random)
     n = _chunks(num, stream.config.num_envs)
     chunks = jax.vmap(lambda k: jax.random.split(k, n))(split[:, 1])
-    return _map_chunks_runs(_rollout_chunk_runs, stream, states, (env_states, random), chunks)
+    return _map_chunks_runs(_rollout_chunk_runs, stream, states, (env_states, random), chunks,
+                            fingerprints)
 
 
-def _map_chunks_runs(producer, stream: Stream, states: StreamState, carry, keys):
+def _map_chunks_runs(producer, stream: Stream, states: StreamState, carry, keys,
+                     fingerprints: bool = False):
     """`_map_chunks` of R stacked runs: keys [R, C], one producer and one encoder call per
-    chunk for all runs; returns ([R, N, Z], [R, N, D], [R, N, 2])."""
+    chunk for all runs; returns ([R, N, Z], [R, N, D]) and with `fingerprints` [R, N, 2]."""
     outs = []
     for c in range(keys.shape[1]):
         carry, seqs = producer(stream, states, carry, keys[:, c])
-        outs.append(_encode_runs(stream, states.learner.variables, seqs))
+        outs.append(_encode_runs(stream, states.learner.variables, seqs, fingerprints))
     return tuple(jnp.concatenate(x, axis=1) for x in zip(*outs, strict=True))
 
 
@@ -239,15 +244,18 @@ def input_fingerprints(hist: int, frames, actions) -> jax.Array:
     return jnp.stack([jnp.sum(words * w, axis=-1, dtype=jnp.uint32) for w in weights], axis=-1)
 
 
-@jax.jit(static_argnums=0)
-def _encode(stream: Stream, variables, seqs: replay_lib.Columns):
+@jax.jit(static_argnums=(0, 3))
+def _encode(stream: Stream, variables, seqs: replay_lib.Columns, fingerprints: bool = False):
     z = stream.learner.encode(variables, seqs.frames, seqs.actions)
-    return (z, seqs.ld[:, stream.hist - 1],
-            input_fingerprints(stream.hist, seqs.frames, seqs.actions))
+    out = (z, seqs.ld[:, stream.hist - 1])
+    if fingerprints:
+        out += (input_fingerprints(stream.hist, seqs.frames, seqs.actions),)
+    return out
 
 
-@jax.jit(static_argnums=0)
-def _encode_runs(stream: Stream, variables, seqs: replay_lib.Columns):
+@jax.jit(static_argnums=(0, 3))
+def _encode_runs(stream: Stream, variables, seqs: replay_lib.Columns,
+                 fingerprints: bool = False):
     """`_encode` of R stacked runs ([R, E, ...] sequences, per-run variables), the encoder
     applied run by run in one program (a Python loop over the static R, no device loop).
 
@@ -262,8 +270,10 @@ def _encode_runs(stream: Stream, variables, seqs: replay_lib.Columns):
                               seqs.actions[r])
         for r in range(seqs.frames.shape[0])
     ])
-    return (z, seqs.ld[:, :, stream.hist - 1],
-            input_fingerprints(stream.hist, seqs.frames, seqs.actions))
+    out = (z, seqs.ld[:, :, stream.hist - 1])
+    if fingerprints:
+        out += (input_fingerprints(stream.hist, seqs.frames, seqs.actions),)
+    return out
 
 
 def _replay_chunk_one(stream: Stream, s: StreamState, key):

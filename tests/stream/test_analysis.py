@@ -121,11 +121,14 @@ def _fake_stream(monkeypatch, env_name, **changes):
                             ppo=stream.PPOConfig(num_minibatches=4), **changes)
     fake = types.SimpleNamespace(config=config, env=env, seq_len=1)
 
-    def one(stream_, s, key, num, random=None):  # + input fingerprints, all distinct
-        return *_synthetic(env, key, num), np.arange(num, dtype=np.uint32)[:, None]
+    def one(stream_, s, key, num, random=None, fingerprints=False):
+        sets = _synthetic(env, key, num)
+        if fingerprints:  # every input distinct
+            sets += (np.arange(num, dtype=np.uint32)[:, None],)
+        return sets
 
-    def runs(stream_, states, keys, num, random=None):
-        sets = [one(stream_, None, k, num) for k in keys]
+    def runs(stream_, states, keys, num, random=None, fingerprints=False):
+        sets = [one(stream_, None, k, num, fingerprints=fingerprints) for k in keys]
         return tuple(np.stack(x) for x in zip(*sets, strict=True))
 
     monkeypatch.setattr(analysis, "encoded_replay", one)

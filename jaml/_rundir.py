@@ -2,6 +2,7 @@
 built on them): its config check, atomic JSON, and the append-only logs cut back on resume.
 
     OUT/config.json     the resolved configuration; a different one in the same OUT is refused
+    OUT/.lock           held (flock) by the process training the run; a second one is refused
     OUT/metrics.jsonl   one JSON record per logged step, cut back to the checkpoint on resume
     OUT/tensorboard/    the same scalars for TensorBoard
 
@@ -11,9 +12,11 @@ checkpoint a second time; `RunLog` drops them first, so the logs read as one uni
 
 from __future__ import annotations
 
+import fcntl
 import json
 import math
 import os
+import socket
 from collections.abc import Callable
 from pathlib import Path
 
@@ -23,6 +26,33 @@ def write_json(path: Path, value) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(json.dumps(value, indent=2, default=float) + "\n")
     os.replace(tmp, path)
+
+
+class RunInUse(RuntimeError):
+    """Another process holds the run directory (see `lock`)."""
+
+
+def lock(out: Path):
+    """An exclusive claim on the run directory `out` for as long as the returned file stays
+    open (close it to release; the kernel releases it when the process dies, so a killed run
+    leaves no stale lock). Two processes training one directory would interleave its
+    checkpoints and logs; the second is refused with `RunInUse`, naming the holder."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    handle = (out / ".lock").open("a+")
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.seek(0)
+        holder = handle.read().strip() or "a process that did not say which"
+        handle.close()
+        raise RunInUse(f"{out} is being run by another process ({holder}); wait for it to end "
+                       "or choose another --out") from None
+    handle.seek(0)
+    handle.truncate()
+    handle.write(f"pid {os.getpid()} on {socket.gethostname()}\n")
+    handle.flush()
+    return handle
 
 
 def claim(out: Path, resolved: dict) -> bool:

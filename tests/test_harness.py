@@ -1,5 +1,6 @@
 """The benchmark harness refuses results that name no commit, writes those that do, and names
-the code a row ran as its commit, "+dirty" for uncommitted changes other than its own outputs."""
+the code a row ran as its commit, "+dirty" for uncommitted changes other than its own outputs;
+the Fig. 9 timing reads its runs' summaries right."""
 
 import json
 import subprocess
@@ -46,3 +47,33 @@ def test_a_commit_is_dirty_for_changed_code_not_for_the_harness_outputs(tmp_path
     (tmp_path / "lib.py").write_text("1\n")  # code outside the benchmarks folder counts
     assert harness.git_commit(bench, ignore=("results.jsonl",)) == head + "+dirty"
     assert harness.git_commit(tmp_path / "nowhere") == ""
+
+
+def test_fig9_time_counts_a_methods_seeds_trained_together_once(tmp_path):
+    from benchmarks import fig9_time
+
+    def summary(path, seconds, phases, status="finished"):
+        path.mkdir(parents=True)
+        path.joinpath("summary.json").write_text(json.dumps(
+            {"status": status, "epoch": 316, "seconds_this_call": seconds,
+             "seconds_by_phase": phases}))
+
+    (tmp_path / "relations" / "trnsv").mkdir(parents=True)
+    (tmp_path / "relations" / "trnsv" / "summary.json").write_text(
+        json.dumps({"relations": [{"seconds": 20.0}, {"seconds": 10.0}]}))
+    summary(tmp_path / "pilot" / "w100" / "seed_100", 500.0, {"epochs": 400.0})
+    # Three seeds of one call: each summary holds the call's wall time and its share of phases.
+    for seed, seconds in enumerate((800.0, 810.0, 805.0)):
+        summary(tmp_path / "PRED" / f"seed_{seed}", seconds, {"epochs": 200.0, "analysis": 60.0})
+    summary(tmp_path / "VAE_rpl" / "seed_0", 700.0, {"epochs": 600.0, "analysis": 90.0})
+    summary(tmp_path / "VAE_rpl" / "seed_1", 300.0, {"epochs": 250.0, "analysis": 40.0},
+            status="running")  # unfinished: not counted
+    rows = {r["case"]: r for r in fig9_time.rows(tmp_path)}
+    assert rows["relations trnsv"]["wall_s"] == 30.0
+    pred = rows["PRED x 3 seeds"]
+    assert pred["wall_s"] == 810.0 and pred["epochs_s"] == 600.0 and pred["analysis_s"] == 180.0
+    assert rows["VAE_rpl x 1 seeds"]["wall_s"] == 700.0
+    total = "Fig. 9 total (relations + pilot + runs, {})"
+    assert rows[total.format("methods one after another")]["wall_s"] == 30 + 500 + 810 + 700
+    concurrent = {r["case"]: r for r in fig9_time.rows(tmp_path, concurrent=True)}
+    assert concurrent[total.format("methods as parallel processes")]["wall_s"] == 30 + 500 + 810

@@ -1,7 +1,10 @@
 """The run directory shared by `jaml relations` and `jaml suite`: config claim and refusal,
-logs cut back to the checkpoint on resume."""
+logs cut back to the checkpoint on resume, one process per directory."""
 
 import json
+import os
+import subprocess
+import sys
 
 import pytest
 
@@ -32,3 +35,34 @@ def test_run_log_keeps_the_records_up_to_the_checkpoint(tmp_path):
     assert lines == [{"epoch": 1, "loss": 1.0}, {"epoch": 2, "loss": 0.5},
                      {"epoch": 3, "loss": 0.25}]
     assert _rundir.truncate_jsonl(tmp_path / "missing.jsonl", lambda r: True) == []
+
+
+def test_lock_refuses_a_second_holder_until_the_first_lets_go(tmp_path):
+    out = tmp_path / "run"
+    held = _rundir.lock(out)  # creates the directory
+    assert (out / ".lock").read_text().startswith(f"pid {os.getpid()} on ")
+    # flock conflicts between open file descriptions, so a second open in this process stands
+    # in for a second process.
+    mine = f"being run by another process \\(pid {os.getpid()} "
+    with pytest.raises(_rundir.RunInUse, match=mine):
+        _rundir.lock(out)
+    held.close()
+    with _rundir.lock(out):  # free again; a file object, so usable in `with`
+        pass
+    _rundir.lock(out).close()
+
+
+def test_a_process_that_dies_releases_its_lock(tmp_path):
+    out = tmp_path / "run"
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time; from jaml import _rundir; "
+         f"h = _rundir.lock({str(out)!r}); print('held', flush=True); time.sleep(60)"],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(_rundir.RunInUse, match=f"pid {holder.pid} "):
+            _rundir.lock(out)
+    finally:
+        holder.kill()
+        holder.wait()
+    _rundir.lock(out).close()  # the kernel released it with the process

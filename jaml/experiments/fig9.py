@@ -334,14 +334,15 @@ class Args(_runs.Driver):
 
     def train(self) -> bool:
         SCALE.update(self.fields(SCALE))  # `_config` reads the module's SCALE
-        if any(METHODS[m][1] for m in self.methods):
+        # Relations and the weight only where a method imposes them (or the pilot is asked
+        # for): a `--methods PRED` process running beside the pilot must not run it again.
+        penalty = Penalty(self.weights[0], self.form)
+        if self.pilot_only or any(METHODS[m][1] for m in self.methods):
             learn_relations(self.out, dynamics=self.dynamics)
-        if len(self.weights) > 1:
-            penalty = choose_weight(self.out, self.weights, self.pilot_seed, self.form,
-                                    self.dynamics)
-        else:
-            penalty = Penalty(self.weights[0], self.form)
-        print(f"penalty: {penalty}", flush=True)
+            if len(self.weights) > 1:
+                penalty = choose_weight(self.out, self.weights, self.pilot_seed, self.form,
+                                        self.dynamics)
+            print(f"penalty: {penalty}", flush=True)
         if self.pilot_only:
             return False
         for method in self.methods:

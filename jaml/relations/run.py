@@ -15,7 +15,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaml import sources
-from jaml._rundir import RunLog, claim, write_json
+from jaml._rundir import RunLog, claim, lock, write_json
 from jaml.relations import checkpoint, plots
 from jaml.relations.config import Config
 from jaml.relations.relation_set import RelationSet
@@ -110,52 +110,53 @@ def run(
         resolved["source_sha256"] = source.fingerprint()
     if source_options:
         resolved["source_options"] = source_options
-    summary_path, ckpt_path = out / "summary.json", out / "checkpoint"
-    start, done = None, []
-    if claim(out, resolved) and ckpt_path.exists():
-        start = checkpoint.load(ckpt_path)
-        recorded = []
-        if summary_path.exists():
-            recorded = json.loads(summary_path.read_text())["relations"]
-        done = recorded[: start.num_relations] + [
-            _restored_summary(start, k) for k in range(len(recorded), start.num_relations)
-        ]
-        log.info("resuming %s after %d relations", out, start.num_relations)
+    with lock(out):  # one process per run directory (`_rundir.lock`)
+        summary_path, ckpt_path = out / "summary.json", out / "checkpoint"
+        start, done = None, []
+        if claim(out, resolved) and ckpt_path.exists():
+            start = checkpoint.load(ckpt_path)
+            recorded = []
+            if summary_path.exists():
+                recorded = json.loads(summary_path.read_text())["relations"]
+            done = recorded[: start.num_relations] + [
+                _restored_summary(start, k) for k in range(len(recorded), start.num_relations)
+            ]
+            log.info("resuming %s after %d relations", out, start.num_relations)
 
-    started = time.perf_counter()
-    recorder = _Recorder(out, cfg, len(done), sum(r["steps"] for r in done), progress)
-    summaries = list(done)
+        started = time.perf_counter()
+        recorder = _Recorder(out, cfg, len(done), sum(r["steps"] for r in done), progress)
+        summaries = list(done)
 
-    def write_summary(rs: RelationSet | None, status: str):
-        write_json(
-            summary_path,
-            {
-                "source": source_name,
-                "status": status,
-                "num_relations": len(summaries),
-                "seconds": time.perf_counter() - started,
-                "relations": summaries,
-            },
-        )
+        def write_summary(rs: RelationSet | None, status: str):
+            write_json(
+                summary_path,
+                {
+                    "source": source_name,
+                    "status": status,
+                    "num_relations": len(summaries),
+                    "seconds": time.perf_counter() - started,
+                    "relations": summaries,
+                },
+            )
 
-    def on_relation(rs: RelationSet, summary: RelationSummary):
-        recorder.relation_done(summary.steps)
-        summaries.append(dataclasses.asdict(summary) | {"ratio": summary.ratio})
-        # Summary first, then the checkpoint (atomic: Orbax renames a finished temporary
-        # directory): a run killed in between resumes from the checkpoint it has, and the
-        # summary is cut back to it.
-        write_summary(rs, "running")
-        checkpoint.save(rs, ckpt_path)
+        def on_relation(rs: RelationSet, summary: RelationSummary):
+            recorder.relation_done(summary.steps)
+            summaries.append(dataclasses.asdict(summary) | {"ratio": summary.ratio})
+            # Summary first, then the checkpoint (atomic: Orbax renames a finished temporary
+            # directory): a run killed in between resumes from the checkpoint it has, and the
+            # summary is cut back to it.
+            write_summary(rs, "running")
+            checkpoint.save(rs, ckpt_path)
 
-    try:
-        rs = fit(source, cfg, start=start, callback=recorder, on_relation=on_relation)
-    finally:
-        recorder.close()
-    status = "done" if rs.num_relations == cfg.max_relations else "stopped"
-    write_summary(rs, status)
-    if figures and rs.num_relations:
-        draw_figures(rs, source, out)
-    return json.loads(summary_path.read_text())
+        try:
+            rs = fit(source, cfg, start=start, callback=recorder, on_relation=on_relation)
+        finally:
+            recorder.close()
+        status = "done" if rs.num_relations == cfg.max_relations else "stopped"
+        write_summary(rs, status)
+        if figures and rs.num_relations:
+            draw_figures(rs, source, out)
+        return json.loads(summary_path.read_text())
 
 
 def draw_figures(rs: RelationSet, source, out: Path) -> list[Path]:

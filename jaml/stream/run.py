@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaml._rundir import RunLog, claim, truncate_jsonl, write_json
+from jaml._rundir import RunLog, claim, lock, truncate_jsonl, write_json
 from jaml.evaluation import plots
 from jaml.stream import analysis, checkpoint
 from jaml.stream.config import StreamConfig
@@ -136,6 +136,7 @@ class _RunDir:
                  final_checkpoint: bool = True):
         self.config, self.out, self.figures = config, out, figures
         self.final_checkpoint = final_checkpoint
+        self.lock = lock(out)  # released by `close` (or when the process ends)
         claim(out, config.to_dict())
         (out / "recon").mkdir(exist_ok=True)
         k_init, self.k_eval, self.pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
@@ -207,6 +208,7 @@ class _RunDir:
         self.manager.close()
         summary = self.summary()
         write_json(self.out / "summary.json", summary)
+        self.lock.close()
         return summary
 
 

@@ -78,3 +78,23 @@ def test_fixed_dynamics_fix_the_targets_mass_and_friction_at_every_reset():
     assert fig9._config("PRED", 0).env_overrides == {}  # "drawn": the domains' own ranges
     with pytest.raises(ValueError, match=r"dynamics must be one of \['drawn', 'fixed'\]"):
         fig9._config("PRED", 0, "frozen")
+
+
+def test_a_method_without_relations_neither_fits_them_nor_runs_the_pilot(tmp_path, monkeypatch):
+    # A `--methods PRED` process beside the pilot once ran the pilot itself, into the pilot's
+    # own run directory.
+    calls = []
+    monkeypatch.setattr(fig9, "learn_relations", lambda *a, **k: calls.append("relations"))
+    monkeypatch.setattr(fig9, "choose_weight", lambda *a, **k: calls.append("pilot"))
+    monkeypatch.setattr(fig9, "run_method",
+                        lambda out, method, seeds, penalty, **k: calls.append((method, penalty)))
+    monkeypatch.setattr(fig9, "SCALE", dict(fig9.SCALE))  # `train` writes the flags into it
+    assert fig9.Args(out=tmp_path, methods=("PRED", "VAE_rpl")).train() is True
+    assert calls == [("PRED", fig9.Penalty()), ("VAE_rpl", fig9.Penalty())]
+    calls.clear()
+    fig9.Args(out=tmp_path, methods=("PRED", "PRED+AML_trnsv")).train()
+    assert calls[:2] == ["relations", "pilot"] and [c[0] for c in calls[2:]] == [
+        "PRED", "PRED+AML_trnsv"]
+    calls.clear()
+    assert fig9.Args(out=tmp_path, methods=("PRED",), pilot_only=True).train() is False
+    assert calls == ["relations", "pilot"]

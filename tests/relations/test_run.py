@@ -115,3 +115,11 @@ def test_pretraining_towards_a_prior_heuristic():
     assert np.corrcoef(g, np.tanh(np.asarray(plane(box))))[0, 1] > 0.95
     with pytest.raises(TypeError, match="priors"):
         relations.fit(src, cfg, priors=["plane"])
+
+
+def test_a_run_directory_another_process_holds_is_refused(tmp_path):
+    from jaml import _rundir
+
+    with _rundir.lock(tmp_path), pytest.raises(_rundir.RunInUse, match="another process"):
+        run_module.run("ellipse", _tiny_config(max_relations=1), tmp_path, progress=False)
+    assert not (tmp_path / "config.json").exists()

@@ -73,6 +73,14 @@ def test_a_run_directory_refuses_another_config(tmp_path):
         run_lib.run(tiny(), tmp_path, progress=False)
 
 
+def test_a_run_directory_another_process_holds_is_refused(tmp_path):
+    from jaml import _rundir
+
+    with _rundir.lock(tmp_path), pytest.raises(_rundir.RunInUse, match="another process"):
+        run_lib.run(tiny(), tmp_path, progress=False)
+    assert not (tmp_path / "config.json").exists()  # refused before it touched the directory
+
+
 def test_checkpoint_round_trip_keeps_every_leaf_by_name(tmp_path):
     s = stream.build(tiny())
     state = s.init(jax.random.PRNGKey(0))

@@ -137,6 +137,13 @@ class _RunDir:
         self.config, self.out, self.figures = config, out, figures
         self.final_checkpoint = final_checkpoint
         self.lock = lock(out)  # released by `close` (or when the process ends)
+        try:
+            self._open(stream, config, out)
+        except BaseException:  # a refused config or unreadable checkpoint: let the directory go
+            self.lock.close()
+            raise
+
+    def _open(self, stream: Stream, config: StreamConfig, out: Path) -> None:
         claim(out, config.to_dict())
         (out / "recon").mkdir(exist_ok=True)
         k_init, self.k_eval, self.pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
@@ -259,8 +266,14 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
         raise ValueError(f"two runs share an out directory: {[str(o) for o in outs]}")
     stream = build(configs[0], latent_penalty)  # every config problem surfaces before any file
     figures = _FigureWriter()
-    runs = [_RunDir(stream, c, o, figures, final_checkpoint)
-            for c, o in zip(configs, outs, strict=True)]
+    runs: list[_RunDir] = []
+    try:
+        for c, o in zip(configs, outs, strict=True):
+            runs.append(_RunDir(stream, c, o, figures, final_checkpoint))
+    except BaseException:  # one directory refused: the ones opened before it are let go too
+        for r in runs:
+            r.lock.close()
+        raise
     label = f"{configs[0].env} {configs[0].learner}" + (f" ×{len(runs)}" if len(runs) > 1 else "")
     bar = tqdm(total=configs[0].epochs * len(runs), initial=sum(r.epoch for r in runs),
                desc=label, unit="epoch", disable=not progress)

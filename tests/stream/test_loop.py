@@ -71,6 +71,9 @@ def test_a_run_directory_refuses_another_config(tmp_path):
     (tmp_path / "config.json").write_text(json.dumps(tiny(seed=1).to_dict()))
     with pytest.raises(ValueError, match="different configuration"):
         run_lib.run(tiny(), tmp_path, progress=False)
+    from jaml import _rundir
+
+    _rundir.lock(tmp_path).close()  # the refused run let its directory go
 
 
 def test_a_run_directory_another_process_holds_is_refused(tmp_path):

@@ -84,6 +84,17 @@ def test_runs_trained_together_must_share_their_program(tmp_path):
         run_lib.run_many([tiny(), tiny(seed=1)], [tmp_path / "a"])
 
 
+def test_a_refused_run_lets_go_of_the_directories_opened_before_it(tmp_path):
+    from jaml import _rundir
+
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "config.json").write_text(json.dumps(tiny(seed=7).to_dict()))
+    with pytest.raises(ValueError, match="different configuration"):
+        run_lib.run_many([tiny(), tiny(seed=1)], [tmp_path / "a", tmp_path / "b"], progress=False)
+    for name in ("a", "b"):
+        _rundir.lock(tmp_path / name).close()
+
+
 @pytest.mark.slow
 def test_run_many_writes_what_each_run_writes_alone_and_regroups_resumed_runs(tmp_path):
     """Seed 1 resumed at epoch 2 while seed 0 starts: they advance apart, then together."""

@@ -13,6 +13,7 @@
     OUT/alignment.png     alignment errors over training, and OUT/distortion.png: redrawn after
                           each analysis, on a background thread (`_FigureWriter`)
     OUT/recon/            epoch_XXXXXX.png: true and reconstructed frames at each analysis
+    OUT/.lock             held by the process running the run (`_rundir.lock`)
     OUT/summary.json      status, epoch, wall seconds of this call by phase, the last analysis's
                           records; rewritten after every analysis (status "running") and at the end
 

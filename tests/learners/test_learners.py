@@ -173,8 +173,10 @@ def test_pred_static_part_is_shared_by_every_step_and_counted_once():
     np.testing.assert_allclose(out.kl["kl"], expected, rtol=1e-5)
     mu, _ = jax.jit(lambda v: learner.module.apply(v, x, a, False, method="posterior"))(variables)
     z = learner.encode(variables, frames, actions)
+    # Two separately compiled programs of the same network: equal to float32 rounding (their
+    # fusions may sum in another order; 5e-6 relative was seen on 0.01-sized entries).
     np.testing.assert_allclose(z, np.concatenate([mu[:, 0, :3], mu[..., 3:].reshape(B, -1)],
-                                                 -1), rtol=1e-6)
+                                                 -1), rtol=1e-5, atol=1e-6)
 
 
 def test_pred_decodes_t_plus_l_frames_from_the_first_t(runs):

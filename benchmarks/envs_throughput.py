@@ -1,8 +1,11 @@
 """Throughput of the envs_mjx domains, with their peers measured in the same run.
 
 (a) Physics substeps/s (no pixels), three peers on the same MJCF model:
-    env      jit(vmap(scan(env.step))) with pixels="off" (per-env model fields, LD state, reward)
-    mjx      jit(vmap(scan(mjx.step))) on env.mjx_model (raw physics, shared model)
+    env      jit(vmap(scan(env.step))) with pixels="off" (per-env model fields, LD state, reward),
+             compiled with `envs_mjx.compiler_options()` as every jaml env program (on the CPU
+             XLA's older fusion emitters: envs_mjx/compile.py)
+    mjx      jit(vmap(scan(mjx.step))) on env.mjx_model (raw physics, shared model), XLA's
+             default options, as a user's own jit
     warp     the same scan on MuJoCo Warp (MJX's impl="warp"; needs the warp-lang package, the
              `bench` extra), from the same start states with the same controls: the GPU peer a
              user would otherwise pick. Every contact kept, up to WARP_CONTACTS per env.
@@ -71,7 +74,13 @@ def _env_rollout(env, whole_frame=False):
 
         return jax.lax.scan(body, state, actions)
 
-    return jax.jit(jax.vmap(roll, in_axes=(0, 1)))
+    return jax.jit(jax.vmap(roll, in_axes=(0, 1)), compiler_options=envs_mjx.compiler_options())
+
+
+def _reset(env, batch):
+    """`batch` env states from key 0, compiled as jaml's env programs are."""
+    reset = jax.jit(jax.vmap(env.reset), compiler_options=envs_mjx.compiler_options())
+    return reset(jax.random.split(jax.random.key(0), batch))
 
 
 def parse_env(spec: str) -> tuple[str, dict]:
@@ -97,7 +106,7 @@ def make_env(spec: str, **kwargs):
 
 def bench_env_physics(name, batch, steps, repeats):
     env = make_env(name, pixels="off")
-    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
+    states = _reset(env, batch)
     actions = _random_actions(jax.random.key(1), steps, batch, env.action_size)
     fn = _env_rollout(env)
     t = measure(fn, states, actions, repeats=repeats)
@@ -127,7 +136,7 @@ def _time_steps(model, data, n, repeats):
 def bench_raw_mjx(name, batch, steps, repeats):
     env = make_env(name, pixels="off")
     model = env.mjx_model
-    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
+    states = _reset(env, batch)
     data = states.pipeline_state
     return _time_steps(model, data, steps * env.n_frames, repeats)
 
@@ -161,7 +170,7 @@ def bench_raw_warp(name, batch, steps, repeats):
     model = model.tree_replace({"opt._impl.warn_overflow": quiet})
     data0 = mjx.make_data(env.mj_model, impl="warp", naconmax=batch * WARP_CONTACTS,
                           njmax=4 * WARP_CONTACTS)
-    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
+    states = _reset(env, batch)
     start = states.pipeline_state
     data = jax.jit(jax.vmap(lambda q, v: data0.replace(qpos=q, qvel=v)))(start.qpos, start.qvel)
     return _time_steps(model, data, steps * env.n_frames, repeats)
@@ -205,7 +214,7 @@ def bench_c(name, batch, steps, repeats):
 
 def bench_pixels(name, batch, steps, repeats):
     env = make_env(name, pixels="required")
-    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
+    states = _reset(env, batch)
     actions = _random_actions(jax.random.key(1), steps, batch, env.action_size)
     t = measure(_env_rollout(env), states, actions, repeats=repeats)
     return {"frames_per_s": batch * steps / t["median_s"], **t}
@@ -231,7 +240,7 @@ def bench_vs_pybullet(name, batch, steps, rounds, processes=2):
     about the same number of frames, timed over the steps (the resets left out, see
     pybullet_envs.run_block)."""
     env = make_env(name, pixels="required")
-    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), batch))
+    states = _reset(env, batch)
     actions = _random_actions(jax.random.key(1), steps, batch, env.action_size)
     fn = _env_rollout(env, whole_frame=True)
     start = time.perf_counter()

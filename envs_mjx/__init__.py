@@ -1,9 +1,19 @@
 """The evaluation suite's domains: MJCF models stepped in MJX, with LD state and pixels."""
 
 from envs_mjx.base import Env, EnvConfig, State
+from envs_mjx.compile import compiler_options
 from envs_mjx.registry import ALL_ENVS, default_config, make
 
-__all__ = ["ALL_ENVS", "Env", "EnvConfig", "State", "default_config", "make", "to_gymnasium"]
+__all__ = [
+    "ALL_ENVS",
+    "Env",
+    "EnvConfig",
+    "State",
+    "compiler_options",
+    "default_config",
+    "make",
+    "to_gymnasium",
+]
 
 
 def __getattr__(name: str):

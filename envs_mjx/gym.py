@@ -29,6 +29,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from envs_mjx.base import Env
+from envs_mjx.compile import compiler_options
 from envs_mjx.registry import make
 
 
@@ -142,8 +143,9 @@ class MjxGymEnv(_KeyedState, gymnasium.Env):
             state = env.step(packing.unpack(packed), action)
             return packing.pack(state), reported(state)
 
-        self._reset_fn = jax.jit(reset)
-        self._step_fn = jax.jit(step)
+        options = compiler_options()
+        self._reset_fn = jax.jit(reset, compiler_options=options)
+        self._step_fn = jax.jit(step, compiler_options=options)
         self._key = jax.random.PRNGKey(seed)
         self._state = None  # the packed state
         self._reported = None  # host copies of `reported(state)`
@@ -221,8 +223,9 @@ class MjxVectorEnv(_KeyedState, VectorEnv):
             state = jax.lax.cond(jnp.any(autoreset), merge, lambda: stepped)
             return state, key
 
-        self._reset_fn = jax.jit(reset_batch)
-        self._step_fn = jax.jit(step)
+        options = compiler_options()
+        self._reset_fn = jax.jit(reset_batch, compiler_options=options)
+        self._step_fn = jax.jit(step, compiler_options=options)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)

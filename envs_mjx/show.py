@@ -60,7 +60,8 @@ def rollout_frames(name: str, resets: int, steps: int, seed: int = 0, **override
         _, frames = jax.lax.scan(body, states, actions)  # [steps - 1, resets, ...]
         return jnp.concatenate([states.pixels[:, None], jnp.swapaxes(frames, 0, 1)], axis=1)
 
-    return np.asarray(jax.jit(run)(jax.random.key(seed)))
+    return np.asarray(jax.jit(run, compiler_options=envs_mjx.compiler_options())(
+        jax.random.key(seed)))
 
 
 def grid(frames: np.ndarray, gap: int = 2) -> np.ndarray:

@@ -6,9 +6,13 @@ import functools
 import jax
 import numpy as np
 
+from envs_mjx.compile import CPU_COMPILER_OPTIONS
+
 # Tests run a few hundred steps, so LLVM's backend optimizations cost far more (compile time on
-# 2 CPU cores) than they save; this roughly halves each MJX compile. Applied per jit, not globally.
-FAST_COMPILE = {"xla_backend_optimization_level": 0}
+# 2 CPU cores) than they save; this roughly halves each MJX compile. With the options of jaml's
+# env programs (`envs_mjx.compiler_options()` on the CPU: the older fusion emitters, which
+# compile env programs faster and run the Franka's kinematics ~100x faster). Per jit, not global.
+FAST_COMPILE = {"xla_backend_optimization_level": 0, **CPU_COMPILER_OPTIONS}
 
 # Recordable fields of a State; any other name is read from its physics data (qpos, ctrl, ...).
 STATE_FIELDS = {

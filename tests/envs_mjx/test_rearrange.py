@@ -27,10 +27,7 @@ from envs_mjx.domains import rearrange
 from tests.envs_mjx.rollout_harness import FAST_COMPILE, RECORD, Harness
 
 B, T = 4, 10
-# The Franka scene's programs at optimisation level 0 compile faster but run pathologically slowly
-# (mjx.kinematics of a 4-env batch: 95 s, against 0.2 s at the default level; cause not isolated),
-# so they keep the default level.
-COMPILE_OPTIONS = {"reacher": FAST_COMPILE, "franka": {}}
+COMPILE_OPTIONS = {"reacher": FAST_COMPILE, "franka": FAST_COMPILE}
 PAIRS = [(n, a) for n in ("RearrangeGeom", "RearrangeYCB") for a in rearrange.ARMS]
 NO_SETTLE = {"settle_steps": 0, "random_torque_steps": 0}
 
@@ -52,8 +49,8 @@ def _row(tree, i):
 
 
 # The reacher pairs here (RearrangeYCB's is RearrangeGeom's scene with other meshes, ~40 s of
-# compile on two cores); the Franka pairs in test_rearrange_franka.py, which compiles at XLA's
-# full level (their MJX programs run pathologically slowly at the level this module uses).
+# compile on two cores); the Franka pairs in test_rearrange_franka.py, a module of their own that
+# xdist starts first (its two contracts are the longest checks).
 REACHER = [(n, "reacher") for n in ("RearrangeGeom", "RearrangeYCB")]
 
 

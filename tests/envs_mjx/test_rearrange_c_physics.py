@@ -4,8 +4,9 @@ the batch axes the callback takes (none, one, two); bad input.
 
 The C path compiles no MJX physics (its programs are the callback, kinematics, the Franka's bias
 and the LD state), so a full reset with the settle and random-torque steps is cheap here.
-Compiled at XLA's full level (`xla_optimized`, tests/conftest.py), as test_rearrange_franka: at
-level 0 the Franka's kinematics run pathologically slowly."""
+Compiled at XLA's full level (`xla_optimized`, tests/conftest.py): its jits take XLA's default
+CPU options, with which the Franka's MJX kinematics run pathologically slowly at level 0
+(envs_mjx/compile.py)."""
 
 import functools
 

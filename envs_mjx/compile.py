@@ -5,7 +5,7 @@ On the CPU, XLA's newer fusion emitters (`xla_cpu_use_fusion_emitters`, on by de
 fuses each level of the body tree into the next, duplicating the parent's pose computation into
 every consumer (MJX's 471 multiplies in the Franka scene's `mjx.kinematics` become 3,475 after
 fusion), and the new emitters run those fusions ~100× slower than the older elemental emitters.
-Measured on the project's 2-core AMD EPYC, jaxlib 0.10.2, 2026-11-25 (one process per setting,
+Measured on a 2-core Intel Xeon (the project machine of 2026-11-25), jaxlib 0.10.2 (one process per setting,
 alternated):
 
 | program | default | `xla_cpu_use_fusion_emitters=False` |
@@ -19,6 +19,10 @@ alternated):
 The learners' convolutional train steps went the other way (VAE_rpl 0.86×, PRED 0.77× the
 frames/s), so the option is for env programs (stepping, rendering, rollouts) only; the
 learners keep `jaml.learners.compiler_options()`. Elsewhere (GPU) XLA's defaults are used.
+jaml's own env programs take them: the Gymnasium envs (`envs_mjx.gym`), `jaml envs show`, the
+MJX incline sources (`jaml.sources`) and `benchmarks/envs_throughput.py`. The learning loop's
+programs (`jaml.stream`) are not changed: its epoch blocks hold the learner's steps, and its
+analysis rollouts are compiled by module-level jits with XLA's defaults.
 
 A jitted function's options are those of the outermost `jax.jit`: an env step called inside a
 user's own jit compiles with that jit's options, so pass these there too:

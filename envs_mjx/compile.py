@@ -5,16 +5,15 @@ On the CPU, XLA's newer fusion emitters (`xla_cpu_use_fusion_emitters`, on by de
 fuses each level of the body tree into the next, duplicating the parent's pose computation into
 every consumer (MJX's 471 multiplies in the Franka scene's `mjx.kinematics` become 3,475 after
 fusion), and the new emitters run those fusions ~100× slower than the older elemental emitters.
-Measured on a 2-core Intel Xeon (the project machine of 2026-11-25), jaxlib 0.10.2 (one process per setting,
-alternated):
+Measured on a 2-core Intel Xeon (the project's machine of 2026-11-25), jaxlib 0.10.2, one
+process per setting, alternated; default emitters → older emitters:
 
-| program | default | `xla_cpu_use_fusion_emitters=False` |
-|---|---|---|
-| `mjx.kinematics`, RearrangeGeom with the Franka, one env | 12.5 ms | 0.12 ms |
-| `vmap(env.step)`, RearrangeGeom with the Franka, 8 envs, pixels off | 1.89 s | 0.024 s |
-| `vmap(env.step)`, RearrangeGeom with the reacher, 64 envs, pixels off | 0.155 s | 0.141 s |
-| 10 × `vmap(env.step)` with 64×64 pixels, 64 envs: CartPole / HalfCheetah / Ant | 15.6K / 4.4K / 3.2K frames/s | 15.8K / 4.4K / 3.2K frames/s |
-| compiling that program: CartPole / HalfCheetah / Ant | 4.8 / 10.8 / 11.5 s | 3.2 / 7.3 / 8.0 s |
+- `mjx.kinematics`, RearrangeGeom with the Franka, one env: 12.5 ms → 0.12 ms.
+- `vmap(env.step)`, RearrangeGeom with the Franka, 8 envs, pixels off: 1.89 s → 0.024 s.
+- `vmap(env.step)`, RearrangeGeom with the reacher, 64 envs, pixels off: 0.155 s → 0.141 s.
+- 10 × `vmap(env.step)` with 64×64 pixels, 64 envs, CartPole / HalfCheetah / Ant: 15.6K /
+  4.4K / 3.2K → 15.8K / 4.4K / 3.2K frames/s; compiling it 4.8 / 10.8 / 11.5 s → 3.2 / 7.3 /
+  8.0 s.
 
 The learners' convolutional train steps went the other way (VAE_rpl 0.86×, PRED 0.77× the
 frames/s), so the option is for env programs (stepping, rendering, rollouts) only; the

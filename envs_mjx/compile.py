@@ -18,8 +18,10 @@ process per setting, alternated; default emitters → older emitters:
 The learners' convolutional train steps went the other way (VAE_rpl 0.86×, PRED 0.77× the
 frames/s), so the option is for env programs (stepping, rendering, rollouts) only; the
 learners keep `jaml.learners.compiler_options()`. Elsewhere (GPU) XLA's defaults are used.
-jaml's own env programs take them: the Gymnasium envs (`envs_mjx.gym`), `jaml envs show`, the
-MJX incline sources (`jaml.sources`) and `benchmarks/envs_throughput.py`. The learning loop's
+jaml's own top-level env programs take them: the Gymnasium envs (`envs_mjx.gym`), `jaml envs
+show` and `benchmarks/envs_throughput.py`. JAX takes `compiler_options` on an outermost jit
+only (a nested one raises), so functions that callers jit inside their own programs, such as
+the MJX incline sources' `sample` (`jaml.sources`), keep plain jits. The learning loop's
 programs (`jaml.stream`) are not changed: its epoch blocks hold the learner's steps, and its
 analysis rollouts are compiled by module-level jits with XLA's defaults.
 

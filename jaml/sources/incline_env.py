@@ -93,8 +93,7 @@ class InclineEnvSource:
         normalised = bool(getattr(self.env.config, "normalize_ld", False))
         self.drop_clipped = bool(drop_clipped) and normalised
         self.name = name or env_name
-        self.sample = jax.jit(self._sample, static_argnums=1,
-                              compiler_options=envs_mjx.compiler_options())
+        self.sample = jax.jit(self._sample, static_argnums=1)
 
     @property
     def dim_names(self) -> tuple[str, ...]:

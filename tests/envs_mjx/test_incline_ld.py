@@ -5,8 +5,7 @@ import numpy as np
 
 import envs_mjx
 from envs_mjx.domains import incline
-
-FAST_COMPILE = {"xla_backend_optimization_level": 0}
+from tests.envs_mjx.rollout_harness import FAST_COMPILE
 
 
 def test_ld_normalisation_follows_overridden_ranges():

@@ -22,10 +22,10 @@ from envs_mjx import render
 from envs_mjx.domains import mesh_incline
 from envs_mjx.domains.mesh_object import load_object, read_obj
 from jaml.stream import collect
+from tests.envs_mjx.rollout_harness import FAST_COMPILE
 
 B, T, SIZE = 8, 40, 48
 N = len(mesh_incline.MESH_OBJECTS)
-FAST_COMPILE = {"xla_backend_optimization_level": 0}
 # Objects that rest on a hull face: MJX and C MuJoCo agree on them as on GeomOnIncline's block.
 # The duck and the can rest on one hull vertex at reset and tip over within the first step,
 # where the two engines' plane-mesh contacts differ (C MuJoCo picks other contact points):

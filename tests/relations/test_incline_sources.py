@@ -11,9 +11,9 @@ import pytest
 from envs_mjx.domains import incline
 from jaml import cli, sources
 from jaml.sources import incline_env
+from tests.envs_mjx.rollout_harness import FAST_COMPILE
 
 N = 512
-FAST_COMPILE = {"xla_backend_optimization_level": 0}
 NAMES = ("theta", "s0", "v0", "a0", "s1", "v1")
 
 

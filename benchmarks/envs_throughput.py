@@ -23,6 +23,9 @@
     the row holds both medians, their ratio, the spread of the per-round ratios and each
     side's frames per CPU second (a per-core view that load from other processes does not
     lower; jaml's counts all its threads, spinning included).
+(d) `--parts options`: physics alone (pixels off) at a small batch, the env's rollout compiled
+    with jaml's env options (`envs_mjx.compiler_options()`) against XLA's defaults, alternated
+    in one process (benchmark "env_compiler_options"; envs_mjx/compile.py says why).
 Compile time (first call: trace + XLA compile + one run) and PyBullet's scene loading are
 reported apart from steady state.
 
@@ -64,7 +67,9 @@ def _random_actions(key, steps, batch, size):
     return jax.random.uniform(key, (steps, batch, size), minval=-1.0, maxval=1.0)
 
 
-def _env_rollout(env, whole_frame=False):
+def _env_rollout(env, whole_frame=False, options="jaml"):
+    """jit(vmap(scan(env.step))) over [T, B, A] actions; `options` the jit's compiler options:
+    "jaml" (`envs_mjx.compiler_options()`, as jaml's own env programs) or None (XLA's)."""
     def roll(state, actions):
         def body(s, a):
             s = env.step(s, a)
@@ -74,7 +79,8 @@ def _env_rollout(env, whole_frame=False):
 
         return jax.lax.scan(body, state, actions)
 
-    return jax.jit(jax.vmap(roll, in_axes=(0, 1)), compiler_options=envs_mjx.compiler_options())
+    options = envs_mjx.compiler_options() if options == "jaml" else options
+    return jax.jit(jax.vmap(roll, in_axes=(0, 1)), compiler_options=options)
 
 
 def _reset(env, batch):
@@ -286,6 +292,42 @@ def bench_gym_vs_pybullet(name, steps, rounds):
     return row
 
 
+def bench_compiler_options(name, batch, steps, rounds):
+    """Physics alone (pixels off): the env rollout compiled with jaml's env options
+    (`envs_mjx.compiler_options()`) and with XLA's defaults, in one process, alternated block by
+    block (even rounds jaml's first); both compile times and median substeps/s, and their
+    ratio with its per-round spread. On a GPU both are XLA's defaults."""
+    env = make_env(name, pixels="off")
+    states = _reset(env, batch)
+    actions = _random_actions(jax.random.key(1), steps, batch, env.action_size)
+    fns, compile_s = {}, {}
+    for label, options in (("jaml", "jaml"), ("xla_default", None)):
+        fns[label] = _env_rollout(env, options=options)
+        start = time.perf_counter()
+        block(fns[label](states, actions))
+        compile_s[label] = time.perf_counter() - start
+    times = {label: [] for label in fns}
+    for r in range(rounds):
+        for label in (("jaml", "xla_default") if r % 2 == 0 else ("xla_default", "jaml")):
+            start = time.perf_counter()
+            block(fns[label](states, actions))
+            times[label].append(time.perf_counter() - start)
+    substeps = batch * steps * env.n_frames
+    ratios = sorted(d / j for j, d in zip(times["jaml"], times["xla_default"], strict=True))
+    return {
+        "case": f"{name}/compiler_options/b{batch}",
+        "impl": "env.step, pixels off: envs_mjx.compiler_options() vs XLA's defaults",
+        "options": json.dumps(envs_mjx.compiler_options()),
+        "jaml_substeps_per_s": substeps / statistics.median(times["jaml"]),
+        "default_substeps_per_s": substeps / statistics.median(times["xla_default"]),
+        "ratio_jaml_over_default": statistics.median(times["xla_default"])
+        / statistics.median(times["jaml"]),
+        "ratio_min": ratios[0], "ratio_max": ratios[-1],
+        "jaml_compile_s": compile_s["jaml"], "default_compile_s": compile_s["xla_default"],
+        "batch": batch, "steps": steps, "rounds": rounds,
+    }
+
+
 def alternate(jaml_call, pool, rounds, before=None):
     """Seconds per round of `jaml_call()` (blocked) and of `pool.block()`, with the CPU seconds
     of each (jaml's process, all its threads; the PyBullet workers, summed), after one warm-up
@@ -357,10 +399,12 @@ def main(argv=None):
                              "256 in place of 1024 on CPU)")
     parser.add_argument("--physics-batch", type=int,
                         help="batch of the physics case (default 1024; 64 with --quick)")
-    parts = ("physics", "pixels", "pybullet")
-    parser.add_argument("--parts", nargs="+", choices=parts, default=list(parts),
+    parts = ("physics", "pixels", "pybullet", "options")
+    parser.add_argument("--parts", nargs="+", choices=parts, default=list(parts[:3]),
                         help="which cases to run (pybullet: the side-by-side rows, for the "
-                             "domains with a PyBullet scene, when pybullet is installed)")
+                             "domains with a PyBullet scene, when pybullet is installed; "
+                             "options: physics with jaml's env compiler options against XLA's "
+                             "defaults; the default runs physics, pixels and pybullet)")
     parser.add_argument("--rounds", type=int, default=7,
                         help="alternated blocks per side in the side-by-side case")
     parser.add_argument("--single-env-steps", type=int, default=200,
@@ -369,6 +413,9 @@ def main(argv=None):
     parser.add_argument("--gym", action="store_true",
                         help="with batch 1: also one env stepped through the Gymnasium "
                              "interface, one Python call per step, against one PyBullet process")
+    parser.add_argument("--options-batch", type=int, default=8,
+                        help="batch of the options case (small: XLA's default CPU emitters "
+                             "run the Franka scene's step ~1.9 s at 8 envs)")
     parser.add_argument("--processes", type=int, default=os.cpu_count() or 1,
                         help="PyBullet worker processes (default: one per core)")
     args = parser.parse_args(argv)
@@ -396,7 +443,8 @@ def main(argv=None):
                                           if cpu else "they compare CPU with CPU"))
     all_rows = []
     for name in args.envs:
-        rows, side_rows = [], []  # recorded per env: a run cut short keeps the finished domains
+        # Recorded per env: a run cut short keeps the finished domains.
+        rows, side_rows, option_rows = [], [], []
         print(f"== {name} ==", flush=True)
         if "physics" in args.parts:
             rows.append(_physics_row(name, phys_batch, phys_steps, reps))
@@ -406,6 +454,14 @@ def main(argv=None):
                   f"(compile {p['compile_s']:.1f} s)", flush=True)
             rows.append({"case": f"{name}/pixels/b{b}", "frames_per_s": p["frames_per_s"],
                          "compile_s": p["compile_s"]})
+        if "options" in args.parts:
+            r = bench_compiler_options(name, args.options_batch, pix_steps, args.rounds)
+            print(f"  physics substeps/s, batch {args.options_batch}: jaml's env options "
+                  f"{r['jaml_substeps_per_s']:,.0f} (compile {r['jaml_compile_s']:.1f} s) | "
+                  f"XLA's defaults {r['default_substeps_per_s']:,.0f} (compile "
+                  f"{r['default_compile_s']:.1f} s) | ratio {r['ratio_jaml_over_default']:.2f} "
+                  f"(rounds {r['ratio_min']:.2f}-{r['ratio_max']:.2f})", flush=True)
+            option_rows.append(r)
         pairs = [(max(pix_batches), args.processes)]
         if 1 in pix_batches and max(pix_batches) > 1:
             pairs.append((1, 1))  # one env against one PyBullet process
@@ -438,6 +494,8 @@ def main(argv=None):
             if side_rows:
                 record("envs_vs_pybullet", side_rows, notes=SIDE_NOTE + (" Quick run." if
                                                                          args.quick else ""))
+            if option_rows:
+                record("env_compiler_options", option_rows, notes=notes)
         all_rows += rows + side_rows
     return all_rows
 

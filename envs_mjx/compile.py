@@ -15,6 +15,14 @@ process per setting, alternated; default emitters → older emitters:
   4.4K / 3.2K → 15.8K / 4.4K / 3.2K frames/s; compiling it 4.8 / 10.8 / 11.5 s → 3.2 / 7.3 /
   8.0 s.
 
+Recorded side by side in one process through the harness (`python -m
+benchmarks.envs_throughput --envs RearrangeGeom:arm=franka RearrangeGeom HalfCheetah CartPole
+--parts options --rounds 5`, benchmark "env_compiler_options" in benchmarks/RESULTS.md; same
+machine, commit ed8572c): physics alone at 8 envs, jaml's options over XLA's defaults, the Franka
+scene 89× (rounds 83–94×; 2,578 against 29 substeps/s; compile 18 against 50 s), the reacher
+scene 1.02× (0.99–1.13), HalfCheetah 0.97× (0.90–0.99), CartPole 1.05× (0.81–1.15); every
+compile shorter (reacher 11.6 against 15.9 s, HalfCheetah 6.9 against 8.5 s).
+
 The learners' convolutional train steps went the other way (VAE_rpl 0.86×, PRED 0.77× the
 frames/s), so the option is for env programs (stepping, rendering, rollouts) only; the
 learners keep `jaml.learners.compiler_options()`. Elsewhere (GPU) XLA's defaults are used.

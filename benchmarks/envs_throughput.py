@@ -496,7 +496,7 @@ def main(argv=None):
                                                                          args.quick else ""))
             if option_rows:
                 record("env_compiler_options", option_rows, notes=notes)
-        all_rows += rows + side_rows
+        all_rows += rows + side_rows + option_rows
     return all_rows
 
 

@@ -109,3 +109,24 @@ def test_envs_throughput_records_a_side_by_side_row_for_cartpole(tmp_path, monke
     assert recorded["benchmark"] == "envs_vs_pybullet"
     assert recorded["ratio_jaml_over_pybullet"] == row["ratio_jaml_over_pybullet"]
     assert "quoted_pybullet_1core_frames_per_s" in (tmp_path / "RESULTS.md").read_text()
+
+
+def test_envs_throughput_records_the_compiler_options_pair(tmp_path, monkeypatch):
+    """`--parts options`: one row per env, both programs timed in the same rounds, the ratio the
+    two medians', recorded under its own benchmark name."""
+    env = {"device": "cpu:cpu", "device_count": 1, "cpu": "x", "cpu_cores": 2, "python": "3",
+           "versions": {"jax": "0"}, "commit": "abc1234", "date": "2026-01-01T00:00:00+00:00"}
+    monkeypatch.setattr(harness, "RESULTS_JSONL", tmp_path / "results.jsonl")
+    monkeypatch.setattr(harness, "RESULTS_MD", tmp_path / "RESULTS.md")
+    monkeypatch.setattr(harness, "environment", lambda: dict(env))
+    (row,) = envs_throughput.main(["--envs", "CartPole", "--parts", "options", "--quick",
+                                   "--rounds", "3", "--options-batch", "2"])
+    assert row["case"] == "CartPole/compiler_options/b2" and row["rounds"] == 3
+    assert json.loads(row["options"]) == {"xla_cpu_use_fusion_emitters": False}
+    # batch x steps x the env's substeps per step, over each side's median block.
+    assert row["ratio_jaml_over_default"] == pytest.approx(
+        row["jaml_substeps_per_s"] / row["default_substeps_per_s"])
+    (recorded,) = [json.loads(line)
+                   for line in (tmp_path / "results.jsonl").read_text().splitlines()]
+    assert recorded["benchmark"] == "env_compiler_options"
+    assert recorded["ratio_jaml_over_default"] == row["ratio_jaml_over_default"]

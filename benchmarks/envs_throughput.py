@@ -67,9 +67,9 @@ def _random_actions(key, steps, batch, size):
     return jax.random.uniform(key, (steps, batch, size), minval=-1.0, maxval=1.0)
 
 
-def _env_rollout(env, whole_frame=False, options="jaml"):
-    """jit(vmap(scan(env.step))) over [T, B, A] actions; `options` the jit's compiler options:
-    "jaml" (`envs_mjx.compiler_options()`, as jaml's own env programs) or None (XLA's)."""
+def _env_rollout(env, whole_frame=False, xla_defaults=False):
+    """jit(vmap(scan(env.step))) over [T, B, A] actions, compiled as jaml's own env programs
+    (`envs_mjx.compiler_options()`) or, with `xla_defaults`, with XLA's default options."""
     def roll(state, actions):
         def body(s, a):
             s = env.step(s, a)
@@ -79,7 +79,7 @@ def _env_rollout(env, whole_frame=False, options="jaml"):
 
         return jax.lax.scan(body, state, actions)
 
-    options = envs_mjx.compiler_options() if options == "jaml" else options
+    options = None if xla_defaults else envs_mjx.compiler_options()
     return jax.jit(jax.vmap(roll, in_axes=(0, 1)), compiler_options=options)
 
 
@@ -301,8 +301,8 @@ def bench_compiler_options(name, batch, steps, rounds):
     states = _reset(env, batch)
     actions = _random_actions(jax.random.key(1), steps, batch, env.action_size)
     fns, compile_s = {}, {}
-    for label, options in (("jaml", "jaml"), ("xla_default", None)):
-        fns[label] = _env_rollout(env, options=options)
+    for label in ("jaml", "xla_default"):
+        fns[label] = _env_rollout(env, xla_defaults=label == "xla_default")
         start = time.perf_counter()
         block(fns[label](states, actions))
         compile_s[label] = time.perf_counter() - start

@@ -27,14 +27,14 @@ The learners' convolutional train steps went the other way (VAE_rpl 0.86×, PRED
 frames/s), so the option is for env programs (stepping, rendering, rollouts) only; the
 learners keep `jaml.learners.compiler_options()`. Elsewhere (GPU) XLA's defaults are used.
 jaml's own top-level env programs take them: the Gymnasium envs (`envs_mjx.gym`), `jaml envs
-show` and `benchmarks/envs_throughput.py`. JAX takes `compiler_options` on an outermost jit
-only (a nested one raises), so functions that callers jit inside their own programs, such as
-the MJX incline sources' `sample` (`jaml.sources`), keep plain jits. The learning loop's
-programs (`jaml.stream`) are not changed: its epoch blocks hold the learner's steps, and its
-analysis rollouts are compiled by module-level jits with XLA's defaults.
+show` and `benchmarks/envs_throughput.py`. The learning loop's programs (`jaml.stream`) are not
+changed: its epoch blocks hold the learner's steps, and its analysis rollouts are compiled by
+module-level jits with XLA's defaults.
 
-A jitted function's options are those of the outermost `jax.jit`: an env step called inside a
-user's own jit compiles with that jit's options, so pass these there too:
+Options belong to the outermost `jax.jit` (JAX refuses them on a nested one), so functions that
+callers jit inside their own programs, such as the MJX incline sources' `sample`
+(`jaml.sources`), keep plain jits, and an env step inside a user's own jit compiles with that
+jit's options: pass these there too,
 
     step = jax.jit(jax.vmap(env.step), compiler_options=envs_mjx.compiler_options())
 """

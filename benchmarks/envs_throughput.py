@@ -23,6 +23,8 @@
     the row holds both medians, their ratio, the spread of the per-round ratios and each
     side's frames per CPU second (a per-core view that load from other processes does not
     lower; jaml's counts all its threads, spinning included).
+(c') `--parts render`: the env's renderer alone (its pixels function, as env.step calls it) on
+    reset states at the pixel batches, so that a physics + pixels row splits into its two parts.
 (d) `--parts options`: physics alone (pixels off) at a small batch, the env's rollout compiled
     with jaml's env options (`envs_mjx.compiler_options()`) against XLA's defaults, alternated
     in one process (benchmark "env_compiler_options"; envs_mjx/compile.py says why).
@@ -35,9 +37,9 @@ cartpole 698 frames/s (quoted, not measured here).
 
 Run from the repo root: PYTHONPATH=. python benchmarks/envs_throughput.py [--quick]
 [--envs CartPole Ant RearrangeGeom:arm=franka] [--pixel-batches 1024 4096]
-[--parts physics pixels pybullet] [--physics-batch 4096] [--rounds 7] [--no-record]. Results go to
-benchmarks/results.jsonl unless --no-record (use it on a loaded or shared machine for the
-absolute rows; the side-by-side ratio holds there too).
+[--parts physics pixels render pybullet] [--physics-batch 4096] [--rounds 7] [--no-record].
+Results go to benchmarks/results.jsonl unless --no-record (use it on a loaded or shared machine
+for the absolute rows; the side-by-side ratio holds there too).
 """
 
 from __future__ import annotations
@@ -182,9 +184,17 @@ def bench_raw_warp(name, batch, steps, repeats):
     return _time_steps(model, data, steps * env.n_frames, repeats)
 
 
+# One thread's substeps/s does not depend on how many envs it steps in turn, so the C peer runs
+# at most this many (at the GPU's batch 4096 the Franka scene's C rollouts alone outran a
+# 10-minute call).
+C_MAX_BATCH = 256
+
+
 def bench_c(name, batch, steps, repeats):
-    """MuJoCo C on the env's model, 1 thread: mujoco.rollout when the env acts through ctrl."""
+    """MuJoCo C on the env's model, 1 thread: mujoco.rollout when the env acts through ctrl;
+    min(batch, C_MAX_BATCH) envs in turn."""
     env = make_env(name, pixels="off")
+    batch = min(batch, C_MAX_BATCH)
     m = env.mj_model
     n = steps * env.n_frames
     rng = np.random.default_rng(0)
@@ -224,6 +234,20 @@ def bench_pixels(name, batch, steps, repeats):
     actions = _random_actions(jax.random.key(1), steps, batch, env.action_size)
     t = measure(_env_rollout(env), states, actions, repeats=repeats)
     return {"frames_per_s": batch * steps / t["median_s"], **t}
+
+
+def _render_fn(env):
+    """jit(vmap(env.pixels_fn)): the frames env.step would draw for a batch of its states."""
+    return jax.jit(jax.vmap(env.pixels_fn), compiler_options=envs_mjx.compiler_options())
+
+
+def bench_render(name, batch, repeats):
+    """Frames/s of the env's pixels function alone, vmapped over `batch` reset states: the
+    renderer's share of a physics + pixels step (same context, colours and textures)."""
+    env = make_env(name, pixels="required")
+    states = _reset(env, batch)
+    t = measure(_render_fn(env), states.pipeline_state, states.info, repeats=repeats)
+    return {"frames_per_s": batch / t["median_s"], **t}
 
 
 PEER_FRAME = ("reference: getCameraImage with the reference's renderer and default flags "
@@ -399,12 +423,13 @@ def main(argv=None):
                              "256 in place of 1024 on CPU)")
     parser.add_argument("--physics-batch", type=int,
                         help="batch of the physics case (default 1024; 64 with --quick)")
-    parts = ("physics", "pixels", "pybullet", "options")
+    parts = ("physics", "pixels", "pybullet", "render", "options")
     parser.add_argument("--parts", nargs="+", choices=parts, default=list(parts[:3]),
                         help="which cases to run (pybullet: the side-by-side rows, for the "
                              "domains with a PyBullet scene, when pybullet is installed; "
-                             "options: physics with jaml's env compiler options against XLA's "
-                             "defaults; the default runs physics, pixels and pybullet)")
+                             "render: the renderer alone at the pixel batches; options: "
+                             "physics with jaml's env compiler options against XLA's defaults; "
+                             "the default runs physics, pixels and pybullet)")
     parser.add_argument("--rounds", type=int, default=7,
                         help="alternated blocks per side in the side-by-side case")
     parser.add_argument("--single-env-steps", type=int, default=200,
@@ -454,6 +479,12 @@ def main(argv=None):
                   f"(compile {p['compile_s']:.1f} s)", flush=True)
             rows.append({"case": f"{name}/pixels/b{b}", "frames_per_s": p["frames_per_s"],
                          "compile_s": p["compile_s"]})
+        for b in pix_batches if "render" in args.parts else ():
+            r = bench_render(name, b, reps)
+            print(f"  render alone 64x64, batch {b}: {r['frames_per_s']:,.1f} frames/s "
+                  f"(compile {r['compile_s']:.1f} s)", flush=True)
+            rows.append({"case": f"{name}/render/b{b}", "frames_per_s": r["frames_per_s"],
+                         "compile_s": r["compile_s"]})
         if "options" in args.parts:
             r = bench_compiler_options(name, args.options_batch, pix_steps, args.rounds)
             print(f"  physics substeps/s, batch {args.options_batch}: jaml's env options "

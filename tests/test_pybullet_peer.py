@@ -130,3 +130,14 @@ def test_envs_throughput_records_the_compiler_options_pair(tmp_path, monkeypatch
                    for line in (tmp_path / "results.jsonl").read_text().splitlines()]
     assert recorded["benchmark"] == "env_compiler_options"
     assert recorded["ratio_jaml_over_default"] == row["ratio_jaml_over_default"]
+
+
+def test_the_render_part_times_the_frames_env_step_draws():
+    """`--parts render` times the env's own pixels function: on reset states it returns exactly
+    the frames the states carry (drawn by reset through the same function)."""
+    env = envs_throughput.make_env("CartPole", pixels="required")
+    states = envs_throughput._reset(env, 2)
+    frames = envs_throughput._render_fn(env)(states.pipeline_state, states.info)
+    assert frames.shape == (2, 64, 64, 3) and frames.dtype == np.uint8
+    np.testing.assert_array_equal(np.asarray(frames), np.asarray(states.pixels))
+    assert len(np.unique(np.asarray(frames))) > 2  # a drawn scene, not a blank frame

@@ -80,7 +80,7 @@ class CPhysics:
         substep computed it (at the state one substep before the end, where `mj_step` and
         `mjx.step` leave it), computed in C: MJX's own kinematics of the Franka scene took 2.2 s
         for 64 envs on a CPU with XLA's default options (≈ 0.1 ms per env with
-        `envs_mjx.compiler_options()`, envs_mjx/compile.py), and C needs no XLA program.
+        the older emitters of `envs_mjx.compiler_options(env)`, envs_mjx/compile.py), and C needs no XLA program.
         """
         if nstep < 1 or (bias and nstep < 2):
             raise ValueError(f"nstep must be >= {2 if bias else 1}, got {nstep}")

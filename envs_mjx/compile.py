@@ -31,22 +31,57 @@ show` and `benchmarks/envs_throughput.py`. The learning loop's programs (`jaml.s
 changed: its epoch blocks hold the learner's steps, and its analysis rollouts are compiled by
 module-level jits with XLA's defaults.
 
+The older emitters are slower for the renderer's mesh tests, so they are asked for only where
+the physics needs them, by the env's depth (`compiler_options(env)`). Measured on the same
+machine (2026-11-25, one process, alternated, XLA's defaults against the older emitters): the
+renderer alone on the Franka scene's meshes, 64 envs, 1,043 against 141 frames/s (7.4×);
+MeshOnIncline's `env.step` with 64×64 pixels, 64 envs, 1,768 against 556 frames/s (3.2×). For
+the Franka scene with MJX's physics the physics decides (89× the other way, above): its
+`env.step` with pixels keeps the older emitters and is render-bound at ≈ 103 frames/s (batch
+256); with `physics="c"` it takes XLA's defaults.
+
 Options belong to the outermost `jax.jit` (JAX refuses them on a nested one), so functions that
 callers jit inside their own programs, such as the MJX incline sources' `sample`
 (`jaml.sources`), keep plain jits, and an env step inside a user's own jit compiles with that
 jit's options: pass these there too,
 
-    step = jax.jit(jax.vmap(env.step), compiler_options=envs_mjx.compiler_options())
+    step = jax.jit(jax.vmap(env.step), compiler_options=envs_mjx.compiler_options(env))
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
+import mujoco
+import numpy as np
 
 CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
+# Bodies deep, world excluded, from which the duplication above makes XLA's default emitters the
+# slower ones: the Franka scenes are 10 deep; every other domain is at most 4 (HalfCheetah), and
+# there XLA's defaults were as fast or faster.
+DEEP_CHAIN = 6
 
-def compiler_options() -> dict[str, bool] | None:
-    """`compiler_options` for a jitted env program on the default backend: the older fusion
-    emitters on the CPU (see the module docstring), None (XLA's defaults) elsewhere."""
-    return dict(CPU_COMPILER_OPTIONS) if jax.default_backend() == "cpu" else None
+
+def body_tree_depth(mj_model: mujoco.MjModel) -> int:
+    """Bodies on the longest path from the world body to a leaf (the world not counted)."""
+    depth = np.zeros(mj_model.nbody, int)
+    for b in range(1, mj_model.nbody):  # parents come before their children
+        depth[b] = depth[mj_model.body_parentid[b]] + 1
+    return int(depth.max())
+
+
+def compiler_options(env: Any) -> dict[str, bool] | None:
+    """`compiler_options` for a jitted program that steps or renders `env` on the default backend:
+    on the CPU, the older fusion emitters where `env` runs MJX's physics on a body tree at least
+    DEEP_CHAIN deep (the Franka scenes), None (XLA's defaults) everywhere else, the GPU included.
+    A `physics="c"` env's step runs its physics in C, and the renderer's mesh tests run faster
+    with the default emitters (see the module docstring)."""
+    if jax.default_backend() != "cpu":
+        return None
+    if getattr(getattr(env, "config", None), "physics", "mjx") == "c":
+        return None
+    if body_tree_depth(env.mj_model) < DEEP_CHAIN:
+        return None
+    return dict(CPU_COMPILER_OPTIONS)

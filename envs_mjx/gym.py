@@ -143,7 +143,7 @@ class MjxGymEnv(_KeyedState, gymnasium.Env):
             state = env.step(packing.unpack(packed), action)
             return packing.pack(state), reported(state)
 
-        options = compiler_options()
+        options = compiler_options(env)
         self._reset_fn = jax.jit(reset, compiler_options=options)
         self._step_fn = jax.jit(step, compiler_options=options)
         self._key = jax.random.PRNGKey(seed)
@@ -223,7 +223,7 @@ class MjxVectorEnv(_KeyedState, VectorEnv):
             state = jax.lax.cond(jnp.any(autoreset), merge, lambda: stepped)
             return state, key
 
-        options = compiler_options()
+        options = compiler_options(env)
         self._reset_fn = jax.jit(reset_batch, compiler_options=options)
         self._step_fn = jax.jit(step, compiler_options=options)
 

@@ -60,7 +60,7 @@ def rollout_frames(name: str, resets: int, steps: int, seed: int = 0, **override
         _, frames = jax.lax.scan(body, states, actions)  # [steps - 1, resets, ...]
         return jnp.concatenate([states.pixels[:, None], jnp.swapaxes(frames, 0, 1)], axis=1)
 
-    return np.asarray(jax.jit(run, compiler_options=envs_mjx.compiler_options())(
+    return np.asarray(jax.jit(run, compiler_options=envs_mjx.compiler_options(env))(
         jax.random.key(seed)))
 
 

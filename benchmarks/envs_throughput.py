@@ -2,8 +2,8 @@
 
 (a) Physics substeps/s (no pixels), three peers on the same MJCF model:
     env      jit(vmap(scan(env.step))) with pixels="off" (per-env model fields, LD state, reward),
-             compiled with `envs_mjx.compiler_options()` as every jaml env program (on the CPU
-             XLA's older fusion emitters: envs_mjx/compile.py)
+             compiled with `envs_mjx.compiler_options(env)` as every jaml env program (on the
+             CPU XLA's older fusion emitters for the Franka scenes: envs_mjx/compile.py)
     mjx      jit(vmap(scan(mjx.step))) on env.mjx_model (raw physics, shared model), XLA's
              default options, as a user's own jit
     warp     the same scan on MuJoCo Warp (MJX's impl="warp"; needs the warp-lang package, the
@@ -26,8 +26,9 @@
 (c') `--parts render`: the env's renderer alone (its pixels function, as env.step calls it) on
     reset states at the pixel batches, so that a physics + pixels row splits into its two parts.
 (d) `--parts options`: physics alone (pixels off) at a small batch, the env's rollout compiled
-    with jaml's env options (`envs_mjx.compiler_options()`) against XLA's defaults, alternated
-    in one process (benchmark "env_compiler_options"; envs_mjx/compile.py says why).
+    with XLA:CPU's older fusion emitters against XLA's defaults, alternated in one process, and
+    which of the two jaml uses for the env (benchmark "env_compiler_options";
+    envs_mjx/compile.py says why).
 Compile time (first call: trace + XLA compile + one run) and PyBullet's scene loading are
 reported apart from steady state.
 
@@ -59,6 +60,7 @@ from mujoco import mjx
 import envs_mjx
 from benchmarks.harness import block, measure, record
 from benchmarks.peers import pybullet_envs
+from envs_mjx.compile import CPU_COMPILER_OPTIONS
 
 # Quoted, not measured: perf_anchors.md §2 [2-core], pybullet 3.2.7, 1 core.
 QUOTED_FPS = {"CartPole": (698.0, "perf_anchors.md §2 [2-core]: PyBullet TinyRenderer 64x64 + "
@@ -69,9 +71,14 @@ def _random_actions(key, steps, batch, size):
     return jax.random.uniform(key, (steps, batch, size), minval=-1.0, maxval=1.0)
 
 
-def _env_rollout(env, whole_frame=False, xla_defaults=False):
+def _env_rollout(env, whole_frame=False):
     """jit(vmap(scan(env.step))) over [T, B, A] actions, compiled as jaml's own env programs
-    (`envs_mjx.compiler_options()`) or, with `xla_defaults`, with XLA's default options."""
+    (`envs_mjx.compiler_options(env)`)."""
+    return _rollout_with(env, envs_mjx.compiler_options(env), whole_frame)
+
+
+def _rollout_with(env, options, whole_frame=False):
+    """`_env_rollout` compiled with the given XLA `options` (None: XLA's defaults)."""
     def roll(state, actions):
         def body(s, a):
             s = env.step(s, a)
@@ -81,13 +88,12 @@ def _env_rollout(env, whole_frame=False, xla_defaults=False):
 
         return jax.lax.scan(body, state, actions)
 
-    options = None if xla_defaults else envs_mjx.compiler_options()
     return jax.jit(jax.vmap(roll, in_axes=(0, 1)), compiler_options=options)
 
 
 def _reset(env, batch):
     """`batch` env states from key 0, compiled as jaml's env programs are."""
-    reset = jax.jit(jax.vmap(env.reset), compiler_options=envs_mjx.compiler_options())
+    reset = jax.jit(jax.vmap(env.reset), compiler_options=envs_mjx.compiler_options(env))
     return reset(jax.random.split(jax.random.key(0), batch))
 
 
@@ -238,7 +244,7 @@ def bench_pixels(name, batch, steps, repeats):
 
 def _render_fn(env):
     """jit(vmap(env.pixels_fn)): the frames env.step would draw for a batch of its states."""
-    return jax.jit(jax.vmap(env.pixels_fn), compiler_options=envs_mjx.compiler_options())
+    return jax.jit(jax.vmap(env.pixels_fn), compiler_options=envs_mjx.compiler_options(env))
 
 
 def bench_render(name, batch, repeats):
@@ -277,7 +283,7 @@ def bench_vs_pybullet(name, batch, steps, rounds, processes=2):
     block(fn(states, actions))
     compile_s = time.perf_counter() - start
     episodes = -(-batch // processes)
-    with pybullet_envs.PeerPool(parse_env(name)[0], processes, episodes, steps) as pool:
+    with pybullet_envs.PeerPool(name, processes, episodes, steps) as pool:
         t = alternate(lambda: fn(states, actions), pool, rounds)
     return side_by_side_row(name, batch, steps, batch * steps, t["jaml_s"],
                             pool.frames_per_block, t["pybullet_s"], compile_s=compile_s,
@@ -305,7 +311,7 @@ def bench_gym_vs_pybullet(name, steps, rounds):
     gym_env.reset(seed=0)
     episode()
     compile_s = time.perf_counter() - start
-    with pybullet_envs.PeerPool(env_name, 1, 1, steps) as pool:
+    with pybullet_envs.PeerPool(name, 1, 1, steps) as pool:
         t = alternate(episode, pool, rounds, before=lambda: gym_env.reset(seed=0))
     row = side_by_side_row(name, 1, steps, steps, t["jaml_s"], pool.frames_per_block,
                            t["pybullet_s"], compile_s=compile_s, setup_s=pool.setup_s,
@@ -317,37 +323,40 @@ def bench_gym_vs_pybullet(name, steps, rounds):
 
 
 def bench_compiler_options(name, batch, steps, rounds):
-    """Physics alone (pixels off): the env rollout compiled with jaml's env options
-    (`envs_mjx.compiler_options()`) and with XLA's defaults, in one process, alternated block by
-    block (even rounds jaml's first); both compile times and median substeps/s, and their
-    ratio with its per-round spread. On a GPU both are XLA's defaults."""
+    """Physics alone (pixels off): the env rollout compiled with XLA:CPU's older fusion emitters
+    (`envs_mjx.compile.CPU_COMPILER_OPTIONS`) and with XLA's defaults, in one process, alternated
+    block by block (even rounds the older first); both compile times and median substeps/s,
+    their ratio with its per-round spread, and which of the two jaml's env programs use for this
+    env (`envs_mjx.compiler_options(env)`). On a GPU run it compares XLA:GPU with itself."""
     env = make_env(name, pixels="off")
     states = _reset(env, batch)
     actions = _random_actions(jax.random.key(1), steps, batch, env.action_size)
+    options = {"older": CPU_COMPILER_OPTIONS, "xla_default": None}
     fns, compile_s = {}, {}
-    for label in ("jaml", "xla_default"):
-        fns[label] = _env_rollout(env, xla_defaults=label == "xla_default")
+    for label, opts in options.items():
+        fns[label] = _rollout_with(env, opts)
         start = time.perf_counter()
         block(fns[label](states, actions))
         compile_s[label] = time.perf_counter() - start
     times = {label: [] for label in fns}
     for r in range(rounds):
-        for label in (("jaml", "xla_default") if r % 2 == 0 else ("xla_default", "jaml")):
+        for label in (("older", "xla_default") if r % 2 == 0 else ("xla_default", "older")):
             start = time.perf_counter()
             block(fns[label](states, actions))
             times[label].append(time.perf_counter() - start)
     substeps = batch * steps * env.n_frames
-    ratios = sorted(d / j for j, d in zip(times["jaml"], times["xla_default"], strict=True))
+    ratios = sorted(d / o for o, d in zip(times["older"], times["xla_default"], strict=True))
     return {
         "case": f"{name}/compiler_options/b{batch}",
-        "impl": "env.step, pixels off: envs_mjx.compiler_options() vs XLA's defaults",
-        "options": json.dumps(envs_mjx.compiler_options()),
-        "jaml_substeps_per_s": substeps / statistics.median(times["jaml"]),
+        "impl": "env.step, pixels off: XLA:CPU's older fusion emitters vs XLA's defaults",
+        "options": json.dumps(CPU_COMPILER_OPTIONS),
+        "jaml_uses": "older" if envs_mjx.compiler_options(env) else "xla_default",
+        "older_substeps_per_s": substeps / statistics.median(times["older"]),
         "default_substeps_per_s": substeps / statistics.median(times["xla_default"]),
-        "ratio_jaml_over_default": statistics.median(times["xla_default"])
-        / statistics.median(times["jaml"]),
+        "ratio_older_over_default": statistics.median(times["xla_default"])
+        / statistics.median(times["older"]),
         "ratio_min": ratios[0], "ratio_max": ratios[-1],
-        "jaml_compile_s": compile_s["jaml"], "default_compile_s": compile_s["xla_default"],
+        "older_compile_s": compile_s["older"], "default_compile_s": compile_s["xla_default"],
         "batch": batch, "steps": steps, "rounds": rounds,
     }
 
@@ -398,7 +407,7 @@ def side_by_side_row(name, batch, steps, jaml_frames, jaml_times, pb_frames, pb_
         "ratio_max": ratios[-1],
         "rounds": len(ratios),
         "steps": steps,
-        "pybullet_scene": pybullet_envs.SCENE_NOTES[parse_env(name)[0]],
+        "pybullet_scene": pybullet_envs.SCENE_NOTES[pybullet_envs.scene_key(name)],
         "pybullet_frame": PEER_FRAME,
         "jaml_compile_s": compile_s,
         "pybullet_setup_s": setup_s,
@@ -487,16 +496,17 @@ def main(argv=None):
                          "compile_s": r["compile_s"]})
         if "options" in args.parts:
             r = bench_compiler_options(name, args.options_batch, pix_steps, args.rounds)
-            print(f"  physics substeps/s, batch {args.options_batch}: jaml's env options "
-                  f"{r['jaml_substeps_per_s']:,.0f} (compile {r['jaml_compile_s']:.1f} s) | "
+            print(f"  physics substeps/s, batch {args.options_batch}: older emitters "
+                  f"{r['older_substeps_per_s']:,.0f} (compile {r['older_compile_s']:.1f} s) | "
                   f"XLA's defaults {r['default_substeps_per_s']:,.0f} (compile "
-                  f"{r['default_compile_s']:.1f} s) | ratio {r['ratio_jaml_over_default']:.2f} "
-                  f"(rounds {r['ratio_min']:.2f}-{r['ratio_max']:.2f})", flush=True)
+                  f"{r['default_compile_s']:.1f} s) | ratio {r['ratio_older_over_default']:.2f} "
+                  f"(rounds {r['ratio_min']:.2f}-{r['ratio_max']:.2f}); jaml uses "
+                  f"{r['jaml_uses']}", flush=True)
             option_rows.append(r)
         pairs = [(max(pix_batches), args.processes)]
         if 1 in pix_batches and max(pix_batches) > 1:
             pairs.append((1, 1))  # one env against one PyBullet process
-        has_peer = side and parse_env(name)[0] in pybullet_envs.SCENES
+        has_peer = side and _has_peer(name)
         for b, procs in pairs if has_peer else ():
             steps = pix_steps if b > 1 or args.quick else args.single_env_steps
             r = bench_vs_pybullet(name, b, steps, args.rounds, procs)
@@ -529,6 +539,17 @@ def main(argv=None):
                 record("env_compiler_options", option_rows, notes=notes)
         all_rows += rows + side_rows + option_rows
     return all_rows
+
+
+def _has_peer(spec):
+    """Whether the PyBullet peer has the scene of env spec `spec` (the arm override picks it;
+    physics / max_contacts keep it); if not, says why, so that no other scene stands in."""
+    try:
+        pybullet_envs.scene_key(spec)
+    except ValueError as e:
+        print(f"  no side-by-side rows: {e}", flush=True)
+        return False
+    return True
 
 
 def _physics_row(name, batch, steps, reps):

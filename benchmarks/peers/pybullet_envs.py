@@ -42,6 +42,49 @@ RearrangeGeom     bulb's ReacherRearrangeEnv, Geom objects of version 0 (suite_r
                   jaml's walls collide as planes, its cylinder as a 16-sided prism, nothing
                   bounces, its shoulder and elbow capsules push objects too, and its batch holds
                   versions 0-3 (i mod 4; same shapes, other colours and tray textures).
+RearrangeGeom:arm=franka
+                  bulb's FrankaRearrangeEnv (suite_reference.md §2 "Rearrange-Franka"; jaml's
+                  RearrangeGeom with arm="franka"): the scene above (tray, version 0's objects,
+                  timing, the 4-repeat step with its early stop, reset structure) with a Panda in
+                  place of the reacher: pybullet_data's franka_panda/panda.urdf, fixed base at
+                  (-0.7, 0, 0), URDF_USE_SELF_COLLISION (the flag bulb's BulletManipulator
+                  passed; its code is known here from later copies, e.g. dedo's), every joint
+                  motor off (forces 0). 7 actions: per Bullet step TORQUE_CONTROL of
+                  clip(limit a + inverse dynamics, +-limit) on the 7 arm joints, limits
+                  (87, 87, 87, 87, 12, 12, 12) N m, the inverse dynamics
+                  (calculateInverseDynamics at the current q and qdot of all 9 joints, qdd = 0:
+                  gravity and Coriolis compensation, as BulletManipulator.apply_joint_torque)
+                  computed before the step; after it the joint limits by hard reset with qdot 0;
+                  the fingers passive. Reset: from the rest pose (-0.0412, 0.5043, 0.0048,
+                  -2.6232, -0.1651, 3.1273, 0.9135), IK for the hand link (bulb's ee_link_name
+                  "panda_hand") at x, y ~U(-0.5, 0.5), z ~U(0.05, 0.35) with bulb's random
+                  orientation (roll, pitch, yaw ~U(+-pi), |roll| raised to >= pi / 2, |pitch|,
+                  |yaw| clipped to pi / 2: the gripper within 90 degrees of down) through
+                  calculateInverseKinematics with BulletManipulator's arguments (joint limits,
+                  rest pose, 500 iterations, residual 0.005), clipped to the limits, fingers
+                  closed; then the objects, 20 bare Bullet steps (no torque, so no compensation:
+                  bulb's apply_joint_torque returns early on a zero torque) and 10 steps of random
+                  torque U(+-0.5 limit). Camera target (0.05, 0, 0), dist 0.44, yaw 90, pitch
+                  -65, fov 90, near 0.01; the hand's position is read after each step (the
+                  reference's extra done conditions). Differences from the reference: its
+                  franka_small_fingers.urdf is not available, so the Panda is pybullet_data's,
+                  with the standard fingers and that URDF's meshes, masses and inertias (the
+                  reference's fingers were smaller; jaml's model follows the same
+                  panda_description kinematics, docs/rearrange.md); panda.urdf's link7 and hand
+                  collision meshes overlap (one standing self-contact, internal to a rigid pair,
+                  0.05 ms per Bullet step here); the joint limits are jaml's (panda.urdf's
+                  safety_controller soft limits) where bulb read its URDF's <limit> tags; the
+                  ground is plane.urdf coloured as jaml's floor, not bulb's plane_blue.urdf. The
+                  frame's cost is panda.urdf's visual meshes: ~100K triangles, which TinyRenderer
+                  rasterises whether in view or not (a frame ~15 ms on the 2-core machine, ~2 ms
+                  with the URDF's 3.4K-triangle collision meshes drawn instead, against the
+                  reacher scene's ~2 ms); jaml draws ~1K triangles of decimated Panda meshes, so a
+                  ratio against this scene holds the mesh detail as well as the stacks. The
+                  reference's meshes are not known. From jaml as for the reacher, plus: jaml's
+                  IK puts its `ee` site (0.1034 m below the hand) at the target with the gripper
+                  straight down; its settle steps are compensated; its arm collides as capsules
+                  and boxes from link4 on, without self-collision; its compensation uses the bias
+                  of the previous 5 ms substep.
 
 Every reset of the first four draws the reference's multicolour scheme (changeVisualShape), as
 jaml's default `multicolor=True` does. After each step the LD-state reads the reference's env
@@ -61,10 +104,15 @@ env's per-step Python (reward, done and info bookkeeping).
 Timing: run_block times the steps and frames, not the resets, because jaml's side-by-side block
 steps envs reset beforehand; bulb's Rearrange reset alone runs 30 Bullet steps.
 
-Not covered: the inclines (bulb's own URDFs and textures), RearrangeYCB (the YCB scans) and the
-Franka arm.
+Not covered: the inclines (bulb's own URDFs and textures) and RearrangeYCB (the YCB scans).
 
-Run alone: PYTHONPATH=. python -m benchmarks.peers.pybullet_envs [--envs CartPole Ant]
+Scenes are keyed by jaml env spec: `scene_key` maps "RearrangeGeom:arm=franka" to the Franka
+scene and drops the options that change only how jaml computes a scene (physics=c,
+max_contacts); any other option raises ValueError rather than run a scene that is not the one
+asked for (envs_throughput then prints why and skips the side-by-side rows).
+
+Run alone: PYTHONPATH=. python -m benchmarks.peers.pybullet_envs [--envs CartPole Ant
+RearrangeGeom:arm=franka]
 [--processes 2] [--episodes 128] [--steps 10] [--repeats 5] [--lean]. Nothing is recorded; the
 side-by-side rows come from benchmarks/envs_throughput.py.
 """
@@ -126,6 +174,14 @@ REACHER_MJCF = """<mujoco model="reacher">
  </worldbody>
 </mujoco>
 """
+# Rearrange-Franka (suite_reference.md §2): torque limits (N m), the rest pose the reset's IK
+# starts from, and the joint limits the arm is hard-reset to. The limits are jaml's
+# (assets/rearrange_franka.xml: panda_description's soft limits, the `safety_controller` values
+# of pybullet_data's panda.urdf, whose <limit> tags hold the wider hardware range).
+FRANKA_TORQUE = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
+FRANKA_REST = (-0.0412, 0.5043, 0.0048, -2.6232, -0.1651, 3.1273, 0.9135)
+FRANKA_LIMITS = ((-2.8973, 2.8973), (-1.7628, 1.7628), (-2.8973, 2.8973), (-3.0718, -0.0698),
+                 (-2.8973, 2.8973), (-0.0175, 3.7525), (-2.8973, 2.8973))
 MJCF_FLAGS = ("URDF_USE_SELF_COLLISION", "URDF_USE_SELF_COLLISION_EXCLUDE_ALL_PARENTS",
               "URDF_GOOGLEY_UNDEFINED_COLORS")
 
@@ -358,6 +414,7 @@ class RearrangeGeom(Scene):
     fov, near = 90.0, 0.01
     renderer = "ER_TINY_RENDERER"  # the reacher's render_debug asked for TinyRenderer itself
     clip_frame = False  # RearrangeEnv returned the float frame unclipped
+    ground_rgb = (0, 0, 0)  # pybullet_data's plane.urdf coloured black
     torque = 3.0  # N m per joint
     limits = np.array([31 / 32, 26 / 32]) * np.pi  # software joint limits
     repeats = 4  # Bullet steps per action
@@ -380,15 +437,22 @@ class RearrangeGeom(Scene):
     tray_texture = Path(__file__).resolve().parents[2] / "assets" / "textures" / "light-wood.png"
 
     def build(self):
-        import tempfile
-
-        p, pb = self.p, self.pb
+        p = self.p
         p.setGravity(0, 0, -9.81)
         p.setTimeStep(0.01)
         p.setRealTimeSimulation(0)
         p.setPhysicsEngineParameter(numSolverIterations=5, numSubSteps=2)
         plane = p.loadURDF(os.path.join(self.data, "plane.urdf"), [0, 0, 0])
-        p.changeVisualShape(plane, -1, rgbaColor=(0, 0, 0, 1))
+        p.changeVisualShape(plane, -1, rgbaColor=(*self.ground_rgb, 1))
+        self._build_arm()
+        self.tray = self._tray()
+        self.bodies = [self._object(*spec) for spec in self.objects]
+
+    def _build_arm(self) -> None:
+        """The reacher, loaded through loadMJCF as bulb did; its two joints' motors off."""
+        import tempfile
+
+        p, pb = self.p, self.pb
         with tempfile.TemporaryDirectory() as tmp:
             path = os.path.join(tmp, "reacher.xml")
             with open(path, "w") as f:
@@ -402,8 +466,6 @@ class RearrangeGeom(Scene):
             rgb = (1, 0.6, 0.15) if link == names["q1"] + 1 else (1, 1, 1)
             p.changeVisualShape(self.arm, link, rgbaColor=(*rgb, 1))
         p.setJointMotorControlArray(self.arm, self.joints, pb.VELOCITY_CONTROL, forces=[0, 0])
-        self.tray = self._tray()
-        self.bodies = [self._object(*spec) for spec in self.objects]
 
     def _tray(self) -> int:
         p, pb = self.p, self.pb
@@ -439,11 +501,9 @@ class RearrangeGeom(Scene):
         return body
 
     def reset(self):
-        """The reference's random init: arm q ~U(+-0.75 pi), objects dropped at random poses,
-        20 Bullet steps to settle, 10 steps of random torque U(+-0.5 max)."""
-        for j, q in zip(self.joints, self.rng.uniform(-0.75 * np.pi, 0.75 * np.pi, 2),
-                        strict=True):
-            self.p.resetJointState(self.arm, j, targetValue=q, targetVelocity=0)
+        """The reference's random init: the arm's random pose (`_reset_arm`), objects dropped at
+        random poses, 20 Bullet steps to settle, 10 steps of random torque U(+-0.5 max)."""
+        self._reset_arm()
         lo, hi = np.array([-0.15, -0.15, 0.04]), np.array([0.15, 0.15, 0.075])
         for body in self.bodies:
             quat = self.rng.uniform(0, 1, 4)
@@ -452,8 +512,14 @@ class RearrangeGeom(Scene):
         for _ in range(20):
             self.p.stepSimulation()
         for _ in range(10):
-            self._bullet_step(self.rng.uniform(-0.5, 0.5, 2) * self.torque)
+            self._bullet_step(self.rng.uniform(-0.5, 0.5, self.action_size) * self.torque)
         self._read_state()
+
+    def _reset_arm(self) -> None:
+        """The reacher's q ~U(+-0.75 pi)."""
+        for j, q in zip(self.joints, self.rng.uniform(-0.75 * np.pi, 0.75 * np.pi, 2),
+                        strict=True):
+            self.p.resetJointState(self.arm, j, targetValue=q, targetVelocity=0)
 
     def _bullet_step(self, torque):
         """The reacher's apply_joint_torque: torque, one Bullet step, the software limits."""
@@ -492,12 +558,104 @@ class RearrangeGeom(Scene):
         self.xy = [p.getBasePositionAndOrientation(b)[0][:2] for b in self.bodies]
 
 
+class RearrangeGeomFranka(RearrangeGeom):
+    """Rearrange-Franka with the Geom objects of version 0 (suite_reference.md §2
+    "Rearrange-Franka"; envs_mjx/domains/rearrange.py with arm="franka"): the reacher scene's
+    tray, objects, timing and reset structure with pybullet_data's Panda in place of the reacher.
+    """
+
+    action_size = 7
+    cam_dist, cam_yaw, cam_pitch = 0.44, 90.0, -65.0
+    ground_rgb = (0.25, 0.35, 0.75)  # jaml's floor colour for bulb's plane_blue.urdf
+    urdf = os.path.join("franka_panda", "panda.urdf")
+    base = (-0.7, 0.0, 0.0)
+    torque = np.array(FRANKA_TORQUE)
+    lower, upper = np.array(FRANKA_LIMITS).T  # hard reset to these with qdot 0
+    # The reference's random init (bulb's FrankaRearrangeEnv): the hand's position in this box,
+    # its roll, pitch, yaw ~U(+-pi) with |roll| raised to at least pi / 2 and |pitch|, |yaw|
+    # clipped to pi / 2 (the gripper points down within 90 degrees); IK as its manipulator ran it.
+    ee_range = (np.array([-0.5, -0.5, 0.05]), np.array([0.5, 0.5, 0.35]))
+    ik_iterations, ik_residual = 500, 0.005
+
+    def camera_target(self):
+        return (0.05, 0.0, 0.0)
+
+    def _build_arm(self):
+        """panda.urdf, fixed base at (-0.7, 0, 0), URDF_USE_SELF_COLLISION (the reference's
+        flag); every motor off (forces 0): the 7 arm joints are torque-driven, the 2 fingers
+        passive."""
+        p, pb = self.p, self.pb
+        self.arm = p.loadURDF(os.path.join(self.data, self.urdf), self.base, useFixedBase=True,
+                              flags=pb.URDF_USE_SELF_COLLISION)
+        info = [p.getJointInfo(self.arm, j) for j in range(p.getNumJoints(self.arm))]
+        links = {i[12].decode(): i[0] for i in info}
+        # Every moving joint in order: the 7 arm joints, then the fingers (the inverse dynamics'
+        # and the IK's coordinates).
+        self.dofs = [i[0] for i in info if i[2] != pb.JOINT_FIXED]
+        self.joints = [i[0] for i in info if i[2] == pb.JOINT_REVOLUTE]
+        assert len(self.joints) == 7 and len(self.dofs) == 9, (self.joints, self.dofs)
+        self.ee = links["panda_hand"]  # the reference's ee_link_name
+        p.setJointMotorControlArray(self.arm, self.dofs, pb.VELOCITY_CONTROL,
+                                    forces=[0.0] * len(self.dofs))
+        self._zeros = [0.0] * len(self.dofs)
+        n_fingers = len(self.dofs) - len(self.joints)
+        lower = [*self.lower, *[0.0] * n_fingers]
+        upper = [*self.upper, *[0.04] * n_fingers]
+        self.rest = [*FRANKA_REST, *[0.02] * n_fingers]  # fingers mid-range, as the reference
+        self.ik_args = dict(lowerLimits=lower, upperLimits=upper,
+                            jointRanges=list(np.subtract(upper, lower)), restPoses=self.rest,
+                            maxNumIterations=self.ik_iterations,
+                            residualThreshold=self.ik_residual)
+
+    def _reset_arm(self):
+        """The reference's random init: from the rest pose, IK for the hand at a random pose
+        (`ee_range`, orientation as the reference drew it; an unreachable one ends nearby),
+        clipped to the joint limits; fingers closed, everything at rest."""
+        p = self.p
+        for j, q in zip(self.dofs, self.rest, strict=True):
+            p.resetJointState(self.arm, j, targetValue=q, targetVelocity=0)
+        pos = self.rng.uniform(*self.ee_range)
+        rpy = self.rng.uniform(-np.pi, np.pi, 3)
+        if abs(rpy[0]) < np.pi / 2:
+            rpy[0] = np.pi / 2 * np.sign(rpy[0])
+        rpy = np.clip(rpy, [-np.pi, -np.pi / 2, -np.pi / 2], [np.pi, np.pi / 2, np.pi / 2])
+        quat = p.getQuaternionFromEuler(rpy.tolist())
+        q = p.calculateInverseKinematics(self.arm, self.ee, pos.tolist(), quat, **self.ik_args)
+        q = np.clip(q[:len(self.joints)], self.lower, self.upper)
+        for j, qj in zip(self.dofs, [*q, *[0.0] * (len(self.dofs) - len(q))], strict=True):
+            p.resetJointState(self.arm, j, targetValue=qj, targetVelocity=0)
+
+    def _bullet_step(self, torque):
+        """One Bullet step of the Franka's torque control: limit * a plus the gravity and
+        Coriolis compensation (inverse dynamics at the current q, qdot with qdd = 0), clipped to
+        +-limit; then the joint limits by hard reset with qdot 0."""
+        p, pb = self.p, self.pb
+        states = p.getJointStates(self.arm, self.dofs)
+        bias = p.calculateInverseDynamics(self.arm, [s[0] for s in states],
+                                          [s[1] for s in states], self._zeros)
+        tau = np.clip(torque + np.asarray(bias[:len(self.joints)]), -self.torque, self.torque)
+        p.setJointMotorControlArray(self.arm, self.joints, pb.TORQUE_CONTROL,
+                                    forces=tau.tolist())
+        p.stepSimulation()
+        for (q, _), j, lo, hi in zip((s[:2] for s in p.getJointStates(self.arm, self.joints)),
+                                     self.joints, self.lower, self.upper, strict=True):
+            if q < lo or q > hi:
+                p.resetJointState(self.arm, j, targetValue=min(max(q, lo), hi), targetVelocity=0)
+
+    def _read_state(self):
+        """The reacher's reads (here 7 joint angles) and the end effector's position, which
+        the reference's extra done conditions read."""
+        super()._read_state()
+        self.ee_pos = self.p.getLinkState(self.arm, self.ee)[0]
+
+
 SCENES: dict[str, type[Scene]] = {
     "CartPole": CartPole,
     "InvertedPendulum": InvertedPendulum,
     "HalfCheetah": HalfCheetah,
     "Ant": Ant,
     "RearrangeGeom": RearrangeGeom,
+    "RearrangeGeom:arm=franka": RearrangeGeomFranka,
 }
 SCENE_NOTES = {
     "CartPole": "cartpole.urdf, dt 0.02",
@@ -506,7 +664,41 @@ SCENE_NOTES = {
     "Ant": "mjcf/ant.xml + plane_stadium.sdf, 4 substeps of 0.0165/4",
     "RearrangeGeom": "reacher (loadMJCF) + tray + v0 Geom objects (primitives) on plane.urdf, "
                      "4 Bullet steps of 0.01 (2 substeps) per action",
+    "RearrangeGeom:arm=franka": "franka_panda/panda.urdf (standard fingers; the reference's "
+                                "franka_small_fingers.urdf is not available) at (-0.7, 0, 0), "
+                                "torque + inverse-dynamics gravity compensation, + tray + v0 "
+                                "Geom objects (primitives) on plane.urdf, 4 Bullet steps of 0.01 "
+                                "(2 substeps) per action; the frame draws the URDF's ~100K-"
+                                "triangle visual meshes",
 }
+# jaml env options that change how jaml computes a scene, not the scene: the peer runs the same
+# PyBullet scene for them (physics="c": C MuJoCo's substeps; max_contacts: MJX's contact budget).
+ENGINE_OPTIONS = ("physics", "max_contacts")
+SCENE_ALIASES = {"RearrangeGeom:arm=reacher": "RearrangeGeom"}  # jaml's default arm, spelt out
+
+
+def scene_key(spec: str) -> str:
+    """The SCENES key of a jaml env spec ("RearrangeGeom:arm=franka,physics=c" ->
+    "RearrangeGeom:arm=franka"): the domain, plus `arm` where it picks another scene; the
+    ENGINE_OPTIONS are dropped. ValueError when the peer has no such scene or cannot honour an
+    option (it never stands in another scene for the one asked for)."""
+    name, _, opts = spec.partition(":")
+    overrides = {}
+    for item in filter(None, opts.split(",")):
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise ValueError(f"env option {item!r} in {spec!r} is not KEY=VALUE")
+        overrides[key] = value
+    arm = overrides.pop("arm", None)
+    unhonoured = sorted(set(overrides) - set(ENGINE_OPTIONS))
+    if unhonoured:
+        raise ValueError(f"the PyBullet peer cannot honour {spec!r}: it builds one scene per "
+                         f"domain (and arm), not the options {unhonoured}")
+    key = name if arm is None else f"{name}:arm={arm}"
+    key = SCENE_ALIASES.get(key, key)
+    if key not in SCENES:
+        raise ValueError(f"no PyBullet scene for {spec!r}; have {sorted(SCENES)}")
+    return key
 
 
 def available() -> bool:
@@ -556,6 +748,8 @@ def _serve(name: str, episodes: int, steps: int, seed: int, lean: bool) -> None:
 
 class PeerPool:
     """`processes` PyBullet workers, one scene each; `block()` runs one block on all at once.
+    `name` is a jaml env spec ("CartPole", "RearrangeGeom:arm=franka,physics=c"), resolved by
+    `scene_key` (ValueError for a spec the peer has no scene for).
 
     Each worker is a fresh interpreter (`python -m benchmarks.peers.pybullet_envs --serve`):
     not a fork of the caller, which may hold JAX's threads, and not multiprocessing's spawn,
@@ -564,15 +758,14 @@ class PeerPool:
 
     def __init__(self, name: str, processes: int = 2, episodes: int = 64, steps: int = 10,
                  seed: int = 0, lean: bool = False):
-        if name not in SCENES:
-            raise ValueError(f"no PyBullet scene for {name!r}; have {sorted(SCENES)}")
+        key = scene_key(name)
         root = str(Path(__file__).resolve().parents[2])
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(
             filter(None, [root, os.environ.get("PYTHONPATH")]))}
         start = time.perf_counter()
         self.procs = []
         for i in range(processes):
-            cmd = [sys.executable, "-m", "benchmarks.peers.pybullet_envs", "--serve", name,
+            cmd = [sys.executable, "-m", "benchmarks.peers.pybullet_envs", "--serve", key,
                    str(episodes), str(steps), str(seed + i), str(int(lean))]
             self.procs.append(subprocess.Popen(
                 cmd, cwd=root, env=env, text=True, bufsize=1, stdin=subprocess.PIPE,
@@ -653,7 +846,8 @@ def main(argv=None):
         name, episodes, steps, seed, lean = argv[1:]
         return _serve(name, int(episodes), int(steps), int(seed), bool(int(lean)))
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--envs", nargs="+", default=list(SCENES), choices=list(SCENES))
+    parser.add_argument("--envs", nargs="+", default=list(SCENES),
+                        help=f"jaml env specs with a scene here: {', '.join(SCENES)}")
     parser.add_argument("--processes", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--episodes", type=int, default=64, help="per process and block")
     parser.add_argument("--steps", type=int, default=10, help="per episode")
@@ -662,13 +856,18 @@ def main(argv=None):
                         help="no segmentation mask and no float frame (less than the reference "
                              "did per frame; the peer's earlier default)")
     args = parser.parse_args(argv)
+    for spec in args.envs:
+        try:
+            scene_key(spec)
+        except ValueError as e:
+            parser.error(str(e))
     import pybullet
 
     print(f"pybullet {pybullet.getAPIVersion()}, {args.processes} processes")
     for name in args.envs:
         r = measure(name, args.processes, args.episodes, args.steps, args.repeats,
                     lean=args.lean)
-        print(f"{name} ({SCENE_NOTES[name]}): {r['frames_per_s']:,.0f} frames/s "
+        print(f"{name} ({SCENE_NOTES[scene_key(name)]}): {r['frames_per_s']:,.0f} frames/s "
               f"(blocks {r['min_frames_per_s']:,.0f}-{r['max_frames_per_s']:,.0f}, "
               f"{r['frames_per_cpu_s']:,.0f} per CPU second, setup {r['setup_s']:.1f} s)",
               flush=True)

@@ -58,7 +58,7 @@ import numpy as np
 from mujoco import mjx
 
 import envs_mjx
-from benchmarks.harness import block, measure, record
+from benchmarks.harness import block, measure, parse_env, record
 from benchmarks.peers import pybullet_envs
 from envs_mjx.compile import CPU_COMPILER_OPTIONS
 
@@ -95,22 +95,6 @@ def _reset(env, batch):
     """`batch` env states from key 0, compiled as jaml's env programs are."""
     reset = jax.jit(jax.vmap(env.reset), compiler_options=envs_mjx.compiler_options(env))
     return reset(jax.random.split(jax.random.key(0), batch))
-
-
-def parse_env(spec: str) -> tuple[str, dict]:
-    """"RearrangeGeom:arm=franka,version=3" → ("RearrangeGeom", {"arm": "franka", "version": 3}):
-    a domain with config overrides (numbers parsed as JSON, the rest kept as strings)."""
-    name, _, opts = spec.partition(":")
-    overrides = {}
-    for item in filter(None, opts.split(",")):
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise ValueError(f"env option {item!r} in {spec!r} is not KEY=VALUE")
-        try:
-            overrides[key] = json.loads(value)
-        except json.JSONDecodeError:
-            overrides[key] = value
-    return name, overrides
 
 
 def make_env(spec: str, **kwargs):

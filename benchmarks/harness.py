@@ -121,6 +121,22 @@ def environment() -> dict:
     }
 
 
+def parse_env(spec: str) -> tuple[str, dict]:
+    """"RearrangeGeom:arm=franka,version=3" → ("RearrangeGeom", {"arm": "franka", "version": 3}):
+    a domain with config overrides (numbers parsed as JSON, the rest kept as strings)."""
+    name, _, opts = spec.partition(":")
+    overrides = {}
+    for item in filter(None, opts.split(",")):
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise ValueError(f"env option {item!r} in {spec!r} is not KEY=VALUE")
+        try:
+            overrides[key] = json.loads(value)
+        except json.JSONDecodeError:
+            overrides[key] = value
+    return name, overrides
+
+
 def record(benchmark: str, rows: list[dict], notes: str = "") -> None:
     """Append result rows (each a dict with at least "case") and rebuild RESULTS.md.
 

@@ -130,6 +130,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.harness import parse_env
+
 RES = 64
 # The reference's Clr colour schemes (suite_reference.md §1): base, pole, pole2, pole3 RGBA.
 SCHEMES = (
@@ -682,13 +684,7 @@ def scene_key(spec: str) -> str:
     "RearrangeGeom:arm=franka"): the domain, plus `arm` where it picks another scene; the
     ENGINE_OPTIONS are dropped. ValueError when the peer has no such scene or cannot honour an
     option (it never stands in another scene for the one asked for)."""
-    name, _, opts = spec.partition(":")
-    overrides = {}
-    for item in filter(None, opts.split(",")):
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise ValueError(f"env option {item!r} in {spec!r} is not KEY=VALUE")
-        overrides[key] = value
+    name, overrides = parse_env(spec)
     arm = overrides.pop("arm", None)
     unhonoured = sorted(set(overrides) - set(ENGINE_OPTIONS))
     if unhonoured:

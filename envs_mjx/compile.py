@@ -35,7 +35,11 @@ The older emitters are slower for the renderer's mesh tests, so they are asked f
 the physics needs them, by the env's depth (`compiler_options(env)`). Measured on the same
 machine (2026-11-25, one process, alternated, XLA's defaults against the older emitters): the
 renderer alone on the Franka scene's meshes, 64 envs, 1,043 against 141 frames/s (7.4×);
-MeshOnIncline's `env.step` with 64×64 pixels, 64 envs, 1,768 against 556 frames/s (3.2×). For
+MeshOnIncline's `env.step` with 64×64 pixels, 64 envs, 1,768 against 556 frames/s (3.2×). The
+mesh test's scan over triangles alone (a one-off microbenchmark, 16 × 4096 pixels × 1024
+triangles) ran 1.24 against 0.15 ns per triangle-pixel pair, and 1.5–1.6 against 0.16–0.29 with a
+float-only carry or a max in place of the select: the older emitters' code for that loop is
+slower whatever its form, so the choice is made per env rather than in the renderer. For
 the Franka scene with MJX's physics the physics decides (89× the other way, above): its
 `env.step` with pixels keeps the older emitters and is render-bound at ≈ 103 frames/s (batch
 256); with `physics="c"` it takes XLA's defaults.

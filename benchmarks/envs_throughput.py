@@ -421,7 +421,7 @@ def main(argv=None):
                         help="which cases to run (pybullet: the side-by-side rows, for the "
                              "domains with a PyBullet scene, when pybullet is installed; "
                              "render: the renderer alone at the pixel batches; options: "
-                             "physics with jaml's env compiler options against XLA's defaults; "
+                             "physics with XLA:CPU's older emitters against XLA's defaults; "
                              "the default runs physics, pixels and pybullet)")
     parser.add_argument("--rounds", type=int, default=7,
                         help="alternated blocks per side in the side-by-side case")

@@ -109,7 +109,11 @@ def bench_env_physics(name, batch, steps, repeats):
     fn = _env_rollout(env)
     t = measure(fn, states, actions, repeats=repeats)
     substeps = batch * steps * env.n_frames
-    return {"substeps_per_s": substeps / t["median_s"], "compile_s": t["compile_s"], **t}
+    # frames/s from the frame count, not converted by hand: an action (one frame) is
+    # env.n_frames substeps, 8 on the Rearrange scenes.
+    return {"substeps_per_s": substeps / t["median_s"],
+            "frames_per_s": batch * steps / t["median_s"], "substeps_per_frame": env.n_frames,
+            "compile_s": t["compile_s"], **t}
 
 
 def _time_steps(model, data, n, repeats):
@@ -547,7 +551,9 @@ def _physics_row(name, batch, steps, reps):
                  f"{mjx_r['substeps_per_s'] / warp_r['substeps_per_s']:.2f}")
     print(
         f"  physics substeps/s, batch {batch}: env.step {env_r['substeps_per_s']:,.0f} "
-        f"(compile {env_r['compile_s']:.1f} s) | raw mjx.step {mjx_r['substeps_per_s']:,.0f} "
+        f"(= {env_r['frames_per_s']:,.0f} frames/s at {env_r['substeps_per_frame']} substeps "
+        f"per frame; compile {env_r['compile_s']:.1f} s) | "
+        f"raw mjx.step {mjx_r['substeps_per_s']:,.0f} "
         f"(compile {mjx_r['compile_s']:.1f} s) | C {c_r['substeps_per_s']:,.0f} ({c_r['how']})"
         f" | {warp_text} | env/mjx {env_r['substeps_per_s'] / mjx_r['substeps_per_s']:.2f}, "
         f"env/C {env_r['substeps_per_s'] / c_r['substeps_per_s']:.3f}",
@@ -559,6 +565,8 @@ def _physics_row(name, batch, steps, reps):
     return {**warp_cols,
         "case": f"{name}/physics/b{batch}",
         "env_substeps_per_s": env_r["substeps_per_s"],
+        "env_frames_per_s": env_r["frames_per_s"],
+        "substeps_per_frame": env_r["substeps_per_frame"],
         "mjx_substeps_per_s": mjx_r["substeps_per_s"],
         "c_substeps_per_s": c_r["substeps_per_s"],
         "c_how": c_r["how"],

@@ -199,3 +199,13 @@ def test_the_render_part_times_the_frames_env_step_draws():
     assert frames.shape == (2, 64, 64, 3) and frames.dtype == np.uint8
     np.testing.assert_array_equal(np.asarray(frames), np.asarray(states.pixels))
     assert len(np.unique(np.asarray(frames))) > 2  # a drawn scene, not a blank frame
+
+
+def test_the_physics_part_counts_frames_as_actions_not_substeps():
+    """A physics row's frames/s is batch × actions over the time, its substeps/s that times the
+    env's substeps per action (4 on HalfCheetah, 8 on the Rearrange scenes): converting one
+    into the other by hand with the wrong count halved a GPU split's physics share once."""
+    r = envs_throughput.bench_env_physics("HalfCheetah", 2, 3, 2)
+    assert r["substeps_per_frame"] == envs_throughput.make_env("HalfCheetah").n_frames == 4
+    assert r["frames_per_s"] == pytest.approx(2 * 3 / r["median_s"])
+    assert r["substeps_per_s"] == pytest.approx(r["frames_per_s"] * 4)

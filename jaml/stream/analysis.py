@@ -8,6 +8,11 @@ training targets' median, `evaluation.constant_errors`: what the error is read a
 distortion ρ on π_rand. The functions take one run's (unstacked) `StreamState`, except
 `evaluate_runs`, which analyses R stacked runs at once.
 
+The π_rand set depends on the env, the run's π_rand key and its size alone (a uniform policy),
+so a `PiRandSet` can keep a run's sequences on the host after their first rollout: later
+analyses encode the same sequences again instead of rolling them out again (`run_many` keeps one
+per run; the reports are the same either way).
+
 Rotation blocks (Rearrange: the 9 row-major rotation entries of each object, the env's
 "orientation" LD group, `rotation_blocks`) are treated as the reference does (§5): the regressor
 minimises L1 on the other entries plus each block's principal-axis error of R_trueᵀR̂, and the
@@ -20,6 +25,7 @@ blocks.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -42,15 +48,50 @@ def encoded_replay(stream: Stream, s: StreamState, key: jax.Array, num: int):
 
 
 def encoded_rollouts(stream: Stream, s: StreamState, key: jax.Array, num: int, random: bool,
-                     fingerprints: bool = False):
+                     fingerprints: bool = False, kept: PiRandSet | None = None):
     """(latents, LD targets) of sequences cut from fresh rollouts: reset, `eval_transient`
     steps, then consecutive L-step rollouts per env (reference §5, start t = 0); with
-    `fingerprints`, also each sequence's `input_fingerprints` [N, 2] (for the distortion)."""
+    `fingerprints`, also each sequence's `input_fingerprints` [N, 2] (for the distortion).
+    `kept` (π_rand only): the sequences are read from it when it holds this key's, else rolled
+    out and stored in it."""
+    if kept is not None and kept.holds(key, num):
+        return _map_chunks(_kept_chunk, stream, s, kept.chunks, range(len(kept.chunks)),
+                           fingerprints)
     k_start, k_chunks = jax.random.split(key)
     random = jnp.asarray(random)
     env_state = _rollout_start(stream, s, k_start, random)
     keys = jax.random.split(k_chunks, _chunks(num, stream.config.num_envs))
-    return _map_chunks(_rollout_chunk, stream, s, (env_state, random), keys, fingerprints)
+    store = None if kept is None else []
+    out = _map_chunks(_rollout_chunk, stream, s, (env_state, random), keys, fingerprints, store)
+    if kept is not None:
+        kept.store(key, num, store)
+    return out
+
+
+@dataclasses.dataclass(eq=False)
+class PiRandSet:
+    """One run's π_rand test sequences kept on the host (numpy `Columns` per chunk of
+    `num_envs` sequences), so that its later analyses encode them again rather than roll them
+    out again. The set is a function of the env, the run's π_rand key and its size alone (the
+    policy is uniform: `Stream.test_policy` discards PPO's actions), so the reports do not
+    change; only the time does (rolling out 10 048 sequences of 16 frames is 157 sequential
+    16-step rollouts of 64 envs). Host memory: eval_rand × L × 12 KiB of 64×64 frames per run,
+    ≈ 2 GB at the paper's eval_rand and L = 16."""
+
+    tag: tuple | None = None  # (key bytes, num) the chunks were rolled out for
+    chunks: list | None = None
+
+    @staticmethod
+    def _tag(key: jax.Array, num: int) -> tuple:
+        if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
+            key = jax.random.key_data(key)
+        return np.asarray(key).tobytes(), num
+
+    def holds(self, key: jax.Array, num: int) -> bool:
+        return self.chunks is not None and self.tag == self._tag(key, num)
+
+    def store(self, key: jax.Array, num: int, chunks: list) -> None:
+        self.tag, self.chunks = self._tag(key, num), chunks
 
 
 def rotation_blocks(stream: Stream) -> tuple[tuple[int, ...], tuple[str, ...]]:
@@ -84,16 +125,17 @@ def _part(seconds: dict | None, name: str, fn, *args, **kwargs):
 
 
 def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Array, *,
-             seconds: dict | None = None) -> dict:
+             seconds: dict | None = None, pi_rand_set: PiRandSet | None = None) -> dict:
     """Alignment errors [D + J] (`error_names`) on π_rand (and π_curr under PPO), the held-out
     validation error, and the distortion of the π_rand latents. Host-side numbers (floats /
     lists). `seconds`: a dict that gets each part's wall time added (train_set, pi_rand,
-    pi_curr, regressor)."""
+    pi_curr, regressor). `pi_rand_set`: the run's kept π_rand sequences (read when they are
+    this key's, else rolled out and kept there)."""
     cfg = stream.config
     k_train, k_curr, k_reg = jax.random.split(key, 3)
     train = _part(seconds, "train_set", encoded_replay, stream, s, k_train, cfg.eval_train)
     lat, st, inputs = _part(seconds, "pi_rand", encoded_rollouts, stream, s, pi_rand_key,
-                            cfg.eval_rand, random=True, fingerprints=True)
+                            cfg.eval_rand, random=True, fingerprints=True, kept=pi_rand_set)
     tests = {"pi_rand": (lat, st)}
     if cfg.policy == "ppo" and cfg.eval_curr > 0:
         tests["pi_curr"] = _part(seconds, "pi_curr", encoded_rollouts, stream, s, k_curr,
@@ -110,11 +152,13 @@ def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Ar
 
 
 def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
-                  pi_rand_keys: jax.Array, *, seconds: dict | None = None) -> list[dict]:
+                  pi_rand_keys: jax.Array, *, seconds: dict | None = None,
+                  pi_rand_sets: list[PiRandSet] | None = None) -> list[dict]:
     """`evaluate` of R stacked runs (states with a leading runs axis, keys [R] and pi_rand_keys
     [R] raw keys): one report per run, what `evaluate(stream, state_r, keys[r],
     pi_rand_keys[r])` reports for it alone, up to float rounding. `seconds` as `evaluate`'s
-    (the R runs' parts together).
+    (the R runs' parts together); `pi_rand_sets`: one per run, as `evaluate`'s `pi_rand_set`
+    (read when every run's holds its key, else all rolled out and kept).
 
     On a GPU the per-run analysis is latency bound (hundreds of small chunk calls and a
     10 000-step regressor scan), so one call for R runs costs about what one run costs. The
@@ -127,7 +171,8 @@ def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
     train = _part(seconds, "train_set", _encoded_replay_runs, stream, states, k_train,
                   cfg.eval_train)
     lat, st, inputs = _part(seconds, "pi_rand", _encoded_rollouts_runs, stream, states,
-                            pi_rand_keys, cfg.eval_rand, random=True, fingerprints=True)
+                            pi_rand_keys, cfg.eval_rand, random=True, fingerprints=True,
+                            kept=pi_rand_sets)
     tests = {"pi_rand": (lat, st)}
     if cfg.policy == "ppo" and cfg.eval_curr > 0:
         tests["pi_curr"] = _part(seconds, "pi_curr", _encoded_rollouts_runs, stream, states,
@@ -173,10 +218,10 @@ def _chunks(num: int, num_envs: int) -> int:
 
 
 def _map_chunks(producer, stream: Stream, s: StreamState, carry, keys,
-                fingerprints: bool = False):
+                fingerprints: bool = False, store: list | None = None):
     """For each key, `producer(stream, s, carry, key) -> (carry, Columns [E, L])`, encoded;
     returns (latents [N, Z], LD targets [N, D]) with N = E · len(keys), and with `fingerprints`
-    the input fingerprints [N, 2].
+    the input fingerprints [N, 2]. `store`: a list that gets a host copy of each chunk.
 
     A host loop over one jitted producer and one jitted encoder on every backend: a scan over
     the chunks would compile the encoder once per data set (its length is static), and the
@@ -186,7 +231,14 @@ def _map_chunks(producer, stream: Stream, s: StreamState, carry, keys,
     for k in keys:
         carry, seqs = producer(stream, s, carry, k)
         outs.append(_encode(stream, s.learner.variables, seqs, fingerprints))
+        if store is not None:
+            store.append(jax.device_get(seqs))
     return tuple(jnp.concatenate(x) for x in zip(*outs, strict=True))
+
+
+def _kept_chunk(stream: Stream, s, chunks: list, c: int):
+    """A producer over kept chunks (carry: the list, key: the chunk's index)."""
+    return chunks, jax.device_put(chunks[c])
 
 
 def _encoded_replay_runs(stream: Stream, states: StreamState, keys: jax.Array, num: int):
@@ -196,27 +248,47 @@ def _encoded_replay_runs(stream: Stream, states: StreamState, keys: jax.Array, n
 
 
 def _encoded_rollouts_runs(stream: Stream, states: StreamState, keys: jax.Array, num: int,
-                           random: bool, fingerprints: bool = False):
+                           random: bool, fingerprints: bool = False,
+                           kept: list[PiRandSet] | None = None):
     """`encoded_rollouts` of R stacked runs (keys [R]): ([R, N, Z], [R, N, D]) and with
-    `fingerprints` [R, N, 2]."""
+    `fingerprints` [R, N, 2]; `kept`: one `PiRandSet` per run."""
+    if kept is not None and all(k.holds(key, num) for k, key in zip(kept, keys, strict=True)):
+        chunks = [[k.chunks[c] for k in kept] for c in range(len(kept[0].chunks))]
+        return _map_chunks_runs(_kept_chunk_runs, stream, states, chunks,
+                                np.arange(len(chunks))[None], fingerprints)
     split = jax.vmap(jax.random.split)(keys)
     random = jnp.asarray(random)
     env_states = _rollout_start_runs(stream, states, split[:, 0], random)
     n = _chunks(num, stream.config.num_envs)
     chunks = jax.vmap(lambda k: jax.random.split(k, n))(split[:, 1])
-    return _map_chunks_runs(_rollout_chunk_runs, stream, states, (env_states, random), chunks,
-                            fingerprints)
+    store = None if kept is None else []
+    out = _map_chunks_runs(_rollout_chunk_runs, stream, states, (env_states, random), chunks,
+                           fingerprints, store)
+    if kept is not None:
+        for r, (k, key) in enumerate(zip(kept, keys, strict=True)):
+            k.store(key, num, [jax.tree.map(lambda x, r=r: x[r], seqs) for seqs in store])
+    return out
 
 
 def _map_chunks_runs(producer, stream: Stream, states: StreamState, carry, keys,
-                     fingerprints: bool = False):
+                     fingerprints: bool = False, store: list | None = None):
     """`_map_chunks` of R stacked runs: keys [R, C], one producer and one encoder call per
-    chunk for all runs; returns ([R, N, Z], [R, N, D]) and with `fingerprints` [R, N, 2]."""
+    chunk for all runs; returns ([R, N, Z], [R, N, D]) and with `fingerprints` [R, N, 2].
+    `store`: a list that gets a host copy of each chunk ([R, E, L] columns)."""
     outs = []
     for c in range(keys.shape[1]):
         carry, seqs = producer(stream, states, carry, keys[:, c])
         outs.append(_encode_runs(stream, states.learner.variables, seqs, fingerprints))
+        if store is not None:
+            store.append(jax.device_get(seqs))
     return tuple(jnp.concatenate(x, axis=1) for x in zip(*outs, strict=True))
+
+
+def _kept_chunk_runs(stream: Stream, states, chunks: list, c):
+    """A producer over kept chunks: carry the chunks ([chunk][run] host columns), key [1] the
+    chunk's index; the runs' columns stacked [R, E, L] on the device."""
+    runs = chunks[int(c[0])]
+    return chunks, jax.device_put(jax.tree.map(lambda *x: np.stack(x), *runs))
 
 
 # Module-level jitted functions keyed on the Stream: a `jax.jit` made per call would recompile

@@ -134,9 +134,11 @@ class _RunDir:
     checkpoints and summary. Its figures go to `figures`, drawn in the background."""
 
     def __init__(self, stream: Stream, config: StreamConfig, out: Path, figures: _FigureWriter,
-                 final_checkpoint: bool = True):
+                 final_checkpoint: bool = True, keep_pi_rand: bool = True):
         self.config, self.out, self.figures = config, out, figures
         self.final_checkpoint = final_checkpoint
+        # The run's π_rand sequences, kept on the host after its first analysis in this call.
+        self.pi_rand_set = analysis.PiRandSet() if keep_pi_rand else None
         self.lock = lock(out)  # released by `close` (or when the process ends)
         try:
             self._open(stream, config, out)
@@ -179,7 +181,8 @@ class _RunDir:
         with _timed(self.seconds, "analysis"):
             records = _analyse(stream, state, self.eval_key(), self.pi_rand_key,
                                analysis.error_names(stream), self.out, self.epoch, report,
-                               seed=self.config.seed, seconds=self.analysis_parts)
+                               seed=self.config.seed, seconds=self.analysis_parts,
+                               pi_rand_set=self.pi_rand_set)
             with _timed(self.analysis_parts, "records"):
                 self.history += records
                 with (self.out / "history.jsonl").open("a") as f:
@@ -222,13 +225,13 @@ class _RunDir:
 
 def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | None = None,
         checkpoint_every: int | None = None, final_checkpoint: bool = True,
-        latent_penalty=None) -> dict:
+        latent_penalty=None, keep_pi_rand: bool = True) -> dict:
     """Runs (or resumes) the loop in `out`; returns the summary. `stop_after` ends the process's
     work after that many epochs in this call (a deliberate interruption, for tests and jobs
     with a time limit); the next call resumes. A non-finite loss raises `NonFiniteLoss`."""
     summary = run_many([config], [out], progress=progress, stop_after=stop_after,
                        checkpoint_every=checkpoint_every, final_checkpoint=final_checkpoint,
-                       latent_penalty=latent_penalty)[0]
+                       latent_penalty=latent_penalty, keep_pi_rand=keep_pi_rand)[0]
     if summary["status"] == "nonfinite":
         raise NonFiniteLoss(summary["error"])
     return summary
@@ -236,7 +239,8 @@ def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | N
 
 def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
              stop_after: int | None = None, checkpoint_every: int | None = None,
-             final_checkpoint: bool = True, latent_penalty=None, mesh=None) -> list[dict]:
+             final_checkpoint: bool = True, latent_penalty=None, mesh=None,
+             keep_pi_rand: bool = True) -> list[dict]:
     """Runs (or resumes) several runs of one program, each in its own directory, trained
     together: the configs may differ only in their seeds, and their states are stacked and
     advanced by one compiled loop (`run_stacked_epochs`; several devices split the runs, see
@@ -251,7 +255,12 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     disk goes with the runs, writing one at every analysis buys little and costs minutes.
     There, `final_checkpoint=False` also drops the forced one at the last analysis (≈ 15 s per
     locomotion run on an H100; the run's records and summary are written as always): the last
-    analysis then checkpoints only where `checkpoint_every` says so."""
+    analysis then checkpoints only where `checkpoint_every` says so.
+
+    `keep_pi_rand`: each run keeps its π_rand test sequences on the host after its first
+    analysis in this call (`analysis.PiRandSet`; ≈ 2 GB per run at the paper's eval_rand and 16
+    frames per sequence), so later analyses encode them again instead of rolling them out
+    again; the reports are the same. False rolls them out at every analysis."""
     if len(configs) != len(outs) or not configs:
         raise ValueError(f"run_many needs one out directory per config, got {len(configs)} "
                          f"configs and {len(outs)} directories")
@@ -270,7 +279,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     runs: list[_RunDir] = []
     try:
         for c, o in zip(configs, outs, strict=True):
-            runs.append(_RunDir(stream, c, o, figures, final_checkpoint))
+            runs.append(_RunDir(stream, c, o, figures, final_checkpoint, keep_pi_rand))
     except BaseException:  # one directory refused: the ones opened before it are let go too
         for r in runs:
             r.lock.close()
@@ -288,6 +297,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
             for r in runs:
                 if r.status == "running" and not r.targets:
                     r.status = "finished"
+                    r.pi_rand_set = None  # its host memory, for the runs still going
             active = [r for r in runs if r.status == "running"]
             if not active:
                 break
@@ -411,10 +421,12 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
         tic = time.perf_counter()
         runs = [r for _, r in members]
         parts: dict[str, float] = {}
+        kept = [r.pi_rand_set for r in runs]
         evaluated = analysis.evaluate_runs(stream, device_states,
                                            jnp.stack([r.eval_key() for r in runs]),
                                            jnp.stack([r.pi_rand_key for r in runs]),
-                                           seconds=parts)
+                                           seconds=parts,
+                                           pi_rand_sets=None if None in kept else kept)
         share = (time.perf_counter() - tic) / len(members)
         for (i, r), report in zip(members, evaluated, strict=True):
             r.seconds["analysis"] += share
@@ -454,11 +466,13 @@ def _due_by_device(states: StreamState, due: list) -> list[tuple[StreamState, li
 
 def _analyse(stream: Stream, state: StreamState, key, pi_rand_key, names, out: Path,
              epoch: int, report: dict | None = None, *, seed: int,
-             seconds: dict | None = None) -> list[dict]:
+             seconds: dict | None = None,
+             pi_rand_set: analysis.PiRandSet | None = None) -> list[dict]:
     # `seed` is the run's own: runs trained together share one Stream, whose config carries
     # the first run's seed. `seconds`: the analysis parts' wall times (`analysis.evaluate`).
     if report is None:
-        report = analysis.evaluate(stream, state, key, pi_rand_key, seconds=seconds)
+        report = analysis.evaluate(stream, state, key, pi_rand_key, seconds=seconds,
+                                   pi_rand_set=pi_rand_set)
     errors = {k: v for k, v in report["errors"].items() if k != "validation"}
     records = plots.history_records(epoch, stream.config.learner, errors, names,
                                     report["distortion"], run=seed)

@@ -14,6 +14,7 @@ cores shared with other jobs, so it is slow.
 import types
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -21,6 +22,7 @@ import envs_mjx
 from jaml import evaluation, stream
 from jaml.evaluation import alignment, rotation
 from jaml.stream import analysis
+from jaml.stream import replay as replay_lib
 from tests.stream.test_loop import tiny
 
 SEEDS = (0, 1)
@@ -82,6 +84,13 @@ def test_stacked_runs_analysed_at_once_match_each_run_alone():
                                        err_msg=k)
         np.testing.assert_allclose(together[r]["distortion"], alone["distortion"], rtol=1e-4)
     assert together[0]["errors"]["pi_rand"] != together[1]["errors"]["pi_rand"]
+    # Kept π_rand sets (as `run_many` keeps them): the call that rolls them out and the next,
+    # which reads them back from the host, report exactly what the analysis reports without.
+    kept = [analysis.PiRandSet() for _ in SEEDS]
+    for _ in range(2):
+        assert analysis.evaluate_runs(s, states, jax.numpy.stack(keys),
+                                      jax.numpy.stack(pi_rand_keys), pi_rand_sets=kept) == together
+    assert all(k.holds(key, s.config.eval_rand) for k, key in zip(kept, pi_rand_keys, strict=True))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -121,13 +130,13 @@ def _fake_stream(monkeypatch, env_name, **changes):
                             ppo=stream.PPOConfig(num_minibatches=4), **changes)
     fake = types.SimpleNamespace(config=config, env=env, seq_len=1)
 
-    def one(stream_, s, key, num, random=None, fingerprints=False):
+    def one(stream_, s, key, num, random=None, fingerprints=False, kept=None):
         sets = _synthetic(env, key, num)
         if fingerprints:  # every input distinct
             sets += (np.arange(num, dtype=np.uint32)[:, None],)
         return sets
 
-    def runs(stream_, states, keys, num, random=None, fingerprints=False):
+    def runs(stream_, states, keys, num, random=None, fingerprints=False, kept=None):
         sets = [one(stream_, None, k, num, fingerprints=fingerprints) for k in keys]
         return tuple(np.stack(x) for x in zip(*sets, strict=True))
 
@@ -255,3 +264,105 @@ def test_input_fingerprints_follow_what_the_encoder_reads():
     runs = np.asarray(analysis.input_fingerprints(2, np.stack([frames, frames[::-1]]),
                                                   np.stack([actions, actions[::-1]])))
     np.testing.assert_array_equal(runs, np.stack([fp, fp[::-1]]))
+
+
+# ---------------------------------------------------------------------------------------------
+# Kept π_rand sets, with stand-in rollouts and encoders (no stream compiled).
+
+E, L = 4, 3  # envs per chunk, frames per sequence
+
+
+def _columns(key, lead=()):
+    kf, kl = jax.random.split(key)
+    return replay_lib.Columns(
+        frames=jax.random.randint(kf, (*lead, E, L, 2, 2, 3), 0, 256).astype(np.uint8),
+        actions=jnp.zeros((*lead, E, L, 1)), ld=jax.random.normal(kl, (*lead, E, L, 2)),
+        starts=jnp.zeros((*lead, E, L), bool))
+
+
+def _stand_ins(monkeypatch):
+    """Rollouts whose sequences depend on the chunk's key and the carried env state (a
+    counter), and an encoder whose latents depend on the variables; counts the rollouts."""
+    calls = {"chunks": 0}
+
+    def chunk(stream_, s, carry, key):
+        calls["chunks"] += 1
+        env_state, random = carry
+        return (env_state + 1, random), _columns(jax.random.fold_in(key, env_state))
+
+    def chunk_runs(stream_, states, carry, keys):
+        calls["chunks"] += 1
+        env_states, random = carry
+        return (env_states + 1, random), jax.vmap(
+            lambda k, e: _columns(jax.random.fold_in(k, e)))(keys, env_states)
+
+    def encode(stream_, variables, seqs, fingerprints=False):
+        pixels = seqs.frames.reshape(*seqs.frames.shape[:-4], -1).astype(np.float32)
+        scale = jnp.reshape(variables, (-1,) + (1,) * (pixels.ndim - 1))
+        out = (pixels.mean(-1, keepdims=True) * scale, seqs.ld[..., -1, :])
+        return (*out, pixels[..., :2].astype(np.uint32)) if fingerprints else out
+
+    monkeypatch.setattr(analysis, "_rollout_start", lambda stream_, s, k, random: jnp.int32(0))
+    monkeypatch.setattr(analysis, "_rollout_start_runs",
+                        lambda stream_, states, ks, random: jnp.zeros(len(ks), jnp.int32))
+    monkeypatch.setattr(analysis, "_rollout_chunk", chunk)
+    monkeypatch.setattr(analysis, "_rollout_chunk_runs", chunk_runs)
+    monkeypatch.setattr(analysis, "_encode", encode)
+    monkeypatch.setattr(analysis, "_encode_runs", encode)
+    return types.SimpleNamespace(config=types.SimpleNamespace(num_envs=E)), calls
+
+
+def _state(variables):
+    return types.SimpleNamespace(learner=types.SimpleNamespace(variables=jnp.asarray(variables)))
+
+
+def _assert_same(a, b):
+    assert len(a) == len(b) == 3
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+def test_a_kept_pi_rand_set_is_encoded_again_not_rolled_out_again(monkeypatch):
+    fake, calls = _stand_ins(monkeypatch)
+    key, num = jax.random.PRNGKey(5), 10  # 3 chunks of 4 envs
+    kept = analysis.PiRandSet()
+    first = analysis.encoded_rollouts(fake, _state(1.0), key, num, True, True, kept=kept)
+    assert calls["chunks"] == 3 and kept.holds(key, num) and len(kept.chunks) == 3
+    assert isinstance(kept.chunks[0].frames, np.ndarray)  # on the host
+    # Later analyses (trained variables): the kept sequences, encoded by the new encoder, are
+    # what rolling them out again from the same key gives.
+    again = analysis.encoded_rollouts(fake, _state(2.0), key, num, True, True, kept=kept)
+    assert calls["chunks"] == 3
+    _assert_same(again, analysis.encoded_rollouts(fake, _state(2.0), key, num, True, True))
+    assert calls["chunks"] == 6
+    assert not np.array_equal(first[0], again[0])  # the encoder's change shows
+    # Another key (or size) is rolled out and replaces the kept set.
+    other = jax.random.PRNGKey(6)
+    analysis.encoded_rollouts(fake, _state(2.0), other, num, True, True, kept=kept)
+    assert calls["chunks"] == 9 and kept.holds(other, num) and not kept.holds(key, num)
+    assert not kept.holds(other, 11)
+
+
+def test_kept_pi_rand_sets_of_stacked_runs_are_each_runs_own(monkeypatch):
+    fake, calls = _stand_ins(monkeypatch)
+    keys, num = jnp.stack([jax.random.PRNGKey(5), jax.random.PRNGKey(7)]), 10
+    states = _state([1.0, 3.0])
+    kept = [analysis.PiRandSet(), analysis.PiRandSet()]
+    first = analysis._encoded_rollouts_runs(fake, states, keys, num, True, True, kept=kept)
+    assert calls["chunks"] == 3
+    assert kept[0].holds(keys[0], num) and kept[1].holds(keys[1], num)
+    assert kept[0].chunks[0].frames.shape == (E, L, 2, 2, 3)  # one run's columns each
+    again = analysis._encoded_rollouts_runs(fake, states, keys, num, True, True, kept=kept)
+    assert calls["chunks"] == 3
+    _assert_same(first, again)
+    _assert_same(first, analysis._encoded_rollouts_runs(fake, states, keys, num, True, True))
+    # A run's kept set is what its rollouts give alone (the stand-in's per-key sequences).
+    alone = analysis.PiRandSet()
+    analysis.encoded_rollouts(fake, _state(1.0), keys[1], num, True, True, kept=alone)
+    assert calls["chunks"] == 9
+    for c in range(3):
+        np.testing.assert_array_equal(kept[1].chunks[c].frames, alone.chunks[c].frames)
+    # One run without its set: every run is rolled out again, and every set refreshed.
+    kept[1] = analysis.PiRandSet()
+    analysis._encoded_rollouts_runs(fake, states, keys, num, True, True, kept=kept)
+    assert calls["chunks"] == 12 and kept[1].holds(keys[1], num)

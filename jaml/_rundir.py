@@ -28,6 +28,16 @@ def write_json(path: Path, value) -> None:
     os.replace(tmp, path)
 
 
+def write_text(path: Path, text: str) -> None:
+    """Write a text file atomically, through a temporary name of this process's own, so that
+    processes rewriting one shared file (the experiment reports, when several processes train
+    cells of one grid) never leave or read it half-written: the last writer wins whole."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
 class RunInUse(RuntimeError):
     """Another process holds the run directory (see `lock`)."""
 

@@ -15,8 +15,10 @@ confidence intervals over runs. Figures use matplotlib's Agg canvas; no global s
 from __future__ import annotations
 
 import math
+import os
 from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -82,8 +84,13 @@ def _curves(points: Mapping[int, list[float]]):
 
 
 def _save(fig: Figure, path) -> None:
+    """Draw `fig` to `path` atomically (through a temporary name of this process's own): a
+    figure several processes redraw (an experiment's grid figure) is never left half-written."""
     FigureCanvasAgg(fig)
-    fig.savefig(path, dpi=100)
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    fig.savefig(tmp, dpi=100)
+    os.replace(tmp, path)
 
 
 # Largest over smallest curve mean beyond which a panel of `plot_alignment` is drawn log-scaled.

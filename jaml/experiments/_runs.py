@@ -71,9 +71,12 @@ def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,
 
 
 def read_history(path: Path) -> list[dict]:
-    """The analysis records of a run's history.jsonl ([] when it has none yet)."""
+    """The analysis records of a run's history.jsonl ([] when it has none yet). A last line
+    without its newline is a record still being appended by the process training the run (a
+    report written beside it, see fig2's "Several GPUs") and is left for the next read."""
     text = path.read_text() if path.exists() else ""
-    return [json.loads(x) for x in text.splitlines() if x.strip()]
+    complete = text[:text.rfind("\n") + 1]
+    return [json.loads(x) for x in complete.splitlines() if x.strip()]
 
 
 def seed_histories(directory: Path) -> list[list[dict]]:

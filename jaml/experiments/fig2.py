@@ -19,6 +19,16 @@ dimension, or every group for locomotion). The paper's findings it checks:
     python -m jaml.experiments.fig2 --out runs/fig2_bf16 --report-only --compare-with runs/fig2
         # each cell of one grid against the same cell of another (e.g. a numeric change)
 
+Several GPUs: one process splits a cell's seeds across its local GPUs (3 + 3 on two). To run
+different cells side by side instead, start one process per GPU on the same OUT (each run
+directory is locked by the process that trains it; the report each process writes at its end
+covers the runs finished by then, so rebuild it with --report-only when all are done):
+
+    CUDA_VISIBLE_DEVICES=0 python -m jaml.experiments.fig2 --out runs/fig2 --envs Ant \\
+        --variants PRED &
+    CUDA_VISIBLE_DEVICES=1 python -m jaml.experiments.fig2 --out runs/fig2 --envs Ant \\
+        --variants DSA &
+
 Defaults are the paper's settings where they are sizes of one epoch (64 envs, a 5000-column
 replay, 1024 frames per learner batch, 10 learner steps per epoch and 50 for locomotion, the
 reference's regressor) and the shortest training the issue asked for: 1000 epochs on the
@@ -36,6 +46,7 @@ from typing import Annotated, Literal
 import numpy as np
 import tyro
 
+from jaml._rundir import write_text
 from jaml.evaluation import plots
 from jaml.experiments import _runs
 from jaml.experiments._runs import cell
@@ -227,7 +238,7 @@ def report(out: Path, envs, variants) -> str:
         plots.plot_alignment(records, out / "fig2.png")
         lines += ["![Fig. 2](fig2.png)", ""]
     text = "\n".join(lines) + "\n"
-    (out / "fig2.md").write_text(text)
+    write_text(out / "fig2.md", text)
     return text
 
 
@@ -396,7 +407,7 @@ class Args(_runs.Driver):
             return text
         table = "\n".join(compare(self.out, other, self.envs, self.variants, relative)
                           for other in self.compare_with for relative in (False, True))
-        (self.out / "compare.md").write_text(table)
+        write_text(self.out / "compare.md", table)
         return text + "\n" + table
 
 

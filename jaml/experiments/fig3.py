@@ -90,6 +90,7 @@ from typing import Annotated, Literal
 import numpy as np
 import tyro
 
+from jaml._rundir import write_text
 from jaml.evaluation import plots, rotation
 from jaml.experiments import _runs
 from jaml.experiments._runs import cell
@@ -510,7 +511,7 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
     if not runs:
         lines += [f"No analysed runs under {out} yet.", ""]
         text = "\n".join(lines)
-        (out / "fig3.md").write_text(text)
+        write_text(out / "fig3.md", text)
         return text
     lines += ["## Settings", ""]
     keys = (*SCALE, "epochs", "eval_every", "rollout_len", "learner_steps", "frames_per_batch",
@@ -558,7 +559,7 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
         for path, caption in images:
             lines += [f"{caption}:", "", f"![{caption}]({path.name})", ""]
     text = "\n".join(lines) + "\n"
-    (out / "fig3.md").write_text(text)
+    write_text(out / "fig3.md", text)
     return text
 
 

@@ -39,6 +39,7 @@ from typing import Literal
 
 import numpy as np
 
+from jaml._rundir import write_text
 from jaml.evaluation import plots
 from jaml.experiments import _runs
 from jaml.experiments._runs import cell, read_history, welch_interval
@@ -284,7 +285,7 @@ def report(out: Path, methods) -> str:
                 cells.append(f"{d:+.4f} [{lo:+.4f}, {hi:+.4f}]")
             lines.append(f"| {m} | " + " | ".join(cells) + " |")
     text = "\n".join(lines) + "\n"
-    (out / "fig9.md").write_text(text)
+    write_text(out / "fig9.md", text)
     return text
 
 

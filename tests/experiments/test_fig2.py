@@ -200,3 +200,21 @@ def test_group_means_as_fractions_of_the_constant_predictors_error(tmp_path):
     fraction = fig2.compare(tmp_path / "a", tmp_path / "b", ["CartPole"], ["VAE_v0", "PRED"],
                             relative=True)
     assert "not compared (runs recorded without baselines): CartPole · PRED." in fraction
+
+
+def test_a_report_beside_a_run_still_writing_reads_whole_records_and_leaves_no_temporaries(
+        tmp_path):
+    """Several processes may train cells of one grid, each rewriting the report at its end: a
+    record being appended (no newline yet) is not read, and the report and figures are replaced
+    whole (written under a temporary name of the process's own, then renamed)."""
+    run = tmp_path / "CartPole" / "PRED" / "seed_0"
+    _write_run(run, "PRED", 0, [0.1, 0.5, 0.2, 0.7])
+    whole = (run / "history.jsonl").read_text()
+    torn = json.dumps(history_records(30, "PRED", {"pi_rand": [0.3] * 4}, NAMES, run=0)[0])
+    (run / "history.jsonl").write_text(whole + torn[:len(torn) // 2])
+    assert fig2._runs.read_history(run / "history.jsonl") == [
+        json.loads(line) for line in whole.splitlines()]
+    text = fig2.report(tmp_path, ["CartPole"], ["PRED"])
+    assert "| PRED | pi_rand | 0.100 |" in text  # epoch 20's record, the torn one skipped
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "CartPole", "CartPole_alignment.png", "fig2.md", "fig2.png"]

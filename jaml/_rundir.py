@@ -34,8 +34,11 @@ def write_text(path: Path, text: str) -> None:
     cells of one grid) never leave or read it half-written: the last writer wins whole."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 class RunInUse(RuntimeError):

@@ -83,14 +83,18 @@ def _curves(points: Mapping[int, list[float]]):
     return np.asarray(steps), bands[:, 0], bands[:, 1], bands[:, 2]
 
 
-def _save(fig: Figure, path) -> None:
-    """Draw `fig` to `path` atomically (through a temporary name of this process's own): a
-    figure several processes redraw (an experiment's grid figure) is never left half-written."""
+def save_figure(fig: Figure, path) -> None:
+    """Draw `fig` (Agg canvas, no pyplot) to `path` atomically, through a temporary name of this
+    process's own: a figure several processes redraw (an experiment's grid figure) is never left
+    half-written. The format is the path's suffix (png without one)."""
     FigureCanvasAgg(fig)
     path = Path(path)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=100)
-    os.replace(tmp, path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        fig.savefig(tmp, dpi=100, format=path.suffix[1:] or "png")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 # Largest over smallest curve mean beyond which a panel of `plot_alignment` is drawn log-scaled.
@@ -161,7 +165,7 @@ def plot_alignment(history: Iterable[Mapping], path,
     # domain has fewer cells than a later one).
     axes[0, 0].legend(handles=[Line2D([], [], color=colors[n], label=n) for n in learners],
                       fontsize=8)
-    _save(fig, path)
+    save_figure(fig, path)
     return fig
 
 
@@ -186,5 +190,5 @@ def plot_distortion(history: Iterable[Mapping], path) -> Figure:
     ax.set_xlabel("epoch")
     ax.set_ylabel("distortion Var(ρ)")
     ax.legend(fontsize=8)
-    _save(fig, path)
+    save_figure(fig, path)
     return fig

@@ -472,7 +472,7 @@ def plot(runs: dict[str, list[list[dict]]], panels: dict[str, list[str]], path: 
         if ax.get_title().startswith(ORIENTATION):
             ax.set_title(ax.get_title().replace(ORIENTATION, f"{ORIENTATION} (principal axis)"),
                          fontsize=9)
-    fig.savefig(path, dpi=100)
+    plots.save_figure(fig, path)
 
 
 def report(out: Path, variants=tuple(VARIANTS)) -> str:

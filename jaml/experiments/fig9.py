@@ -229,7 +229,6 @@ def plot(runs: dict[str, list[list[dict]]], path: Path) -> None:
     """Two panels like the paper's Fig. 9: position error on π_rand and Var(ρ) over epochs."""
     from collections import defaultdict
 
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(10, 3.8), layout="constrained")
@@ -253,8 +252,7 @@ def plot(runs: dict[str, list[list[dict]]], path: Path) -> None:
     for ax in axes:
         ax.set_xlabel("epoch")
     axes[0].legend(fontsize=8)
-    FigureCanvasAgg(fig)
-    fig.savefig(path, dpi=100)
+    plots.save_figure(fig, path)
 
 
 def report(out: Path, methods) -> str:

@@ -54,7 +54,10 @@ def encoded_rollouts(stream: Stream, s: StreamState, key: jax.Array, num: int, r
     `fingerprints`, also each sequence's `input_fingerprints` [N, 2] (for the distortion).
     `kept` (π_rand only): the sequences are read from it when it holds this key's, else rolled
     out and stored in it."""
-    if kept is not None and kept.holds(key, num):
+    if kept is not None and not random:
+        raise ValueError("only the π_rand set (random=True) is the same at every analysis; "
+                         "π_curr's follows the current policy and cannot be kept")
+    if kept is not None and kept.holds(stream, key, num):
         return _map_chunks(_kept_chunk, stream, s, kept.chunks, range(len(kept.chunks)),
                            fingerprints)
     k_start, k_chunks = jax.random.split(key)
@@ -64,7 +67,7 @@ def encoded_rollouts(stream: Stream, s: StreamState, key: jax.Array, num: int, r
     store = None if kept is None else []
     out = _map_chunks(_rollout_chunk, stream, s, (env_state, random), keys, fingerprints, store)
     if kept is not None:
-        kept.store(key, num, store)
+        kept.store(stream, key, num, store)
     return out
 
 
@@ -78,20 +81,24 @@ class PiRandSet:
     16-step rollouts of 64 envs). Host memory: eval_rand × L × 12 KiB of 64×64 frames per run,
     ≈ 2 GB at the paper's eval_rand and L = 16."""
 
-    tag: tuple | None = None  # (key bytes, num) the chunks were rolled out for
+    tag: tuple | None = None  # what the chunks were rolled out for (`_tag`)
     chunks: list | None = None
 
     @staticmethod
-    def _tag(key: jax.Array, num: int) -> tuple:
+    def _tag(stream: Stream, key: jax.Array, num: int) -> tuple:
+        """The key's bits, the set's size and the stream settings that shape the rollouts."""
         if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
             key = jax.random.key_data(key)
-        return np.asarray(key).tobytes(), num
+        cfg = stream.config
+        return (np.asarray(key).tobytes(), num, cfg.env, repr(cfg.env_overrides), cfg.num_envs,
+                cfg.eval_transient, stream.seq_len)
 
-    def holds(self, key: jax.Array, num: int) -> bool:
-        return self.chunks is not None and self.tag == self._tag(key, num)
+    def holds(self, stream: Stream, key: jax.Array, num: int) -> bool:
+        return self.chunks is not None and self.tag == self._tag(stream, key, num)
 
-    def store(self, key: jax.Array, num: int, chunks: list) -> None:
-        self.tag, self.chunks = self._tag(key, num), chunks
+    def store(self, stream: Stream, key: jax.Array, num: int, chunks: list) -> None:
+        """Keep `chunks` (host `Columns`, each owning its memory) for this key and size."""
+        self.tag, self.chunks = self._tag(stream, key, num), chunks
 
 
 def rotation_blocks(stream: Stream) -> tuple[tuple[int, ...], tuple[str, ...]]:
@@ -252,7 +259,10 @@ def _encoded_rollouts_runs(stream: Stream, states: StreamState, keys: jax.Array,
                            kept: list[PiRandSet] | None = None):
     """`encoded_rollouts` of R stacked runs (keys [R]): ([R, N, Z], [R, N, D]) and with
     `fingerprints` [R, N, 2]; `kept`: one `PiRandSet` per run."""
-    if kept is not None and all(k.holds(key, num) for k, key in zip(kept, keys, strict=True)):
+    if kept is not None and not random:
+        raise ValueError("only the π_rand set (random=True) can be kept")
+    if kept is not None and all(k.holds(stream, key, num)
+                                for k, key in zip(kept, keys, strict=True)):
         chunks = [[k.chunks[c] for k in kept] for c in range(len(kept[0].chunks))]
         return _map_chunks_runs(_kept_chunk_runs, stream, states, chunks,
                                 np.arange(len(chunks))[None], fingerprints)
@@ -266,7 +276,10 @@ def _encoded_rollouts_runs(stream: Stream, states: StreamState, keys: jax.Array,
                            fingerprints, store)
     if kept is not None:
         for r, (k, key) in enumerate(zip(kept, keys, strict=True)):
-            k.store(key, num, [jax.tree.map(lambda x, r=r: x[r], seqs) for seqs in store])
+            # Copies, not views of the stacked chunks: a finished run's set is then freed
+            # alone while the others' stay.
+            k.store(stream, key, num,
+                    [jax.tree.map(lambda x, r=r: np.array(x[r]), seqs) for seqs in store])
     return out
 
 

@@ -186,7 +186,9 @@ class _RunDir:
             with _timed(self.analysis_parts, "records"):
                 self.history += records
                 with (self.out / "history.jsonl").open("a") as f:
-                    f.writelines(json.dumps(r) + "\n" for r in records)
+                    # One write per analysis, so a report read beside it (`_runs.read_history`
+                    # skips an unterminated line) almost never sees part of an epoch's records.
+                    f.write("".join(json.dumps(r) + "\n" for r in records))
                 self.logs.analysis(self.epoch, records)
                 self.figures.submit(self.out, list(self.history))
         if checkpoint_due(self.epoch, self.manager.latest_step(), checkpoint_every,
@@ -297,6 +299,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
             for r in runs:
                 if r.status == "running" and not r.targets:
                     r.status = "finished"
+                if r.status != "running":  # finished, stopped or non-finite: no more analyses
                     r.pi_rand_set = None  # its host memory, for the runs still going
             active = [r for r in runs if r.status == "running"]
             if not active:

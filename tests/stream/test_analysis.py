@@ -90,7 +90,8 @@ def test_stacked_runs_analysed_at_once_match_each_run_alone():
     for _ in range(2):
         assert analysis.evaluate_runs(s, states, jax.numpy.stack(keys),
                                       jax.numpy.stack(pi_rand_keys), pi_rand_sets=kept) == together
-    assert all(k.holds(key, s.config.eval_rand) for k, key in zip(kept, pi_rand_keys, strict=True))
+    assert kept[0].holds(s, pi_rand_keys[0], s.config.eval_rand)
+    assert kept[1].holds(s, pi_rand_keys[1], s.config.eval_rand)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -309,7 +310,9 @@ def _stand_ins(monkeypatch):
     monkeypatch.setattr(analysis, "_rollout_chunk_runs", chunk_runs)
     monkeypatch.setattr(analysis, "_encode", encode)
     monkeypatch.setattr(analysis, "_encode_runs", encode)
-    return types.SimpleNamespace(config=types.SimpleNamespace(num_envs=E)), calls
+    config = types.SimpleNamespace(env="CartPole", env_overrides={}, num_envs=E,
+                                   eval_transient=120)
+    return types.SimpleNamespace(config=config, seq_len=L), calls
 
 
 def _state(variables):
@@ -327,7 +330,7 @@ def test_a_kept_pi_rand_set_is_encoded_again_not_rolled_out_again(monkeypatch):
     key, num = jax.random.PRNGKey(5), 10  # 3 chunks of 4 envs
     kept = analysis.PiRandSet()
     first = analysis.encoded_rollouts(fake, _state(1.0), key, num, True, True, kept=kept)
-    assert calls["chunks"] == 3 and kept.holds(key, num) and len(kept.chunks) == 3
+    assert calls["chunks"] == 3 and kept.holds(fake, key, num) and len(kept.chunks) == 3
     assert isinstance(kept.chunks[0].frames, np.ndarray)  # on the host
     # Later analyses (trained variables): the kept sequences, encoded by the new encoder, are
     # what rolling them out again from the same key gives.
@@ -339,8 +342,14 @@ def test_a_kept_pi_rand_set_is_encoded_again_not_rolled_out_again(monkeypatch):
     # Another key (or size) is rolled out and replaces the kept set.
     other = jax.random.PRNGKey(6)
     analysis.encoded_rollouts(fake, _state(2.0), other, num, True, True, kept=kept)
-    assert calls["chunks"] == 9 and kept.holds(other, num) and not kept.holds(key, num)
-    assert not kept.holds(other, 11)
+    assert calls["chunks"] == 9 and kept.holds(fake, other, num)
+    assert not kept.holds(fake, key, num) and not kept.holds(fake, other, 11)
+    # Nor a stream whose rollouts differ (another transient), nor π_curr's sequences.
+    longer = types.SimpleNamespace(config=types.SimpleNamespace(**{
+        **vars(fake.config), "eval_transient": 121}), seq_len=L)
+    assert not kept.holds(longer, other, num)
+    with pytest.raises(ValueError, match="π_rand"):
+        analysis.encoded_rollouts(fake, _state(2.0), other, num, False, kept=kept)
 
 
 def test_kept_pi_rand_sets_of_stacked_runs_are_each_runs_own(monkeypatch):
@@ -350,8 +359,9 @@ def test_kept_pi_rand_sets_of_stacked_runs_are_each_runs_own(monkeypatch):
     kept = [analysis.PiRandSet(), analysis.PiRandSet()]
     first = analysis._encoded_rollouts_runs(fake, states, keys, num, True, True, kept=kept)
     assert calls["chunks"] == 3
-    assert kept[0].holds(keys[0], num) and kept[1].holds(keys[1], num)
-    assert kept[0].chunks[0].frames.shape == (E, L, 2, 2, 3)  # one run's columns each
+    assert kept[0].holds(fake, keys[0], num) and kept[1].holds(fake, keys[1], num)
+    assert kept[0].chunks[0].frames.shape == (E, L, 2, 2, 3)  # one run's columns each,
+    assert kept[0].chunks[0].frames.base is None  # a copy: freed with its run's set alone
     again = analysis._encoded_rollouts_runs(fake, states, keys, num, True, True, kept=kept)
     assert calls["chunks"] == 3
     _assert_same(first, again)
@@ -365,4 +375,4 @@ def test_kept_pi_rand_sets_of_stacked_runs_are_each_runs_own(monkeypatch):
     # One run without its set: every run is rolled out again, and every set refreshed.
     kept[1] = analysis.PiRandSet()
     analysis._encoded_rollouts_runs(fake, states, keys, num, True, True, kept=kept)
-    assert calls["chunks"] == 12 and kept[1].holds(keys[1], num)
+    assert calls["chunks"] == 12 and kept[1].holds(fake, keys[1], num)

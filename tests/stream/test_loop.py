@@ -205,6 +205,28 @@ def test_without_a_final_checkpoint_a_run_writes_its_records_and_no_checkpoint(t
     assert not [p for p in (tmp_path / "checkpoints").iterdir() if p.name.isdigit()]  # no step
 
 
+def test_a_run_rolls_its_pi_rand_set_out_once_and_records_what_rolling_it_every_time_gives(
+        tmp_path, monkeypatch):
+    """`run_many` keeps each run's π_rand sequences after its first analysis (`PiRandSet`):
+    the later analyses roll out only π_curr, and the records are those of a run that rolls
+    π_rand out at every analysis (analyses at epochs 2 and 4)."""
+    from jaml.stream import analysis
+    starts = []
+    start = analysis._rollout_start
+    monkeypatch.setattr(analysis, "_rollout_start",
+                        lambda stream_, s, key, random: starts.append(bool(random)) or
+                        start(stream_, s, key, random))
+    config = tiny(epochs=4)
+    options = dict(progress=False, checkpoint_every=100, final_checkpoint=False)
+    run_lib.run(config, tmp_path / "kept", **options)
+    assert starts == [True, False, False]  # π_rand, π_curr at epoch 2; π_curr at epoch 4
+    starts.clear()
+    run_lib.run(config, tmp_path / "rolled", keep_pi_rand=False, **options)
+    assert starts == [True, False, True, False]
+    kept, rolled = (_records(tmp_path / d / "history.jsonl") for d in ("kept", "rolled"))
+    assert {r["step"] for r in kept} == {2, 4} and kept == rolled
+
+
 def _learner_params(out, config):
     s = stream.build(config)
     mgr = checkpoint.manager(out)

@@ -50,7 +50,7 @@ def main(command: str, argv=None) -> int:
 
 def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,
                 checkpoint_every: int | None = None, final_checkpoint: bool = True,
-                latent_penalty=None) -> list[dict]:
+                latent_penalty=None, keep_pi_rand: bool = True) -> list[dict]:
     """Every seed of one cell trained together (`run_many`: one program, the seeds stacked),
     each in its resumable directory; prints one line per seed (status, seconds by phase) and
     one for the cell. Returns the runs' summaries."""
@@ -59,7 +59,7 @@ def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,
     started = time.perf_counter()
     summaries = run_many(list(configs), list(dirs), progress=False, stop_after=stop_after,
                          checkpoint_every=checkpoint_every, final_checkpoint=final_checkpoint,
-                         latent_penalty=latent_penalty)
+                         latent_penalty=latent_penalty, keep_pi_rand=keep_pi_rand)
     for config, summary in zip(configs, summaries, strict=True):
         phases = ", ".join(f"{k} {v:.0f}s" for k, v in summary["seconds_by_phase"].items())
         print(f"{label} seed {config.seed}: {summary['status']} at epoch {summary['epoch']} "

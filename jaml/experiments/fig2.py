@@ -90,13 +90,14 @@ def config_for(env: str, variant: str, seed: int, scale: dict, schedule: dict,
 
 def run_cell(out: Path, env: str, variant: str, seeds, scale: dict, schedule: dict,
              learner_opt: dict | None = None, stop_after: int | None = None,
-             checkpoint_every: int | None = None, final_checkpoint: bool = True) -> list[dict]:
+             checkpoint_every: int | None = None, final_checkpoint: bool = True,
+             keep_pi_rand: bool = True) -> list[dict]:
     """Every seed of one (env, variant), trained together; returns their summaries."""
     configs = [config_for(env, variant, s, scale, schedule, learner_opt) for s in seeds]
     dirs = [out / env / variant / f"seed_{s}" for s in seeds]
     return _runs.train_seeds(f"{env} {variant}", configs, dirs, stop_after=stop_after,
                              checkpoint_every=checkpoint_every,
-                             final_checkpoint=final_checkpoint)
+                             final_checkpoint=final_checkpoint, keep_pi_rand=keep_pi_rand)
 
 
 def ld_groups(env: str) -> dict[str, list[str]]:
@@ -380,6 +381,10 @@ class Args(_runs.Driver):
     """checkpoint each run at its last analysis (--no-final-checkpoint: only where
     --checkpoint-every says so; for a machine whose disk goes with the runs, ≈ 15 s per
     locomotion run saved)"""
+    keep_pi_rand: bool = True
+    """keep each run's π_rand test sequences on the host after its first analysis in this call
+    and encode them again at the later ones (≈ 2 GB per run at 16 frames per sequence; the
+    records are the same); --no-keep-pi-rand rolls them out at every analysis"""
     report_only: bool = False
     """no training: fig2.md and the figures from the runs under OUT"""
     compare_with: Annotated[tuple[Path, ...], tyro.conf.UseAppendAction] = ()
@@ -396,7 +401,7 @@ class Args(_runs.Driver):
             for variant in self.variants:
                 run_cell(self.out, env, variant, self.seeds, scale, schedule,
                          key_values(self.learner_opt), self.stop_after, self.checkpoint_every,
-                         self.final_checkpoint)
+                         self.final_checkpoint, self.keep_pi_rand)
 
     def report(self) -> str:
         for other in self.compare_with:

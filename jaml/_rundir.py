@@ -21,24 +21,28 @@ from collections.abc import Callable
 from pathlib import Path
 
 
-def write_json(path: Path, value) -> None:
-    """Write JSON atomically: a reader never sees a half-written file."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(value, indent=2, default=float) + "\n")
-    os.replace(tmp, path)
-
-
-def write_text(path: Path, text: str) -> None:
-    """Write a text file atomically, through a temporary name of this process's own, so that
-    processes rewriting one shared file (the experiment reports, when several processes train
-    cells of one grid) never leave or read it half-written: the last writer wins whole."""
+def write_atomically(path: Path, write: Callable[[Path], None]) -> None:
+    """`write(tmp)` to a temporary name of this process's own beside `path`, then rename it over
+    `path`: a reader never sees a half-written file, and processes rewriting one shared file
+    (the experiment reports, when several processes train cells of one grid) leave it whole,
+    the last writer's. The temporary is removed if `write` fails."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        tmp.write_text(text)
+        write(tmp)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def write_text(path: Path, text: str) -> None:
+    """Write a text file atomically (`write_atomically`)."""
+    write_atomically(path, lambda tmp: tmp.write_text(text))
+
+
+def write_json(path: Path, value) -> None:
+    """Write JSON atomically (`write_atomically`)."""
+    write_text(path, json.dumps(value, indent=2, default=float) + "\n")
 
 
 class RunInUse(RuntimeError):
@@ -91,9 +95,7 @@ def truncate_jsonl(path: Path, keep: Callable[[dict], bool]) -> list[dict]:
         return []
     records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
     kept = [r for r in records if keep(r)]
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text("".join(json.dumps(r) + "\n" for r in kept))
-    os.replace(tmp, path)
+    write_text(path, "".join(json.dumps(r) + "\n" for r in kept))
     return kept
 
 

@@ -15,7 +15,6 @@ confidence intervals over runs. Figures use matplotlib's Agg canvas; no global s
 from __future__ import annotations
 
 import math
-import os
 from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -25,6 +24,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from scipy import stats
+
+from jaml._rundir import write_atomically
 
 
 def history_records(step: int, learner: str, errors: Mapping[str, Sequence[float]],
@@ -88,13 +89,8 @@ def save_figure(fig: Figure, path) -> None:
     process's own: a figure several processes redraw (an experiment's grid figure) is never left
     half-written. The format is the path's suffix (png without one)."""
     FigureCanvasAgg(fig)
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        fig.savefig(tmp, dpi=100, format=path.suffix[1:] or "png")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    fmt = Path(path).suffix[1:] or "png"
+    write_atomically(path, lambda tmp: fig.savefig(tmp, dpi=100, format=fmt))
 
 
 # Largest over smallest curve mean beyond which a panel of `plot_alignment` is drawn log-scaled.

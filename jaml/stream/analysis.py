@@ -54,9 +54,7 @@ def encoded_rollouts(stream: Stream, s: StreamState, key: jax.Array, num: int, r
     `fingerprints`, also each sequence's `input_fingerprints` [N, 2] (for the distortion).
     `kept` (π_rand only): the sequences are read from it when it holds this key's, else rolled
     out and stored in it."""
-    if kept is not None and not random:
-        raise ValueError("only the π_rand set (random=True) is the same at every analysis; "
-                         "π_curr's follows the current policy and cannot be kept")
+    _check_keepable(kept, random)
     if kept is not None and kept.holds(stream, key, num):
         return _map_chunks(_kept_chunk, stream, s, kept.chunks, range(len(kept.chunks)),
                            fingerprints)
@@ -69,6 +67,12 @@ def encoded_rollouts(stream: Stream, s: StreamState, key: jax.Array, num: int, r
     if kept is not None:
         kept.store(stream, key, num, store)
     return out
+
+
+def _check_keepable(kept, random: bool) -> None:
+    if kept is not None and not random:
+        raise ValueError("only the π_rand set (random=True) is the same at every analysis; "
+                         "π_curr's follows the current policy and cannot be kept")
 
 
 @dataclasses.dataclass(eq=False)
@@ -259,8 +263,7 @@ def _encoded_rollouts_runs(stream: Stream, states: StreamState, keys: jax.Array,
                            kept: list[PiRandSet] | None = None):
     """`encoded_rollouts` of R stacked runs (keys [R]): ([R, N, Z], [R, N, D]) and with
     `fingerprints` [R, N, 2]; `kept`: one `PiRandSet` per run."""
-    if kept is not None and not random:
-        raise ValueError("only the π_rand set (random=True) can be kept")
+    _check_keepable(kept, random)
     if kept is not None and all(k.holds(stream, key, num)
                                 for k, key in zip(kept, keys, strict=True)):
         chunks = [[k.chunks[c] for k in kept] for c in range(len(kept[0].chunks))]

@@ -7,11 +7,13 @@ resumable on its own. Then it writes OUT/fig2.md (final per-dimension errors on 
 as the mean over seeds ± the half-width of its 90 % confidence interval), OUT/fig2.png (the
 paper's layout: π_curr top row, π_rand bottom; pendulum position and velocity, HalfCheetah and
 Ant aggregated over their groups; mean and 90 % band over seeds) and OUT/ENV_alignment.png (every
-dimension, or every group for locomotion). The paper's findings it checks:
+dimension, or every group for locomotion). fig2.md opens with the paper's findings measured
+cell against cell (`fig2_claims`, Welch intervals, each marked for the side of 0 it falls on):
   (a) VAE_rpl aligns better than VAE_v0 on π_rand (the replay keeps early, diverse frames);
   (b) β-VAE is no better than VAE_rpl (β = 5 slightly worse, larger β much worse);
   (c) PRED and the sequential learners (SVAE, DSA) align velocities better than the VAEs, which
-      see one frame; PRED is best on the pendulums.
+      see one frame; PRED is best on the pendulums;
+  (d) on locomotion PRED beats VAE_rpl on π_curr and is second-best on π_rand.
 
     python -m jaml.experiments.fig2 --out runs/fig2                      # the whole grid
     python -m jaml.experiments.fig2 --out runs/fig2 --envs CartPole --variants PRED VAE_rpl
@@ -168,7 +170,7 @@ def grid_status(out: Path, envs, variants, seeds: int = len(SEEDS)) -> list[str]
             f"{complete} of {total} complete.", "", *lines, ""]
 
 
-def _histories(out: Path, env: str, variants) -> dict[str, list[list[dict]]]:
+def grid_histories(out: Path, env: str, variants) -> dict[str, list[list[dict]]]:
     """variant → one history per seed run found under OUT/ENV/VARIANT."""
     runs = {}
     for variant in variants:
@@ -193,7 +195,7 @@ def figure_records(out: Path, envs, variants) -> list[dict]:
     variant's label, π_curr first (the top row)."""
     records = []
     for env in envs:
-        for variant, histories in _histories(out, env, variants).items():
+        for variant, histories in grid_histories(out, env, variants).items():
             for h in histories:
                 for r in h:
                     values = {title: float(np.mean([np.mean([r["errors"][d] for d in dims])
@@ -207,10 +209,11 @@ def report(out: Path, envs, variants) -> str:
     """fig2.md and the figures from every run under OUT; returns the markdown."""
     lines = ["# Fig. 2: alignment error (training-std units; lower is better)", "",
              *grid_status(out, envs, variants),
+             *_claims(out, envs, variants),
              "Several seeds: mean ± the half-width of its 90 % confidence interval, at the last",
              "epoch all of a cell's seeds reached.", ""]
     for env in envs:
-        runs = _histories(out, env, variants)
+        runs = grid_histories(out, env, variants)
         if not runs:
             continue
         names = list(next(iter(runs.values()))[0][0]["errors"])
@@ -241,6 +244,13 @@ def report(out: Path, envs, variants) -> str:
     text = "\n".join(lines) + "\n"
     write_text(out / "fig2.md", text)
     return text
+
+
+def _claims(out: Path, envs, variants) -> list[str]:
+    """`fig2_claims.claims_table`: imported here, as it builds on this module's readings."""
+    from jaml.experiments import fig2_claims
+
+    return fig2_claims.claims_table(out, envs, variants)
 
 
 def group_value(record: dict, dims, relative: bool = False) -> float | None:
@@ -310,7 +320,7 @@ def compare(out: Path, other: Path, envs, variants, relative: bool = False) -> s
              "[90 % interval] | resolved |", "|---" * 8 + "|"]
     unscored = []  # cells in both grids with no analysis every seed of both can be read at
     for env in envs:
-        mine, theirs = _histories(out, env, variants), _histories(other, env, variants)
+        mine, theirs = grid_histories(out, env, variants), grid_histories(other, env, variants)
         for variant in (v for v in variants if v in mine and v in theirs):
             a = _group_means(env, mine[variant], relative)
             b = _group_means(env, theirs[variant], relative)

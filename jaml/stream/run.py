@@ -415,8 +415,14 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
     The runs that one device holds are evaluated by one `analysis.evaluate_runs` call on that
     device (on a GPU about the cost of one run's `evaluate`: the analysis is latency bound), the
     time shared among them; with the runs split across devices that is one call per device, the
-    devices taken in turn. A device holding a single due run evaluates it alone. Each run then
-    writes its records, figures and checkpoint as alone."""
+    devices taken in turn. Not one host thread per device, as the epochs run: the analysis
+    traces its programs as it goes, and a worker thread does not see the caller's JAX config
+    contexts (e.g. `jax.threefry_partitionable`, which decides the random bits of the test
+    sets and the regressor). Tried 2026-11-25: with threads, the slow test
+    `test_runs_split_across_devices_are_analysed_per_device_as_alone`, run under
+    `threefry_partitionable(False)`, recorded other errors than the runs alone. A device
+    holding a single due run evaluates it alone. Each run then writes its records, figures and
+    checkpoint as alone."""
     reports = {}
     for device_states, members in _due_by_device(states, due):
         if len(members) == 1:

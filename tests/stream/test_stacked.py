@@ -174,9 +174,9 @@ def test_runs_split_across_devices_are_analysed_per_device_as_alone(tmp_path, mo
     calls = []
     evaluate_runs = run_lib.analysis.evaluate_runs
 
-    def spy(stream_, states, *keys):
+    def spy(stream_, states, *keys, **options):
         calls.append((int(states.epoch.shape[0]), sorted(d.id for d in states.epoch.devices())))
-        return evaluate_runs(stream_, states, *keys)
+        return evaluate_runs(stream_, states, *keys, **options)
 
     monkeypatch.setattr(run_lib.analysis, "evaluate_runs", spy)
     monkeypatch.setattr(run_lib, "run_stacked_epochs",

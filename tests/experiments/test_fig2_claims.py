@@ -1,10 +1,9 @@
 """The paper's Fig. 2 findings measured from a grid's records (`fig2_claims`), against Welch
-intervals and fractions computed here by hand from the same numbers."""
+intervals, fractions and rankings computed here from the same numbers."""
 
 import json
 
 import numpy as np
-import pytest
 from scipy import stats
 
 from jaml.evaluation import history_records
@@ -29,9 +28,15 @@ def _cell(out, env, variant, per_seed, names, baseline=None, epochs=20):
         (path / "history.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
 
 
-def _row(table: list[str], comparison: str) -> list[str]:
-    line = next(line for line in table if f"| {comparison} |" in line)
-    return [c.strip() for c in line.strip("|").split("|")]
+def _cartpole(out, variant, position, velocity):
+    """A CartPole cell: seed s with position errors position[s] and velocity errors velocity[s]."""
+    _cell(out, "CartPole", variant,
+          [[p, v, p, v] for p, v in zip(position, velocity, strict=True)], CARTPOLE)
+
+
+def _entry(table: list[str], check: str, column: int = 0) -> str:
+    line = next(line for line in table if f"| {check} |" in line)
+    return [c.strip() for c in line.strip("|").split("|")][2 + column]
 
 
 def _welch(a, b) -> str:
@@ -39,72 +44,92 @@ def _welch(a, b) -> str:
     return f"{np.mean(a) - np.mean(b):+.3f} [{ci.low:+.3f}, {ci.high:+.3f}]"
 
 
-def test_each_finding_is_a_welch_interval_marked_by_the_side_of_zero_the_paper_puts_it(tmp_path):
-    rng = np.random.default_rng(0)
-    theta_v0 = [1.2, 1.4, 1.1]  # VAE_v0 worse on π_rand position: the paper's side
-    theta_rpl = [0.2, 0.3, 0.25]
-    _cell(tmp_path, "CartPole", "VAE_v0", [[t, 1.0, t, 1.0] for t in theta_v0], CARTPOLE)
-    vel_rpl = [1.0, 1.05, 0.95]
-    _cell(tmp_path, "CartPole", "VAE_rpl",
-          [[t, v, t, v] for t, v in zip(theta_rpl, vel_rpl, strict=True)], CARTPOLE)
-    # SVAE's velocity worse than VAE_rpl's (against the paper); DSA's noisy around it.
-    _cell(tmp_path, "CartPole", "SVAE", [[0.3, v, 0.3, v] for v in (1.5, 1.6, 1.7)], CARTPOLE)
-    _cell(tmp_path, "CartPole", "DSA",
-          [[0.3, v, 0.3, v] for v in 1.0 + rng.normal(0, 0.5, 3)], CARTPOLE)
+def test_each_comparison_is_a_welch_interval_marked_by_the_side_of_zero_the_paper_puts_it(
+        tmp_path):
+    _cartpole(tmp_path, "VAE_v0", [1.2, 1.4, 1.1], [1.0, 1.1, 0.9])  # worse on π_rand position
+    _cartpole(tmp_path, "VAE_rpl", [0.2, 0.3, 0.25], [1.0, 1.05, 0.95])
+    _cartpole(tmp_path, "SVAE", [0.3, 0.3, 0.35], [1.5, 1.6, 1.7])  # velocity worse: against
+    _cartpole(tmp_path, "DSA", [0.3, 0.3, 0.35], [0.4, 1.9, 1.1])  # velocity: unresolved
 
     table = fig2_claims.claims_table(tmp_path, ["CartPole", "HalfCheetah"], list(fig2.VARIANTS))
 
     assert table[0] == "## The paper's findings, measured"
-    assert "| CartPole |" in table[4] and "HalfCheetah" not in table[4]  # only domains with runs
-    v0 = _row(table, f"VAE_v0 − VAE_rpl, pi_rand, {fig2_claims.PLOTTED}")
+    assert table[4].endswith("| CartPole |")  # only domains with runs get a column
     # Three seeds, short of a full cell's six: said beside the entry.
-    assert v0[2] == _welch(theta_v0, theta_rpl) + " ✓ (VAE_v0 3 seeds, VAE_rpl 3 seeds)"
-    svae = _row(table, "SVAE − VAE_rpl, pi_rand, velocity")
-    assert svae[2].startswith(_welch([1.5, 1.6, 1.7], vel_rpl) + " ✗ (")
-    assert " ~ (" in _row(table, "DSA − VAE_rpl, pi_curr, velocity")[2]
-    assert _row(table, "PRED − VAE_rpl, pi_rand, velocity")[2] == "—"  # no PRED cell
-    assert _row(table, "PRED − VAE_rpl, pi_curr, panel")[2] == "—"  # a locomotion finding
+    assert (_entry(table, "VAE_v0 − VAE_rpl, pi_rand, position (locomotion: panel)")
+            == _welch([1.2, 1.4, 1.1], [0.2, 0.3, 0.25]) + " ✓ (VAE_v0 3 seeds, VAE_rpl 3 seeds)")
+    assert _entry(table, "SVAE − VAE_rpl, pi_rand, velocity").startswith(
+        _welch([1.5, 1.6, 1.7], [1.0, 1.05, 0.95]) + " ✗ (")
+    assert " ~ (" in _entry(table, "DSA − VAE_rpl, pi_curr, velocity")
+    assert _entry(table, "PRED − VAE_rpl, pi_rand, velocity") == "—"  # no PRED cell
+    assert _entry(table, "PRED − VAE_rpl, pi_curr, panel") == "—"  # a locomotion finding
     assert fig2_claims.claims_table(tmp_path, ["Ant"], list(fig2.VARIANTS)) == []
 
 
-def test_locomotion_is_read_as_fractions_of_the_constant_and_pred_placed_among_the_cells(
-        tmp_path):
+def test_a_place_is_the_rank_of_the_mean_marked_by_the_interval_to_the_cell_beside_it(tmp_path):
+    """PRED first on velocity (resolved against the next cell: ✓), second on position with the
+    first cell resolved ahead of it (✗: the paper has PRED best)."""
+    pred_vel, svae_vel, rpl_vel = [0.2, 0.25, 0.3], [0.6, 0.65, 0.7], [1.0, 1.1, 1.2]
+    _cartpole(tmp_path, "PRED", [0.5, 0.55, 0.6], pred_vel)
+    _cartpole(tmp_path, "SVAE", [0.1, 0.12, 0.14], svae_vel)
+    _cartpole(tmp_path, "VAE_rpl", [0.8, 0.9, 1.0], rpl_vel)
+
+    table = fig2_claims.claims_table(tmp_path, ["CartPole"], list(fig2.VARIANTS))
+
+    assert _entry(table, "PRED's place, pi_rand, velocity").startswith(
+        "1 of 3 ✓; PRED − SVAE " + _welch(pred_vel, svae_vel))
+    assert _entry(table, "PRED's place, pi_rand, position").startswith(
+        "2 of 3 ✗; PRED − SVAE " + _welch([0.5, 0.55, 0.6], [0.1, 0.12, 0.14]))
+
+
+def test_second_best_against_a_learner_ranked_first_with_an_unresolved_gap(tmp_path):
+    """Locomotion's panel is the mean of the group means, each a fraction of the constant's
+    error; PRED first where the paper has it second, the gap unresolved: ~."""
     groups = fig2.ld_groups("HalfCheetah")
     names = [n for dims in groups.values() for n in dims]
-    baseline = [2.0] * len(names)
-    panel = {"PRED": [0.5, 0.6, 0.7], "VAE_rpl": [0.9, 1.0, 1.1], "DSA": [0.3, 0.3, 0.4]}
-    for variant, values in panel.items():  # every group at the same error: the panel's value
-        _cell(tmp_path, "HalfCheetah", variant, [[2.0 * v] * len(names) for v in values], names,
-              baseline=baseline)
+    baseline = {"position": 2.0, "velocity": 4.0, "contact": 1.0}
+    level = [baseline[g] for g, dims in groups.items() for _ in dims]
+
+    def errors(position, velocity, contact):  # group fractions → per-name errors
+        fraction = {"position": position, "velocity": velocity, "contact": contact}
+        return [fraction[g] * baseline[g] for g, dims in groups.items() for _ in dims]
+
+    cells = {"PRED": [(0.5, 0.7, 0.9), (0.4, 0.8, 1.0), (0.6, 0.6, 0.8)],
+             "DSA": [(0.7, 0.8, 0.9), (0.4, 0.6, 0.8), (0.6, 0.7, 0.9)],
+             "VAE_rpl": [(0.9, 1.0, 1.0), (1.0, 1.0, 1.1), (0.9, 1.1, 1.0)]}
+    for variant, seeds in cells.items():
+        _cell(tmp_path, "HalfCheetah", variant, [errors(*s) for s in seeds], names,
+              baseline=level)
+    panel = {v: [np.mean(s) for s in seeds] for v, seeds in cells.items()}
 
     table = fig2_claims.claims_table(tmp_path, ["HalfCheetah"], list(fig2.VARIANTS))
 
-    pred = _row(table, "PRED − VAE_rpl, pi_curr, panel")
-    assert pred[2].startswith(_welch(panel["PRED"], panel["VAE_rpl"]) + " ✓")
-    place = _row(table, "PRED's place by mean; PRED − the cell next to it")
-    assert place[2].startswith("2 of 3 ✓; PRED − DSA " + _welch(panel["PRED"], panel["DSA"]))
-    assert _row(table, "PRED − SVAE, pi_rand, velocity")[2] == "—"  # a pendulum finding
+    assert _entry(table, "PRED − VAE_rpl, pi_curr, panel").startswith(
+        _welch(panel["PRED"], panel["VAE_rpl"]) + " ✓")
+    assert _entry(table, "PRED's place, pi_rand, panel").startswith(
+        "1 of 3 ~; PRED − DSA " + _welch(panel["PRED"], panel["DSA"]))
+    assert _entry(table, "PRED's place, pi_rand, position") == "—"  # a pendulum finding
 
 
-def test_a_comparison_is_read_where_both_cells_seeds_are(tmp_path):
-    """A cell stopped at epoch 10 is compared at 10, and the entry says so."""
-    _cell(tmp_path, "CartPole", "VAE_v0", [[1.0] * 4, [1.1] * 4], CARTPOLE)
-    _cell(tmp_path, "CartPole", "VAE_rpl", [[0.2] * 4, [0.3] * 4], CARTPOLE)
-    for seed in range(2):  # VAE_rpl's history cut after its first analysis
+def test_entries_say_why_a_cell_cannot_be_read(tmp_path):
+    """A cell cut at epoch 10 is compared there and says so; one seed has no interval;
+    locomotion records without the constant's baselines cannot be read as fractions."""
+    _cartpole(tmp_path, "VAE_v0", [1.0, 1.1], [1.0, 1.1])
+    _cartpole(tmp_path, "VAE_rpl", [0.2, 0.3], [1.0, 1.1])
+    for seed in range(2):  # VAE_rpl's histories cut after their first analysis
         path = tmp_path / "CartPole" / "VAE_rpl" / f"seed_{seed}" / "history.jsonl"
-        lines = path.read_text().splitlines(keepends=True)
-        path.write_text("".join(lines[:2]))
+        path.write_text("".join(path.read_text().splitlines(keepends=True)[:2]))
+    _cartpole(tmp_path, "beta-VAE_5", [0.5], [1.0])
+    names = [n for dims in fig2.ld_groups("HalfCheetah").values() for n in dims]
+    for variant in ("VAE_v0", "VAE_rpl"):
+        _cell(tmp_path, "HalfCheetah", variant, [[0.5] * len(names)] * 2, names)
 
-    table = fig2_claims.claims_table(tmp_path, ["CartPole"], ["VAE_v0", "VAE_rpl"])
+    table = fig2_claims.claims_table(tmp_path, ["CartPole", "HalfCheetah"],
+                                     list(fig2.VARIANTS))
 
-    entry = _row(table, f"VAE_v0 − VAE_rpl, pi_rand, {fig2_claims.PLOTTED}")[2]
-    assert entry.startswith("+0.000 ")  # both at 0.9 at epoch 10
-    assert "epoch 10" in entry
-
-
-@pytest.mark.parametrize("variants", [["VAE_v0"], ["PRED"]])
-def test_no_pair_no_entry(tmp_path, variants):
-    for v in variants:
-        _cell(tmp_path, "CartPole", v, [[0.5] * 4, [0.6] * 4], CARTPOLE)
-    table = fig2_claims.claims_table(tmp_path, ["CartPole"], variants)
-    assert all(row.endswith("| — |") for row in table[6:-1])
+    v0 = "VAE_v0 − VAE_rpl, pi_rand, position (locomotion: panel)"
+    assert _entry(table, v0).startswith("+0.000 ")  # both at 0.9 at epoch 10
+    assert _entry(table, v0).endswith("epoch 10)")
+    assert _entry(table, "beta-VAE_5 − VAE_rpl, pi_rand, position (locomotion: panel)") == (
+        "+0.000 (one seed: no interval) (beta-VAE_5 1 seed, VAE_rpl 2 seeds, epoch 10)")
+    assert _entry(table, v0, column=1) == "— (VAE_v0 recorded without baselines)"

@@ -40,6 +40,7 @@ pendulums, 300 on locomotion (the paper trained tens of thousands).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import sys
 from pathlib import Path
@@ -105,6 +106,12 @@ def run_cell(out: Path, env: str, variant: str, seeds, scale: dict, schedule: di
 def ld_groups(env: str) -> dict[str, list[str]]:
     """group → LD-state names of `env`, from the domain's own metadata (`ld_state_groups`):
     the paper aggregates position, velocity and contacts (Fig. 2, locomotion)."""
+    return {group: list(names) for group, names in _ld_groups(env)}
+
+
+@functools.cache
+def _ld_groups(env: str) -> tuple[tuple[str, tuple[str, ...]], ...]:
+    # Building the domain parses its MJCF; a report reads the groups for every cell and check.
     import envs_mjx
 
     domain = envs_mjx.make(env)
@@ -112,7 +119,7 @@ def ld_groups(env: str) -> dict[str, list[str]]:
     for name, group in zip(domain.ld_state_names, domain.ld_state_groups, strict=True):
         if group != "other":
             groups.setdefault(group, []).append(name)
-    return groups
+    return tuple((group, tuple(names)) for group, names in groups.items())
 
 
 def final_records(history: list[dict], step: int) -> dict[str, dict]:

@@ -209,14 +209,16 @@ def _place(env: str, cells: dict[str, list[list[dict]]], p: Place) -> str:
         # Beside it: the cell just ahead (the paper has it better) and just behind (worse).
         beside = [(order[i], +1 if i < place - 1 else -1) for i in (place - 2, place)
                   if 0 <= i < len(order)]
-        mark = "✓" if all(_interval(mine, values[v], s)[1] == "✓" for v, s in beside) else "~"
-        other, sign = min(beside, key=lambda b: abs(np.mean(values[b[0]]) - np.mean(mine)))
+        intervals = {v: _interval(mine, values[v], s) for v, s in beside}
+        mark = "✓" if all(m == "✓" for _, m in intervals.values()) else "~"
+        other = min(intervals, key=lambda v: abs(np.mean(values[v]) - np.mean(mine)))
+        diff = intervals[other][0]
     else:
         # The cell at the paper's place: the paper has the learner ahead of it (if the learner
         # ranks lower here) or behind it (if higher).
-        other, sign = order[p.place - 1], -1 if place > p.place else +1
-        mark = "✗" if _interval(mine, values[other], sign)[1] == "✗" else "~"
-    diff = _interval(mine, values[other], sign)[0]
+        other = order[p.place - 1]
+        diff, against = _interval(mine, values[other], -1 if place > p.place else +1)
+        mark = "✗" if against == "✗" else "~"
     left = sorted(set(cells) - set(values))
     return (f"{place} of {len(order)} {mark}; {p.variant} − {other} {diff}"
             + _short(cells, [p.variant, other], step)

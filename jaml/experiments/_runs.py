@@ -53,13 +53,21 @@ def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,
                 latent_penalty=None, keep_pi_rand: bool = True) -> list[dict]:
     """Every seed of one cell trained together (`run_many`: one program, the seeds stacked),
     each in its resumable directory; prints one line per seed (status, seconds by phase) and
-    one for the cell. Returns the runs' summaries."""
+    one for the cell. Returns the runs' summaries.
+
+    The cell's compiled programs are released when it ends (`stream.release_programs`): a
+    driver's next cell shares none of them, and on XLA:CPU a process that kept every cell's
+    would run out of memory mappings."""
+    from jaml.stream import release_programs
     from jaml.stream.run import run_many
 
     started = time.perf_counter()
-    summaries = run_many(list(configs), list(dirs), progress=False, stop_after=stop_after,
-                         checkpoint_every=checkpoint_every, final_checkpoint=final_checkpoint,
-                         latent_penalty=latent_penalty, keep_pi_rand=keep_pi_rand)
+    try:
+        summaries = run_many(list(configs), list(dirs), progress=False, stop_after=stop_after,
+                             checkpoint_every=checkpoint_every, final_checkpoint=final_checkpoint,
+                             latent_penalty=latent_penalty, keep_pi_rand=keep_pi_rand)
+    finally:
+        release_programs()
     for config, summary in zip(configs, summaries, strict=True):
         phases = ", ".join(f"{k} {v:.0f}s" for k, v in summary["seconds_by_phase"].items())
         print(f"{label} seed {config.seed}: {summary['status']} at epoch {summary['epoch']} "

@@ -11,6 +11,11 @@
     states = stream.stack_runs([s.init(jax.random.PRNGKey(i)) for i in range(6)])
     states, metrics = stream.run_stacked_epochs(s, states, 10)   # metrics [10, 6]
 
+A process that trains many configs one after another calls `stream.release_programs()` between
+them: the jitted functions keep what they compiled for every Stream they saw, and on XLA:CPU,
+where each compiled kernel takes its own memory mappings, a process that kept them all ran out
+of mappings during its second tiny RearrangeGeom cell (`jaml.stream.programs`).
+
 `jaml suite` (jaml.stream.run) wraps this with a run directory and resumable checkpoints;
 `jaml.stream.run.run_many` trains several seeds together, each in its own directory.
 """
@@ -28,6 +33,7 @@ from jaml.stream.loop import (
     unstack_runs,
 )
 from jaml.stream.ppo import PPO, PPOConfig, PPOState, random_policy
+from jaml.stream.programs import release_programs
 from jaml.stream.replay import Columns, Replay
 
 __all__ = [
@@ -45,6 +51,7 @@ __all__ = [
     "evaluate",
     "for_env",
     "random_policy",
+    "release_programs",
     "rollout",
     "run_stacked_epochs",
     "runs_mesh",

@@ -39,6 +39,7 @@ from jaml.evaluation import alignment, rotation
 from jaml.stream import collect
 from jaml.stream import replay as replay_lib
 from jaml.stream.loop import Stream, StreamState
+from jaml.stream.programs import stream_jit
 
 
 def encoded_replay(stream: Stream, s: StreamState, key: jax.Array, num: int):
@@ -308,8 +309,8 @@ def _kept_chunk_runs(stream: Stream, states, chunks: list, c):
 
 
 # Module-level jitted functions keyed on the Stream: a `jax.jit` made per call would recompile
-# at every analysis.
-@jax.jit(static_argnums=0)
+# at every analysis (`release_programs` drops what they compiled).
+@stream_jit(static_argnums=0)
 def _reconstruct(stream: Stream, variables, frames, actions):
     return stream.learner.reconstruct(variables, frames, actions)
 
@@ -332,7 +333,7 @@ def input_fingerprints(hist: int, frames, actions) -> jax.Array:
     return jnp.stack([jnp.sum(words * w, axis=-1, dtype=jnp.uint32) for w in weights], axis=-1)
 
 
-@jax.jit(static_argnums=(0, 3))
+@stream_jit(static_argnums=(0, 3))
 def _encode(stream: Stream, variables, seqs: replay_lib.Columns, fingerprints: bool = False):
     z = stream.learner.encode(variables, seqs.frames, seqs.actions)
     out = (z, seqs.ld[:, stream.hist - 1])
@@ -341,7 +342,7 @@ def _encode(stream: Stream, variables, seqs: replay_lib.Columns, fingerprints: b
     return out
 
 
-@jax.jit(static_argnums=(0, 3))
+@stream_jit(static_argnums=(0, 3))
 def _encode_runs(stream: Stream, variables, seqs: replay_lib.Columns,
                  fingerprints: bool = False):
     """`_encode` of R stacked runs ([R, E, ...] sequences, per-run variables), the encoder
@@ -368,12 +369,12 @@ def _replay_chunk_one(stream: Stream, s: StreamState, key):
     return replay_lib.sample(s.replay, key, stream.config.num_envs, stream.seq_len)
 
 
-@jax.jit(static_argnums=0)
+@stream_jit(static_argnums=0)
 def _replay_chunk(stream: Stream, s: StreamState, carry, key):
     return carry, _replay_chunk_one(stream, s, key)
 
 
-@jax.jit(static_argnums=0)
+@stream_jit(static_argnums=0)
 def _replay_chunk_runs(stream: Stream, states: StreamState, carry, keys):
     return carry, jax.vmap(lambda s, k: _replay_chunk_one(stream, s, k))(states, keys)
 
@@ -385,7 +386,7 @@ def _rollout_chunk_one(stream: Stream, s: StreamState, env_state: State, random,
     return env_state, jax.vmap(replay_lib.window, (0, None, None))(columns, 0, L)
 
 
-@jax.jit(static_argnums=0)
+@stream_jit(static_argnums=0)
 def _rollout_chunk(stream: Stream, s: StreamState, carry, key):
     """carry (env state, traced π_rand flag) → L steps, one test sequence per env."""
     env_state, random = carry
@@ -393,7 +394,7 @@ def _rollout_chunk(stream: Stream, s: StreamState, carry, key):
     return (env_state, random), seqs
 
 
-@jax.jit(static_argnums=0)
+@stream_jit(static_argnums=0)
 def _rollout_chunk_runs(stream: Stream, states: StreamState, carry, keys):
     """`_rollout_chunk` of R stacked runs: carry (env states [R, E], one traced flag)."""
     env_states, random = carry
@@ -402,12 +403,12 @@ def _rollout_chunk_runs(stream: Stream, states: StreamState, carry, keys):
     return (env_states, random), seqs
 
 
-@jax.jit(static_argnums=0)
+@stream_jit(static_argnums=0)
 def _rollout_start(stream: Stream, s: StreamState, key: jax.Array, random: jax.Array) -> State:
     return _rollout_start_one(stream, s, key, random)
 
 
-@jax.jit(static_argnums=0)
+@stream_jit(static_argnums=0)
 def _rollout_start_runs(stream: Stream, states: StreamState, keys: jax.Array,
                         random: jax.Array) -> State:
     return jax.vmap(lambda s, k: _rollout_start_one(stream, s, k, random))(states, keys)

@@ -40,6 +40,7 @@ from jaml.stream import ppo as ppo_lib
 from jaml.stream import replay as replay_lib
 from jaml.stream.collect import Episodes
 from jaml.stream.config import StreamConfig
+from jaml.stream.programs import holds_programs, stream_jit
 
 
 @struct.dataclass
@@ -359,8 +360,8 @@ def _with_learner_options(fn):
     learner's compiler options (`learners.compiler_options()`: on the CPU convolutions take
     XLA's Eigen path, not YNNPACK's, which ran the VAE's train step ~1.5x slower; XLA's defaults
     elsewhere). Built at first use, not at import: the options depend on the backend."""
-    return jax.jit(fn, static_argnums=0, donate_argnums=1,
-                   compiler_options=learners.compiler_options())
+    return stream_jit(fn, static_argnums=0, donate_argnums=1,
+                      compiler_options=learners.compiler_options())
 
 
 def _block(stream: Stream, states: StreamState, n: jax.Array):
@@ -378,7 +379,7 @@ def _block(stream: Stream, states: StreamState, n: jax.Array):
 
 # For one device's shard of sharded states: its buffers are views of the sharded arrays, which
 # are not donated. Lowered and compiled explicitly, per device, into `Stream.programs`.
-_device_block_kept = jax.jit(_block, static_argnums=0)
+_device_block_kept = stream_jit(_block, static_argnums=0)
 
 
 def _host_loop(stream: Stream, states: StreamState, n: int):
@@ -412,8 +413,8 @@ def _replays_full(states: StreamState) -> jax.Array:
 # (`jax.eval_shape`) and the traced call share one trace of the epoch (and of the learner steps,
 # traced for `_skipped`'s shapes and for the train branch) instead of tracing it twice; the
 # nested call is inlined by XLA. Fig3's SPAIR epoch block: tracing + lowering 39 -> 28.5 s.
-_epochs = jax.jit(lambda stream, states: stream.epochs(states), static_argnums=0)
-_learn_runs = jax.jit(lambda stream, *args: stream.learn_runs(*args), static_argnums=0)
+_epochs = stream_jit(lambda stream, states: stream.epochs(states), static_argnums=0)
+_learn_runs = stream_jit(lambda stream, *args: stream.learn_runs(*args), static_argnums=0)
 
 
 def _skipped(stream: Stream, states: StreamState, k_learn: jax.Array):
@@ -422,7 +423,7 @@ def _skipped(stream: Stream, states: StreamState, k_learn: jax.Array):
     return jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype), shapes)
 
 
-@jax.jit(static_argnums=0, donate_argnums=1)
+@stream_jit(static_argnums=0, donate_argnums=1)
 def _act_runs(stream: Stream, states: StreamState):
     return jax.vmap(stream.act)(states)
 
@@ -436,9 +437,19 @@ def _vmapped_learn_step(stream: Stream, learner_state, replay, keys):
 
 
 # The last few Streams built, by program: bounded, so a process that builds many configs (a
-# sweep) does not keep every env, learner and compiled program alive.
+# sweep) does not keep every env and learner alive. What the jitted functions compiled for them
+# stays in those functions' caches until `release_programs`.
 _BUILT: collections.OrderedDict = collections.OrderedDict()
 _BUILT_KEPT = 8
+
+
+@holds_programs
+def _forget_built() -> None:
+    # Each kept Stream holds its per-device executables (`Stream.programs`), shared with the
+    # Streams made from it for other seeds.
+    for stream in _BUILT.values():
+        stream.programs.clear()
+    _BUILT.clear()
 
 
 def build(config: StreamConfig, latent_penalty=None) -> Stream:

@@ -8,9 +8,9 @@ cells one after another (the Fig. 2 / Fig. 3 drivers) would keep every cell's pr
 On XLA:CPU that ends the process. Each compiled kernel is mapped into memory on its own (code,
 constants and data: three mappings per kernel), and Linux allows a process `vm.max_map_count`
 mappings (65 530 by default). Measured on the 2-core CPU (jaxlib 0.10.2, two host devices, the
-slow Fig. 3 test): one tiny RearrangeGeom cell left ≈ 30 000 mappings behind; during the second
-cell the process reached 63 843 and XLA failed to map the next program ("LLVM compilation
-error: Cannot allocate memory") and aborted. `release_programs` drops what the jitted functions
+slow Fig. 3 test, two tiny RearrangeGeom cells in one process): during the second cell the
+process reached 63 843 mappings, XLA failed to map the next program ("LLVM compilation error:
+Cannot allocate memory") and aborted; with each cell's programs released it peaked at 38 890. `release_programs` drops what the jitted functions
 keyed on a Stream hold, and the executables `build`'s Streams keep per device; the next call
 compiles again (or reads JAX's persistent compilation cache, where one is configured).
 """

@@ -10,9 +10,11 @@ constants and data: three mappings per kernel), and Linux allows a process `vm.m
 mappings (65 530 by default). Measured on the 2-core CPU (jaxlib 0.10.2, two host devices, the
 slow Fig. 3 test, two tiny RearrangeGeom cells in one process): during the second cell the
 process reached 63 843 mappings, XLA failed to map the next program ("LLVM compilation error:
-Cannot allocate memory") and aborted; with each cell's programs released it peaked at 38 890. `release_programs` drops what the jitted functions
-keyed on a Stream hold, and the executables `build`'s Streams keep per device; the next call
-compiles again (or reads JAX's persistent compilation cache, where one is configured).
+Cannot allocate memory") and aborted; with each cell's programs released it peaked at 38 890.
+
+`release_programs` drops what the jitted functions keyed on a Stream hold, and the executables
+`build`'s Streams keep per device; the next call compiles again (or reads JAX's persistent
+compilation cache, where one is configured).
 """
 
 from __future__ import annotations

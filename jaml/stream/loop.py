@@ -40,7 +40,7 @@ from jaml.stream import ppo as ppo_lib
 from jaml.stream import replay as replay_lib
 from jaml.stream.collect import Episodes
 from jaml.stream.config import StreamConfig
-from jaml.stream.programs import holds_programs, stream_jit
+from jaml.stream.programs import stream_jit
 
 
 @struct.dataclass
@@ -443,10 +443,9 @@ _BUILT: collections.OrderedDict = collections.OrderedDict()
 _BUILT_KEPT = 8
 
 
-@holds_programs
-def _forget_built() -> None:
-    # Each kept Stream holds its per-device executables (`Stream.programs`), shared with the
-    # Streams made from it for other seeds.
+def forget_built() -> None:
+    """Drops the kept Streams and their per-device executables (`Stream.programs`, shared with
+    the Streams made from them for other seeds); part of `release_programs`."""
     for stream in _BUILT.values():
         stream.programs.clear()
     _BUILT.clear()

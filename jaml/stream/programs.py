@@ -24,10 +24,8 @@ from collections.abc import Callable
 
 import jax
 
-# Every jitted function whose static arguments include a Stream, and what else holds programs
-# built for one (the Streams `build` keeps): cleared by `release_programs`.
+# Every jitted function whose static arguments include a Stream: cleared by `release_programs`.
 _KEYED: list = []
-_HOLDERS: list[Callable[[], None]] = []
 
 
 def stream_jit(fun: Callable | None = None, /, **options):
@@ -40,18 +38,13 @@ def stream_jit(fun: Callable | None = None, /, **options):
     return jitted
 
 
-def holds_programs(forget: Callable[[], None]) -> Callable[[], None]:
-    """Registers `forget`, which drops programs kept outside the jitted functions' caches."""
-    _HOLDERS.append(forget)
-    return forget
-
-
 def release_programs() -> None:
     """Drops every program compiled for a Stream in this process.
 
     Call it between experiments that share no Stream, e.g. after each cell of a grid (the
     figure drivers do). A Stream still in use compiles its programs again at its next call."""
+    from jaml.stream import loop  # loop imports this module for `stream_jit`
+
     for jitted in _KEYED:
         jitted.clear_cache()
-    for forget in _HOLDERS:
-        forget()
+    loop.forget_built()

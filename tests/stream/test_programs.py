@@ -68,7 +68,7 @@ def test_release_drops_compiled_programs_and_their_memory_mappings():
 
 def test_a_figure_cell_releases_its_programs_even_when_it_fails(monkeypatch):
     released = []
-    monkeypatch.setattr(programs, "_HOLDERS", [lambda: released.append(True)])
+    monkeypatch.setattr("jaml.stream.release_programs", lambda: released.append(True))
 
     def failing_run_many(*args, **kwargs):
         raise RuntimeError("a run failed")

@@ -119,13 +119,19 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
 
 
 def _speedups(rows: list[dict]) -> None:
-    """speedup_vs_one_run: aggregate throughput over the same case at R = 1, one device."""
+    """speedup_vs_one_run: aggregate throughput over the same case at R = 1, one device;
+    speedup_vs_one_device: over the same case and R on one device (the devices' scaling;
+    per-device efficiency is it over `devices`)."""
     for row in rows:
+        key = "env_frames_per_s" if "env_frames_per_s" in row else "learner_frames_per_s"
         base = next((r for r in rows if r["case"] == row["case"] and r["runs"] == 1
                      and r["devices"] == 1), None)
         if base is not None:
-            key = "env_frames_per_s" if "env_frames_per_s" in row else "learner_frames_per_s"
             row["speedup_vs_one_run"] = row[key] / base[key]
+        one = next((r for r in rows if r["case"] == row["case"] and r["runs"] == row["runs"]
+                    and r["devices"] == 1), None)
+        if one is not None and row["devices"] > 1:
+            row["speedup_vs_one_device"] = row[key] / one[key]
 
 
 def main(argv=None) -> int:
@@ -134,8 +140,10 @@ def main(argv=None) -> int:
     parser.add_argument("--learners", nargs="+", default=["VAE_rpl"])
     parser.add_argument("--runs", type=int, nargs="+", default=[1],
                         help="stacked runs (seeds) per program; one row set per value")
-    parser.add_argument("--devices", type=int, default=None,
-                        help="devices to split the runs across (default: all, at most R)")
+    parser.add_argument("--devices", type=int, nargs="+", default=[None],
+                        help="devices to split the runs across, one row set per value, so "
+                             "1 2 4 measures the scaling in one process (default: all, at "
+                             "most R)")
     parser.add_argument("--num-envs", type=int, default=64)
     parser.add_argument("--epochs", type=int, default=10, help="epochs per timed call")
     parser.add_argument("--frames-per-batch", type=int, default=1024)
@@ -155,16 +163,18 @@ def main(argv=None) -> int:
             rows = []
             for dtype in args.dtypes:
                 for runs in args.runs:
-                    rows += bench(env, learner, runs, args.num_envs, args.epochs,
-                                  args.frames_per_batch, args.replay_slots, args.repeats,
-                                  args.devices, dtype)
+                    for devices in args.devices:
+                        rows += bench(env, learner, runs, args.num_envs, args.epochs,
+                                      args.frames_per_batch, args.replay_slots, args.repeats,
+                                      devices, dtype)
             _speedups(rows)
             if not args.no_record:  # after each pair: a run cut short keeps what it measured
                 harness.record("stream_throughput", rows,
                                notes="frames/s through jaml.stream, R stacked runs: stream = "
                                      "act (physics+render+PPO+replay), loop = whole epochs, "
                                      "learner = updates only; speedup_vs_one_run = aggregate "
-                                     "over R = 1 on one device, same run")
+                                     "over R = 1 on one device, same run; speedup_vs_one_"
+                                     "device = over the same R on one device, same run")
     return 0
 
 

@@ -41,6 +41,29 @@ class Driver:
         return 0
 
 
+@dataclasses.dataclass(frozen=True)
+class CallOptions:
+    """How one call trains its cells: the flags shared by the drivers that train cells of
+    seeds (fig2, fig3), given to `train_seeds` as they are (`dataclasses.asdict`). A driver
+    holds them as `call: Annotated[CallOptions, tyro.conf.arg(name="")]`: the flags keep their
+    names (--stop-after, …) and their place in the driver's help."""
+
+    stop_after: int | None = None
+    """epochs per cell in this call (a session's share); a rerun resumes"""
+    checkpoint_every: int | None = None
+    """epochs between checkpoints (default: one with every analysis); the last analysis and a
+    --stop-after stop always checkpoint. A checkpoint holds each run's replay (2–4 GB): thin
+    them on a machine whose disk does not outlive the call"""
+    final_checkpoint: bool = True
+    """checkpoint each run at its last analysis (--no-final-checkpoint: only where
+    --checkpoint-every says so; for a machine whose disk goes with the runs, ≈ 15 s per
+    locomotion run saved)"""
+    keep_pi_rand: bool = True
+    """keep each run's π_rand test sequences on the host after its first analysis in this call
+    and encode them again at the later ones (≈ 2 GB per run at 16 frames per sequence; the
+    records are the same); --no-keep-pi-rand rolls them out at every analysis"""
+
+
 def main(command: str, argv=None) -> int:
     """`python -m jaml.experiments.COMMAND ARGS` is `jaml COMMAND ARGS`."""
     from jaml import cli

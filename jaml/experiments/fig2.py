@@ -92,15 +92,12 @@ def config_for(env: str, variant: str, seed: int, scale: dict, schedule: dict,
 
 
 def run_cell(out: Path, env: str, variant: str, seeds, scale: dict, schedule: dict,
-             learner_opt: dict | None = None, stop_after: int | None = None,
-             checkpoint_every: int | None = None, final_checkpoint: bool = True,
-             keep_pi_rand: bool = True) -> list[dict]:
-    """Every seed of one (env, variant), trained together; returns their summaries."""
+             learner_opt: dict | None = None, **call_options) -> list[dict]:
+    """Every seed of one (env, variant), trained together; returns their summaries.
+    `call_options`: `_runs.CallOptions`'s fields (stop_after, checkpoint_every, …)."""
     configs = [config_for(env, variant, s, scale, schedule, learner_opt) for s in seeds]
     dirs = [out / env / variant / f"seed_{s}" for s in seeds]
-    return _runs.train_seeds(f"{env} {variant}", configs, dirs, stop_after=stop_after,
-                             checkpoint_every=checkpoint_every,
-                             final_checkpoint=final_checkpoint, keep_pi_rand=keep_pi_rand)
+    return _runs.train_seeds(f"{env} {variant}", configs, dirs, **call_options)
 
 
 def ld_groups(env: str) -> dict[str, list[str]]:
@@ -388,20 +385,8 @@ class Args(_runs.Driver):
     """epochs of HalfCheetah and Ant runs"""
     locomotion_eval_every: int = SCHEDULE["locomotion"][1]
     """epochs between their analyses"""
-    stop_after: int | None = None
-    """epochs per cell in this call (a session's share); a rerun resumes"""
-    checkpoint_every: int | None = None
-    """epochs between checkpoints (default: one with every analysis); the last analysis and a
-    --stop-after stop always checkpoint. A checkpoint holds each run's replay (2–4 GB): thin
-    them on a machine whose disk does not outlive the call"""
-    final_checkpoint: bool = True
-    """checkpoint each run at its last analysis (--no-final-checkpoint: only where
-    --checkpoint-every says so; for a machine whose disk goes with the runs, ≈ 15 s per
-    locomotion run saved)"""
-    keep_pi_rand: bool = True
-    """keep each run's π_rand test sequences on the host after its first analysis in this call
-    and encode them again at the later ones (≈ 2 GB per run at 16 frames per sequence; the
-    records are the same); --no-keep-pi-rand rolls them out at every analysis"""
+    call: Annotated[_runs.CallOptions, tyro.conf.arg(name="")] = dataclasses.field(
+        default_factory=_runs.CallOptions)
     report_only: bool = False
     """no training: fig2.md and the figures from the runs under OUT"""
     compare_with: Annotated[tuple[Path, ...], tyro.conf.UseAppendAction] = ()
@@ -417,8 +402,7 @@ class Args(_runs.Driver):
         for env in self.envs:
             for variant in self.variants:
                 run_cell(self.out, env, variant, self.seeds, scale, schedule,
-                         key_values(self.learner_opt), self.stop_after, self.checkpoint_every,
-                         self.final_checkpoint, self.keep_pi_rand)
+                         key_values(self.learner_opt), **dataclasses.asdict(self.call))
 
     def report(self) -> str:
         for other in self.compare_with:

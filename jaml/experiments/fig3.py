@@ -300,14 +300,13 @@ def learner_options(items, variants) -> dict[str, dict]:
 
 
 def run_cell(out: Path, variant: str, seeds, scale: dict, schedule: tuple[int, int],
-             learner_opt: dict | None = None, env_opt: dict | None = None,
-             stop_after: int | None = None, checkpoint_every: int | None = None,
-             env: str = ENV, keep_pi_rand: bool = True) -> list[dict]:
-    """Every seed of one variant, trained together into OUT/VARIANT/seed_N; their summaries."""
+             learner_opt: dict | None = None, env_opt: dict | None = None, env: str = ENV,
+             **call_options) -> list[dict]:
+    """Every seed of one variant, trained together into OUT/VARIANT/seed_N; their summaries.
+    `call_options`: `_runs.CallOptions`'s fields (stop_after, checkpoint_every, …)."""
     configs = [config_for(variant, s, scale, schedule, learner_opt, env_opt, env) for s in seeds]
     dirs = [out / variant / f"seed_{s}" for s in seeds]
-    return _runs.train_seeds(variant, configs, dirs, stop_after=stop_after,
-                             checkpoint_every=checkpoint_every, keep_pi_rand=keep_pi_rand)
+    return _runs.train_seeds(variant, configs, dirs, **call_options)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -608,16 +607,8 @@ class Args(_runs.Driver):
     """epochs of every run (the first replay_slots / num_envs fill the replay)"""
     eval_every: int = SCHEDULE[1]
     """epochs between analyses"""
-    stop_after: int | None = None
-    """epochs per variant in this call (a session's share); a rerun resumes"""
-    checkpoint_every: int | None = None
-    """epochs between checkpoints (default: one with every analysis); the last analysis and a
-    --stop-after stop always checkpoint. A checkpoint holds each run's replay (2–4 GB): thin
-    them on a machine whose disk does not outlive the call"""
-    keep_pi_rand: bool = True
-    """keep each run's π_rand test sequences on the host after its first analysis in this call
-    and encode them again at the later ones (≈ 2 GB per run at 16 frames per sequence; the
-    records are the same); --no-keep-pi-rand rolls them out at every analysis"""
+    call: Annotated[_runs.CallOptions, tyro.conf.arg(name="")] = dataclasses.field(
+        default_factory=_runs.CallOptions)
     report_only: bool = False
     """no training: fig3.md and the images from the runs under OUT"""
 
@@ -628,8 +619,8 @@ class Args(_runs.Driver):
         env_opt = key_values(self.env_opt)
         for variant in self.variants:
             run_cell(self.out, variant, self.seeds, self.fields(SCALE),
-                     (self.epochs, self.eval_every), options[variant], env_opt,
-                     self.stop_after, self.checkpoint_every, self.env, self.keep_pi_rand)
+                     (self.epochs, self.eval_every), options[variant], env_opt, self.env,
+                     **dataclasses.asdict(self.call))
 
     def report(self) -> str:
         return report(self.out, self.variants)

@@ -220,18 +220,3 @@ def test_a_report_beside_a_run_still_writing_reads_whole_records_and_leaves_no_t
         "CartPole", "CartPole_alignment.png", "fig2.md", "fig2.png"]
 
 
-@pytest.mark.parametrize("flag, kept", [([], True), (["--no-keep-pi-rand"], False)])
-def test_the_keep_pi_rand_flag_reaches_the_runs(tmp_path, monkeypatch, flag, kept):
-    """--no-keep-pi-rand (≈ 2 GB of host memory per run saved) is what run_many is given."""
-    from jaml.stream import run as run_lib
-    calls = []
-
-    def run_many(configs, dirs, **kwargs):
-        calls.append(kwargs)
-        return [{"status": "finished", "epoch": c.epochs, "seconds_by_phase": {}}
-                for c in configs]
-
-    monkeypatch.setattr(run_lib, "run_many", run_many)
-    assert fig2.main(["--out", str(tmp_path), "--envs", "CartPole", "--variants", "PRED",
-                      "--seeds", "0", "1", *flag]) == 0
-    assert len(calls) == 1 and calls[0]["keep_pi_rand"] is kept

@@ -104,8 +104,14 @@ def _spans_decades(curves) -> bool:
     return values.size > 0 and values.max() > LOG_SPAN * values.min()
 
 
+# The y-axis of an alignment panel unless a caller says otherwise: errors in units of each
+# dimension's training std (the alignment regressor z-scores its targets, `alignment`).
+TRAIN_STD = "test error (train std)"
+
+
 def plot_alignment(history: Iterable[Mapping], path,
-                   groups: Mapping[str, Sequence[str]] | None = None) -> Figure:
+                   groups: Mapping[str, Sequence[str]] | None = None,
+                   ylabels: Mapping[str, str] | None = None) -> Figure:
     """Alignment error vs epoch (a record's "step": the epochs completed): one row per test
     set, one column per dimension.
 
@@ -113,6 +119,10 @@ def plot_alignment(history: Iterable[Mapping], path,
 
     groups: optional panel title → state names; the panel shows the mean error over those names
     (the paper aggregates position / velocity / contacts this way for the locomotion domains).
+
+    ylabels: optional panel title → its y-axis label (default TRAIN_STD), for panels whose
+    values are in other units; a label is drawn on a row's first panel and on every panel whose
+    label differs from its left neighbour's.
 
     A panel whose curves span more than LOG_SPAN (largest over smallest mean) is drawn on a log
     axis, "(log)" in its title: one learner that forgets (errors of 5 and more) would otherwise
@@ -131,6 +141,7 @@ def plot_alignment(history: Iterable[Mapping], path,
     fig = Figure(figsize=(3.6 * len(groups), 2.8 * len(test_sets)), layout="constrained")
     axes = fig.subplots(len(test_sets), len(groups), squeeze=False)
     colors = {name: f"C{k % 10}" for k, name in enumerate(learners)}
+    labels = [(ylabels or {}).get(title, TRAIN_STD) for title in groups]
     for row, test_set in enumerate(test_sets):
         for col, (title, dims) in enumerate(groups.items()):
             ax = axes[row, col]
@@ -151,8 +162,8 @@ def plot_alignment(history: Iterable[Mapping], path,
             log = _spans_decades(drawn)
             ax.set_title(f"{title} ({test_set})" + (" (log)" if log else ""), fontsize=9)
             ax.set_xlabel("epoch")
-            if col == 0:
-                ax.set_ylabel("test error (train std)")
+            if col == 0 or labels[col] != labels[col - 1]:
+                ax.set_ylabel(labels[col])
             if log:
                 ax.set_yscale("log")
             else:

@@ -184,34 +184,73 @@ def grid_histories(out: Path, env: str, variants) -> dict[str, list[list[dict]]]
     return runs
 
 
+# The y-axis of a locomotion panel: its values are fractions of each run's constant predictor's
+# error (`group_value`), the scale on which the report compares cells.
+OF_CONSTANT = "error / a constant's error"
+
+
 def panels(env: str) -> dict[str, list[list[str]]]:
     """Fig. 2's panels of `env`: title → its groups' dims. A panel's value is the mean over its
-    groups of each group's mean error (pendulums: position and velocity apart; locomotion: one
-    panel over position, velocity and contacts, as the paper aggregates them)."""
+    groups of each group's mean error (pendulums: position and velocity apart, in training-std
+    units; locomotion: one panel over position, velocity and contacts, as the paper aggregates
+    them, each group as a fraction of its run's constant predictor's error)."""
     groups = ld_groups(env)
     if env in PENDULUMS:
         return {f"{env} {g}": [dims] for g, dims in groups.items()}
     return {f"{env} (pos, vel, contacts)": list(groups.values())}
 
 
+def panel_ylabels(envs) -> dict[str, str]:
+    """Panel title → y-axis label for `plots.plot_alignment`: locomotion's are OF_CONSTANT."""
+    return {title: OF_CONSTANT for env in envs if env in LOCOMOTION for title in panels(env)}
+
+
 def figure_records(out: Path, envs, variants) -> list[dict]:
     """History records re-keyed for the paper's layout: errors = {panel: value}, learner = the
-    variant's label, π_curr first (the top row)."""
+    variant's label, π_curr first (the top row).
+
+    Locomotion panels read each group as a fraction of its run's constant predictor's error,
+    as the report's tables and findings do: each run's raw errors are in units of its own
+    replay's spread (`group_value`), so raw curves of two cells are not on one scale. A record
+    without baselines (written before the analysis kept them) has no locomotion panel value and
+    is left out of the figure."""
     records = []
     for env in envs:
+        relative = env in LOCOMOTION
         for variant, histories in grid_histories(out, env, variants).items():
             for h in histories:
                 for r in h:
-                    values = {title: float(np.mean([np.mean([r["errors"][d] for d in dims])
-                                                    for dims in groups]))
-                              for title, groups in panels(env).items()}
-                    records.append(r | {"errors": values, "learner": variant})
+                    values = {}
+                    for title, groups in panels(env).items():
+                        means = [group_value(r, dims, relative) for dims in groups]
+                        if None not in means:
+                            values[title] = float(np.mean(means))
+                    if values:
+                        records.append(r | {"errors": values, "learner": variant})
     return sorted(records, key=lambda r: r["test_set"] != "pi_curr")
+
+
+def group_records(env: str, histories: dict[str, list[list[dict]]]) -> list[dict]:
+    """A locomotion domain's records re-keyed for its per-group figure: errors = {group: its
+    fraction of the run's constant predictor's error} (records without baselines left out),
+    learner = the variant's label."""
+    records = []
+    for variant, hs in histories.items():
+        for h in hs:
+            for r in h:
+                values = {g: group_value(r, dims, relative=True)
+                          for g, dims in ld_groups(env).items()}
+                if None not in values.values():
+                    records.append(r | {"errors": values, "learner": variant})
+    return records
 
 
 def report(out: Path, envs, variants) -> str:
     """fig2.md and the figures from every run under OUT; returns the markdown."""
-    lines = ["# Fig. 2: alignment error (training-std units; lower is better)", "",
+    lines = ["# Fig. 2: alignment error (lower is better)", "",
+             "Pendulums in training-std units; HalfCheetah and Ant's figures as fractions of "
+             "each run's constant predictor's error (their first tables raw, their second as "
+             "fractions).", "",
              *grid_status(out, envs, variants),
              *_claims(out, envs, variants),
              "Several seeds: mean ± the half-width of its 90 % confidence interval, at the last",
@@ -238,12 +277,18 @@ def report(out: Path, envs, variants) -> str:
                          + " | ".join(cell(v) for v in (*dims, *means))
                          + f" | {last} | {len(per_seed)} |")
         lines += ["", *_relative_table(env, groups, runs), ""]
-        plots.plot_alignment(
-            [r | {"learner": v} for v, hs in runs.items() for h in hs for r in h],
-            out / f"{env}_alignment.png", groups=None if show else groups)
+        if env in LOCOMOTION:  # per group, on the tables' scale (fractions of the constant)
+            by_group = group_records(env, runs)
+            if by_group:
+                plots.plot_alignment(by_group, out / f"{env}_alignment.png",
+                                     ylabels=dict.fromkeys(groups, OF_CONSTANT))
+        else:  # every LD dimension, training-std units
+            plots.plot_alignment(
+                [r | {"learner": v} for v, hs in runs.items() for h in hs for r in h],
+                out / f"{env}_alignment.png")
     records = figure_records(out, envs, variants)
     if records:
-        plots.plot_alignment(records, out / "fig2.png")
+        plots.plot_alignment(records, out / "fig2.png", ylabels=panel_ylabels(envs))
         lines += ["![Fig. 2](fig2.png)", ""]
     text = "\n".join(lines) + "\n"
     write_text(out / "fig2.md", text)

@@ -62,6 +62,16 @@ def test_alignment_plot_groups_dimensions(tmp_path):
     assert pred_velocity.get_ydata()[0] == pytest.approx(np.mean(at_0))
 
 
+def test_panels_in_other_units_carry_their_own_axis_label(tmp_path):
+    """Fig. 2's layout: pendulum panels in training-std units, then a locomotion panel as a
+    fraction of a constant predictor's error: the label changes where the units do."""
+    groups = {"position": ["x", "theta"], "velocity": ["vx", "vtheta"], "panel": ["x", "vx"]}
+    fig = evaluation.plot_alignment(_history(), tmp_path / "units.png", groups=groups,
+                                    ylabels={"panel": "of the constant"})
+    labels = [[ax.get_ylabel() for ax in fig.axes[row * 3:row * 3 + 3]] for row in (0, 1)]
+    assert labels == [["test error (train std)", "", "of the constant"]] * 2
+
+
 def test_the_legend_names_every_learner_even_one_absent_from_the_first_panel(tmp_path):
     """Fig. 2's layout: CartPole's panels first, with one learner, HalfCheetah's with two."""
     history = [{"step": 0, "learner": "VAE_rpl", "test_set": "pi_curr", "errors": {"a": 0.1}},

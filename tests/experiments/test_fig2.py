@@ -97,6 +97,34 @@ def test_figure_panels_average_the_groups_of_each_domain(tmp_path):
     assert len(fig2.panels("Ant")["Ant (pos, vel, contacts)"]) == 3
 
 
+def test_locomotion_figures_read_fractions_of_the_constant_predictor(tmp_path):
+    """Each run's raw errors are in its own replay's units, so the locomotion panel (and the
+    per-group figure) read every group as a fraction of the run's constant predictor's error,
+    the report's scale; a record without baselines is left out, not drawn raw."""
+    groups = fig2.ld_groups("HalfCheetah")
+    raw = {"position": (0.5, 1.0), "velocity": (0.6, 1.2), "contact": (0.3, 1.2)}
+    errors = {d: raw[g][0] for g, dims in groups.items() for d in dims}
+    baseline = {d: raw[g][1] for g, dims in groups.items() for d in dims}
+    run = tmp_path / "HalfCheetah" / "PRED" / "seed_0"
+    run.mkdir(parents=True)
+    names = list(errors)
+    kept = history_records(20, "PRED", {"pi_rand": [errors[n] for n in names]}, names, run=0)
+    old = history_records(10, "PRED", {"pi_rand": [errors[n] for n in names]}, names, run=0)
+    lines = [*old, *(r | {"baseline": baseline} for r in kept)]
+    (run / "history.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+
+    records = fig2.figure_records(tmp_path, ["HalfCheetah"], ["PRED"])
+    assert [r["step"] for r in records] == [20]
+    value = records[0]["errors"]["HalfCheetah (pos, vel, contacts)"]
+    assert value == pytest.approx(np.mean([0.5, 0.5, 0.25]))  # raw would be 0.467
+    by_group = fig2.group_records("HalfCheetah", {"PRED": [lines]})
+    assert [r["step"] for r in by_group] == [20]
+    assert by_group[0]["errors"] == pytest.approx(
+        {"position": 0.5, "velocity": 0.5, "contact": 0.25})
+    assert fig2.panel_ylabels(["CartPole", "HalfCheetah"]) == {
+        "HalfCheetah (pos, vel, contacts)": fig2.OF_CONSTANT}
+
+
 def test_grid_configs_follow_the_paper_per_family():
     cart = fig2.config_for("CartPole", "beta-VAE_20", 3, fig2.SCALE, fig2.SCHEDULE)
     ant = fig2.config_for("Ant", "PRED", 0, fig2.SCALE, fig2.SCHEDULE)

@@ -26,6 +26,26 @@ def test_record_refuses_rows_without_a_commit_and_writes_rows_with_one(tmp_path,
     assert "modelled_wall_s" in (tmp_path / "RESULTS.md").read_text()
 
 
+def test_results_md_keeps_the_latest_row_per_case_machine_and_settings(tmp_path, monkeypatch):
+    """A later row supersedes an earlier one of the same case only on the same machine at the
+    same settings: two CPU models (both "cpu:cpu") and two device counts stay apart."""
+    monkeypatch.setattr(harness, "RESULTS_JSONL", tmp_path / "results.jsonl")
+    monkeypatch.setattr(harness, "RESULTS_MD", tmp_path / "RESULTS.md")
+    base = {"benchmark": "b", "case": "c", "impl": "jaml", "device": "cpu:cpu", "cpu_cores": 2,
+            "versions": {}, "commit": "abc1234", "date": "2026-01-01T00:00:00+00:00"}
+    rows = [base | {"cpu": "AMD EPYC", "value": 1.0},
+            base | {"cpu": "Intel Xeon", "value": 2.0},
+            base | {"cpu": "AMD EPYC", "value": 3.0},  # supersedes the first
+            base | {"device": "gpu:H200", "cpu": "Intel Xeon", "devices": 1, "value": 4.0},
+            base | {"device": "gpu:H200", "cpu": "Intel Xeon", "devices": 4, "value": 5.0}]
+    (tmp_path / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    harness.write_markdown()
+    table = [line for line in (tmp_path / "RESULTS.md").read_text().splitlines()
+             if line.startswith("| c |")]
+    values = sorted(line.split(" | ")[-2] for line in table)
+    assert values == ["2", "3", "4", "5"]
+
+
 def test_a_commit_is_dirty_for_changed_code_not_for_the_harness_outputs(tmp_path):
     def git(*args):
         subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *args], cwd=tmp_path,

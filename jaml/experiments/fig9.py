@@ -225,8 +225,9 @@ def _final(histories: list[list[dict]], key) -> list[float]:
     return [key(next(r for r in h if r["step"] == last)) for h in histories]
 
 
-def plot(runs: dict[str, list[list[dict]]], path: Path) -> None:
-    """Two panels like the paper's Fig. 9: position error on π_rand and Var(ρ) over epochs."""
+def plot(runs: dict[str, list[list[dict]]], path: Path):
+    """Two panels like the paper's Fig. 9: position error on π_rand and Var(ρ) over epochs,
+    each method's seed mean with its 90 % band; writes `path` and returns the figure."""
     from collections import defaultdict
 
     from matplotlib.figure import Figure
@@ -253,6 +254,7 @@ def plot(runs: dict[str, list[list[dict]]], path: Path) -> None:
         ax.set_xlabel("epoch")
     axes[0].legend(fontsize=8)
     plots.save_figure(fig, path)
+    return fig
 
 
 def report(out: Path, methods) -> str:

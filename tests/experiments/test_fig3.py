@@ -423,12 +423,16 @@ def test_tiny_runs_resume_and_report(tmp_path, variant):
                               stop_after=2)
         assert [s["status"] for s in first] == ["interrupted"] * 2
         assert [s["epoch"] for s in first] == [2, 2]
+        assert [s["checkpoint_epoch"] for s in first] == [2, 2]  # a --stop-after stop saves
         second = fig3.run_cell(tmp_path, variant, [0, 1], scale, (4, 2), TINY_LEARNERS[variant])
     assert [s["status"] for s in second] == ["finished"] * 2
-    history = [json.loads(x) for x in
-               (tmp_path / variant / "seed_1" / "history.jsonl").read_text().splitlines()]
-    assert sorted({(r["step"], r["test_set"]) for r in history}) == [
-        (2, "pi_curr"), (2, "pi_rand"), (4, "pi_curr"), (4, "pi_rand")]
+    run = tmp_path / variant / "seed_1"
+    history = [json.loads(x) for x in (run / "history.jsonl").read_text().splitlines()]
+    # Resumed, not retrained: each analysis once, in order, and each epoch logged once.
+    assert [(r["step"], r["test_set"]) for r in history] == [
+        (2, "pi_rand"), (2, "pi_curr"), (4, "pi_rand"), (4, "pi_curr")]
+    assert [json.loads(x)["epoch"] for x in (run / "metrics.jsonl").read_text().splitlines()
+            ] == [1, 2, 3, 4]
     assert all(np.isfinite(list(r["errors"].values())).all() for r in history)
     assert all(list(r["baseline"]) == list(r["errors"])
                and np.isfinite(list(r["baseline"].values())).all() for r in history)

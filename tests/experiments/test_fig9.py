@@ -59,21 +59,56 @@ def test_report_tables_final_means_and_differences_from_pred(tmp_path):
     assert (tmp_path / "fig9.png").stat().st_size > 0
 
 
+def test_the_figure_draws_each_methods_seed_mean_and_90_percent_band(tmp_path):
+    """Per panel and step: the mean over seeds and mean ± t(0.95, n−1)·s/√n, by hand."""
+    ends = [(0.10, 1.0), (0.12, 1.2), (0.17, 1.9)]
+    for seed, (pos, dist) in enumerate(ends):
+        _write_run(tmp_path / "PRED" / f"seed_{seed}", "PRED", seed, pos, dist)
+    fig = fig9.plot(fig9.collect(tmp_path, ["PRED"]), tmp_path / "fig9.png")
+    t = 2.9199856  # t(0.95, 2 dof)
+    for ax, at_100, at_200 in ((fig.axes[0], 0.3, [e[0] for e in ends]),
+                               (fig.axes[1], 9.0, [e[1] for e in ends])):
+        line, = ax.lines
+        np.testing.assert_allclose(line.get_xdata(), [100, 200])
+        np.testing.assert_allclose(line.get_ydata(), [at_100, np.mean(at_200)], rtol=1e-6)
+        half = t * np.std(at_200, ddof=1) / math.sqrt(3)
+        band = ax.collections[0].get_paths()[0].vertices
+        at_end = band[np.isclose(band[:, 0], 200), 1]
+        np.testing.assert_allclose([at_end.min(), at_end.max()],
+                                   [np.mean(at_200) - half, np.mean(at_200) + half], rtol=1e-5)
+
+
 def test_the_layout_reads_every_relation_coordinate_from_the_incline_pred():
-    """The experiment's layout against the source's coordinate names and PRED's latent size."""
-    plan = LatentLayout(**fig9.LAYOUT).gather(("theta", "s0", "v0", "a0", "s1", "v1"), 5, 1)
-    assert [p[:3] for p in plan] == [("z", 2, 0), ("z", 3, 0), ("z", 4, 0), ("a", 0, 0),
-                                     ("z", 3, 1), ("z", 4, 1)]
+    """The experiment's layout against the source's own coordinate names and the latent and
+    action sizes of the PRED the experiment builds (`penalty_for`'s): θ in the static part, s
+    and v in each step's dynamic part, the action of the first step."""
+    from jaml import sources
+    from jaml.stream.loop import build
+
+    names = tuple(sources.make(fig9.SOURCE).dim_names)
+    assert sorted(names) == sorted(("theta", "s0", "v0", "a0", "s1", "v1"))
+    stream = build(fig9._config("PRED", 0))
+    plan = LatentLayout(**fig9.LAYOUT).gather(names, stream.learner.config.penalty_dim,
+                                              stream.env.action_size)
+    expected = {"theta": ("z", 2, 0), "s0": ("z", 3, 0), "v0": ("z", 4, 0), "a0": ("a", 0, 0),
+                "s1": ("z", 3, 1), "v1": ("z", 4, 1)}
+    assert [p[:3] for p in plan] == [expected[n] for n in names]
 
 
 def test_fixed_dynamics_fix_the_targets_mass_and_friction_at_every_reset():
-    """`--dynamics fixed` reaches the target's envs (and the source's rows through the same
-    env config): every reset draws the one mass and friction; an unknown name is refused."""
+    """`--dynamics fixed` reaches the target's envs and the source's rows: every reset draws
+    the one mass and friction; an unknown name is refused."""
     config = fig9._config("PRED", 0, "fixed")
     assert config.env == fig9.TARGET and config.env_overrides == fig9._dynamics("fixed")
     env = envs_mjx.make(fig9.TARGET, **config.env_overrides, pixels="off")
     infos = [env.reset(jax.random.key(k)).info for k in range(3)]
     assert {round(float(i["mass"]), 6) for i in infos} == {0.2}  # float32
+    assert {round(float(i["friction"]), 6) for i in infos} == {0.3}
+    from jaml import sources  # the relations' rows: the source's env, as `learn_relations` makes it
+
+    source_env = sources.make(fig9.SOURCE, **fig9._dynamics("fixed")).env
+    infos = [source_env.reset(jax.random.key(k)).info for k in range(3)]
+    assert {round(float(i["mass"]), 6) for i in infos} == {0.2}
     assert {round(float(i["friction"]), 6) for i in infos} == {0.3}
     assert fig9._config("PRED", 0).env_overrides == {}  # "drawn": the domains' own ranges
     with pytest.raises(ValueError, match=r"dynamics must be one of \['drawn', 'fixed'\]"):

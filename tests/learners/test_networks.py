@@ -227,5 +227,8 @@ def test_cpu_compiler_options_put_the_convolutions_on_xla_s_own_path():
     assert options == learners.CPU_COMPILER_OPTIONS
     ours = jax.jit(f, compiler_options=options).lower(x, w).compile()
     assert " convolution(" in ours.as_text() and _ynn_convolutions(ours.as_text()) == 0
+    # The control: with XLA's defaults the counter finds YNNPACK's convolutions in the same
+    # program (a counter that matched nothing would pass the line above for any options).
+    assert _ynn_convolutions(jax.jit(f).lower(x, w).compile().as_text()) > 0
     for a, b in zip(ours(x, w), jax.jit(f)(x, w), strict=True):  # another summation order
         np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5 * float(jnp.max(jnp.abs(b))))

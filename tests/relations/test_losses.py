@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaml import relations
 from jaml.relations import losses
 from jaml.relations.networks import Relation, SyzygyCoefficients, relation_width
 
@@ -88,7 +89,8 @@ def test_transversality_orthogonal_parallel_and_45_degrees():
     assert 1 - float(losses.reference_transversality(u, v)[0]) == pytest.approx(0.70711, abs=1e-5)
     assert float(losses.log_sin_product(u, v)[0]) == pytest.approx(math.log(2), abs=1e-5)
     assert float(losses.mean_angle(u, v)) == pytest.approx(math.pi / 4, abs=1e-4)
-    assert 0.4 * math.pi / 2 == pytest.approx(0.62832, abs=1e-5)
+    # The stopping rule's angle floor: 0.4 · π/2 (the reference's 0.4 of a right angle).
+    assert relations.Config().min_angle == pytest.approx(0.62832, abs=1e-5)
 
 
 def test_transversality_takes_the_product_over_earlier_relations():

@@ -23,9 +23,9 @@ COEFFS = 0.2 * np.array([0.0, -1.0, -DT / 2, 0.0, 1.0, -DT / 2], np.float32)  # 
 LAYOUT = LatentLayout(static={"theta": 0}, dynamic={"s": 1, "v": 2}, actions={"a": 0})
 
 
-def trapezoid_relations(on_mean=1e-3) -> RelationSet:
-    """One relation whose first hidden unit carries c·τ through three tanh layers and the output
-    tanh: g = tanh(tanh(tanh(tanh(c·τ))))."""
+def trapezoid_relations(on_mean=1e-3, scale=1.0) -> RelationSet:
+    """One relation whose first hidden unit carries c·τ (c = scale · COEFFS) through three tanh
+    layers and the output tanh: g = tanh(tanh(tanh(tanh(c·τ))))."""
     module = Relation(4, 3)
     params = module.init(jax.random.key(0), jnp.zeros((1, len(NAMES))))
 
@@ -34,7 +34,7 @@ def trapezoid_relations(on_mean=1e-3) -> RelationSet:
         out = np.zeros(leaf.shape, np.float32)
         if name.endswith("kernel"):  # stored [out, in]
             if leaf.shape[1] == len(NAMES):
-                out[0, :] = COEFFS
+                out[0, :] = scale * COEFFS
             else:
                 out[0, 0] = 1.0
         return jnp.asarray(out)
@@ -199,11 +199,17 @@ def test_a_tiny_pred_run_with_the_penalty_lowers_the_residual():
 
 
 def test_select_keeps_the_chosen_relations_and_their_statistics():
+    """Three relations that differ (g_k = tanh⁴(k · c·τ)): the selection keeps relations 1 and
+    3, their parameters with their statistics, in order."""
     rs = trapezoid_relations(on_mean=0.1)
-    rs = rs.append(rs.params[0], 0.2, 2.0, 4).append(rs.params[0], 0.3, 3.0, 4)
+    for k, on in ((2, 0.2), (3, 0.3)):
+        rs = rs.append(trapezoid_relations(scale=k).params[0], on, float(k), 4)
     picked = rs.select([0, 2])
     assert picked.num_relations == 2 and picked.widths == (4, 4)
     np.testing.assert_allclose(picked.on_means, [0.1, 0.3])
     np.testing.assert_allclose(picked.off_means, [1.0, 3.0])
+    tau = np.random.default_rng(0).normal(size=(5, len(NAMES))).astype(np.float32)
+    by_hand = np.stack([np.tanh(np.tanh(np.tanh(np.tanh(k * tau @ COEFFS)))) for k in (1, 3)], -1)
+    np.testing.assert_allclose(relations.evaluate(picked, tau), by_hand, rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match=r"indices must name relations in 0\.\.2"):
         rs.select([3])

@@ -225,20 +225,36 @@ def test_rearrange_stacked_runs_get_the_rotation_errors_of_each_run_alone(monkey
 
 
 def test_other_domains_are_analysed_as_before(monkeypatch):
+    """CartPole (no rotation blocks, z-scored targets): each test set's error is the fitted
+    regressor's NumPy predictions against the targets standardised by the fit rows' mean and
+    std, and its baseline the fit rows' median scored the same way, both by hand."""
     fake = _fake_stream(monkeypatch, "CartPole")
     assert analysis.rotation_blocks(fake) == ((), ())
     assert analysis.error_names(fake) == list(fake.env.ld_state_names)
     key, pi_rand_key = jax.random.PRNGKey(3), jax.random.PRNGKey(5)
     report = analysis.evaluate(fake, None, key, pi_rand_key)
-    # What the analysis computed before rotation blocks: the same fit, no rotation options.
+    assert list(report["errors"]) == ["pi_rand", "pi_curr", "validation"]
     k_train, k_curr, k_reg = jax.random.split(key, 3)
-    tests = {"pi_rand": _synthetic(fake.env, pi_rand_key, 16),
-             "pi_curr": _synthetic(fake.env, k_curr, 16)}
-    before = evaluation.alignment_errors(
-        *_synthetic(fake.env, k_train, EVAL_TRAIN), tests,
-        seed=int(jax.random.randint(k_reg, (), 0, 2**31 - 1)), seq_len=1, num_iterations=30,
-        normalize=True)
-    assert report["errors"] == {k: np.asarray(v).tolist() for k, v in before.items()}
+    seed = int(jax.random.randint(k_reg, (), 0, 2**31 - 1))
+    train = _synthetic(fake.env, k_train, EVAL_TRAIN)
+    regressor = evaluation.fit_regressor(*train, seed, seq_len=1, num_iterations=30,
+                                         normalize=True)
+    fit = np.asarray(train[1][16:], np.float64)  # the last 40 of 56 rows: the fit rows
+    mean, std = fit.mean(axis=0), fit.std(axis=0) + 1e-6
+    np.testing.assert_allclose(regressor.mean, mean, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(regressor.std, std, rtol=1e-4)
+    for test_set, (lat, ld) in (("pi_rand", _synthetic(fake.env, pi_rand_key, 16)),
+                                ("pi_curr", _synthetic(fake.env, k_curr, 16)),
+                                ("validation", tuple(a[:16] for a in train))):
+        target = (np.asarray(ld, np.float64) - mean) / std
+        np.testing.assert_allclose(report["errors"][test_set],
+                                   np.abs(_predict(regressor.params, lat) - target).mean(axis=0),
+                                   rtol=1e-4, atol=1e-5, err_msg=test_set)
+        if test_set != "validation":
+            np.testing.assert_allclose(report["baseline"][test_set],
+                                       np.abs(np.median(fit, axis=0) - ld).mean(axis=0) / std,
+                                       rtol=1e-5, atol=1e-6, err_msg=test_set)
+    assert list(report["baseline"]) == ["pi_rand", "pi_curr"]
 
 
 def test_rearrange_with_normalised_targets_is_refused():

@@ -162,13 +162,14 @@ def _identity(row: dict) -> tuple:
     """What a result is a result of: rows that share it supersede one another in RESULTS.md.
 
     Beside the benchmark, case and implementation: the device (for a CPU, its model: two CPU
-    machines both read "cpu:cpu") and its core count, and the settings a benchmark varies
-    within one case (stacked runs, devices, batch), so that a later row at other settings
-    does not hide an earlier one."""
+    machines both read "cpu:cpu") and its host's core count, and the settings a benchmark
+    varies within one case (stacked runs, devices, batch), so that a later row at other
+    settings does not hide an earlier one. A row from before a benchmark recorded runs and
+    devices ran one run on one device."""
     device = row["device"]
     machine = row.get("cpu") if device.startswith("cpu") else None
     return (row["benchmark"], row["case"], row.get("impl", ""), device, machine,
-            row.get("cpu_cores"), row.get("runs"), row.get("devices"), row.get("batch"))
+            row.get("cpu_cores"), row.get("runs", 1), row.get("devices", 1), row.get("batch"))
 
 
 def write_markdown() -> None:
@@ -222,11 +223,12 @@ def write_markdown() -> None:
             v = r.get("versions", {})
             commit = r.get("commit") or "no commit recorded"
             stamp = f"jax {v.get('jax', '?')}, {r['date'][:10]}, {commit}"
-            device = (
-                f"{r['device']} ({r['cpu_cores']} cores {r['cpu']})"
-                if r["device"].startswith("cpu")
-                else r["device"]
-            )
+            if r["device"].startswith("cpu"):
+                device = f"{r['device']} ({r['cpu_cores']} cores {r['cpu']})"
+            else:  # the host: rows of one GPU model on different machines stay told apart
+                count = r.get("device_count", 1)
+                device = (f"{r['device']} ({count} GPU{'s' * (count > 1)}, host of "
+                          f"{r['cpu_cores']} cores)")
             lines.append(
                 f"| {r['case']} | {r.get('impl', '')} | {device} | "
                 + " | ".join(_fmt(r.get(c, "")) for c in columns)

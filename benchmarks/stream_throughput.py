@@ -155,18 +155,26 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true", help="tiny sizes for a CPU smoke run")
     parser.add_argument("--no-record", action="store_true", help="print only")
     args = parser.parse_args(argv)
+    if any(d is not None and d < 1 for d in args.devices):
+        parser.error(f"--devices must be ≥ 1, got {args.devices}")
     if args.quick:
         args.num_envs, args.epochs, args.frames_per_batch = 8, 1, 8
         args.replay_slots, args.repeats = 16, 1
     for env in args.envs:
         for learner in args.learners:
-            rows = []
+            rows, measured = [], set()
             for dtype in args.dtypes:
                 for runs in args.runs:
                     for devices in args.devices:
+                        # The mesh the runs get (`runs_mesh`: at most one device per run, at
+                        # most the local ones): a setting that gives the same one is timed once.
+                        used = max(1, min(runs, len(jax.local_devices()[:devices])))
+                        if (dtype, runs, used) in measured:
+                            continue
+                        measured.add((dtype, runs, used))
                         rows += bench(env, learner, runs, args.num_envs, args.epochs,
                                       args.frames_per_batch, args.replay_slots, args.repeats,
-                                      devices, dtype)
+                                      used, dtype)
             _speedups(rows)
             if not args.no_record:  # after each pair: a run cut short keeps what it measured
                 harness.record("stream_throughput", rows,

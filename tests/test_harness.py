@@ -36,14 +36,19 @@ def test_results_md_keeps_the_latest_row_per_case_machine_and_settings(tmp_path,
     rows = [base | {"cpu": "AMD EPYC", "value": 1.0},
             base | {"cpu": "Intel Xeon", "value": 2.0},
             base | {"cpu": "AMD EPYC", "value": 3.0},  # supersedes the first
-            base | {"device": "gpu:H200", "cpu": "Intel Xeon", "devices": 1, "value": 4.0},
-            base | {"device": "gpu:H200", "cpu": "Intel Xeon", "devices": 4, "value": 5.0}]
+            base | {"device": "gpu:H200", "cpu": "Intel Xeon", "value": 4.0},  # before `devices`
+            base | {"device": "gpu:H200", "cpu": "AMD EPYC", "devices": 1, "value": 6.0},
+            base | {"device": "gpu:H200", "cpu": "Intel Xeon", "devices": 4, "value": 5.0},
+            base | {"device": "gpu:H200", "cpu": "Intel Xeon", "runs": 4, "value": 7.0},
+            base | {"device": "gpu:H200", "cpu": "Intel Xeon", "batch": 64, "value": 8.0}]
     (tmp_path / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     harness.write_markdown()
     table = [line for line in (tmp_path / "RESULTS.md").read_text().splitlines()
              if line.startswith("| c |")]
     values = sorted(line.split(" | ")[-2] for line in table)
-    assert values == ["2", "3", "4", "5"]
+    # 1 superseded by 3 (same CPU); 4 (one device, recorded before the key) by 6: a GPU row's
+    # host CPU model does not tell machines apart, its core count does (both 2 here).
+    assert values == ["2", "3", "5", "6", "7", "8"]
 
 
 def test_a_commit_is_dirty_for_changed_code_not_for_the_harness_outputs(tmp_path):
@@ -97,3 +102,30 @@ def test_fig9_time_counts_a_methods_seeds_trained_together_once(tmp_path):
     assert rows[total.format("methods one after another")]["wall_s"] == 30 + 500 + 810 + 700
     concurrent = {r["case"]: r for r in fig9_time.rows(tmp_path, concurrent=True)}
     assert concurrent[total.format("methods as parallel processes")]["wall_s"] == 30 + 500 + 810
+
+
+def test_stream_throughput_times_each_mesh_once_and_scales_against_one_device(monkeypatch):
+    """--runs 1 4 --devices 1 2 4 on this two-device process: R = 1 gets one device whatever
+    was asked, 4 devices are the 2 there are, so three settings are timed, not six; the
+    speed-ups are read against the one-device row of the same R (and R = 1)."""
+    from benchmarks import stream_throughput
+
+    calls = []
+
+    def bench(env, learner, runs, *args):
+        devices, dtype = args[-2], args[-1]
+        calls.append((runs, devices, dtype))
+        rate = {1: 10.0, 2: 18.0}[devices] * runs
+        return [{"case": "c/loop", "runs": runs, "devices": devices, "env_frames_per_s": rate}]
+
+    monkeypatch.setattr(stream_throughput, "bench", bench)
+    recorded = []
+    monkeypatch.setattr(harness, "record", lambda name, rows, notes: recorded.extend(rows))
+    assert stream_throughput.main(["--runs", "1", "4", "--devices", "1", "2", "4"]) == 0
+    assert calls == [(1, 1, "float32"), (4, 1, "float32"), (4, 2, "float32")]
+    by = {(r["runs"], r["devices"]): r for r in recorded}
+    assert by[(4, 2)]["speedup_vs_one_device"] == pytest.approx(1.8)
+    assert by[(4, 1)]["speedup_vs_one_run"] == pytest.approx(4.0)
+    assert "speedup_vs_one_device" not in by[(4, 1)]
+    with pytest.raises(SystemExit):
+        stream_throughput.main(["--devices", "0"])

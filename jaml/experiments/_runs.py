@@ -46,7 +46,7 @@ class CallOptions:
     """How one call trains its cells: the flags shared by the drivers that train cells of
     seeds (fig2, fig3), given to `train_seeds` as they are (`dataclasses.asdict`). A driver
     holds them as `call: Annotated[CallOptions, tyro.conf.arg(name="")]`: the flags keep their
-    names (--stop-after, …) and their place in the driver's help."""
+    names (--stop-after, …); the help lists them after the driver's own."""
 
     stop_after: int | None = None
     """epochs per cell in this call (a session's share); a rerun resumes"""

@@ -205,44 +205,44 @@ def panel_ylabels(envs) -> dict[str, str]:
     return {title: OF_CONSTANT for env in envs if env in LOCOMOTION for title in panels(env)}
 
 
+def has_baselines(histories: list[list[dict]]) -> bool:
+    """Whether every record of every seed carries a constant predictor's errors (runs
+    analysed before the analysis kept them do not): a locomotion cell is drawn only then, so
+    that its curves come from all its seeds, as its rows in the tables do."""
+    return all(r.get("baseline") for h in histories for r in h)
+
+
 def figure_records(out: Path, envs, variants) -> list[dict]:
     """History records re-keyed for the paper's layout: errors = {panel: value}, learner = the
     variant's label, π_curr first (the top row).
 
     Locomotion panels read each group as a fraction of its run's constant predictor's error,
     as the report's tables and findings do: each run's raw errors are in units of its own
-    replay's spread (`group_value`), so raw curves of two cells are not on one scale. A record
-    without baselines (written before the analysis kept them) has no locomotion panel value and
-    is left out of the figure."""
+    replay's spread (`group_value`), so raw curves of two cells are not on one scale. A
+    locomotion cell without baselines (`has_baselines`) is left out; the report names it."""
     records = []
     for env in envs:
         relative = env in LOCOMOTION
         for variant, histories in grid_histories(out, env, variants).items():
+            if relative and not has_baselines(histories):
+                continue
             for h in histories:
                 for r in h:
-                    values = {}
-                    for title, groups in panels(env).items():
-                        means = [group_value(r, dims, relative) for dims in groups]
-                        if None not in means:
-                            values[title] = float(np.mean(means))
-                    if values:
-                        records.append(r | {"errors": values, "learner": variant})
+                    values = {title: float(np.mean([group_value(r, dims, relative)
+                                                    for dims in groups]))
+                              for title, groups in panels(env).items()}
+                    records.append(r | {"errors": values, "learner": variant})
     return sorted(records, key=lambda r: r["test_set"] != "pi_curr")
 
 
 def group_records(env: str, histories: dict[str, list[list[dict]]]) -> list[dict]:
     """A locomotion domain's records re-keyed for its per-group figure: errors = {group: its
-    fraction of the run's constant predictor's error} (records without baselines left out),
-    learner = the variant's label."""
-    records = []
-    for variant, hs in histories.items():
-        for h in hs:
-            for r in h:
-                values = {g: group_value(r, dims, relative=True)
-                          for g, dims in ld_groups(env).items()}
-                if None not in values.values():
-                    records.append(r | {"errors": values, "learner": variant})
-    return records
+    fraction of the run's constant predictor's error}, learner = the variant's label; cells
+    without baselines (`has_baselines`) left out."""
+    groups = ld_groups(env)
+    return [r | {"errors": {g: group_value(r, dims, relative=True) for g, dims in groups.items()},
+                 "learner": variant}
+            for variant, hs in histories.items() if has_baselines(hs) for h in hs for r in h]
 
 
 def report(out: Path, envs, variants) -> str:
@@ -278,10 +278,16 @@ def report(out: Path, envs, variants) -> str:
                          + f" | {last} | {len(per_seed)} |")
         lines += ["", *_relative_table(env, groups, runs), ""]
         if env in LOCOMOTION:  # per group, on the tables' scale (fractions of the constant)
+            left_out = [v for v, hs in runs.items() if not has_baselines(hs)]
+            if left_out:
+                lines += [f"Not in the {env} figures (records without a constant predictor's "
+                          f"errors): {', '.join(left_out)}.", ""]
             by_group = group_records(env, runs)
             if by_group:
                 plots.plot_alignment(by_group, out / f"{env}_alignment.png",
                                      ylabels=dict.fromkeys(groups, OF_CONSTANT))
+            else:  # no stale figure of an earlier report in other units
+                (out / f"{env}_alignment.png").unlink(missing_ok=True)
         else:  # every LD dimension, training-std units
             plots.plot_alignment(
                 [r | {"learner": v} for v, hs in runs.items() for h in hs for r in h],
@@ -290,6 +296,8 @@ def report(out: Path, envs, variants) -> str:
     if records:
         plots.plot_alignment(records, out / "fig2.png", ylabels=panel_ylabels(envs))
         lines += ["![Fig. 2](fig2.png)", ""]
+    else:
+        (out / "fig2.png").unlink(missing_ok=True)
     text = "\n".join(lines) + "\n"
     write_text(out / "fig2.md", text)
     return text

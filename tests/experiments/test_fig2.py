@@ -97,32 +97,70 @@ def test_figure_panels_average_the_groups_of_each_domain(tmp_path):
     assert len(fig2.panels("Ant")["Ant (pos, vel, contacts)"]) == 3
 
 
-def test_locomotion_figures_read_fractions_of_the_constant_predictor(tmp_path):
-    """Each run's raw errors are in its own replay's units, so the locomotion panel (and the
-    per-group figure) read every group as a fraction of the run's constant predictor's error,
-    the report's scale; a record without baselines is left out, not drawn raw."""
+def _locomotion_cell(out, variant, with_baselines=True):
+    """A one-seed HalfCheetah cell analysed at epochs 10 and 20; its groups' raw errors and a
+    constant predictor's are position 0.5 / 1.0, velocity 0.6 / 1.2, contacts 0.3 / 1.2."""
     groups = fig2.ld_groups("HalfCheetah")
     raw = {"position": (0.5, 1.0), "velocity": (0.6, 1.2), "contact": (0.3, 1.2)}
     errors = {d: raw[g][0] for g, dims in groups.items() for d in dims}
     baseline = {d: raw[g][1] for g, dims in groups.items() for d in dims}
-    run = tmp_path / "HalfCheetah" / "PRED" / "seed_0"
+    run = out / "HalfCheetah" / variant / "seed_0"
     run.mkdir(parents=True)
+    (run / "config.json").write_text(json.dumps({k: 1 for k in fig2.SCALE}
+                                                | {"seed": 0, "epochs": 20}))
     names = list(errors)
-    kept = history_records(20, "PRED", {"pi_rand": [errors[n] for n in names]}, names, run=0)
-    old = history_records(10, "PRED", {"pi_rand": [errors[n] for n in names]}, names, run=0)
-    lines = [*old, *(r | {"baseline": baseline} for r in kept)]
+    lines = [r | ({"baseline": baseline} if with_baselines else {})
+             for step in (10, 20) for r in history_records(
+                 step, variant, {"pi_rand": [errors[n] for n in names]}, names, run=0)]
     (run / "history.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    return lines
 
-    records = fig2.figure_records(tmp_path, ["HalfCheetah"], ["PRED"])
-    assert [r["step"] for r in records] == [20]
+
+def test_locomotion_figures_read_fractions_of_the_constant_predictor(tmp_path):
+    """Each run's raw errors are in its own replay's units, so the locomotion panel (and the
+    per-group figure) read every group as a fraction of the run's constant predictor's error,
+    the report's scale; a cell recorded without baselines is left out, not drawn raw."""
+    lines = _locomotion_cell(tmp_path, "PRED")
+    _locomotion_cell(tmp_path, "VAE_rpl", with_baselines=False)
+    records = fig2.figure_records(tmp_path, ["HalfCheetah"], ["PRED", "VAE_rpl"])
+    assert [(r["learner"], r["step"]) for r in records] == [("PRED", 10), ("PRED", 20)]
     value = records[0]["errors"]["HalfCheetah (pos, vel, contacts)"]
     assert value == pytest.approx(np.mean([0.5, 0.5, 0.25]))  # raw would be 0.467
-    by_group = fig2.group_records("HalfCheetah", {"PRED": [lines]})
-    assert [r["step"] for r in by_group] == [20]
+    by_group = fig2.group_records("HalfCheetah", {"PRED": [lines], "VAE_rpl": [[
+        {k: v for k, v in r.items() if k != "baseline"} for r in lines]]})
+    assert [(r["learner"], r["step"]) for r in by_group] == [("PRED", 10), ("PRED", 20)]
     assert by_group[0]["errors"] == pytest.approx(
         {"position": 0.5, "velocity": 0.5, "contact": 0.25})
     assert fig2.panel_ylabels(["CartPole", "HalfCheetah"]) == {
         "HalfCheetah (pos, vel, contacts)": fig2.OF_CONSTANT}
+
+
+def test_the_report_draws_locomotion_on_the_constants_scale_and_names_what_it_leaves_out(
+        tmp_path, monkeypatch):
+    """report(): the per-group HalfCheetah figure and fig2.png's HalfCheetah panel carry the
+    fractions' axis label; the cell without baselines is named, and a stale per-group figure
+    of a grid where no cell can be drawn is removed."""
+    _write_run(tmp_path / "CartPole" / "PRED" / "seed_0", "PRED", 0, [0.1] * 4)
+    _locomotion_cell(tmp_path, "PRED")
+    _locomotion_cell(tmp_path, "VAE_rpl", with_baselines=False)
+    drawn = {}
+    real = fig2.plots.plot_alignment
+
+    def plot_alignment(records, path, groups=None, ylabels=None):
+        drawn[path.name] = ({r["learner"] for r in records}, ylabels)
+        return real(records, path, groups=groups, ylabels=ylabels)
+
+    monkeypatch.setattr(fig2.plots, "plot_alignment", plot_alignment)
+    text = fig2.report(tmp_path, ["CartPole", "HalfCheetah"], ["PRED", "VAE_rpl"])
+    assert drawn["HalfCheetah_alignment.png"] == (
+        {"PRED"}, dict.fromkeys(fig2.ld_groups("HalfCheetah"), fig2.OF_CONSTANT))
+    assert drawn["fig2.png"][1] == {"HalfCheetah (pos, vel, contacts)": fig2.OF_CONSTANT}
+    assert drawn["CartPole_alignment.png"][1] is None  # training-std units
+    assert "Not in the HalfCheetah figures (records without a constant predictor's errors): " \
+           "VAE_rpl." in text
+    fig2.report(tmp_path, ["HalfCheetah"], ["VAE_rpl"])  # no cell with baselines
+    assert not (tmp_path / "HalfCheetah_alignment.png").exists()
+    assert not (tmp_path / "fig2.png").exists()
 
 
 def test_grid_configs_follow_the_paper_per_family():

@@ -25,6 +25,8 @@ from typing import Annotated, Literal
 
 import tyro
 
+from jaml.experiments._runs import CallOptions
+
 
 def _import_mjx_quietly() -> list[str]:
     """Import mujoco.mjx with stdout captured; return what it printed.
@@ -266,13 +268,8 @@ class Suite:
     """the learner (jaml.learners)"""
     out: Path
     """run directory"""
-    stop_after: int | None = None
-    """stop after this many epochs in this call; the next call resumes from the last checkpoint
-    (written with each analysis), redoing the epochs after it"""
-    checkpoint_every: int | None = None
-    """epochs between checkpoints (default: one with every analysis); the last analysis and a
-    --stop-after stop always checkpoint. A checkpoint holds each run's replay (2–4 GB): thin
-    them on a machine whose disk does not outlive the call"""
+    call: Annotated[CallOptions, tyro.conf.arg(name="")] = dataclasses.field(
+        default_factory=CallOptions)
     no_progress: bool = False
     """no progress bar"""
     config: Annotated[_suite_config(), tyro.conf.arg(name="")] = dataclasses.field(
@@ -301,7 +298,7 @@ class Suite:
 
         config = self.stream_config()
         summary = run(config, self.out, progress=not self.no_progress,
-                      stop_after=self.stop_after, checkpoint_every=self.checkpoint_every)
+                      **dataclasses.asdict(self.call))
         print(f"{config.env} {config.learner} ({config.policy}): {summary['status']} at epoch "
               f"{summary['epoch']}, checkpoint {summary['checkpoint_epoch']} -> {self.out}")
         for r in summary["final"]:

@@ -131,6 +131,25 @@ def test_suite_flags_become_the_runs_config():
     assert config.epochs == 3 and config.rollout_len == 64
 
 
+def test_suite_call_flags_reach_the_run(monkeypatch, tmp_path):
+    """`jaml suite` takes the training commands' call flags (`CallOptions`) and hands them to
+    `stream.run.run` unchanged."""
+    from jaml.stream import run as run_lib
+
+    seen = {}
+
+    def run(config, out, **kwargs):
+        seen.update(kwargs)
+        return {"status": "interrupted", "epoch": 3, "checkpoint_epoch": 3, "final": []}
+
+    monkeypatch.setattr(run_lib, "run", run)
+    assert cli.main(["suite", "--env", "CartPole", "--learner", "VAE_rpl",
+                     "--out", str(tmp_path), "--stop-after", "3", "--checkpoint-every", "50",
+                     "--no-final-checkpoint", "--no-keep-pi-rand", "--no-progress"]) == 0
+    assert seen == {"progress": False, "stop_after": 3, "checkpoint_every": 50,
+                    "final_checkpoint": False, "keep_pi_rand": False}
+
+
 def test_a_bad_choice_is_one_line_naming_the_valid_values(capsys):
     with pytest.raises(SystemExit) as exit_info:
         cli.main(["relations", "--source", "ellipse", "--out", "x", "--objective", "best"])

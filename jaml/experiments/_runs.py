@@ -43,13 +43,14 @@ class Driver:
 
 @dataclasses.dataclass(frozen=True)
 class CallOptions:
-    """How one call trains its cells: the flags shared by the drivers that train cells of
-    seeds (fig2, fig3), given to `train_seeds` as they are (`dataclasses.asdict`). A driver
-    holds them as `call: Annotated[CallOptions, tyro.conf.arg(name="")]`: the flags keep their
-    names (--stop-after, …); the help lists them after the driver's own."""
+    """How one call trains its runs: the flags shared by the commands that train (`jaml suite`,
+    fig2, fig3), given to `stream.run.run` / `train_seeds` as they are (`dataclasses.asdict`).
+    A command holds them as `call: Annotated[CallOptions, tyro.conf.arg(name="")]`: the flags
+    keep their names (--stop-after, …); the help lists them after the command's own."""
 
     stop_after: int | None = None
-    """epochs per cell in this call (a session's share); a rerun resumes"""
+    """epochs per run in this call (a session's share; the stop writes a checkpoint); the next
+    call resumes"""
     checkpoint_every: int | None = None
     """epochs between checkpoints (default: one with every analysis); the last analysis and a
     --stop-after stop always checkpoint. A checkpoint holds each run's replay (2–4 GB): thin

@@ -152,6 +152,8 @@ def _one_line(box: str) -> str:
         elif content.strip():
             sections[-1].append(content)
     sections = [s for s in sections if s]
+    if not sections:
+        return "invalid arguments"
     message = sections[0] if unicode or len(sections) < 2 else sections[1]
     indent = min(len(x) - len(x.lstrip()) for x in message) if message else 0
     kept = [x.strip() for x in message if len(x) - len(x.lstrip()) < indent + 8]
@@ -593,7 +595,7 @@ def parse(argv: list[str]):
                 prog = " ".join(["jaml", *[a for a in argv[:1] if not a.startswith("-")]])
                 if debug:
                     sys.stderr.write(captured.getvalue())
-                else:
+                elif not helping:  # with --help, tyro's own message went to stderr as is
                     print(f"{prog}: error: {_one_line(captured.getvalue())} "
                           f"(see `{prog} --help`)", file=sys.stderr)
             raise

@@ -159,6 +159,17 @@ def test_a_bad_choice_is_one_line_naming_the_valid_values(capsys):
     assert "('paper', 'reference')" in err
 
 
+def test_a_bad_value_beside_help_is_refused_without_a_traceback(capsys):
+    """`--help` with an invalid value: tyro's own message, exit 2, no Python traceback (the
+    one-line rewrite has nothing to read there: stderr is not captured while helping)."""
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["envs", "show", "--env", "Nope", "--help"])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2
+    assert "Nope" in err and "Traceback" not in err
+    assert cli._one_line("") == "invalid arguments"
+
+
 def test_debug_shows_the_traceback(tmp_path, capsys):
     argv = ["relations", "--source", str(tmp_path / "missing.csv"), "--out", str(tmp_path / "r")]
     assert cli.main(argv) == 2

@@ -166,9 +166,8 @@ def main(argv=None) -> int:
             for dtype in args.dtypes:
                 for runs in args.runs:
                     for devices in args.devices:
-                        # The mesh the runs get (`runs_mesh`: at most one device per run, at
-                        # most the local ones): a setting that gives the same one is timed once.
-                        used = max(1, min(runs, len(jax.local_devices()[:devices])))
+                        # A setting that gives the runs the same mesh is timed once.
+                        used = runs_mesh(runs, jax.local_devices()[:devices]).size
                         if (dtype, runs, used) in measured:
                             continue
                         measured.add((dtype, runs, used))

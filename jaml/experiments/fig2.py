@@ -212,18 +212,18 @@ def has_baselines(histories: list[list[dict]]) -> bool:
     return all(r.get("baseline") for h in histories for r in h)
 
 
-def figure_records(out: Path, envs, variants) -> list[dict]:
-    """History records re-keyed for the paper's layout: errors = {panel: value}, learner = the
-    variant's label, π_curr first (the top row).
+def figure_records(grid: dict[str, dict[str, list[list[dict]]]]) -> list[dict]:
+    """History records of `grid` (env → `grid_histories`) re-keyed for the paper's layout:
+    errors = {panel: value}, learner = the variant's label, π_curr first (the top row).
 
     Locomotion panels read each group as a fraction of its run's constant predictor's error,
     as the report's tables and findings do: each run's raw errors are in units of its own
     replay's spread (`group_value`), so raw curves of two cells are not on one scale. A
     locomotion cell without baselines (`has_baselines`) is left out; the report names it."""
     records = []
-    for env in envs:
+    for env, runs in grid.items():
         relative = env in LOCOMOTION
-        for variant, histories in grid_histories(out, env, variants).items():
+        for variant, histories in runs.items():
             if relative and not has_baselines(histories):
                 continue
             for h in histories:
@@ -255,8 +255,8 @@ def report(out: Path, envs, variants) -> str:
              *_claims(out, envs, variants),
              "Several seeds: mean ± the half-width of its 90 % confidence interval, at the last",
              "epoch all of a cell's seeds reached.", ""]
-    for env in envs:
-        runs = grid_histories(out, env, variants)
+    grid = {env: grid_histories(out, env, variants) for env in envs}
+    for env, runs in grid.items():
         if not runs:
             continue
         names = list(next(iter(runs.values()))[0][0]["errors"])
@@ -292,7 +292,7 @@ def report(out: Path, envs, variants) -> str:
             plots.plot_alignment(
                 [r | {"learner": v} for v, hs in runs.items() for h in hs for r in h],
                 out / f"{env}_alignment.png")
-    records = figure_records(out, envs, variants)
+    records = figure_records(grid)
     if records:
         plots.plot_alignment(records, out / "fig2.png", ylabels=panel_ylabels(envs))
         lines += ["![Fig. 2](fig2.png)", ""]

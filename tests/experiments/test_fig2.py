@@ -89,7 +89,8 @@ def test_figure_panels_average_the_groups_of_each_domain(tmp_path):
     """Pendulums: position and velocity panels; locomotion: one panel, the mean of its groups'
     means (contacts weigh as much as the many position dims)."""
     _write_run(tmp_path / "CartPole" / "PRED" / "seed_0", "PRED", 0, [0.1, 0.5, 0.3, 0.7])
-    records = [r for r in fig2.figure_records(tmp_path, ["CartPole"], ["PRED"])
+    records = [r for r in fig2.figure_records(
+        {"CartPole": fig2.grid_histories(tmp_path, "CartPole", ["PRED"])})
                if r["step"] == 20]
     assert records[0]["errors"] == {"CartPole position": 0.2, "CartPole velocity": 0.6}
     assert records[0]["learner"] == "PRED"
@@ -122,7 +123,8 @@ def test_locomotion_figures_read_fractions_of_the_constant_predictor(tmp_path):
     the report's scale; a cell recorded without baselines is left out, not drawn raw."""
     lines = _locomotion_cell(tmp_path, "PRED")
     _locomotion_cell(tmp_path, "VAE_rpl", with_baselines=False)
-    records = fig2.figure_records(tmp_path, ["HalfCheetah"], ["PRED", "VAE_rpl"])
+    records = fig2.figure_records(
+        {"HalfCheetah": fig2.grid_histories(tmp_path, "HalfCheetah", ["PRED", "VAE_rpl"])})
     assert [(r["learner"], r["step"]) for r in records] == [("PRED", 10), ("PRED", 20)]
     value = records[0]["errors"]["HalfCheetah (pos, vel, contacts)"]
     assert value == pytest.approx(np.mean([0.5, 0.5, 0.25]))  # raw would be 0.467

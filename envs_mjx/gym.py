@@ -129,11 +129,18 @@ class MjxGymEnv(_KeyedState, gymnasium.Env):
         self.env = env
         self.observation_space, self.action_space = _spaces(env)
         self.render_mode = render_mode
-        packing = _Packing(jax.eval_shape(env.reset, jax.random.PRNGKey(0)))
+        shapes = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
+        packing = _Packing(shapes)
+        self._frame_shape = tuple(shapes.pixels.shape)
 
         def reported(state):
-            return (state.pixels, state.ld_state, state.reward, state.done,
-                    state.info["truncation"])
+            # One uint8 buffer (the frame's bytes, then the float32 LD state, reward, done and
+            # truncation as bytes): one transfer to the host instead of five (~30 µs each on
+            # the 2-core CPU, against a CartPole step's ~170 µs).
+            scalars = jnp.stack([state.reward, state.done, state.info["truncation"]])
+            floats = jnp.concatenate([state.ld_state, scalars]).astype(jnp.float32)
+            return jnp.concatenate([jnp.ravel(state.pixels),
+                                    jnp.ravel(jax.lax.bitcast_convert_type(floats, jnp.uint8))])
 
         def reset(key):
             state = env.reset(key)
@@ -153,7 +160,11 @@ class MjxGymEnv(_KeyedState, gymnasium.Env):
     def _take(self, result) -> None:
         """Keep the packed state on the device and the report on the host (one transfer)."""
         self._state, reported = result
-        self._reported = jax.device_get(reported)
+        report = np.asarray(jax.device_get(reported))
+        n = int(np.prod(self._frame_shape))
+        floats = report[n:].view(np.float32)  # the device's byte order: little-endian here too
+        self._reported = (report[:n].reshape(self._frame_shape), floats[:-3], floats[-3],
+                          floats[-2], floats[-1])
 
     def _obs_info(self) -> tuple[np.ndarray, dict[str, Any]]:
         return _observation(self.env, *self._reported[:2])

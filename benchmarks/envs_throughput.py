@@ -58,7 +58,7 @@ import numpy as np
 from mujoco import mjx
 
 import envs_mjx
-from benchmarks.harness import block, measure, parse_env, record
+from benchmarks.harness import block, measure, parse_env, record, usable_cores
 from benchmarks.peers import pybullet_envs
 from envs_mjx.compile import CPU_COMPILER_OPTIONS
 
@@ -438,8 +438,9 @@ def main(argv=None):
     parser.add_argument("--options-batch", type=int, default=8,
                         help="batch of the options case (small: XLA's default CPU emitters "
                              "run the Franka scene's step ~1.9 s at 8 envs)")
-    parser.add_argument("--processes", type=int, default=os.cpu_count() or 1,
-                        help="PyBullet worker processes (default: one per core)")
+    parser.add_argument("--processes", type=int, default=usable_cores(),
+                        help="PyBullet worker processes (default: one per core this process "
+                             "may run on, so `taskset -c 0` gives one)")
     args = parser.parse_args(argv)
     for spec in args.envs:
         try:

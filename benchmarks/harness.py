@@ -76,6 +76,15 @@ def _cpu_model() -> str:
     return platform.processor() or "unknown"
 
 
+def usable_cores() -> int:
+    """Cores this process may run on (its CPU affinity, so `taskset -c 0` counts 1), where
+    `os.cpu_count()` counts the machine's."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # no affinity on this platform
+        return os.cpu_count() or 1
+
+
 def git_commit(directory: Path, ignore: tuple[str, ...] = ()) -> str:
     """The short HEAD of the checkout holding `directory`, with "+dirty" when tracked files have
     uncommitted changes (the commit alone does not name the code), "" without git. `ignore`:
@@ -114,6 +123,8 @@ def environment() -> dict:
         "device_count": jax.device_count(),
         "cpu": _cpu_model(),
         "cpu_cores": os.cpu_count(),
+        # A pinned run (taskset) uses fewer; XLA:CPU sizes its thread pool by this too.
+        "cpu_affinity": usable_cores(),
         "python": platform.python_version(),
         "versions": versions,
         "commit": commit,
@@ -165,11 +176,17 @@ def _identity(row: dict) -> tuple:
     machines both read "cpu:cpu") and its host's core count, and the settings a benchmark
     varies within one case (stacked runs, devices, batch), so that a later row at other
     settings does not hide an earlier one. A row from before a benchmark recorded runs and
-    devices ran one run on one device."""
+    devices ran one run on one device, and one from before it recorded its affinity could run
+    on every core (a pinned run, `taskset`, stands beside the unpinned one)."""
     device = row["device"]
     machine = row.get("cpu") if device.startswith("cpu") else None
     return (row["benchmark"], row["case"], row.get("impl", ""), device, machine,
-            row.get("cpu_cores"), row.get("runs", 1), row.get("devices", 1), row.get("batch"))
+            row.get("cpu_cores"), _affinity(row), row.get("runs", 1), row.get("devices", 1),
+            row.get("batch"))
+
+
+def _affinity(row: dict):
+    return row.get("cpu_affinity", row.get("cpu_cores"))
 
 
 def write_markdown() -> None:
@@ -203,6 +220,7 @@ def write_markdown() -> None:
         "device_count",
         "cpu",
         "cpu_cores",
+        "cpu_affinity",
         "python",
         "versions",
         "commit",
@@ -225,6 +243,8 @@ def write_markdown() -> None:
             stamp = f"jax {v.get('jax', '?')}, {r['date'][:10]}, {commit}"
             if r["device"].startswith("cpu"):
                 device = f"{r['device']} ({r['cpu_cores']} cores {r['cpu']})"
+                if _affinity(r) != r["cpu_cores"]:
+                    device += f", pinned to {_affinity(r)}"
             else:  # the host: rows of one GPU model on different machines stay told apart
                 count = r.get("device_count", 1)
                 device = (f"{r['device']} ({count} GPU{'s' * (count > 1)}, host of "

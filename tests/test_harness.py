@@ -40,7 +40,11 @@ def test_results_md_keeps_the_latest_row_per_case_machine_and_settings(tmp_path,
             base | {"device": "gpu:H200", "cpu": "AMD EPYC", "devices": 1, "value": 6.0},
             base | {"device": "gpu:H200", "cpu": "Intel Xeon", "devices": 4, "value": 5.0},
             base | {"device": "gpu:H200", "cpu": "Intel Xeon", "runs": 4, "value": 7.0},
-            base | {"device": "gpu:H200", "cpu": "Intel Xeon", "batch": 64, "value": 8.0}]
+            base | {"device": "gpu:H200", "cpu": "Intel Xeon", "batch": 64, "value": 8.0},
+            # pinned to one core (taskset): beside the unpinned Xeon row, not over it; a row
+            # that records every core as its affinity is the unpinned one (supersedes "2")
+            base | {"cpu": "Intel Xeon", "cpu_affinity": 1, "value": 9.0},
+            base | {"cpu": "Intel Xeon", "cpu_affinity": 2, "value": 10.0}]
     (tmp_path / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     harness.write_markdown()
     table = [line for line in (tmp_path / "RESULTS.md").read_text().splitlines()
@@ -48,7 +52,8 @@ def test_results_md_keeps_the_latest_row_per_case_machine_and_settings(tmp_path,
     values = sorted(line.split(" | ")[-2] for line in table)
     # 1 superseded by 3 (same CPU); 4 (one device, recorded before the key) by 6: a GPU row's
     # host CPU model does not tell machines apart, its core count does (both 2 here).
-    assert values == ["2", "3", "5", "6", "7", "8"]
+    assert values == ["10", "3", "5", "6", "7", "8", "9"]
+    assert sum("pinned to 1" in line for line in table) == 1
 
 
 def test_a_commit_is_dirty_for_changed_code_not_for_the_harness_outputs(tmp_path):

@@ -248,8 +248,9 @@ PEER_FRAME = ("reference: getCameraImage with the reference's renderer and defau
               "resets untimed")
 SIDE_NOTE = (
     "Measured side by side in one process, alternated block by block: jaml's env.step with 64x64 "
-    "pixels (XLA on all cores) against benchmarks/peers/pybullet_envs.py (PyBullet 3.2.7 + "
-    "TinyRenderer 64x64, one worker process per core). ratio_jaml_over_pybullet divides the two "
+    "pixels (XLA on every core the process may use, cpu_affinity) against "
+    "benchmarks/peers/pybullet_envs.py (PyBullet 3.2.7 + TinyRenderer 64x64, one worker process "
+    "per such core). ratio_jaml_over_pybullet divides the two "
     "medians; ratio_min / ratio_max are the extreme per-round ratios. The quoted_ columns are "
     "anchors quoted from perf_anchors.md, not measured here and not divided into."
 )
@@ -491,9 +492,11 @@ def main(argv=None):
                   f"(rounds {r['ratio_min']:.2f}-{r['ratio_max']:.2f}); jaml uses "
                   f"{r['jaml_uses']}", flush=True)
             option_rows.append(r)
-        pairs = [(max(pix_batches), args.processes)]
+        # The largest batch against one PyBullet process per core; one env always against one
+        # process (2026-11-26: `--pixel-batches 1` alone had put one env against two).
+        pairs = [(max(pix_batches), args.processes if max(pix_batches) > 1 else 1)]
         if 1 in pix_batches and max(pix_batches) > 1:
-            pairs.append((1, 1))  # one env against one PyBullet process
+            pairs.append((1, 1))
         has_peer = side and _has_peer(name)
         for b, procs in pairs if has_peer else ():
             steps = pix_steps if b > 1 or args.quick else args.single_env_steps

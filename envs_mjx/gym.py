@@ -14,6 +14,11 @@ env also splits its key on every `step`, and resets the envs that ended on the p
 Terminated vs truncated: the envs follow Brax, where `state.done` is set for both and
 `state.info["truncation"]` is 1 for a time-limit end; here `truncated = truncation > 0` and
 `terminated = done and not truncated`.
+
+Speed on a CPU: the single env makes one small jitted call per step, and XLA:CPU's thread pool
+spends more handing that call's work between cores than it saves; a process pinned to one core
+(`taskset -c 0`) ran it 1.24–1.46× faster on two Intel Xeon cores (docs/render.md, "One env on
+one core"). The vector env's batched call is what the pool is for.
 """
 
 from __future__ import annotations

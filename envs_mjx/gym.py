@@ -16,9 +16,10 @@ Terminated vs truncated: the envs follow Brax, where `state.done` is set for bot
 `terminated = done and not truncated`.
 
 Speed on a CPU: the single env makes one small jitted call per step, and XLA:CPU's thread pool
-spends more handing that call's work between cores than it saves; a process pinned to one core
-(`taskset -c 0`) ran it 1.24–1.46× faster on two Intel Xeon cores (docs/render.md, "One env on
-one core"). The vector env's batched call is what the pool is for.
+spends more handing that call's work between cores than it saves. On two Intel Xeon cores,
+against one PyBullet process side by side, CartPole's single env made 0.47× its frames/s with
+the process pinned to one core (`taskset -c 0`) and 0.35× unpinned, in two runs of the benchmark
+(docs/render.md, "One env on one core"). The vector env's batched call is what the pool is for.
 """
 
 from __future__ import annotations

@@ -256,6 +256,17 @@ SIDE_NOTE = (
 )
 
 
+def side_by_side_pairs(batches, processes: int) -> list[tuple[int, int]]:
+    """(jaml batch, PyBullet processes) of the side-by-side rows: the largest batch against
+    `processes` workers, and one env against one process, always (2026-11-26: `--pixel-batches
+    1` alone had put one env against two)."""
+    largest = max(batches)
+    pairs = [(largest, processes if largest > 1 else 1)]
+    if 1 in batches and largest > 1:
+        pairs.append((1, 1))
+    return pairs
+
+
 def bench_vs_pybullet(name, batch, steps, rounds, processes=2):
     """jaml's env.step with pixels and the PyBullet peer, alternated block by block.
 
@@ -492,11 +503,7 @@ def main(argv=None):
                   f"(rounds {r['ratio_min']:.2f}-{r['ratio_max']:.2f}); jaml uses "
                   f"{r['jaml_uses']}", flush=True)
             option_rows.append(r)
-        # The largest batch against one PyBullet process per core; one env always against one
-        # process (2026-11-26: `--pixel-batches 1` alone had put one env against two).
-        pairs = [(max(pix_batches), args.processes if max(pix_batches) > 1 else 1)]
-        if 1 in pix_batches and max(pix_batches) > 1:
-            pairs.append((1, 1))
+        pairs = side_by_side_pairs(pix_batches, args.processes)
         has_peer = side and _has_peer(name)
         for b, procs in pairs if has_peer else ():
             steps = pix_steps if b > 1 or args.quick else args.single_env_steps

@@ -93,6 +93,13 @@ def test_franka_scene_is_torque_driven_with_gravity_compensation_and_seen_by_the
     assert (np.abs(frame_reach.astype(int) - frame_free).max(-1) > 30).sum() > 100
 
 
+def test_one_env_is_always_set_against_one_pybullet_process():
+    pairs = envs_throughput.side_by_side_pairs
+    assert pairs([1], 2) == [(1, 1)]
+    assert pairs([1, 64, 256], 2) == [(256, 2), (1, 1)]
+    assert pairs([256], 1) == [(256, 1)]
+
+
 def test_env_specs_pick_the_peer_scene_or_say_why_not(capsys):
     key = pybullet_envs.scene_key
     assert key("RearrangeGeom") == key("RearrangeGeom:physics=c") == "RearrangeGeom"

@@ -165,16 +165,21 @@ class MjxGymEnv(_KeyedState, gymnasium.Env):
         self._reported = None  # host copies of `reported(state)`
 
     def _take(self, result) -> None:
-        """Keep the packed state on the device and the report on the host (one transfer)."""
+        """Keep the packed state on the device and the report on the host (one transfer).
+
+        Plain numpy and Python scalars from here on: `jax.device_get` and numpy scalar ops
+        cost a single CartPole step ~60 µs of ~250 (pinned to one core, 2-core Xeon)."""
         self._state, reported = result
-        report = np.asarray(jax.device_get(reported))
+        report = np.asarray(reported)
         n = self._frame_size
         floats = report[n:].view(np.float32)  # the device's byte order: little-endian here too
-        self._reported = (report[:n].reshape(self._frame_shape), floats[:-3], floats[-3],
-                          floats[-2], floats[-1])
+        reward, done, truncation = floats[-3:].tolist()
+        self._reported = (report[:n].reshape(self._frame_shape), floats[:-3], reward, done,
+                          truncation)
 
     def _obs_info(self) -> tuple[np.ndarray, dict[str, Any]]:
-        return _observation(self.env, *self._reported[:2])
+        frame, ld_state = self._reported[:2]
+        return frame, {"ld_state": ld_state, "ld_state_names": self.env.ld_state_names}
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
@@ -188,8 +193,8 @@ class MjxGymEnv(_KeyedState, gymnasium.Env):
         self._take(self._step_fn(self._state, action))
         obs, info = self._obs_info()
         _, _, reward, done, truncation = self._reported
-        terminated, truncated = _split_done(done, truncation)
-        return obs, float(reward), bool(terminated), bool(truncated), info
+        truncated = truncation > 0  # Brax's done covers both; truncation says which
+        return obs, reward, done > 0 and not truncated, truncated, info
 
     def render(self):
         return None if self._state is None else np.asarray(self._reported[0], np.uint8)

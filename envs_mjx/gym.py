@@ -17,9 +17,10 @@ Terminated vs truncated: the envs follow Brax, where `state.done` is set for bot
 
 Speed on a CPU: the single env makes one small jitted call per step, and XLA:CPU's thread pool
 spends more handing that call's work between cores than it saves. On two Intel Xeon cores,
-against one PyBullet process side by side, CartPole's single env made 0.47× its frames/s with
-the process pinned to one core (`taskset -c 0`) and 0.35× unpinned, in two runs of the benchmark
-(docs/render.md, "One env on one core"). The vector env's batched call is what the pool is for.
+against one PyBullet process side by side, CartPole's single env made 0.59× its frames/s with
+the process pinned to one core (`taskset -c 0`) and 0.41× unpinned, InvertedPendulum 1.07× and
+0.67×, in two runs of the benchmark (docs/render.md, "One env on one core"). The vector env's
+batched call is what the pool is for.
 """
 
 from __future__ import annotations
@@ -167,8 +168,9 @@ class MjxGymEnv(_KeyedState, gymnasium.Env):
     def _take(self, result) -> None:
         """Keep the packed state on the device and the report on the host (one transfer).
 
-        Plain numpy and Python scalars from here on: `jax.device_get` and numpy scalar ops
-        cost a single CartPole step ~60 µs of ~250 (pinned to one core, 2-core Xeon)."""
+        Plain numpy and Python scalars from here on: with `jax.device_get` and numpy scalar
+        ops a CartPole step took 313 against 218 µs (median of 10 alternated rounds in one
+        process, pinned to one core, 2-core Xeon; 320 against 283 µs on both cores)."""
         self._state, reported = result
         report = np.asarray(reported)
         n = self._frame_size

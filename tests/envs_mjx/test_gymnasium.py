@@ -1,4 +1,5 @@
-"""envs_mjx.to_gymnasium on CartPole: check_env, vector spaces, keys, determinism, autoreset."""
+"""envs_mjx.to_gymnasium on CartPole: check_env, vector spaces, keys, determinism, autoreset,
+and the packed state and one-buffer report both envs pass through their jitted calls."""
 
 import types
 
@@ -10,7 +11,7 @@ from gymnasium.utils.env_checker import check_env
 from gymnasium.vector import AutoresetMode, VectorEnv
 
 import envs_mjx
-from envs_mjx.gym import _flags, _Packing
+from envs_mjx.gym import _flags, _Packing, _Report
 
 N = 4
 
@@ -144,11 +145,47 @@ def test_next_step_autoreset(vec):
     assert np.all(info3["ld_state"][ended, 2] > info2["ld_state"][ended, 2])
 
 
-def test_flags_split_done_by_truncation():
-    s = types.SimpleNamespace(
-        done=np.array([0.0, 1.0, 1.0]), info={"truncation": np.array([0.0, 0.0, 1.0])}
+def test_vector_step_reports_what_the_vmapped_env_step_leaves(vec, direct):
+    """Frames, LD states, rewards and flags through the packed state and the one-buffer report
+    equal `vmap(env.step)` from the same reset states."""
+    reset, step = direct
+    _, sub = jax.random.split(jax.random.PRNGKey(21))
+    states = jax.vmap(reset)(jax.random.split(sub, N))  # CartPole's reset_batch
+    vec.reset(seed=21)
+    actions = np.linspace(-1, 1, N, dtype=np.float32)[:, None]
+    want = jax.jit(jax.vmap(step))(states, actions)
+    obs, reward, term, trunc, info = vec.step(actions)
+    np.testing.assert_array_equal(obs, np.asarray(want.pixels))
+    np.testing.assert_allclose(info["ld_state"], np.asarray(want.ld_state), rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(reward, np.asarray(want.reward), rtol=1e-6)
+    np.testing.assert_array_equal(term | trunc, np.asarray(want.done) > 0)
+
+
+@pytest.mark.parametrize("batch", [(), (3,)])
+def test_report_round_trips_the_step_fields_exactly(batch):
+    """The one-buffer report carries frames, LD state, reward, done and truncation exactly, for
+    one env and for a batch."""
+    rng = np.random.default_rng(0)
+    state = types.SimpleNamespace(
+        pixels=rng.integers(0, 256, (*batch, 4, 4, 3), dtype=np.uint8),
+        ld_state=rng.normal(size=(*batch, 5)).astype(np.float32),
+        reward=rng.normal(size=batch).astype(np.float32),
+        done=np.ones(batch, np.float32),
+        info={"truncation": np.zeros(batch, np.float32)},
     )
-    term, trunc = _flags(s)
+    frames, floats = _Report(state).decode(_Report.encode(state))
+    np.testing.assert_array_equal(frames, state.pixels)
+    np.testing.assert_array_equal(floats[..., :-3], state.ld_state)
+    np.testing.assert_array_equal(floats[..., -3], state.reward)
+    np.testing.assert_array_equal(floats[..., -2], state.done)
+    np.testing.assert_array_equal(floats[..., -1], state.info["truncation"])
+
+
+def test_flags_split_done_by_truncation():
+    floats = np.zeros((3, 5), np.float32)
+    floats[:, -2] = [0.0, 1.0, 1.0]  # done
+    floats[:, -1] = [0.0, 0.0, 1.0]  # truncation
+    term, trunc = _flags(floats)
     np.testing.assert_array_equal(term, [False, True, False])
     np.testing.assert_array_equal(trunc, [False, False, True])
 

@@ -111,10 +111,26 @@ def read_history(path: Path) -> list[dict]:
     return [json.loads(x) for x in complete.splitlines() if x.strip()]
 
 
+def stopped_runs(directory: Path) -> dict[str, str]:
+    """seed_N → the error of each run under `directory` that a non-finite learner loss stopped
+    (its summary.json says "nonfinite"; `stream.run.run_many` stops such a run alone)."""
+    stopped = {}
+    for d in sorted(directory.glob("seed_*")):
+        path = d / "summary.json"
+        summary = json.loads(path.read_text()) if path.exists() else {}
+        if summary.get("status") == "nonfinite":
+            stopped[d.name] = summary.get("error", "learner loss became non-finite")
+    return stopped
+
+
 def seed_histories(directory: Path) -> list[list[dict]]:
     """The histories of the seed_N runs under `directory` that have analysed at least once,
-    in seed-directory order."""
-    histories = (read_history(d / "history.jsonl") for d in sorted(directory.glob("seed_*")))
+    in seed-directory order. Runs stopped by a non-finite loss (`stopped_runs`) are left out:
+    their last analysis would hold every table at the epoch they stopped before, and a report
+    names them instead."""
+    stopped = stopped_runs(directory)
+    histories = (read_history(d / "history.jsonl") for d in sorted(directory.glob("seed_*"))
+                 if d.name not in stopped)
     return [h for h in histories if h]
 
 

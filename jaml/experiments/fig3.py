@@ -447,7 +447,10 @@ def _claims(runs, shape: Layout, configs) -> list[str]:
 def _recon_image(out: Path, variant: str) -> tuple[Path, str] | None:
     """The newest reconstruction image of the variant's first seed that has one, copied to
     OUT/fig3_recon_VARIANT.png; (its path, a caption)."""
+    stopped = _runs.stopped_runs(out / variant)
     for seed_dir in sorted((out / variant).glob("seed_*")):
+        if seed_dir.name in stopped:
+            continue
         images = sorted((seed_dir / "recon").glob("epoch_*.png"))
         if images:
             target = out / f"fig3_recon_{variant}.png"
@@ -532,6 +535,11 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
                     lines.append(f"| {label} | {test_set} | "
                                  + " | ".join(cell(v) if v else "–" for v in per_panel)
                                  + f" | {last} | {len(per_panel[0])} |")
+    stopped = [f"- {variant} {seed}: stopped, {error.split(';')[0]}; left out of every table "
+               "and figure." for variant in variants
+               for seed, error in _runs.stopped_runs(out / variant).items()]
+    if stopped:
+        lines += ["", *stopped]
     plot(runs, panels, out / "fig3.png")
     lines += ["", "![Fig. 3](fig3.png)", "", "## Per object", "",
               "Spheres are one colour: their rotation does not show in a frame.", "",

@@ -331,10 +331,13 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                 r.seconds["epochs"] += share
                 if stop_after is not None:
                     budget[id(r)] -= n
-                error = _non_finite(mine, r.epoch)
-                if error:  # this run stops; its stacked state is dropped at the next regroup
-                    r.status, r.error = "nonfinite", error
-                    log.error("%s: %s", r.out, error)
+                bad = _first_non_finite(mine)
+                if bad is not None:  # this run stops; its stacked state is dropped at the next
+                    # regroup. Its metrics up to the first bad epoch are logged, so the terms
+                    # that went first can be read.
+                    r.logs.epochs(r.epoch, {k: v[:bad + 1] for k, v in mine.items()})
+                    r.status, r.error = "nonfinite", _non_finite_message(r.epoch + bad + 1)
+                    log.error("%s: %s", r.out, r.error)
                     continue
                 r.logs.epochs(r.epoch, mine)
                 r.epoch += n
@@ -396,16 +399,17 @@ def _last_finite(values: np.ndarray) -> float:
     return float(finite[-1]) if finite.size else float("nan")
 
 
-def _non_finite(metrics: dict[str, np.ndarray], first_epoch: int) -> str | None:
-    """The message for a learner loss that became NaN/inf in these epochs, else None."""
-    loss = metrics["learner/loss"]
-    training = metrics["learner/training"] > 0
-    bad = training & ~np.isfinite(loss)
-    if not bad.any():
-        return None
-    return (f"learner loss became non-finite at epoch {first_epoch + int(np.argmax(bad)) + 1}; "
-            "the run stopped and its last good checkpoint is kept (lower the learning rate or "
-            "check the inputs, then start a new --out or resume from the checkpoint)")
+def _first_non_finite(metrics: dict[str, np.ndarray]) -> int | None:
+    """Index of the first epoch of these whose learner loss is NaN/inf while training, else
+    None (before the replay fills the learner does not train and its loss is NaN by design)."""
+    bad = (metrics["learner/training"] > 0) & ~np.isfinite(metrics["learner/loss"])
+    return int(np.argmax(bad)) if bad.any() else None
+
+
+def _non_finite_message(epoch: int) -> str:
+    return (f"learner loss became non-finite at epoch {epoch}; the run stopped and its last "
+            "good checkpoint is kept (lower the learning rate or check the inputs, then start a "
+            "new --out or resume from the checkpoint)")
 
 
 def _analyse_together(stream: Stream, states: StreamState, due: list,

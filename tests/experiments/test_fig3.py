@@ -470,3 +470,19 @@ def test_a_tiny_ycb_run_trains_to_its_end_and_reports(tmp_path):
     text = fig3.report(tmp_path, ["VAE_rpl"])
     row = _row(text, "VAE_rpl", "pi_rand", "| variant | test set | arm joint angles")
     assert (row["epoch"], row["seeds"]) == ("4", "1")
+
+
+def test_a_run_stopped_by_a_non_finite_loss_is_named_and_left_out(fake_grid):
+    # SPAIR's third seed stopped at epoch 4 (fake_grid); say its loss turned non-finite then.
+    stopped = fake_grid / "SPAIR_4x4" / "seed_2"
+    error = ("learner loss became non-finite at epoch 5; the run stopped and its last good "
+             "checkpoint is kept (lower the learning rate or check the inputs)")
+    (stopped / "summary.json").write_text(json.dumps({"status": "nonfinite", "error": error}))
+    text = fig3.report(fake_grid)
+    spair = _row(text, "SPAIR_4x4", "pi_curr", "| variant | test set | arm joint angles")
+    # The two runs that went on set the epoch: 6, not the stopped run's 4.
+    assert (spair["epoch"], spair["seeds"]) == ("6", "2")
+    assert spair["object positions"] == "0.200 ± 0.000"
+    assert ("- SPAIR_4x4 seed_2: stopped, learner loss became non-finite at epoch 5; left out "
+            "of every table and figure.") in text.splitlines()
+    assert "seed_2" not in text.replace("SPAIR_4x4 seed_2: stopped", "")

@@ -6,6 +6,7 @@ marked slow; the config checks and the checkpoint round trip run by default.
 
 import dataclasses
 import json
+import math
 import shutil
 from pathlib import Path
 
@@ -297,6 +298,10 @@ def test_a_non_finite_loss_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_
         loop._BUILT[cache_key] = good
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["status"] == "nonfinite" and summary["checkpoint_epoch"] == 2
+    # The epochs up to the first bad one are logged, the bad one included.
+    metrics = _records(tmp_path / "metrics.jsonl")
+    assert [r["epoch"] for r in metrics] == [1, 2, 3]
+    assert math.isnan(metrics[-1]["learner/loss"])
 
 
 def test_suite_cli_has_help_and_reports_bad_input(tmp_path, capsys):

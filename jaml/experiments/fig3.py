@@ -541,9 +541,10 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
     if stopped:
         lines += ["", *stopped]
     plot(runs, panels, out / "fig3.png")
-    lines += ["", "![Fig. 3](fig3.png)", "", "## Per object", "",
-              "Spheres are one colour: their rotation does not show in a frame.", "",
-              "| variant | test set | "
+    lines += ["", "![Fig. 3](fig3.png)", "", "## Per object", ""]
+    if any("sphere" in s for s in shape.shapes.values()):
+        lines += ["Spheres are one colour: their rotation does not show in a frame.", ""]
+    lines += ["| variant | test set | "
               + " | ".join(f"{k} ({shape.shapes[k]}) {part}" for k in shape.positions
                            for part in ("position", "orientation")) + " |",
               "|---" * (2 * len(shape.positions) + 2) + "|"]

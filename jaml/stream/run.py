@@ -160,6 +160,7 @@ class _RunDir:
         self.history = truncate_jsonl(out / "history.jsonl", lambda r: r["step"] <= self.epoch)
         self.logs = _Logs(out, keep=lambda r: r["epoch"] <= self.epoch)
         self.status = "running"
+        self.error: str | None = None  # why a "nonfinite" run stopped
         self.targets = [t for t in analysis_epochs(config) if t > self.epoch]
         self.started = time.perf_counter()
         # Wall seconds of this call by phase (first calls include compilation); the epochs of
@@ -214,6 +215,7 @@ class _RunDir:
             "seconds_in_analysis": self.analysis_parts,
             "checkpoint_epoch": self.manager.latest_step(),
             "final": [r for r in self.history if r["step"] == last],
+            **({"error": self.error} if self.error is not None else {}),
         }
 
     def close(self) -> dict:
@@ -366,10 +368,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
         figures.wait()
         summaries = []
         for r in runs:
-            summary = r.close()
-            if r.status == "nonfinite":
-                summary["error"] = r.error
-            summaries.append(summary)
+            summaries.append(r.close())
     figures.check()  # a figure that failed to draw, after every summary is written
     return summaries
 

@@ -346,6 +346,14 @@ def test_one_out_directory_holds_one_env(tmp_path):
         fig3.report(tmp_path)
 
 
+@pytest.mark.parametrize("env, note", [(fig3.ENV, True), ("RearrangeYCB", False)])
+def test_the_sphere_note_comes_only_with_spheres(tmp_path, env, note):
+    # RearrangeGeom's slots hold spheres; RearrangeYCB's fruit are textured meshes.
+    _write_run(tmp_path / "VAE_rpl" / "seed_0", "VAE_rpl", 0, {2: _errors(0.5, 0.5, [0.5] * 4)},
+               env=env)
+    assert ("Spheres are one colour" in fig3.report(tmp_path)) is note
+
+
 def test_an_empty_out_says_so(tmp_path):
     assert "No analysed runs" in fig3.report(tmp_path)
     assert (tmp_path / "fig3.md").exists() and not (tmp_path / "fig3.png").exists()

@@ -298,6 +298,7 @@ def test_a_non_finite_loss_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_
         loop._BUILT[cache_key] = good
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["status"] == "nonfinite" and summary["checkpoint_epoch"] == 2
+    assert summary["error"].startswith("learner loss became non-finite at epoch 3;")
     # The epochs up to the first bad one are logged, the bad one included.
     metrics = _records(tmp_path / "metrics.jsonl")
     assert [r["epoch"] for r in metrics] == [1, 2, 3]

@@ -190,9 +190,17 @@ def _glimpse_coords(centre, scale, g: int, n_in: int):
     return (centre[..., None] + u * scale[..., None]) * n_in - 0.5
 
 
+# The smallest box side (frame units) the inverse map divides by. A sampled size logit below
+# ≈ −44 makes σ(size) so small that d(1/side) overflows float32: the gradient of a box that
+# draws nothing became 0·∞ = NaN and poisoned every parameter. A side of 1e-6 of the frame
+# (1e-4 pixel at 64×64) draws nothing either, so the forward pass is unchanged.
+MIN_SIDE = 1e-6
+
+
 def _frame_coords(centre, scale, n_out: int, g: int):
     """[..., n_out]: glimpse pixel coordinates of the n_out frame pixels (the inverse map)."""
     y = (jnp.arange(n_out, dtype=centre.dtype) + 0.5) / n_out
+    scale = jnp.maximum(scale, MIN_SIDE)
     return ((y - centre[..., None]) / scale[..., None] + 0.5) * g - 0.5
 
 

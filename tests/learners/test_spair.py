@@ -88,6 +88,20 @@ def test_placing_a_glimpse_is_the_inverse_of_extracting_it():
     np.testing.assert_allclose(placed[0, 0], expected, atol=1e-6)
 
 
+@pytest.mark.parametrize("size_logit", [-10.0, -45.0, -200.0])
+def test_a_vanishing_box_draws_nothing_and_has_a_finite_gradient(size_logit):
+    # σ(−45) ≈ 3e-20: without a floor on the side, d(1/side) overflowed and the gradient of a
+    # box that draws nothing was 0·∞ = NaN.
+    glimpse = jnp.ones((1, 1, 8, 8, 3))
+
+    def drawn(logit):
+        side = jax.nn.sigmoid(jnp.full((1, 1, 2), logit))
+        return spair.place_glimpses(glimpse, jnp.full((1, 1, 2), 0.5), side, (64, 64)).sum()
+
+    value, grad = jax.value_and_grad(drawn)(size_logit)
+    assert float(value) == 0.0 and float(grad) == 0.0
+
+
 def _logit(p):
     return math.log(p / (1.0 - p))
 

@@ -153,8 +153,10 @@ def grid_status(out: Path, envs, variants, seeds: int = len(SEEDS)) -> list[str]
         for variant in variants:
             directory = out / env / variant
             histories = _runs.seed_histories(directory)
+            stopped = len(_runs.stopped_runs(directory))
+            note = f" (+{stopped} stopped: non-finite loss)" if stopped else ""
             if not histories:
-                row.append("—")
+                row.append("—" + note)
                 continue
             config = _runs.cell_config(directory)
             scheduled = config["epochs"]
@@ -166,11 +168,12 @@ def grid_status(out: Path, envs, variants, seeds: int = len(SEEDS)) -> list[str]
                        + ("" if reached == scheduled else f" of {scheduled}")
                        + (" ✓" if done else "")
                        + (f" ({', '.join(f'{k}={v}' for k, v in extra.items())})"
-                          if extra else ""))
+                          if extra else "") + note)
         lines.append(f"| {env} | " + " | ".join(row) + " |")
     total = len(envs) * len(variants)
     return [f"Cells: seeds × the epoch they all reached; ✓ = {seeds} seeds at their last epoch; "
-            "in brackets the learner options given beyond the variant's. "
+            "in brackets the learner options given beyond the variant's, and seeds stopped by a "
+            "non-finite loss (not counted, not read). "
             f"{complete} of {total} complete.", "", *lines, ""]
 
 

@@ -444,10 +444,10 @@ def _claims(runs, shape: Layout, configs) -> list[str]:
     return lines if len(lines) > 2 else []
 
 
-def _recon_image(out: Path, variant: str) -> tuple[Path, str] | None:
-    """The newest reconstruction image of the variant's first seed that has one, copied to
-    OUT/fig3_recon_VARIANT.png; (its path, a caption)."""
-    stopped = _runs.stopped_runs(out / variant)
+def _recon_image(out: Path, variant: str, stopped=()) -> tuple[Path, str] | None:
+    """The newest reconstruction image of the variant's first seed that has one and is not
+    `stopped` (seed directory names), copied to OUT/fig3_recon_VARIANT.png; (its path, a
+    caption)."""
     for seed_dir in sorted((out / variant).glob("seed_*")):
         if seed_dir.name in stopped:
             continue
@@ -535,11 +535,12 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
                     lines.append(f"| {label} | {test_set} | "
                                  + " | ".join(cell(v) if v else "–" for v in per_panel)
                                  + f" | {last} | {len(per_panel[0])} |")
-    stopped = [f"- {variant} {seed}: stopped, {error.split(';')[0]}; left out of every table "
-               "and figure." for variant in variants
-               for seed, error in _runs.stopped_runs(out / variant).items()]
-    if stopped:
-        lines += ["", *stopped]
+    stopped = {v: _runs.stopped_runs(out / v) for v in variants}
+    notes = [f"- {variant} {seed}: stopped, {error.split(';')[0]}; left out of every table "
+             "and figure." for variant, errors in stopped.items()
+             for seed, error in errors.items()]
+    if notes:
+        lines += ["", *notes]
     plot(runs, panels, out / "fig3.png")
     lines += ["", "![Fig. 3](fig3.png)", "", "## Per object", ""]
     if any("sphere" in s for s in shape.shapes.values()):
@@ -559,7 +560,7 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
     claims = _claims(runs, shape, configs)
     if claims:
         lines += ["", "## The paper's claims, side by side", "", *claims]
-    images = [x for x in (_recon_image(out, v) for v in runs) if x is not None]
+    images = [x for x in (_recon_image(out, v, stopped[v]) for v in runs) if x is not None]
     if images:
         lines += ["", "## Reconstructions at the last analysis", "",
                   "Top row: true frames (SPAIR: its boxes with presence > 0.5 drawn over them); "

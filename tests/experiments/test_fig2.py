@@ -69,6 +69,13 @@ def test_report_shows_each_cells_progress_and_reads_a_cell_at_its_seeds_common_e
     vae = next(line for line in text.splitlines() if line.startswith("| VAE_rpl"))
     # Every seed read at epoch 10 (errors 0.9), not seeds 0 and 1 at 20 (0.2) mixed in.
     assert vae.split(" | ")[2] == "0.900 ± 0.000" and vae.endswith("| 10 | 3 |")
+    # A seed stopped by a non-finite loss is named beside its cell, not counted nor read.
+    _write_run(tmp_path / "CartPole" / "DSA" / "seed_0", "DSA", 0, [0.3] * 4)
+    _write_run(tmp_path / "CartPole" / "DSA" / "seed_1", "DSA", 1, [0.3] * 4, finished=False)
+    (tmp_path / "CartPole" / "DSA" / "seed_1" / "summary.json").write_text(
+        json.dumps({"status": "nonfinite", "error": "learner loss became non-finite at epoch 12"}))
+    dsa = fig2.report(tmp_path, ["CartPole"], ["DSA"])
+    assert "| CartPole | 1 × 20 (+1 stopped: non-finite loss) |" in dsa
 
 
 def test_a_cells_extra_learner_options_are_shown_and_seeds_that_differ_are_refused(tmp_path):

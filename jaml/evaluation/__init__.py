@@ -5,6 +5,7 @@
     evaluation.alignment_errors(lat_tr, st_tr, {"pi_curr": (l, s), "pi_rand": (l, s)})
     evaluation.constant_errors(st_tr, {"pi_rand": s})            # [D]: a latent with no information
     evaluation.distortion(latents, states)                       # Var ρ over random pairs
+    evaluation.irregularity(latents, states, names)              # the reference's irreg_std
     evaluation.principal_axis_error(R_true, R_hat)               # Rearrange rotation blocks
     evaluation.plot_alignment(history, "alignment.png"); evaluation.plot_distortion(...)
 """
@@ -19,7 +20,12 @@ from jaml.evaluation.alignment import (
     regressor_error,
     rotation_errors,
 )
-from jaml.evaluation.distortion import distortion, distortion_coefficients, sample_pairs
+from jaml.evaluation.distortion import (
+    distortion,
+    distortion_coefficients,
+    irregularity,
+    sample_pairs,
+)
 from jaml.evaluation.plots import history_records, plot_alignment, plot_distortion
 from jaml.evaluation.rotation import principal_axis_error, rearrange_rotation_starts
 
@@ -33,6 +39,7 @@ __all__ = [
     "distortion_coefficients",
     "fit_regressor",
     "history_records",
+    "irregularity",
     "plot_alignment",
     "plot_distortion",
     "principal_axis_error",

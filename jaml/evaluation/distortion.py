@@ -1,7 +1,9 @@
 """Encoder distortion (paper eq. 5, App. B.3.2): Var of ρ = log(‖φ1 − φ2‖ / ‖τ1 − τ2‖) over pairs.
 
-The paper computes it on 10K test points and reports the variance; the reference suite's
-"irregularity" (the std over ≤ 500 points, indexing latents by LD-dimension indices) is not used.
+The paper computes it on 10K test points and reports the variance (`distortion`). The
+reference code reports another number, `irregularity`: the std of log-ratios over every pair of
+the first 500 points that agree on the categorical LD entries, the latents read at the
+continuous LD entries' indices.
 
 Zero distances: a pair with τ1 = τ2 has no ratio and is skipped (repeated frames at episode ends
 give such pairs). A pair with τ1 ≠ τ2 but φ1 = φ2 has ρ = −∞: the encoder collapses distinct
@@ -85,3 +87,39 @@ def distortion(latents, states, num_pairs: int = DEFAULT_NUM_PAIRS, seed: int = 
     if np.isneginf(rho).any():
         return float("inf")
     return float(np.var(rho))
+
+
+IRREGULARITY_POINTS = 500
+IRREGULARITY_EPS = 1e-10
+
+
+def irregularity(latents, states, names, *, latent_columns=None,
+                 num_points: int = IRREGULARITY_POINTS) -> float:
+    """The reference code's `irreg_std` (utils/analyze_utils.py `analyze_irregularity`).
+
+    Over every pair of the first `num_points` points whose categorical LD entries (names ending
+    in "_id") are equal: std of log((‖Δφ‖ + ε) / (‖Δτ‖ + ε)), ε = 1e-10, Δτ over the continuous
+    LD entries and Δφ over `latent_columns` of the latents (default: the continuous entries'
+    own indices, as the reference indexes them). NaN with fewer than two such pairs.
+    latents [N, Z], states [N, D], names: the D LD-state names.
+    """
+    lat, st = _checks.paired(("latents", "states"), latents, states, min_rows=2)
+    names = list(names)
+    if len(names) != st.shape[1]:
+        raise ValueError(f"names has {len(names)} entries for states of width {st.shape[1]}")
+    categorical = [i for i, n in enumerate(names) if n.endswith("_id")]
+    continuous = [i for i, n in enumerate(names) if not n.endswith("_id")]
+    columns = continuous if latent_columns is None else list(latent_columns)
+    if max(columns) >= lat.shape[1]:
+        raise ValueError(f"latent columns {columns} outside latents of width {lat.shape[1]}")
+    lat = np.asarray(lat, np.float64)[:num_points]
+    st = np.asarray(st, np.float64)[:num_points]
+    i, j = np.triu_indices(len(st), k=1)
+    same = np.all(np.abs(st[i][:, categorical] - st[j][:, categorical]) < 1e-5, axis=1)
+    i, j = i[same], j[same]
+    if i.size < 2:
+        return float("nan")
+    d_state = np.linalg.norm(st[i][:, continuous] - st[j][:, continuous], axis=1)
+    d_latent = np.linalg.norm(lat[i][:, columns] - lat[j][:, columns], axis=1)
+    ratio = np.log((d_latent + IRREGULARITY_EPS) / (d_state + IRREGULARITY_EPS))
+    return float(np.std(ratio, ddof=1))

@@ -31,6 +31,12 @@ class DSAConfig(RecurrentConfig):
     prior_hidden: int = 512
     min_hist: typing.ClassVar[int] = 2  # its static encoder sees half the frames
 
+    def __post_init__(self):
+        super().__post_init__()
+        if self.kl_form != "standard":
+            raise ValueError(f"DSA's KLs are to learned priors: kl_form must be 'standard', got "
+                             f"{self.kl_form!r}")
+
     @property
     def z_step(self) -> int:
         return self.latent_dim or self.ld_dim
@@ -87,7 +93,7 @@ class DisentangledSequentialAE(nn.Module):
     def dynamic_posterior(self, feats, a, f):
         """f [B, F] (squashed, no gradient) ⊕ feats ⊕ a → μ_z, logvar_z [B, T, Z]."""
         f_seq = jnp.broadcast_to(jax.lax.stop_gradient(f)[:, None], (*feats.shape[:2], f.shape[-1]))
-        a = elbo.encoder_actions(a, feats.shape[1])  # the actions before the last frame only
+        a = elbo.encoder_actions(a, feats.shape[1], self.config.current_action)
         return self.dynamic_head(self.dynamic_rnn(jnp.concatenate([f_seq, feats, a], axis=-1)))
 
     def dynamic_prior(self, z, f, a):

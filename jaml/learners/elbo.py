@@ -18,14 +18,23 @@ def frames_to_float(frames: jax.Array) -> jax.Array:
     return frames.astype(jnp.float32)
 
 
-def encoder_actions(a: jax.Array, hist: int) -> jax.Array:
-    """[B, T, A]: the actions an encoder may see, with a_t for t ≥ hist − 1 set to 0.
+CURRENT_ACTIONS = ("observed", "hidden")
 
-    a_t is executed after frame t, so the action at the last input frame (and every later one)
-    is chosen from the state that frame shows: under a trained policy it is a function of the
-    true state and would leak it into the latent, past the pixels (suite_reference §4: the
-    reference fed a dummy 0 as the current action). Zeroing keeps the shapes of the inputs.
+
+def encoder_actions(a: jax.Array, hist: int, current_action: str = "observed") -> jax.Array:
+    """[B, T, A]: the actions an encoder sees with its first `hist` frames.
+
+    a_t is executed after frame t. "observed" (the reference code) passes every input frame's
+    executed action, a_{hist−1} (the move into the first predicted frame) included. "hidden"
+    zeroes a_t for t ≥ hist − 1: under a trained policy that action is a function of the state
+    the frame shows and carries it into the latent past the pixels (a choice for scoring on
+    π_curr; the reference uses the dummy 0 only where PPO reads latents).
     """
+    if current_action not in CURRENT_ACTIONS:
+        raise ValueError(f"current_action must be one of {CURRENT_ACTIONS}, got "
+                         f"{current_action!r}")
+    if current_action == "observed":
+        return a
     keep = jnp.arange(a.shape[1]) < hist - 1
     return jnp.where(keep[None, :, None], a, 0.0)
 
@@ -35,13 +44,23 @@ def reparameterize(key: jax.Array, mu: jax.Array, logvar: jax.Array) -> jax.Arra
     return mu + jax.random.normal(key, mu.shape, mu.dtype) * jnp.exp(0.5 * logvar)
 
 
-def kl_to_standard_normal(mu: jax.Array, logvar: jax.Array) -> jax.Array:
-    """[...]: KL(N(μ, diag σ²) ‖ N(0, I)) = ½ Σ_Z (σ² + μ² − 1 − log σ²), for μ, logvar [..., Z].
+KL_FORMS = ("standard", "reference")
 
-    This is the standard KL; the reference code reads logvar as log σ here (−½(1 + 2 logvar − μ² −
-    exp(logvar)²)) while sampling with log σ² — see docs/learners.md.
+
+def kl_to_standard_normal(mu: jax.Array, logvar: jax.Array, form: str = "standard") -> jax.Array:
+    """[...]: the KL term of μ, logvar [..., Z] against N(0, I), summed over Z.
+
+    "standard": KL(N(μ, diag σ²) ‖ N(0, I)) = ½ Σ_Z (σ² + μ² − 1 − log σ²), logvar = log σ².
+    "reference": the reference code's ½ Σ_Z (e^{2 logvar} + μ² − 1 − 2 logvar), which reads
+    logvar as log σ here while its sampler uses σ = e^{logvar/2} (utils/prob.py): the same
+    minimum at logvar = 0, twice the pull on the log-variance, e^{2 logvar} above it.
     """
-    return 0.5 * jnp.sum(jnp.exp(logvar) + jnp.square(mu) - 1.0 - logvar, axis=-1)
+    if form == "standard":
+        return 0.5 * jnp.sum(jnp.exp(logvar) + jnp.square(mu) - 1.0 - logvar, axis=-1)
+    if form == "reference":
+        return 0.5 * jnp.sum(jnp.exp(2.0 * logvar) + jnp.square(mu) - 1.0 - 2.0 * logvar,
+                             axis=-1)
+    raise ValueError(f"kl form must be one of {KL_FORMS}, got {form!r}")
 
 
 def gaussian_kl(mu_q, logvar_q, mu_p, logvar_p) -> jax.Array:

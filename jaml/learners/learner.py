@@ -24,6 +24,20 @@ FRAME_SHAPE = (64, 64, 3)
 LatentPenalty = Callable[[jax.Array, jax.Array], jax.Array]
 
 
+@struct.dataclass
+class PenaltyTerms:
+    """What a latent penalty with a `terms(z, actions, key)` method adds to the loss.
+
+    value: [B] the penalty per sequence. ok: [B] bool, rows that get `ok_weight` × their NLL
+    once more, averaged over the ok rows (the reference's extra reconstruction term on rows
+    whose latents satisfy every relation; none when no row is ok).
+    """
+
+    value: jax.Array
+    ok: jax.Array
+    ok_weight: float = struct.field(pytree_node=False, default=0.0)
+
+
 COMPUTE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
 
 
@@ -39,13 +53,19 @@ class LearnerConfig:
     replay_keep_fraction: read by the stream's replay, not by the model: the share of replay
       slots kept from the initial policy (VAE_rpl; 0 for VAE_v0).
     frame_nll: how the decoded frames' log-likelihoods combine: "sum" is the sequence ELBO of
-      paper eq. 4 (log p(x_{1:S} | τ) = Σ_t log p(x_t | τ_t)); "mean" is the reference code's
-      average over frames, which weighs the KL S times more per frame and collapsed the
-      posteriors of PRED and SVAE (S = 24) in our runs (docs/learners.md). Same for S = 1.
+      paper eq. 4 (log p(x_{1:S} | τ) = Σ_t log p(x_t | τ_t)), the reference's balance too (it
+      averages likelihood and KL over the frames); "mean" averages the likelihood alone, which
+      weighs the KL S times more per frame and collapsed the posteriors of PRED and SVAE
+      (S = 24) in our runs (docs/learners.md). Same for S = 1.
     compute_dtype: "float32" (default) or "bfloat16": the dtype of the shared conv encoder's
       and decoder's convolutions (VAEs, PRED, SVAE, DSA; not SPAIR's): mixed precision, with
       parameters, batch norms, heads, the loss and the optimizer in float32. Not in the
       reference.
+    current_action: "observed" (the reference code): the encoder sees the executed action of
+      every input frame, the one into the first predicted frame included; "hidden": that last
+      action is zeroed (`elbo.encoder_actions`).
+    kl_form: "standard" KL to N(0, I), or the reference code's form (`elbo.kl_to_standard_normal`;
+      learners with a standard-normal prior: VAEs, PRED, SVAE).
     """
 
     ld_dim: int
@@ -60,8 +80,18 @@ class LearnerConfig:
     replay_keep_fraction: float = 0.5
     frame_nll: str = "sum"
     compute_dtype: str = "float32"
+    current_action: str = "observed"
+    kl_form: str = "standard"
 
     def __post_init__(self):
+        if self.current_action not in elbo.CURRENT_ACTIONS:
+            raise ValueError(f"current_action must be one of {list(elbo.CURRENT_ACTIONS)}, got "
+                             f"{self.current_action!r}")
+        if self.kl_form not in elbo.KL_FORMS:
+            raise ValueError(f"kl_form must be one of {list(elbo.KL_FORMS)}, got "
+                             f"{self.kl_form!r}")
+        if not self.beta >= 0:
+            raise ValueError(f"beta must be ≥ 0 (the KL's weight), got {self.beta}")
         if self.compute_dtype not in COMPUTE_DTYPES:
             raise ValueError(f"compute_dtype must be one of {list(COMPUTE_DTYPES)}, got "
                              f"{self.compute_dtype!r}")
@@ -84,6 +114,12 @@ class LearnerConfig:
     def conv_dtype(self):
         """compute_dtype as a JAX dtype, for the conv encoder and decoder."""
         return COMPUTE_DTYPES[self.compute_dtype]
+
+    @property
+    def actions_seen(self) -> int:
+        """How many of a sequence's first actions the encoder reads (`current_action`)."""
+        hist = self.hist
+        return hist if self.current_action == "observed" else hist - 1
 
     @property
     def z_step(self) -> int:
@@ -235,21 +271,32 @@ class Learner:
         loglik = elbo.gaussian_loglik(x[:, x.shape[1] - steps :], out.recon)  # [B, S]
         nll = -(jnp.sum if self.config.frame_nll == "sum" else jnp.mean)(loglik, axis=1)
         kl = sum(self.kl_weights[k] * v for k, v in out.kl.items())
+        ok_term, ok_fraction = jnp.zeros(()), None
         if latent_penalty is None:
             penalty = jnp.zeros_like(nll)
+        elif hasattr(latent_penalty, "terms"):
+            terms = latent_penalty.terms(out.z, a[:, a.shape[1] - steps :],
+                                         jax.random.fold_in(key, 1))
+            penalty = terms.value
+            count = jnp.sum(terms.ok)
+            ok_fraction = count / terms.ok.shape[0]
+            ok_term = terms.ok_weight * jnp.where(
+                count > 0, jnp.sum(jnp.where(terms.ok, nll, 0.0)) / jnp.maximum(count, 1), 0.0)
         else:
             penalty = latent_penalty(out.z, a[:, a.shape[1] - steps :])
-            if jnp.shape(penalty) != nll.shape:
-                raise ValueError(
-                    f"latent_penalty must return [B] = {nll.shape}, got {jnp.shape(penalty)}"
-                )
-        loss = jnp.mean(nll + kl + penalty)
+        if jnp.shape(penalty) != nll.shape:
+            raise ValueError(
+                f"latent_penalty must return [B] = {nll.shape}, got {jnp.shape(penalty)}"
+            )
+        loss = jnp.mean(nll + kl + penalty) + ok_term
         metrics = {
             "loss": loss,
             "nll": jnp.mean(nll),
             "kl": jnp.mean(sum(out.kl.values())),
             "penalty": jnp.mean(penalty),
         }
+        if ok_fraction is not None:
+            metrics["ok_fraction"] = ok_fraction
         if len(out.kl) > 1:
             metrics.update({k: jnp.mean(v) for k, v in out.kl.items()})
         return loss, (metrics, updates["batch_stats"])

@@ -22,12 +22,16 @@ class PREDConfig(LearnerConfig):
     static_dim: F latent entries shared by all T + L steps, decoded with each step's dynamic
     part as [f ⊕ z_t] (the reference's PARAMS_PRED_BLK_SM for the incline: F = 3, Z = 2); the
     per-step latent a penalty sees is then [f ⊕ z_t], and `encode` gives [f, z_1, …, z_{T+L}].
+    static_per_step: the reference code's form of that layout: every step has its own F static
+    entries (sampled, KL-weighted and decoded per step; nothing ties them), and `encode` gives
+    [f_1 ⊕ z_1, …, f_{T+L} ⊕ z_{T+L}]. A penalty reads step t's own [f_t ⊕ z_t].
     """
 
     hist: int = 8
     pred: int = 16
     mlp_widths: tuple[int, ...] = (1024, 512)
     static_dim: int = 0
+    static_per_step: bool = False
 
     def __post_init__(self):
         super().__post_init__()
@@ -47,6 +51,12 @@ class PREDConfig(LearnerConfig):
     @property
     def latent_steps(self) -> int:
         return self.hist + self.pred
+
+    @property
+    def latent_size(self) -> int:
+        if self.static_per_step:
+            return self.latent_steps * (self.static_dim + self.z_step)
+        return super().latent_size
 
 
 def make_pred(name: str, config: PREDConfig) -> Learner:

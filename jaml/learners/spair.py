@@ -109,6 +109,10 @@ class SPAIRConfig(SingleFrameConfig):
     init_logvar: float = -2.0
     training_wheels_steps: int = 1000
 
+    @property
+    def actions_seen(self) -> int:
+        return 0  # SPAIR reads the frame alone
+
     def __post_init__(self):
         super().__post_init__()
         checks = [
@@ -117,6 +121,7 @@ class SPAIRConfig(SingleFrameConfig):
              "a positive multiple of 4"),
             ("what_dim", self.what_dim >= 1, "≥ 1"),
             ("bg_dim", self.bg_dim >= 1, "≥ 1"),
+            ("kl_form", self.kl_form == "standard", "'standard' (its KLs have their own priors)"),
             ("max_yx", self.max_yx > self.min_yx, f"> min_yx = {self.min_yx}"),
             ("anchor_scale", 0.0 < self.anchor_scale <= 2.0, "in (0, 2]"),
             ("hw_prior_std", self.hw_prior_std > 0.0, "> 0"),

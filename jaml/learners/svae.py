@@ -36,7 +36,7 @@ class SequenceVAE(StepwiseGaussianVAE):
         """x [B, T, H, W, C], a [B, T, A] → μ, logvar [B, T, Z]."""
         b, t = x.shape[:2]
         feats = self.conv(x.reshape(b * t, *FRAME_SHAPE), train).reshape(b, t, -1)
-        a = elbo.encoder_actions(a, t)  # the actions before the last frame only
+        a = elbo.encoder_actions(a, t, self.config.current_action)
         return self.head(self.rnn(jnp.concatenate([feats, a], axis=-1)))
 
 

@@ -14,6 +14,9 @@ Relation coordinates are matched by name, in the relation set's own order:
 g_k is evaluated on every consecutive pair (t, t + 1), t = 0 .. S − 2, of the S latent steps, and
 the penalty sums over pairs (the paper's penalty is on the whole sampled sequence τ̃_{1:T+L}).
 
+The reference code also re-weights reconstruction: `ok_weight` × the NLL of the rows whose
+latents satisfy every relation, averaged over those rows (`LatentPenalty.terms`).
+
 Two forms of the per-pair value, both times `weight`:
   - "sum": Σ_k |g_k| (the paper's eq. 4);
   - "hinge": mean_k |g_k|·[|g_k| > on_mean_k] (the reference's `latent_transfer_loss`: a relation
@@ -33,6 +36,7 @@ from collections.abc import Mapping
 import jax
 import jax.numpy as jnp
 
+from jaml.learners.learner import PenaltyTerms
 from jaml.relations.relation_set import RelationSet, evaluate
 
 FORMS = ("sum", "hinge")
@@ -113,6 +117,54 @@ def pair_penalty(rs: RelationSet, tau: jax.Array, form: str) -> jax.Array:
     return jnp.mean(jnp.where(g > rs.on_means, g, 0.0), axis=-1)
 
 
+OK_ROWS = ("relations", "random")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class LatentPenalty:
+    """`penalty(z [B, S, P], actions [B, S, A]) -> [B]`: weight × Σ_t penalty(τ_t), with the
+    reference code's re-weighting of ok rows as `terms` (see `latent_penalty`)."""
+
+    rs: RelationSet
+    plan: tuple
+    latent_size: int
+    action_size: int
+    weight: float
+    form: str
+    ok_weight: float = 0.0
+    ok_rows: str = "relations"
+
+    def _tau(self, z: jax.Array, actions: jax.Array) -> jax.Array:
+        if z.ndim != 3 or z.shape[-1] != self.latent_size or z.shape[1] < 2:
+            raise ValueError(
+                f"the latent penalty needs z [B, S ≥ 2, {self.latent_size}], got "
+                f"{tuple(z.shape)}"
+            )
+        if actions.shape[:2] != z.shape[:2] or actions.shape[-1] != self.action_size:
+            raise ValueError(
+                f"actions must be [B, S, {self.action_size}] = "
+                f"{(*z.shape[:2], self.action_size)}, got {tuple(actions.shape)}"
+            )
+        return transitions(self.plan, z, actions)
+
+    def __call__(self, z: jax.Array, actions: jax.Array) -> jax.Array:
+        tau = self._tau(z, actions)
+        return self.weight * jnp.sum(pair_penalty(self.rs, tau, self.form), axis=1)
+
+    def ok(self, z: jax.Array, actions: jax.Array) -> jax.Array:
+        """[B] bool: sequences whose every transition has |g_k| < on_mean_k for every k."""
+        g = jnp.abs(evaluate(self.rs, self._tau(z, actions)))
+        return jnp.all(g < self.rs.on_means, axis=(1, 2))
+
+    def terms(self, z: jax.Array, actions: jax.Array, key: jax.Array) -> PenaltyTerms:
+        """The penalty and the rows the learner re-weights: the relations' ok rows, or (the
+        "random" control) as many rows drawn at random, so that only their choice differs."""
+        ok = jax.lax.stop_gradient(self.ok(z, actions))
+        if self.ok_rows == "random":
+            ok = jax.random.permutation(key, ok)
+        return PenaltyTerms(self(z, actions), ok, self.ok_weight)
+
+
 def latent_penalty(
     rs: RelationSet,
     layout: LatentLayout,
@@ -121,21 +173,31 @@ def latent_penalty(
     action_size: int,
     weight: float = 100.0,
     form: str = "hinge",
-):
+    ok_weight: float = 0.0,
+    ok_rows: str = "relations",
+) -> LatentPenalty:
     """`penalty(z [B, S, P], actions [B, S, A]) -> [B]`: weight × Σ_t penalty(τ_t), τ_t built
     from latent steps t, t + 1 by `layout`. Every mismatch is reported here, before training.
 
     latent_size, action_size: P and A of the learner that will call it (its
     `config.penalty_dim` and the env's `action_size`).
-    weight: 100 by default, the weight the Fig. 9 pilot chose on MeshOnIncline from 100, 1000
-      and 10 000 by held-out replay error (docs/results/fig9.md); at 1 the term is negligible
-      next to a pixel likelihood summed over 12,288 values per frame.
+    weight: 100 by default (docs/transfer.md; the reference recipe's is 1000 against a
+      per-frame mean likelihood, `jaml.experiments.fig9`).
     form: "hinge" (the reference's) by default; "sum" is the paper's Σ_k |g_k|.
+    ok_weight: the reference code's extra term, ok_weight × the mean NLL of the rows whose
+      latents satisfy every relation (|g_k| < on_mean_k on every transition); 0 (default): none.
+      The paper's eq. 4 has no such term. The learners add it through `terms`.
+    ok_rows: "relations" (the reference), or "random": the same number of rows per batch chosen
+      at random (a control for what the re-weighting alone does).
     """
     if form not in FORMS:
         raise ValueError(f"form must be one of {FORMS}, got {form!r}")
+    if ok_rows not in OK_ROWS:
+        raise ValueError(f"ok_rows must be one of {OK_ROWS}, got {ok_rows!r}")
     if not weight >= 0:
         raise ValueError(f"weight must be ≥ 0, got {weight}")
+    if not ok_weight >= 0:
+        raise ValueError(f"ok_weight must be ≥ 0, got {ok_weight}")
     if rs.num_relations == 0:
         raise ValueError("the relation set is empty: there is nothing to impose")
     if len(rs.dim_names) != rs.dim:
@@ -144,21 +206,8 @@ def latent_penalty(
             "it; learn it from a source with dim_names (or rows plus names)"
         )
     plan = layout.gather(tuple(rs.dim_names), latent_size, action_size)
-
-    def penalty(z: jax.Array, actions: jax.Array) -> jax.Array:
-        if z.ndim != 3 or z.shape[-1] != latent_size or z.shape[1] < 2:
-            raise ValueError(
-                f"the latent penalty needs z [B, S ≥ 2, {latent_size}], got {tuple(z.shape)}"
-            )
-        if actions.shape[:2] != z.shape[:2] or actions.shape[-1] != action_size:
-            raise ValueError(
-                f"actions must be [B, S, {action_size}] = {(*z.shape[:2], action_size)}, got "
-                f"{tuple(actions.shape)}"
-            )
-        tau = transitions(plan, z, actions)
-        return weight * jnp.sum(pair_penalty(rs, tau, form), axis=1)
-
-    return penalty
+    return LatentPenalty(rs, tuple(plan), latent_size, action_size, float(weight), form,
+                         float(ok_weight), ok_rows)
 
 
 def residual(rs: RelationSet, layout: LatentLayout, z, actions) -> jax.Array:

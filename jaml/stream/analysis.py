@@ -160,6 +160,8 @@ def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Ar
         "baseline": _constant_levels(stream, train[1], {k: t for k, (_, t) in tests.items()}),
         "distortion": float(evaluation.distortion(lat, st[:, distortion_columns(stream)],
                                                   inputs=inputs)),
+        "irregularity": {"replay": irregularity(stream, *train),
+                         "pi_rand": irregularity(stream, lat, st)},
     }
 
 
@@ -201,7 +203,21 @@ def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
         "baseline": _constant_levels(stream, train_states[r],
                                      {k: t[r] for k, t in test_states.items()}),
         "distortion": float(evaluation.distortion(lat[r], st[r][:, columns], inputs=inputs[r])),
+        "irregularity": {"replay": irregularity(stream, train[0][r], train_states[r]),
+                         "pi_rand": irregularity(stream, lat[r], st[r])},
     } for r in range(len(seeds))]
+
+
+def irregularity(stream: Stream, latents, states) -> float | None:
+    """The reference code's distortion score (`evaluation.irregularity`) of one run's latents
+    [N, Z] and LD states [N, D]; None where the latent is narrower than the LD state's
+    continuous entries it would be read at."""
+    names = stream.env.ld_state_names
+    continuous = [i for i, n in enumerate(names) if not n.endswith("_id")]
+    if not continuous or max(continuous) >= np.shape(latents)[-1]:
+        return None
+    value = evaluation.irregularity(np.asarray(latents), np.asarray(states), names)
+    return None if np.isnan(value) else value
 
 
 def _constant_levels(stream: Stream, train_states, test_states: dict) -> dict:
@@ -315,18 +331,19 @@ def _reconstruct(stream: Stream, variables, frames, actions):
     return stream.learner.reconstruct(variables, frames, actions)
 
 
-def input_fingerprints(hist: int, frames, actions) -> jax.Array:
-    """uint32 [..., B, 2]: two hashes of what an encoder with `hist` input frames reads of each
-    sequence (frames [..., B, T, H, W, C] uint8, actions [..., B, T, A]): its first `hist` frames
-    and the actions before the last of them (later ones are zeroed, `elbo.encoder_actions`).
+def input_fingerprints(hist: int, frames, actions, actions_seen: int | None = None) -> jax.Array:
+    """uint32 [..., B, 2]: two hashes of what an encoder reads of each sequence (frames
+    [..., B, T, H, W, C] uint8, actions [..., B, T, A]): its first `hist` frames and its first
+    `actions_seen` actions (default hist − 1; `LearnerConfig.actions_seen`).
 
     Equal inputs give equal fingerprints; different ones collide with probability ≈ 2⁻⁶⁴ (two
     random linear hashes mod 2³²). The distortion skips pairs with equal fingerprints: states a
     fraction of a pixel apart render the same frame, which no encoder can tell apart."""
+    seen_count = hist - 1 if actions_seen is None else actions_seen
     lead = frames.shape[:-4]
     words = [frames[..., :hist, :, :, :].reshape(*lead, -1).astype(jnp.uint32)]
-    if hist > 1:
-        seen = actions[..., :hist - 1, :].astype(jnp.float32)
+    if seen_count > 0:
+        seen = actions[..., :seen_count, :].astype(jnp.float32)
         words.append(jax.lax.bitcast_convert_type(seen, jnp.uint32).reshape(*lead, -1))
     words = jnp.concatenate(words, axis=-1)
     weights = jax.random.bits(jax.random.key(0), (2, words.shape[-1]), jnp.uint32) | 1
@@ -338,7 +355,8 @@ def _encode(stream: Stream, variables, seqs: replay_lib.Columns, fingerprints: b
     z = stream.learner.encode(variables, seqs.frames, seqs.actions)
     out = (z, seqs.ld[:, stream.hist - 1])
     if fingerprints:
-        out += (input_fingerprints(stream.hist, seqs.frames, seqs.actions),)
+        out += (input_fingerprints(stream.hist, seqs.frames, seqs.actions,
+                                   stream.learner.config.actions_seen),)
     return out
 
 
@@ -361,7 +379,8 @@ def _encode_runs(stream: Stream, variables, seqs: replay_lib.Columns,
     ])
     out = (z, seqs.ld[:, :, stream.hist - 1])
     if fingerprints:
-        out += (input_fingerprints(stream.hist, seqs.frames, seqs.actions),)
+        out += (input_fingerprints(stream.hist, seqs.frames, seqs.actions,
+                                   stream.learner.config.actions_seen),)
     return out
 
 

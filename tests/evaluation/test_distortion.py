@@ -135,3 +135,37 @@ def test_bad_inputs_raise():
             evaluation.distortion(lat, st)
     with pytest.raises(ValueError, match="num_pairs"):
         evaluation.distortion(t, t, num_pairs=1)
+
+
+NAMES = ("texture_id", "object_id", "theta", "position", "velocity")
+
+
+def test_irregularity_of_a_scaled_copy_is_zero_and_ignores_other_latent_columns():
+    """A latent whose constrained entries are an exact scaled copy of τ's continuous entries
+    stretches every pair alike: std of the log-ratios 0, whatever its other entries hold."""
+    rng = np.random.default_rng(0)
+    states = np.concatenate([rng.integers(0, 3, (60, 2)) / 6.0, rng.uniform(size=(60, 3))], 1)
+    latents = np.concatenate([rng.normal(size=(60, 2)), 3.0 * states[:, 2:],
+                              rng.normal(size=(60, 4))], 1)
+    assert evaluation.irregularity(latents, states, NAMES) == pytest.approx(0.0, abs=1e-9)
+    warped = latents.copy()
+    warped[:, 3] = warped[:, 3] ** 3
+    assert evaluation.irregularity(warped, states, NAMES) > 0.1
+
+
+def test_irregularity_matches_a_hand_computation():
+    """Four points, two objects: only the pairs (0, 1) and (2, 3) share their ids; the result
+    is the (n − 1)-normalised std of their two log-ratios, ε = 1e-10 included."""
+    states = np.array([[0, 0, 0.0, 0.0, 0.0], [0, 0, 0.0, 3.0, 4.0],
+                       [0, 1 / 6, 0.0, 1.0, 0.0], [0, 1 / 6, 0.0, 1.0, 2.0]])
+    latents = np.array([[9, 9, 0.0, 0.0, 0.0], [9, 9, 0.0, 1.0, 0.0],
+                        [9, 9, 0.0, 0.0, 0.0], [9, 9, 0.0, 0.0, 4.0]])
+    eps = 1e-10
+    r1 = np.log((1.0 + eps) / (5.0 + eps))
+    r2 = np.log((4.0 + eps) / (2.0 + eps))
+    expected = np.std([r1, r2], ddof=1)
+    assert evaluation.irregularity(latents, states, NAMES) == pytest.approx(expected, rel=1e-9)
+    # Only the first num_points points count: with 3, one pair is left, and no std.
+    assert np.isnan(evaluation.irregularity(latents, states, NAMES, num_points=3))
+    with pytest.raises(ValueError, match="names"):
+        evaluation.irregularity(latents, states, NAMES[:4])

@@ -129,22 +129,33 @@ def test_same_seed_same_params_and_another_seed_differs(runs, name):
 
 
 @pytest.mark.parametrize("name", learners.ALL_LEARNERS)
-def test_encoding_ignores_the_actions_at_and_after_the_last_input_frame(runs, name):
-    """a_{h−1} = π(s_{h−1}) under a trained policy: seen by the encoder it would leak the state
-    into the latent past the pixels (issue: current-action leak; the reference fed a dummy 0)."""
+def test_the_encoder_sees_the_current_action_only_when_observed(runs, name):
+    """"observed" (the reference code): the executed action of every input frame reaches the
+    latent, a_{h−1} (the move into the first predicted frame) included; "hidden" zeroes a_{h−1}.
+    Actions after the input frames never reach it; SPAIR reads no action."""
     run = runs(name)
-    learner, (frames, actions), variables = run["learner"], run["data"], run["state"].variables
-    hist = learner.config.hist
-    encode = jax.jit(learner.encode)
-    changed = actions.copy()
-    changed[:, hist - 1 :] = 7.0
-    np.testing.assert_array_equal(encode(variables, frames, changed),
-                                  encode(variables, frames, actions))
-    if hist > 1:  # the actions between input frames still reach the latent
+    (frames, actions), variables = run["data"], run["state"].variables
+    observed = run["learner"]
+    hidden = tiny(name, learning_rate=1e-3, current_action="hidden")
+    hist = observed.config.hist
+    assert observed.config.current_action == "observed"
+    later, current = actions.copy(), actions.copy()
+    later[:, hist:] = 7.0
+    current[:, hist - 1] += 3.0
+    for learner in (observed, hidden):
+        encode = jax.jit(learner.encode)
+        base = encode(variables, frames, actions)
+        np.testing.assert_array_equal(encode(variables, frames, later), base)
+        moved = not np.allclose(encode(variables, frames, current), base)
+        assert moved == (learner is observed and name != "SPAIR"), learner.config.current_action
+    if hist > 1:  # the actions between input frames reach the latent either way
         earlier = actions.copy()
         earlier[:, 0] += 3.0
+        encode = jax.jit(hidden.encode)
         assert not np.allclose(encode(variables, frames, earlier),
                                encode(variables, frames, actions))
+    assert (observed.config.actions_seen, hidden.config.actions_seen) == (
+        (0, 0) if name == "SPAIR" else (hist, hist - 1))
 
 
 def test_pred_static_part_is_shared_by_every_step_and_counted_once():
@@ -177,6 +188,83 @@ def test_pred_static_part_is_shared_by_every_step_and_counted_once():
     # fusions may sum in another order; 5e-6 relative was seen on 0.01-sized entries).
     np.testing.assert_allclose(z, np.concatenate([mu[:, 0, :3], mu[..., 3:].reshape(B, -1)],
                                                  -1), rtol=1e-5, atol=1e-6)
+
+
+def reference_kl(mu, logvar):
+    """The released code's KL term (utils/prob.py), written out: it reads logvar as log σ."""
+    return -0.5 * np.sum(1 + 2 * logvar - mu**2 - np.exp(logvar) ** 2, axis=-1)
+
+
+def test_pred_static_per_step_and_the_reference_kl():
+    """The reference's PRED_BLK_SM: each step has its own static entries (sampled apart,
+    KL-weighted per step), `encode` gives every step's whole mean, and the KL is its form."""
+    learner = learners.make("PRED", ld_dim=LD, **SMALL_CONV, hist=1, pred=1,
+                            mlp_widths=(16,), static_dim=3, latent_dim=2,
+                            static_per_step=True, kl_form="reference")
+    cfg = learner.config
+    assert (cfg.penalty_dim, cfg.latent_size) == (5, 2 * 5)
+    frames, actions = batch(4, learner.seq_len)
+    opt = learners.default_optimizer(learner)
+    variables = learners.init_train_state(learner, opt, jax.random.key(0),
+                                          (frames, actions)).variables
+    x, a = learner.check_batch(frames, actions)
+    out = jax.jit(lambda v: learner.module.apply(v, x, a, jax.random.key(1), train=True,
+                                                 mutable=["batch_stats"])[0])(variables)
+    assert out.z.shape == (B, 2, 5)
+    assert not np.allclose(out.z[:, 0, :3], out.z[:, 1, :3])  # nothing ties the static parts
+    (mu, logvar), _ = jax.jit(lambda v: learner.module.apply(
+        v, x, a, True, method="posterior", mutable=["batch_stats"]))(variables)
+    mu, logvar = np.asarray(mu, np.float64), np.asarray(logvar, np.float64)
+    np.testing.assert_allclose(out.kl["kl"], reference_kl(mu, logvar).sum(-1), rtol=1e-5)
+    mu_eval, _ = jax.jit(lambda v: learner.module.apply(v, x, a, False,
+                                                        method="posterior"))(variables)
+    np.testing.assert_allclose(learner.encode(variables, frames, actions),
+                               np.asarray(mu_eval).reshape(B, -1), rtol=1e-5, atol=1e-6)
+
+
+class _FixedTerms:
+    """A penalty with the reference's extra term: value z[:, 0, 0]², ok rows given."""
+
+    def __init__(self, ok, weight, ok_weight):
+        self.ok, self.weight, self.ok_weight = np.asarray(ok), weight, ok_weight
+
+    def __call__(self, z, actions):
+        return self.weight * z[:, 0, 0] ** 2
+
+    def terms(self, z, actions, key):
+        from jaml.learners.learner import PenaltyTerms
+
+        return PenaltyTerms(self(z, actions), jnp.asarray(self.ok), self.ok_weight)
+
+
+@pytest.mark.parametrize("ok", [[True, False, True], [False, False, False]])
+def test_reference_recipe_loss_is_s_times_the_released_formula(ok):
+    """Our loss with weight S·1e3 and ok_weight 10 equals S × the released code's
+    −mean_b mean_t loglik + 1e3·mean_b penalty + 10·(−mean_{ok b} mean_t loglik)
+    + mean_{b,t} KL_t (the ok term only when some row is ok), written out from the outputs."""
+    learner = learners.make("PRED", ld_dim=LD, **SMALL_CONV, hist=1, pred=1,
+                            mlp_widths=(16,), static_dim=3, latent_dim=2,
+                            static_per_step=True, kl_form="reference")
+    b, s = 3, 2
+    frames, actions = batch(5, learner.seq_len, b=b)
+    opt = learners.default_optimizer(learner)
+    variables = learners.init_train_state(learner, opt, jax.random.key(0),
+                                          (frames, actions)).variables
+    key = jax.random.key(2)
+    penalty = _FixedTerms(ok, weight=s * 1e3, ok_weight=10.0)
+    loss, metrics = jax.jit(lambda v: learner.loss(v, key, frames, actions, penalty))(variables)
+    x, a = learner.check_batch(frames, actions)
+    out = jax.jit(lambda v: learner.module.apply(v, x, a, key, train=True,
+                                                 mutable=["batch_stats"])[0])(variables)
+    loglik = -0.5 * np.sum((np.asarray(x, np.float64) - np.asarray(out.recon)) ** 2,
+                           axis=(2, 3, 4))  # [B, S]
+    frame_mean = loglik.mean(axis=1)
+    ok = np.asarray(ok)
+    released = (-frame_mean.mean() + 1e3 * np.mean(np.asarray(out.z)[:, 0, 0] ** 2)
+                + (10.0 * -frame_mean[ok].mean() if ok.any() else 0.0)
+                + np.asarray(out.kl["kl"]).mean() / s)
+    np.testing.assert_allclose(loss, s * released, rtol=1e-5)
+    np.testing.assert_allclose(metrics["ok_fraction"], ok.mean())
 
 
 def test_pred_decodes_t_plus_l_frames_from_the_first_t(runs):

@@ -213,3 +213,68 @@ def test_select_keeps_the_chosen_relations_and_their_statistics():
     np.testing.assert_allclose(relations.evaluate(picked, tau), by_hand, rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match=r"indices must name relations in 0\.\.2"):
         rs.select([3])
+
+
+def test_ok_rows_are_those_under_every_on_mean_and_random_rows_match_their_count():
+    """The reference's ok rows (|g_k| < on_mean_k on every transition), hand-computed from the
+    known violations; the random control draws as many rows per batch, others among them."""
+    on_mean = 0.005
+    rs = trapezoid_relations(on_mean=on_mean)
+    off = np.array([0.0, 0.001, 0.2, 0.0, 0.05, 0.0, 0.3, 0.0])
+    z0 = latents(np.linspace(0, 0.5, 8), np.zeros(8), np.full(8, 0.4))
+    bad = latents(np.linspace(0, 0.5, 8), np.zeros(8), np.full(8, 0.4),
+                  s1=np.asarray(z0[:, 1, 1]) + off)
+    actions = jnp.zeros((8, 2, 1))
+    g = np.tanh(np.tanh(np.tanh(np.tanh(0.2 * off))))
+    expected = g < on_mean
+    pen = latent_penalty(rs, LAYOUT, latent_size=3, action_size=1, weight=2.0, ok_weight=10.0)
+    np.testing.assert_array_equal(pen.ok(bad, actions), expected)
+    terms = pen.terms(bad, actions, jax.random.key(0))
+    np.testing.assert_array_equal(terms.ok, expected)
+    np.testing.assert_allclose(terms.value, 2.0 * np.where(g > on_mean, g, 0.0), rtol=1e-5)
+    assert terms.ok_weight == 10.0
+    control = latent_penalty(rs, LAYOUT, latent_size=3, action_size=1, weight=0.0,
+                             ok_weight=10.0, ok_rows="random")
+    draws = [np.asarray(control.terms(bad, actions, jax.random.key(k)).ok) for k in range(20)]
+    assert all(d.sum() == expected.sum() for d in draws)
+    assert any((d != expected).any() for d in draws)
+    np.testing.assert_array_equal(control(bad, actions), 0.0)
+    with pytest.raises(ValueError, match="ok_rows"):
+        latent_penalty(rs, LAYOUT, latent_size=3, action_size=1, ok_rows="some")
+    with pytest.raises(ValueError, match="ok_weight"):
+        latent_penalty(rs, LAYOUT, latent_size=3, action_size=1, ok_weight=-1.0)
+
+
+def test_the_ok_term_reweights_the_ok_rows_nll_and_no_ok_row_adds_nothing():
+    """A PRED step with the reference's term: loss − the plain loss = ok_weight × the mean NLL
+    of the rows the relations accept, and 0 when none is accepted."""
+    learner = learners.make("PRED", ld_dim=2, conv_filters=(8, 8, 8, 8), conv_features=16,
+                            deconv_filters=(8, 8, 8, 8), hist=1, pred=1, mlp_widths=(16,),
+                            static_dim=1, latent_dim=2, static_per_step=True, mu_nl=False)
+    frames = np.random.default_rng(0).integers(0, 255, (4, 2, 64, 64, 3), np.uint8)
+    actions = np.zeros((4, 2, 1), np.float32)
+    opt = learners.default_optimizer(learner)
+    variables = learners.init_train_state(learner, opt, jax.random.key(0),
+                                          (frames, actions)).variables
+    key = jax.random.key(3)
+
+    def loss(pen):
+        return float(jax.jit(lambda v: learner.loss(v, key, frames, actions, pen)[0])(variables))
+
+    plain = loss(None)
+    x, a = learner.check_batch(frames, actions)
+    out = jax.jit(lambda v: learner.module.apply(v, x, a, key, train=True,
+                                                 mutable=["batch_stats"])[0])(variables)
+    nll = 0.5 * np.sum((np.asarray(x) - np.asarray(out.recon)) ** 2, axis=(1, 2, 3, 4))
+    tau = np.asarray(out.z)
+    violation = np.abs(tau[:, 1, 1] - tau[:, 0, 1] - DT * (tau[:, 0, 2] + tau[:, 1, 2]) / 2)
+    g = np.tanh(np.tanh(np.tanh(np.tanh(0.2 * violation))))
+    on_mean = float(np.median(g))  # half the rows accepted
+    pen = latent_penalty(trapezoid_relations(on_mean=on_mean), LAYOUT, latent_size=3,
+                         action_size=1, weight=0.0, ok_weight=10.0)
+    ok = g < on_mean
+    assert 0 < ok.sum() < 4
+    np.testing.assert_allclose(loss(pen) - plain, 10.0 * nll[ok].mean(), rtol=2e-4)
+    none = latent_penalty(trapezoid_relations(on_mean=1e-12), LAYOUT, latent_size=3,
+                          action_size=1, weight=0.0, ok_weight=10.0)
+    np.testing.assert_allclose(loss(none), plain, rtol=1e-6)

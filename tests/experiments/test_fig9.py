@@ -1,4 +1,5 @@
-"""The Fig. 9 report and its pieces: per-seed histories → final means, Welch intervals, figure."""
+"""Fig. 9: the recipes' configs, the report (paired and Welch intervals, the stream check, the
+primary comparison, the figure) and the driver's steps."""
 
 import json
 import math
@@ -10,24 +11,35 @@ from scipy import stats
 
 import envs_mjx
 from jaml.evaluation import history_records
-from jaml.experiments import fig9
+from jaml.experiments import fig9, fig9_report
+from jaml.experiments._runs import welch_interval
 from jaml.relations.transfer import LatentLayout
 
 NAMES = ["texture_id", "object_id", "theta", "position", "velocity"]
 
 
-def _write_run(path, method, seed, position_at_end, distortion_at_end):
+def _write_run(path, seed, positions, distortions=(9.0, 1.0), irregularity=0.5):
+    """A seed's history: analyses at 78, 678, 1078 with the given π_rand position errors."""
     path.mkdir(parents=True)
     records = []
-    for step, pos, dist in ((100, 0.3, 9.0), (200, position_at_end, distortion_at_end)):
+    for step, pos, dist in zip((78, 678, 1078), positions, (9.0, *distortions), strict=False):
         errors = {"pi_rand": [0.1, 0.0, 0.2, pos, 0.4], "pi_curr": [0.5] * 5}
-        records += history_records(step, "PRED", errors, NAMES, dist, run=seed)
+        for r in history_records(step, "PRED", errors, NAMES, dist, run=seed):
+            if r["test_set"] == "pi_rand":
+                r["irregularity"] = {"pi_rand": irregularity, "replay": irregularity + 1}
+            records.append(r)
     (path / "history.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+
+
+def _write_metrics(path, returns):
+    (path / "metrics.jsonl").write_text("".join(
+        json.dumps({"epoch": e + 1, "episode_return": r, "ppo/total_loss": 0.5}) + "\n"
+        for e, r in enumerate(returns)))
 
 
 def test_welch_interval_matches_a_hand_computation():
     a, b = [1.0, 2.0, 3.0], [2.0, 4.0, 6.0, 8.0]
-    diff, low, high = fig9.welch_interval(a, b)
+    diff, low, high = welch_interval(a, b)
     va, vb = np.var(a, ddof=1) / 3, np.var(b, ddof=1) / 4  # 1/3, 20/12
     dof = (va + vb) ** 2 / (va**2 / 2 + vb**2 / 3)
     assert dof == pytest.approx(4.0755, abs=1e-4)  # (1/3 + 5/3)² / ((1/3)²/2 + (5/3)²/3)
@@ -36,25 +48,39 @@ def test_welch_interval_matches_a_hand_computation():
     assert (low, high) == pytest.approx((-3.0 - half, -3.0 + half), abs=2e-3)
 
 
-def test_report_tables_final_means_and_differences_from_pred(tmp_path):
-    for seed, (pos, dist) in enumerate([(0.10, 1.0), (0.12, 1.2), (0.14, 1.4)]):
-        _write_run(tmp_path / "PRED+AML_trnsv" / f"seed_{seed}", "PRED+AML_trnsv", seed, pos, dist)
-    for seed, (pos, dist) in enumerate([(0.20, 2.0), (0.22, 2.2), (0.24, 2.4)]):
-        _write_run(tmp_path / "PRED" / f"seed_{seed}", "PRED", seed, pos, dist)
+def test_paired_interval_matches_a_hand_computation_and_beats_welch_on_shared_noise():
+    """Seed s's two values share its noise: the paired interval sees only the differences
+    (0.01, 0.02, 0.03: mean 0.02, s = 0.01, t(0.95, 2) = 2.91999), Welch's the seeds' spread."""
+    base = {0: 0.10, 1: 0.30, 2: 0.50, 7: 0.9}  # seed 7 has no partner: left out
+    aml = {0: 0.11, 1: 0.32, 2: 0.53}
+    d, lo, hi, n = fig9_report.paired_interval(aml, base)
+    half = 2.9199856 * 0.01 / math.sqrt(3)
+    assert (d, n) == (pytest.approx(0.02), 3)
+    assert (lo, hi) == pytest.approx((0.02 - half, 0.02 + half), rel=1e-6)
+    _, wlo, whi = welch_interval(list(aml.values()), [base[s] for s in (0, 1, 2)])
+    assert whi - wlo > 10 * (hi - lo)
 
-    text = fig9.report(tmp_path, list(fig9.METHODS))
 
-    table = [line.split(" | ") for line in text.splitlines() if line.startswith("| PRED")]
-    rows = {cells[0].strip("| "): cells for cells in table if len(cells) == 6}
-    half = 2.9199856 * 0.02 / math.sqrt(3)  # t(0.95, 2 dof) · s / √n, s = 0.02
-    assert rows["PRED+AML_trnsv"][1:4] == ["3", "200", f"0.1200 ± {half:.4f}"]
-    assert rows["PRED"][3] == f"0.2200 ± {half:.4f}"
-    assert rows["PRED"][5].startswith("2.2000 ± ")
-    diff_row = next(line for line in text.splitlines()
-                    if line.startswith("| PRED+AML_trnsv | -") or
-                    line.startswith("| PRED+AML_trnsv | +"))
-    assert diff_row.split(" | ")[1].startswith("-0.1000 [")
-    assert "VAE_rpl" not in text and "PRED+AML_syz" not in text  # no runs, no rows
+def test_report_leads_with_the_primary_comparison_and_tables_paired_differences(tmp_path):
+    """Three seeds per method; AML is PRED − (0.01, 0.02, 0.03) at both late analyses (after
+    learner epoch 500 counts from the first analysis, 78): primary = −0.02 ± the hand half-width."""
+    pred = {0: (0.3, 0.20, 0.18), 1: (0.3, 0.25, 0.22), 2: (0.3, 0.15, 0.12)}
+    for seed, positions in pred.items():
+        _write_run(tmp_path / "PRED" / f"seed_{seed}", seed, positions)
+        _write_metrics(tmp_path / "PRED" / f"seed_{seed}", [1.0, 2.0])
+        shift = 0.01 * (seed + 1)
+        _write_run(tmp_path / "PRED+AML_trnsv" / f"seed_{seed}", seed,
+                   (0.3, positions[1] - shift, positions[2] - shift))
+        _write_metrics(tmp_path / "PRED+AML_trnsv" / f"seed_{seed}",
+                       [1.0, 2.0] if seed < 2 else [1.0, 2.5])
+    text = fig9_report.report(tmp_path, list(fig9.METHODS))
+    half = 2.9199856 * 0.01 / math.sqrt(3)
+    assert text.splitlines()[0].startswith("**Primary comparison** (PRED+AML_trnsv − PRED")
+    assert f"**-0.0200 [{-0.02 - half:+.4f}, {-0.02 + half:+.4f}]**" in text.splitlines()[0]
+    assert "- PRED+AML_trnsv vs PRED: 2 seeds identical; differ: seed_2" in text
+    row = next(line for line in text.splitlines() if line.startswith("| 1078 |"))
+    assert f"Δ **-0.0200 [{-0.02 - half:+.4f}, {-0.02 + half:+.4f}]**" in row
+    assert "irreg_std, π_rand" in text and "VAE_rpl" not in text
     assert (tmp_path / "fig9.md").read_text() == text
     assert (tmp_path / "fig9.png").stat().st_size > 0
 
@@ -63,19 +89,19 @@ def test_the_figure_draws_each_methods_seed_mean_and_90_percent_band(tmp_path):
     """Per panel and step: the mean over seeds and mean ± t(0.95, n−1)·s/√n, by hand."""
     ends = [(0.10, 1.0), (0.12, 1.2), (0.17, 1.9)]
     for seed, (pos, dist) in enumerate(ends):
-        _write_run(tmp_path / "PRED" / f"seed_{seed}", "PRED", seed, pos, dist)
-    fig = fig9.plot(fig9.collect(tmp_path, ["PRED"]), tmp_path / "fig9.png")
+        _write_run(tmp_path / "PRED" / f"seed_{seed}", seed, (0.3, pos), (dist,))
+    fig = fig9_report.plot(fig9_report.collect(tmp_path, ["PRED"]), tmp_path / "fig9.png")
     t = 2.9199856  # t(0.95, 2 dof)
-    for ax, at_100, at_200 in ((fig.axes[0], 0.3, [e[0] for e in ends]),
-                               (fig.axes[1], 9.0, [e[1] for e in ends])):
+    for ax, first, at_end in ((fig.axes[0], 0.3, [e[0] for e in ends]),
+                              (fig.axes[1], 9.0, [e[1] for e in ends])):
         line, = ax.lines
-        np.testing.assert_allclose(line.get_xdata(), [100, 200])
-        np.testing.assert_allclose(line.get_ydata(), [at_100, np.mean(at_200)], rtol=1e-6)
-        half = t * np.std(at_200, ddof=1) / math.sqrt(3)
+        np.testing.assert_allclose(line.get_xdata(), [78, 678])
+        np.testing.assert_allclose(line.get_ydata(), [first, np.mean(at_end)], rtol=1e-6)
+        half = t * np.std(at_end, ddof=1) / math.sqrt(3)
         band = ax.collections[0].get_paths()[0].vertices
-        at_end = band[np.isclose(band[:, 0], 200), 1]
-        np.testing.assert_allclose([at_end.min(), at_end.max()],
-                                   [np.mean(at_200) - half, np.mean(at_200) + half], rtol=1e-5)
+        last = band[np.isclose(band[:, 0], 678), 1]
+        np.testing.assert_allclose([last.min(), last.max()],
+                                   [np.mean(at_end) - half, np.mean(at_end) + half], rtol=1e-5)
 
 
 def test_the_layout_reads_every_relation_coordinate_from_the_incline_pred():
@@ -87,7 +113,8 @@ def test_the_layout_reads_every_relation_coordinate_from_the_incline_pred():
 
     names = tuple(sources.make(fig9.SOURCE).dim_names)
     assert sorted(names) == sorted(("theta", "s0", "v0", "a0", "s1", "v1"))
-    stream = build(fig9._config("PRED", 0))
+    stream = build(fig9._config("PRED", 0, fig9.RECIPES["reference"]))
+    assert stream.learner.config.static_per_step
     plan = LatentLayout(**fig9.LAYOUT).gather(names, stream.learner.config.penalty_dim,
                                               stream.env.action_size)
     expected = {"theta": ("z", 2, 0), "s0": ("z", 3, 0), "v0": ("z", 4, 0), "a0": ("a", 0, 0),
@@ -98,7 +125,8 @@ def test_the_layout_reads_every_relation_coordinate_from_the_incline_pred():
 def test_fixed_dynamics_fix_the_targets_mass_and_friction_at_every_reset():
     """`--dynamics fixed` reaches the target's envs and the source's rows: every reset draws
     the one mass and friction; an unknown name is refused."""
-    config = fig9._config("PRED", 0, "fixed")
+    ours = fig9.RECIPES["ours"]
+    config = fig9._config("PRED", 0, ours, "fixed")
     assert config.env == fig9.TARGET and config.env_overrides == fig9._dynamics("fixed")
     env = envs_mjx.make(fig9.TARGET, **config.env_overrides, pixels="off")
     infos = [env.reset(jax.random.key(k)).info for k in range(3)]
@@ -110,26 +138,63 @@ def test_fixed_dynamics_fix_the_targets_mass_and_friction_at_every_reset():
     infos = [source_env.reset(jax.random.key(k)).info for k in range(3)]
     assert {round(float(i["mass"]), 6) for i in infos} == {0.2}
     assert {round(float(i["friction"]), 6) for i in infos} == {0.3}
-    assert fig9._config("PRED", 0).env_overrides == {}  # "drawn": the domains' own ranges
+    assert fig9._config("PRED", 0, ours).env_overrides == {}  # "drawn": the domains' own
     with pytest.raises(ValueError, match=r"dynamics must be one of \['drawn', 'fixed'\]"):
-        fig9._config("PRED", 0, "frozen")
+        fig9._config("PRED", 0, ours, "frozen")
 
 
 def test_a_method_without_relations_neither_fits_them_nor_runs_the_pilot(tmp_path, monkeypatch):
     # A `--methods PRED` process beside the pilot once ran the pilot itself, into the pilot's
-    # own run directory.
+    # own run directory. The reference recipe has one weight: no pilot.
     calls = []
     monkeypatch.setattr(fig9, "learn_relations", lambda *a, **k: calls.append("relations"))
     monkeypatch.setattr(fig9, "choose_weight", lambda *a, **k: calls.append("pilot"))
     monkeypatch.setattr(fig9, "run_method",
-                        lambda out, method, seeds, penalty, **k: calls.append((method, penalty)))
-    monkeypatch.setattr(fig9, "SCALE", dict(fig9.SCALE))  # `train` writes the flags into it
-    assert fig9.Args(out=tmp_path, methods=("PRED", "VAE_rpl")).train() is True
-    assert calls == [("PRED", fig9.Penalty()), ("VAE_rpl", fig9.Penalty())]
+                        lambda out, method, seeds, penalty, recipe, **k: calls.append(
+                            (method, penalty, recipe.name)))
+    ours = fig9.Penalty(100.0)
+    assert fig9.Args(out=tmp_path, recipe="ours", methods=("PRED", "VAE_rpl")).train() is True
+    assert calls == [("PRED", ours, "ours"), ("VAE_rpl", ours, "ours")]
     calls.clear()
-    fig9.Args(out=tmp_path, methods=("PRED", "PRED+AML_trnsv")).train()
+    fig9.Args(out=tmp_path, recipe="ours", methods=("PRED", "PRED+AML_trnsv")).train()
     assert calls[:2] == ["relations", "pilot"] and [c[0] for c in calls[2:]] == [
         "PRED", "PRED+AML_trnsv"]
     calls.clear()
-    assert fig9.Args(out=tmp_path, methods=("PRED",), pilot_only=True).train() is False
+    assert fig9.Args(out=tmp_path, recipe="ours", methods=("PRED",), pilot_only=True).train() \
+        is False
     assert calls == ["relations", "pilot"]
+    calls.clear()
+    fig9.Args(out=tmp_path, methods=("PRED+AML_trnsv",)).train()
+    assert calls == ["relations", ("PRED+AML_trnsv", fig9.Penalty(2000.0, "hinge", 10.0),
+                                   "reference")]
+
+
+def test_the_reference_recipe_and_its_controls():
+    """The released code's settings (fig9_reference.md §2–3) reach the configs; the controls
+    impose no penalty but keep the ok-row term, with the relations' rows or random ones."""
+    ref = fig9.RECIPES["reference"]
+    pred = fig9._config("PRED", 0, ref)
+    assert pred.learner_overrides | {} == {
+        "hist": 1, "pred": 1, "static_dim": 3, "latent_dim": 2, "mu_nl": False,
+        "logvar_limit": 20.0, "current_action": "observed", "kl_form": "reference",
+        "conv_filters": (32, 64, 64, 128), "deconv_filters": (128, 64, 64, 32),
+        "static_per_step": True}
+    assert (pred.replay_columns, pred.frames_per_batch // 2, pred.learner_steps) == (
+        4992, 512, 10)
+    assert (pred.eval_train, pred.eval_rand, pred.regressor_iterations) == (
+        10_000, 10_048, 10_000)
+    assert "static_per_step" not in fig9._config("VAE_rpl", 0, ref).learner_overrides
+    penalty = fig9.Penalty(2000.0, "hinge", 10.0)
+    assert fig9.method_penalty("PRED+AML_syz", penalty) == penalty
+    assert fig9.method_penalty("PRED+ok_rows", penalty) == fig9.Penalty(0.0, "hinge", 10.0)
+    assert fig9.method_penalty("PRED+random_rows", penalty) == fig9.Penalty(
+        0.0, "hinge", 10.0, "random")
+    assert fig9.described("PRED+random_rows", penalty, ref, [0, 1, 2]) == {
+        "method": "PRED+random_rows", "relations": "trnsv", "recipe": "reference",
+        "weight": 0.0, "form": "hinge", "ok_weight": 10.0, "ok_rows": "random",
+        "relations_used": [1, 2, 3]}
+    # A record written before recipes existed reads as "ours" without the ok-row term.
+    old = {"method": "PRED+AML_trnsv", "relations": "trnsv", "weight": 100.0, "form": "hinge",
+           "relations_used": [1, 2]}
+    now = fig9.described("PRED+AML_trnsv", fig9.Penalty(100.0), fig9.RECIPES["ours"], [0, 1])
+    assert fig9._same_record(old, now)

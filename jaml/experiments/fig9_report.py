@@ -1,0 +1,225 @@
+"""Fig. 9's report: every method against PRED, seed by seed, at every analysis.
+
+A seed's frame stream is the same for every method (the learner never feeds back into PPO), so
+the difference from PRED is measured per seed and its interval is the paired one; Welch's
+interval over seeds stands beside it. `stream_check` says whether the streams really matched.
+The primary comparison is fixed before the runs (`PRIMARY`); everything else is secondary.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from jaml._rundir import write_text
+from jaml.evaluation import plots
+from jaml.experiments._runs import read_history, stopped_runs, welch_interval
+
+BASE = "PRED"
+# name → (label, value of a π_rand analysis record or None)
+METRICS = {
+    "position": ("position error, π_rand", lambda r: r["errors"]["position"]),
+    "velocity": ("velocity error, π_rand", lambda r: r["errors"]["velocity"]),
+    "distortion": ("Var(ρ), π_rand (paper eq. 5)", lambda r: r.get("distortion")),
+    "irregularity": ("irreg_std, π_rand (released code)",
+                     lambda r: (r.get("irregularity") or {}).get("pi_rand")),
+    "irregularity_replay": ("irreg_std, replay (released code)",
+                            lambda r: (r.get("irregularity") or {}).get("replay")),
+}
+# The comparison written down before the runs: π_rand position error of the faithful
+# AML_trnsv minus PRED, averaged over the analyses more than 500 learner epochs in, with the
+# paired 90 % interval over seeds.
+PRIMARY = dict(method="PRED+AML_trnsv", metric="position", after_learner_epochs=500)
+
+
+def collect(out: Path, methods) -> dict[str, dict[int, list[dict]]]:
+    """method → seed → its π_rand analysis records (runs a non-finite loss stopped left out)."""
+    runs = {}
+    for method in methods:
+        directory = out / method
+        stopped = stopped_runs(directory) if directory.is_dir() else {}
+        seeds = {}
+        for d in sorted(directory.glob("seed_*")):
+            if d.name in stopped:
+                continue
+            records = [r for r in read_history(d / "history.jsonl") if r["test_set"] == "pi_rand"]
+            if records:
+                seeds[int(d.name.removeprefix("seed_"))] = records
+        if seeds:
+            runs[method] = seeds
+    return runs
+
+
+def values_at(seeds: dict[int, list[dict]], metric: str) -> dict[int, dict[int, float]]:
+    """step → seed → value of `metric` (records without it are skipped)."""
+    get = METRICS[metric][1]
+    table: dict[int, dict[int, float]] = defaultdict(dict)
+    for seed, records in seeds.items():
+        for r in records:
+            v = get(r)
+            if v is not None and math.isfinite(v):
+                table[int(r["step"])][seed] = float(v)
+    return table
+
+
+def paired_interval(a: dict[int, float], b: dict[int, float], confidence: float = 0.90):
+    """(mean of a_s − b_s over the seeds s in both, low, high, n): the paired t interval."""
+    from scipy import stats
+
+    common = sorted(a.keys() & b.keys())
+    d = np.asarray([a[s] - b[s] for s in common], np.float64)
+    if d.size < 2:
+        return (float(d.mean()) if d.size else float("nan")), float("nan"), float("nan"), d.size
+    half = float(stats.t.ppf(0.5 + confidence / 2, d.size - 1)) * d.std(ddof=1) / math.sqrt(d.size)
+    return float(d.mean()), float(d.mean() - half), float(d.mean() + half), int(d.size)
+
+
+def primary(runs, fill_epochs: int) -> str:
+    """The pre-registered comparison's line (PRIMARY)."""
+    m, metric = PRIMARY["method"], PRIMARY["metric"]
+    if m not in runs or BASE not in runs:
+        return f"Primary comparison: not available ({m} or {BASE} has no runs)."
+    first = fill_epochs + PRIMARY["after_learner_epochs"]
+    means = {}
+    for method in (m, BASE):
+        table = values_at(runs[method], metric)
+        steps = [s for s in table if s > first]
+        per_seed = defaultdict(list)
+        for s in steps:
+            for seed, v in table[s].items():
+                per_seed[seed].append(v)
+        means[method] = {seed: float(np.mean(v)) for seed, v in per_seed.items()
+                         if len(v) == len(steps)}
+    if not means[m]:
+        return (f"Primary comparison: no analysis after learner epoch "
+                f"{PRIMARY['after_learner_epochs']} yet.")
+    d, lo, hi, n = paired_interval(means[m], means[BASE])
+    return (f"**Primary comparison** ({m} − {BASE}, π_rand {metric} error averaged over the "
+            f"analyses after learner epoch {PRIMARY['after_learner_epochs']}, paired 90 % "
+            f"interval over {n} seeds): **{d:+.4f} [{lo:+.4f}, {hi:+.4f}]**.")
+
+
+def metric_table(runs, metric: str) -> list[str]:
+    """Per analysis step: each method's mean and, for the others, Δ from PRED (paired, and
+    Welch's)."""
+    methods = list(runs)
+    tables = {m: values_at(runs[m], metric) for m in methods}
+    steps = sorted(set().union(*(t.keys() for t in tables.values())))
+    head = "| epoch | " + " | ".join(methods) + " |"
+    lines = [f"**{METRICS[metric][0]}**: mean over seeds; for each method, Δ = method − PRED "
+             "with its paired 90 % interval, then Welch's.", "", head,
+             "|---" * (len(methods) + 1) + "|"]
+    for step in steps:
+        cells = []
+        for m in methods:
+            vals = tables[m].get(step, {})
+            if not vals:
+                cells.append("")
+                continue
+            text = f"{np.mean(list(vals.values())):.4f} ({len(vals)})"
+            base = tables.get(BASE, {}).get(step, {})
+            if m != BASE and base:
+                d, lo, hi, _ = paired_interval(vals, base)
+                _, wlo, whi = welch_interval(list(vals.values()), list(base.values()))
+                mark = "**" if lo > 0 or hi < 0 else ""
+                text += (f"<br>Δ {mark}{d:+.4f} [{lo:+.4f}, {hi:+.4f}]{mark}"
+                         f"<br>W [{wlo:+.4f}, {whi:+.4f}]")
+            cells.append(text)
+        lines.append(f"| {step} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def stream_check(out: Path, methods) -> list[str]:
+    """Whether each seed's stream was the same for every method: its per-epoch episode returns
+    and PPO losses (metrics.jsonl) compared with PRED's, bit for bit."""
+    keys = ("episode_return", "ppo/total_loss")
+    lines = []
+    for method in methods:
+        if method == BASE:
+            continue
+        same, differ, missing = [], [], []
+        for d in sorted((out / method).glob("seed_*")):
+            mine, base = d / "metrics.jsonl", out / BASE / d.name / "metrics.jsonl"
+            if not (mine.exists() and base.exists()):
+                missing.append(d.name)
+                continue
+            a = {r["epoch"]: json.dumps([r.get(k) for k in keys]) for r in _jsonl(mine)}
+            b = {r["epoch"]: json.dumps([r.get(k) for k in keys]) for r in _jsonl(base)}
+            common = sorted(a.keys() & b.keys())
+            (same if common and all(a[e] == b[e] for e in common) else differ).append(d.name)
+        parts = [f"{len(same)} seeds identical"]
+        if differ:
+            parts.append(f"differ: {', '.join(differ)}")
+        if missing:
+            parts.append(f"no metrics: {', '.join(missing)}")
+        lines.append(f"- {method} vs {BASE}: " + "; ".join(parts))
+    return lines
+
+
+def _jsonl(path: Path) -> list[dict]:
+    text = path.read_text()
+    return [json.loads(x) for x in text[:text.rfind("\n") + 1].splitlines() if x.strip()]
+
+
+def plot(runs, path: Path):
+    """Position error, Var(ρ) and irreg_std on π_rand over epochs: each method's seed mean with
+    its 90 % band; and the paired difference from PRED of the position error."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(14, 7.5), layout="constrained")
+    axes = fig.subplots(2, 2).ravel()
+    for k, (method, seeds) in enumerate(runs.items()):
+        for ax, metric in zip(axes[:3], ("position", "distortion", "irregularity"), strict=True):
+            table = values_at(seeds, metric)
+            steps = sorted(table)
+            if not steps:
+                continue
+            bands = np.array([plots.mean_interval(list(table[s].values())) for s in steps])
+            ax.plot(steps, bands[:, 0], color=f"C{k}", label=f"{method} ({len(seeds)})")
+            ax.fill_between(steps, bands[:, 1], bands[:, 2], color=f"C{k}", alpha=0.15,
+                            linewidth=0)
+        if method != BASE and BASE in runs:
+            mine, base = values_at(seeds, "position"), values_at(runs[BASE], "position")
+            steps = sorted(s for s in mine if s in base)
+            diffs = np.array([paired_interval(mine[s], base[s])[:3] for s in steps])
+            if len(steps):
+                axes[3].plot(steps, diffs[:, 0], color=f"C{k}", label=method)
+                axes[3].fill_between(steps, diffs[:, 1], diffs[:, 2], color=f"C{k}",
+                                     alpha=0.15, linewidth=0)
+    axes[3].axhline(0.0, color="black", linewidth=0.8)
+    titles = ("object position alignment error, π_rand", "distortion Var(ρ), π_rand (paper)",
+              "irreg_std, π_rand (released code)", "Δ position error from PRED (paired 90 %)")
+    for ax, title in zip(axes, titles, strict=True):
+        ax.set_title(title)
+        ax.set_xlabel("epoch")
+    axes[0].legend(fontsize=8)
+    axes[3].legend(fontsize=8)
+    plots.save_figure(fig, path)
+    return fig
+
+
+def report(out: Path, methods) -> str:
+    """OUT/fig9.md (and fig9.png) from the runs found; returns the markdown."""
+    runs = collect(out, methods)
+    if not runs:
+        return "no finished runs\n"
+    plot(runs, out / "fig9.png")
+    fill = _fill_epochs(out, runs)
+    lines = [primary(runs, fill), "",
+             "Streams (a seed's per-epoch episode returns and PPO losses against PRED's):",
+             *stream_check(out, runs), ""]
+    for metric in METRICS:
+        lines += [*metric_table(runs, metric), ""]
+    text = "\n".join(lines)
+    write_text(out / "fig9.md", text)
+    return text
+
+
+def _fill_epochs(out: Path, runs) -> int:
+    """Epochs that filled the replay before the learner started (the first analysis)."""
+    return min(min(int(r["step"]) for r in records)
+               for seeds in runs.values() for records in seeds.values())

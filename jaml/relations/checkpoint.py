@@ -67,14 +67,20 @@ def load(path) -> RelationSet:
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise ValueError(f"{path} is not a jaml relations checkpoint (format {meta!r})")
     dim, depth, widths = meta["dim"], meta["depth"], meta["widths"]
-    target = {
-        "params": [
-            jax.eval_shape(Relation(w, depth).init, jax.random.key(0), jnp.zeros((1, dim)))
-            for w in widths
-        ],
-        "on_means": jax.ShapeDtypeStruct((len(widths),), jnp.float32),
-        "off_means": jax.ShapeDtypeStruct((len(widths),), jnp.float32),
-    }
+    # Every array onto this process's first device: the checkpoint records the devices it was
+    # saved from (a CPU's, another GPU's), which need not exist here.
+    here = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+    target = jax.tree.map(
+        lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=here),
+        {
+            "params": [
+                jax.eval_shape(Relation(w, depth).init, jax.random.key(0), jnp.zeros((1, dim)))
+                for w in widths
+            ],
+            "on_means": jax.ShapeDtypeStruct((len(widths),), jnp.float32),
+            "off_means": jax.ShapeDtypeStruct((len(widths),), jnp.float32),
+        },
+    )
     try:
         with ocp.Checkpointer(ocp.CompositeCheckpointHandler()) as ckptr:
             arrays = ckptr.restore(

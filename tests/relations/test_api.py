@@ -191,3 +191,23 @@ def test_fit_stops_on_a_non_finite_loss_and_keeps_earlier_relations(caplog):
         rs = relations.fit(rows, TINY.replace(learning_rate=1e38), start=first)
     assert "non-finite" in caplog.text
     assert rs.num_relations == 1
+
+
+def test_a_checkpoint_loads_where_its_devices_do_not_exist(tiny_set, tmp_path):
+    """Relations fitted on one machine are imposed on another (a CPU's fit on a GPU): a set
+    saved from this process's second device loads in a process that has one device only."""
+    import os
+    import subprocess
+    import sys
+
+    import jax
+
+    rs, rows = tiny_set
+    assert len(jax.devices()) == 2  # tests/conftest.py
+    relations.save(jax.device_put(rs, jax.devices()[1]), tmp_path / "rs")
+    script = ("import sys, numpy as np; from jaml import relations; "
+              "rs = relations.load(sys.argv[1]); np.save(sys.argv[2], np.asarray(rs.on_means))")
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    subprocess.run([sys.executable, "-c", script, str(tmp_path / "rs"), str(tmp_path / "m.npy")],
+                   check=True, env=env, capture_output=True)
+    np.testing.assert_array_equal(np.load(tmp_path / "m.npy"), rs.on_means)

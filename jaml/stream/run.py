@@ -492,7 +492,8 @@ def _analyse(stream: Stream, state: StreamState, key, pi_rand_key, names, out: P
     # with no information scores on each test set's rows (`evaluation.constant_errors`).
     validation = dict(zip(names, report["errors"]["validation"], strict=True))
     records = [r | {"validation": validation,
-                    "baseline": dict(zip(names, report["baseline"][r["test_set"]], strict=True))}
+                    "baseline": dict(zip(names, report["baseline"][r["test_set"]], strict=True)),
+                    "irregularity": report.get("irregularity")}
                for r in records]
     with _timed({} if seconds is None else seconds, "reconstructions"):
         truth, recon = analysis.reconstructions(stream, state, jax.random.fold_in(key, 7))

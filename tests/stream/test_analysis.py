@@ -255,6 +255,12 @@ def test_other_domains_are_analysed_as_before(monkeypatch):
                                        np.abs(np.median(fit, axis=0) - ld).mean(axis=0) / std,
                                        rtol=1e-5, atol=1e-6, err_msg=test_set)
     assert list(report["baseline"]) == ["pi_rand", "pi_curr"]
+    # The released code's distortion on the π_rand and replay rows, as `evaluation` scores them.
+    names = fake.env.ld_state_names
+    for part, (lat, ld) in (("pi_rand", _synthetic(fake.env, pi_rand_key, 16)),
+                            ("replay", train)):
+        expected = evaluation.irregularity(np.asarray(lat), np.asarray(ld), names)
+        assert report["irregularity"][part] == pytest.approx(expected, rel=1e-6), part
 
 
 def test_rearrange_with_normalised_targets_is_refused():

@@ -203,6 +203,8 @@ def test_without_a_final_checkpoint_a_run_writes_its_records_and_no_checkpoint(t
                           final_checkpoint=False)
     assert summary["status"] == "finished" and summary["checkpoint_epoch"] is None
     assert {r["step"] for r in _records(tmp_path / "history.jsonl")} == {2}
+    assert all(set(r["irregularity"]) == {"pi_rand", "replay"}
+               for r in _records(tmp_path / "history.jsonl"))
     assert not [p for p in (tmp_path / "checkpoints").iterdir() if p.name.isdigit()]  # no step
 
 

@@ -23,6 +23,7 @@ import optax
 from jaml.relations import losses
 from jaml.relations.config import Config
 from jaml.relations.data import Batches, prepare
+from jaml.relations.geometry import codimension
 from jaml.relations.loop import (
     NONFINITE,
     STATUS_NAMES,
@@ -38,6 +39,7 @@ from jaml.sources.off_manifold import thicken
 log = logging.getLogger("jaml.relations")
 
 THICKENING_LEVELS = np.linspace(0.1, 2.1, 10)
+RANK_ROWS = 2048  # on-manifold rows of the codimension check after each relation
 
 
 @dataclasses.dataclass
@@ -53,6 +55,8 @@ class RelationSummary:
     off_mean: float
     syzygies_found: int = 0
     syzygy_rounds: list = dataclasses.field(default_factory=list)
+    # `geometry.codimension` of g_1..g_index on fresh on-manifold rows: do they cut index dims?
+    codimension: dict = dataclasses.field(default_factory=dict)
 
     @property
     def ratio(self) -> float:
@@ -488,6 +492,10 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool):
             syzygies_found=sum(r["found"] for r in rounds),
             syzygy_rounds=rounds,
         )
+        if status != NONFINITE:
+            grown = rs.append(state.params, on_mean, off_mean, width)
+            rows = batches.on(jax.random.fold_in(k_eval, 1), batches.data, RANK_ROWS)
+            summary.codimension = codimension(grown, rows)
         if status == NONFINITE:
             log.error(
                 "relation %d: loss became non-finite at step %d; stopping with the %d "

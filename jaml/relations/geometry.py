@@ -13,9 +13,6 @@ import numpy as np
 from jaml.relations.relation_set import RelationSet, _check_tau, evaluate
 
 DEFAULT_RANK_RTOL = 0.1  # σ_i / σ_1 of the row-normalised Jacobian; for K = 2, tan(θ/2) > 0.1
-# A gradient shorter than this × the longest at the same point counts as zero (a flat relation,
-# e.g. a squared one, whose direction is rounding noise).
-FLAT_GRADIENT = 1e-3
 
 
 def _relations_fn(relations) -> Callable:
@@ -106,7 +103,7 @@ def _sigma_ratios(fn, tau):
     def one_row(t):
         jac = jax.jacfwd(fn)(t)
         norms = jnp.linalg.norm(jac, axis=-1, keepdims=True)
-        flat = norms <= FLAT_GRADIENT * jnp.max(norms)
+        flat = norms == 0.0  # no direction at all; any other length is scaled to 1
         unit = jnp.where(flat, 0.0, jac / jnp.where(flat, 1.0, norms))
         s = jnp.linalg.svd(unit, compute_uv=False)
         s = jnp.pad(s, (0, jac.shape[0] - s.shape[0]))  # K > D: the missing ones are zero
@@ -123,9 +120,9 @@ def _sigma_ratios_set(rs: RelationSet, tau):
 def jacobian_ranks(relations, tau, rtol: float = DEFAULT_RANK_RTOL):
     """(ranks int [N], σ ratios [N, K]) of the K×D Jacobian of (g_1..g_K) at rows τ [N, D].
 
-    Each gradient is scaled to unit length first (so the check ignores each g_k's scale), one
-    shorter than FLAT_GRADIENT × the longest counts as zero; the rank counts singular values
-    above rtol × the largest. With K ≤ D, rank K means the K
+    Each gradient is scaled to unit length first (learned g_k's gradients differ in scale by
+    orders of magnitude, and transversality is about directions), a zero one stays zero; the
+    rank counts singular values above rtol × the largest. With K ≤ D, rank K means the K
     gradients are independent there, i.e. the zero sets cut K dimensions (transversality).
     """
     tau = jnp.asarray(tau).reshape(-1, jnp.shape(tau)[-1])

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 ROW_NAMES = ("fig5_top", "fig5_middle", "fig5_bottom", "fig7_top", "fig7_middle",
-             "fig7_bottom", "figB_syzygy")
+             "fig7_bottom", "fig7_bottom_theta", "figB_syzygy")
 # More than two relations, and syzygy rounds, are capped lower than the default 50 000 steps
 # so that every row trains on a 2-core CPU in minutes; the paper states no budget.
 _CAPPED = {"max_steps": 20_000}
@@ -33,6 +33,9 @@ ROWS: dict[str, tuple[str, dict, dict | None]] = {
     # Trained over inclines in [π/20, π/2.5] (the angle is not in τ); drawn at 10°.
     "fig7_bottom": ("block-drag-range", {"max_relations": 2, **_CAPPED},
                     {"incline": math.radians(10.0)}),
+    # The same with θ in τ (its last entry), drawn at θ = 10°.
+    "fig7_bottom_theta": ("block-drag-range-theta", {"max_relations": 3, **_CAPPED},
+                          {"incline": math.radians(10.0)}),
     "figB_syzygy": ("block45", {"max_relations": 3, **_SYZYGY}, None),
 }
 

@@ -44,6 +44,14 @@ PRESETS: dict[str, Callable[..., Source]] = {
         drag_coef=2.0,
         name="block-drag-range",
     ),
+    # The same with θ as τ's last entry, so that a slice at one angle (Fig. 7's 10°) is defined.
+    "block-drag-range-theta": lambda: BlockOnIncline(
+        incline=(math.pi / 20, math.pi / 2.5),
+        drag="quadratic",
+        drag_coef=2.0,
+        observe_incline=True,
+        name="block-drag-range-theta",
+    ),
     # §5: (θ, s0, v0, a0, s1, v1) from MJX GeomOnIncline (the source domain) and MeshOnIncline
     # (the stand-in for YCB-on-incline, the target), in their normalised LD units.
     "geom-on-incline": _incline_env("geom-on-incline"),

@@ -58,7 +58,9 @@ def _note(name: str, summary: dict, codim: dict) -> str:
     source, overrides, slice_options = ROWS[name]
     ends = ", ".join(f"g{r['index']} {r['status']} ({r['steps']} steps, off/on {r['ratio']:.1f}×)"
                      for r in summary["relations"])
-    drawn = "" if not slice_options else f" Drawn at {slice_options}."
+    drawn = ""
+    if slice_options:
+        drawn = f" Drawn at θ = {math.degrees(slice_options['incline']):.0f}°."
     return (f"Row {name}: source {source}, {overrides}.{drawn} Relations: {ends}. Rank of the "
             f"K×D Jacobian on {codim['points']} training rows: full (K = {codim['relations']}) at "
             f"{100 * codim['full_rank_fraction']:.0f}% of them (σ_K/σ_1 > {codim['rtol']:g}).")

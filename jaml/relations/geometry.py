@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaml.relations.loop import ONCE_COMPILER_OPTIONS
 from jaml.relations.relation_set import RelationSet, _check_tau, evaluate
 
 DEFAULT_RANK_RTOL = 0.1  # σ_i / σ_1 of the row-normalised Jacobian; for K = 2, tan(θ/2) > 0.1
@@ -112,7 +113,7 @@ def _sigma_ratios(fn, tau):
     return jax.vmap(one_row)(tau)
 
 
-@jax.jit
+@functools.partial(jax.jit, compiler_options=ONCE_COMPILER_OPTIONS)
 def _sigma_ratios_set(rs: RelationSet, tau):
     return _sigma_ratios(lambda t: evaluate(rs, t), tau)
 

@@ -6,6 +6,8 @@ relations.evaluate(rs, tau)   # [..., K]
 relations.penalty(rs, tau)    # [...] Σ_k |g_k|  (paper eq. 4)
 relations.holds(rs, tau)      # bool [...]
 relations.save(rs, path); rs = relations.load(path)
+points, residuals = relations.project(rs, tau)   # onto {g_1 = … = g_K = 0}, Gauss–Newton
+relations.codimension(rs, on_rows)  # how often ∇g_1..∇g_K are independent there
 pen = relations.latent_penalty(rs, relations.LatentLayout(static={"theta": 2},
                                dynamic={"s": 3, "v": 4}), latent_size=5, action_size=1)
                               # (z [B, S, 5], a [B, S, 1]) -> [B], for a learner's loss (eq. 4)
@@ -13,6 +15,7 @@ pen = relations.latent_penalty(rs, relations.LatentLayout(static={"theta": 2},
 
 from jaml.relations.checkpoint import load, save
 from jaml.relations.config import Config
+from jaml.relations.geometry import codimension, jacobian_ranks, project
 from jaml.relations.relation_set import RelationSet, evaluate, holds, penalty
 from jaml.relations.training import RelationSummary, fit
 from jaml.relations.transfer import LatentLayout, LayoutError, latent_penalty
@@ -23,11 +26,14 @@ __all__ = [
     "LayoutError",
     "RelationSet",
     "RelationSummary",
+    "codimension",
     "evaluate",
     "fit",
     "holds",
+    "jacobian_ranks",
     "latent_penalty",
     "load",
     "penalty",
+    "project",
     "save",
 ]

@@ -135,6 +135,8 @@ def run(
                     "status": status,
                     "num_relations": len(summaries),
                     "seconds": time.perf_counter() - started,
+                    # Rank of the K×D Jacobian of all K relations on on-manifold rows.
+                    "codimension": summaries[-1].get("codimension", {}) if summaries else {},
                     "relations": summaries,
                 },
             )
@@ -159,8 +161,8 @@ def run(
         return json.loads(summary_path.read_text())
 
 
-def draw_figures(rs: RelationSet, source, out: Path) -> list[Path]:
-    """The paper-style figures that fit this source's data."""
+def draw_figures(rs: RelationSet, source, out: Path, note: str = "") -> list[Path]:
+    """The paper-style figures that fit this source's data (`note` ends their captions)."""
     key = jax.random.key(0)
     paths = []
     if rs.dim != 3 and not hasattr(source, "widened"):
@@ -168,13 +170,15 @@ def draw_figures(rs: RelationSet, source, out: Path) -> list[Path]:
     on = np.asarray(source.sample(key, 2500))
     if rs.dim == 3:
         paths.append(
-            plots.plot_zero_sets_3d(rs, on, out / "zero_sets.png", key, names=source.dim_names)
+            plots.plot_zero_sets_3d(rs, on, out / "zero_sets.png", key, names=source.dim_names,
+                                    note=note)
         )
     elif hasattr(source, "widened") and rs.dim >= 4:
         wide = np.asarray(source.widened(2.0).sample(key, 2500))
         paths.append(
             plots.plot_phase_space(
-                rs, {"training range": on, "2x training range": wide}, out / "phase_space.png", key
+                rs, {"training range": on, "2x training range": wide}, out / "phase_space.png", key,
+                note=note,
             )
         )
     return paths

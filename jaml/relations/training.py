@@ -10,6 +10,7 @@ Every loop is a jitted `lax.scan` (see `loop.py`).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import time
 from collections.abc import Callable, Sequence
@@ -23,8 +24,11 @@ import optax
 from jaml.relations import losses
 from jaml.relations.config import Config
 from jaml.relations.data import Batches, prepare
+from jaml.relations.geometry import codimension
 from jaml.relations.loop import (
+    LOOP_COMPILER_OPTIONS,
     NONFINITE,
+    ONCE_COMPILER_OPTIONS,
     STATUS_NAMES,
     init_state,
     make_chunk,
@@ -38,6 +42,7 @@ from jaml.sources.off_manifold import thicken
 log = logging.getLogger("jaml.relations")
 
 THICKENING_LEVELS = np.linspace(0.1, 2.1, 10)
+RANK_ROWS = 2048  # on-manifold rows of the codimension check after each relation
 
 
 @dataclasses.dataclass
@@ -53,6 +58,8 @@ class RelationSummary:
     off_mean: float
     syzygies_found: int = 0
     syzygy_rounds: list = dataclasses.field(default_factory=list)
+    # `geometry.codimension` of g_1..g_index on fresh on-manifold rows: do they cut index dims?
+    codimension: dict = dataclasses.field(default_factory=dict)
 
     @property
     def ratio(self) -> float:
@@ -300,7 +307,7 @@ def record_means(cfg, batches: Batches, module, params, key):
     # One compiled call (op by op this cost seconds of dispatch on CPU), with the parameters as
     # an argument rather than baked-in constants: one program per relation width, which the
     # persistent compilation cache can serve again.
-    @jax.jit
+    @functools.partial(jax.jit, compiler_options=ONCE_COMPILER_OPTIONS)
     def means(key, data, params):
         k_on, k_off = jax.random.split(key)
         on = jnp.mean(jnp.abs(module.apply(params, batches.on(k_on, data, n))))
@@ -405,7 +412,7 @@ def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, 
     chunk, state, args = relation_trainer(
         cfg, batches, stand_in, next_params, jax.random.key(0), cfg.max_steps
     )
-    return {k_next: pool.submit(chunk.lower(state, args).compile)}
+    return {k_next: pool.submit(chunk.lower(state, args).compile, LOOP_COMPILER_OPTIONS)}
 
 
 def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool):
@@ -416,7 +423,8 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool):
         k_init, k_pre, k_train, k_syz, k_eval = jax.random.split(k_key, 5)
         width = relation_width(k, cfg.base_width, cfg.max_width)
         module = Relation(width, cfg.depth)
-        params = jax.jit(module.init)(k_init, jnp.zeros((1, batches.dim)))
+        init = jax.jit(module.init, compiler_options=ONCE_COMPILER_OPTIONS)
+        params = init(k_init, jnp.zeros((1, batches.dim)))
         ahead |= _compile_ahead(cfg, batches, rs, params, k + 1, pool)
         if priors is not None and k < len(priors) and priors[k] is not None:
             params = _pretrain(cfg, batches, module, params, priors[k], k_pre)
@@ -488,6 +496,10 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool):
             syzygies_found=sum(r["found"] for r in rounds),
             syzygy_rounds=rounds,
         )
+        if status != NONFINITE:
+            grown = rs.append(state.params, on_mean, off_mean, width)
+            rows = batches.on(jax.random.fold_in(k_eval, 1), batches.data, RANK_ROWS)
+            summary.codimension = codimension(grown, rows)
         if status == NONFINITE:
             log.error(
                 "relation %d: loss became non-finite at step %d; stopping with the %d "

@@ -101,8 +101,10 @@ class BlockOnIncline:
     """A block sliding on an incline, observed at `times` after a random start.
 
     Each physical parameter is a constant or a (lo, hi) range drawn per row; parameters are not
-    part of τ. Initial position and velocity are uniform in their ranges times `scale` (use
-    scale 2 for "twice the training range" generalization tests).
+    part of τ, except the incline angle θ as τ's last entry with `observe_incline` (then
+    relations learned over a range of angles can be read at one angle). Initial position and
+    velocity are uniform in their ranges times `scale` (use scale 2 for "twice the training
+    range" generalization tests).
     """
 
     gravity: Param = 9.8
@@ -114,6 +116,7 @@ class BlockOnIncline:
     position_range: tuple[float, float] = (0.0, 1.0)
     velocity_range: tuple[float, float] = (-1.0, 1.0)
     scale: float = 1.0
+    observe_incline: bool = False
     name: str = "block"
 
     def __post_init__(self):
@@ -141,13 +144,13 @@ class BlockOnIncline:
 
     @property
     def dim_names(self) -> tuple[str, ...]:
-        return tuple(f"{q}_{i}" for i in range(len(self.times)) for q in ("position", "velocity"))
+        names = tuple(f"{q}_{i}" for i in range(len(self.times)) for q in ("position", "velocity"))
+        return (*names, "incline") if self.observe_incline else names
 
     def sample(self, key: jax.Array, n: int) -> jax.Array:
         kg, kt, kf, kr, ks, kv = jax.random.split(key, 6)
-        c = downhill_acceleration(
-            _draw(kg, self.gravity, n), _draw(kt, self.incline, n), _draw(kf, self.friction, n)
-        )
+        incline = _draw(kt, self.incline, n)
+        c = downhill_acceleration(_draw(kg, self.gravity, n), incline, _draw(kf, self.friction, n))
         r = _draw(kr, self.drag_coef, n)
         lo, hi = self.position_range
         s0 = self.scale * jax.random.uniform(ks, (n,), minval=lo, maxval=hi)
@@ -157,6 +160,8 @@ class BlockOnIncline:
         for t in self.times:
             s, v = flow(s0, v0, t - self.times[0], c, r, self.drag)
             columns += [s, v]
+        if self.observe_incline:
+            columns.append(incline)
         return jnp.stack(columns, axis=-1)
 
     def widened(self, scale: float) -> BlockOnIncline:

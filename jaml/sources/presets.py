@@ -28,9 +28,14 @@ PRESETS: dict[str, Callable[..., Source]] = {
     "ellipse": HyperboloidPlaneCurve,
     # Fig. 7 top row: a 45° incline, no friction, no drag.
     "block45": lambda: BlockOnIncline(incline=math.pi / 4, name="block45"),
-    # Fig. 7 middle row / the check: a 36° incline, μ = 0.2, quadratic drag.
+    # A 36° incline, μ = 0.2, quadratic drag.
     "block36-drag": lambda: BlockOnIncline(
         incline=math.pi / 5, friction=0.2, drag="quadratic", drag_coef=1.0, name="block36-drag"
+    ),
+    # Fig. 7 middle row (paper): a 35° incline with high kinetic friction μ_k = 0.8. The
+    # downhill acceleration is negative (the block decelerates), friction staying up-slope.
+    "block35-friction": lambda: BlockOnIncline(
+        incline=math.radians(35.0), friction=0.8, name="block35-friction"
     ),
     # Fig. 7 bottom row: high drag, incline angle drawn per row in [π/20, π/2.5].
     "block-drag-range": lambda: BlockOnIncline(
@@ -38,6 +43,14 @@ PRESETS: dict[str, Callable[..., Source]] = {
         drag="quadratic",
         drag_coef=2.0,
         name="block-drag-range",
+    ),
+    # The same with θ as τ's last entry, so that a slice at one angle (Fig. 7's 10°) is defined.
+    "block-drag-range-theta": lambda: BlockOnIncline(
+        incline=(math.pi / 20, math.pi / 2.5),
+        drag="quadratic",
+        drag_coef=2.0,
+        observe_incline=True,
+        name="block-drag-range-theta",
     ),
     # §5: (θ, s0, v0, a0, s1, v1) from MJX GeomOnIncline (the source domain) and MeshOnIncline
     # (the stand-in for YCB-on-incline, the target), in their normalised LD units.

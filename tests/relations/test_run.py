@@ -28,6 +28,11 @@ def test_cli_writes_the_run_directory(tmp_path, capsys):
     for r in summary["relations"]:
         assert r["steps"] <= 40 and r["status"] in ("done", "capped") and r["seconds"] > 0
         assert r["off_mean"] > 0 and r["on_mean"] > 0
+    codim = summary["codimension"]
+    assert codim["relations"] == 2 and codim["points"] == 2048
+    assert 0.0 <= codim["full_rank_fraction"] <= 1.0
+    assert sum(codim["rank_fractions"]) == pytest.approx(1.0)
+    assert [r["codimension"]["relations"] for r in summary["relations"]] == [1, 2]
     config = json.loads((out / "config.json").read_text())
     assert config["source"] == "block45" and config["relations"]["max_steps"] == 40
     lines = [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines()]

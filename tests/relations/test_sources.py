@@ -124,6 +124,14 @@ def test_rows_are_time_major_and_named():
     np.testing.assert_allclose(tau[:, 3] - tau[:, 1], 9.8 * math.sin(math.pi / 4) * 0.5, atol=1e-5)
 
 
+def test_an_observed_incline_is_the_last_entry_and_sets_each_rows_acceleration():
+    src = sources.BlockOnIncline(incline=(0.1, 1.0), observe_incline=True)
+    assert src.dim_names[-1] == "incline" and len(src.dim_names) == 5
+    _, v0, _, v1, theta = np.asarray(src.sample(jax.random.key(0), 512)).T
+    assert theta.min() >= 0.1 and theta.max() <= 1.0 and np.ptp(theta) > 0.5
+    np.testing.assert_allclose(v1 - v0, 9.8 * np.sin(theta), atol=1e-5)
+
+
 def test_bad_source_parameters_raise():
     with pytest.raises(ValueError, match="unknown drag"):
         sources.BlockOnIncline(drag="cubic")

@@ -16,13 +16,13 @@ lane() {  # lane GPU LOG COMMAND...
   local gpu=$1 log=$2; shift 2
   CUDA_VISIBLE_DEVICES=$gpu timeout "$limit" "$@" >"$out/logs/$log.log" 2>&1 &
 }
-fig9() { python -m jaml.experiments.fig9 --out "$out" --recipe reference "${extra[@]}" "$@"; }
-lane 0 PRED fig9 --methods PRED
-lane 0 AML_trnsv fig9 --methods PRED+AML_trnsv
-lane 1 AML_syz fig9 --methods PRED+AML_syz
-lane 1 ok_rows fig9 --methods PRED+ok_rows
-lane 2 random_rows fig9 --methods PRED+random_rows
-lane 2 VAE_rpl fig9 --methods VAE_rpl
+fig9=(python -m jaml.experiments.fig9 --out "$out" --recipe reference "${extra[@]}")
+lane 0 PRED "${fig9[@]}" --methods PRED
+lane 0 AML_trnsv "${fig9[@]}" --methods PRED+AML_trnsv
+lane 1 AML_syz "${fig9[@]}" --methods PRED+AML_syz
+lane 1 ok_rows "${fig9[@]}" --methods PRED+ok_rows
+lane 2 random_rows "${fig9[@]}" --methods PRED+random_rows
+lane 2 VAE_rpl "${fig9[@]}" --methods VAE_rpl
 lane 3 fig2_PRED_observed python -m jaml.experiments.fig2 --out "$out/fig2_observed" \
   --envs CartPole --variants PRED --learner-opt current_action=observed "${extra[@]}"
 wait

@@ -1,5 +1,6 @@
 """The evaluation suite's domains: MJCF models stepped in MJX, with LD state and pixels."""
 
+from envs_mjx import brax_compat
 from envs_mjx.base import Env, EnvConfig, State
 from envs_mjx.compile import compiler_options
 from envs_mjx.registry import ALL_ENVS, default_config, make
@@ -14,6 +15,10 @@ __all__ = [
     "make",
     "to_gymnasium",
 ]
+
+# Brax's trainers (`ppo.train(environment=envs_mjx.make(...))`) call a function JAX 0.10
+# removed: restored where missing, nothing else changed (envs_mjx/brax_compat.py).
+brax_compat.install()
 
 
 def __getattr__(name: str):

@@ -300,7 +300,9 @@ class Env(brax_base.Env):
             obs=ld,
             reward=jnp.asarray(reward * self.config.reward_multiplier, jnp.float32),
             done=(terminated | truncated).astype(jnp.float32),
-            metrics={**metrics, "nonfinite_action": jnp.zeros(()),
+            # Entries a wrapper added (Brax's EvalWrapper keeps "reward" there) pass through,
+            # as Brax's own envs' `state.metrics.update(...)` keeps them.
+            metrics={**state.metrics, **metrics, "nonfinite_action": jnp.zeros(()),
                      "nonfinite_physics": jnp.zeros(())},
             info=info,
             pixels=self.pixels_fn(data, info),

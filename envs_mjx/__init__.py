@@ -3,7 +3,7 @@
 from envs_mjx import brax_compat
 from envs_mjx.base import Env, EnvConfig, State
 from envs_mjx.compile import compiler_options
-from envs_mjx.registry import ALL_ENVS, default_config, make
+from envs_mjx.registry import ALL_ENVS, default_config, load, make
 
 __all__ = [
     "ALL_ENVS",
@@ -12,6 +12,7 @@ __all__ = [
     "State",
     "compiler_options",
     "default_config",
+    "load",
     "make",
     "to_gymnasium",
 ]

@@ -1,4 +1,4 @@
-"""Brax's own PPO trainer on the suite's envs (jax 0.10 + brax 0.14, through envs_mjx.brax_compat)."""
+"""Brax's own PPO trainer on the suite's envs (jax 0.10, brax 0.14: envs_mjx.brax_compat)."""
 
 import jax
 import numpy as np

@@ -130,6 +130,10 @@ def _registry() -> tyro.constructors.ConstructorRegistry:
                 kind = tyro.conf.Suppress[kind]
             helptext = f.helptext() if callable(f.helptext) else f.helptext
             helptext = " ".join((helptext or docs.get(f.name) or "").split())  # unwrapped
+            if kind is bool and f.default is True and helptext:
+                # FlagCreatePairsOff: a True default makes the flag `--no-NAME`, which turns off
+                # what the field's doc describes; say so.
+                helptext = f"turn off (default on): {helptext}"
             fields.append(dataclasses.replace(f, type=kind, helptext=helptext or None))
         return dataclasses.replace(spec, fields=tuple(fields))
 
@@ -622,15 +626,18 @@ def main(argv=None) -> int:
     )
     for line in captured:
         logging.getLogger(__name__).info("import mujoco.mjx: %s", line)
+    # What a resumed run resumed from (jaml.stream.run), shown without -v.
+    logging.getLogger("jaml.resume").setLevel(logging.INFO)
     use_compilation_cache()
     try:
         with _sigterm_as_interrupt():
             return args.command.run()
-    except (ValueError, TypeError, FileNotFoundError) as error:
+    except Exception as error:  # every failure one line; the traceback with --debug
         if args.debug:
             traceback.print_exc()
         else:
-            print(f"jaml: error: {error} (--debug shows the traceback)", file=sys.stderr)
+            print(f"jaml: error: {error_line(error)} (--debug shows the traceback)",
+                  file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         if args.debug:
@@ -638,6 +645,15 @@ def main(argv=None) -> int:
         print("jaml: interrupted; run directories keep their last checkpoint and summary, and "
               "the same command resumes", file=sys.stderr)
         return 130
+
+
+def error_line(error: BaseException) -> str:
+    """One line naming the problem: the message unwrapped (its type for errors not raised by
+    jaml's own checks), cut at 400 characters."""
+    text = " ".join(str(error).split()) or "(no message)"
+    if not isinstance(error, ValueError | TypeError | FileNotFoundError | RuntimeError):
+        text = f"{type(error).__name__}: {text}"
+    return text if len(text) <= 400 else text[:399] + "…"
 
 
 @contextlib.contextmanager

@@ -278,6 +278,9 @@ class Suite:
         default_factory=CallOptions)
     no_progress: bool = False
     """no progress bar"""
+    scale: Literal["paper", "smoke"] = "paper"
+    """sizes: "paper" (the reference's, for a GPU) or "smoke" (8 envs, 4 epochs, small analysis
+    sets: minutes on a CPU; `jaml.suite.SCALES`); flags given beside it win"""
     config: Annotated[_suite_config(), tyro.conf.arg(name="")] = dataclasses.field(
         default_factory=_suite_config())
 
@@ -296,8 +299,10 @@ class Suite:
         env_config = getattr(self, "env_config", None)
         if env_config is not None:
             env_opt = _changed(env_config, _env_default(self.env))
-        return for_env(self.env, self.learner, **changed, learner_overrides=learner_opt,
-                       env_overrides=env_opt)
+        from jaml.suite import scaled
+
+        return scaled(base, self.scale).replace(**changed, learner_overrides=learner_opt,
+                                                env_overrides=env_opt)
 
     def run(self) -> int:
         from jaml.stream.run import run
@@ -305,8 +310,11 @@ class Suite:
         config = self.stream_config()
         summary = run(config, self.out, progress=not self.no_progress,
                       **dataclasses.asdict(self.call))
+        resumed = ("" if summary.get("resumed_from") is None
+                   else f", resumed from epoch {summary['resumed_from']}")
         print(f"{config.env} {config.learner} ({config.policy}): {summary['status']} at epoch "
-              f"{summary['epoch']}, checkpoint {summary['checkpoint_epoch']} -> {self.out}")
+              f"{summary['epoch']}{resumed}, checkpoint {summary['checkpoint_epoch']} -> "
+              f"{self.out}")
         for r in summary["final"]:
             errs = " ".join(f"{k}={v:.3f}" for k, v in r["errors"].items())
             print(f"  {r['test_set']}: {errs}")

@@ -271,7 +271,7 @@ class Suite:
     env: Literal[_envs()]
     """the MJX domain (`jaml envs list`)"""
     learner: Literal[_learners()]
-    """the learner (jaml.learners)"""
+    """the learner (jaml.learners), or your own as MODULE:FACTORY (docs/own_learner.md)"""
     out: Path
     """run directory"""
     call: Annotated[CallOptions, tyro.conf.arg(name="")] = dataclasses.field(
@@ -346,6 +346,11 @@ def _suite_for(argv: list[str]) -> type:
     pair's (`for_env`) with the learner's and the env's configs as typed flags."""
 
     env, learner = _flag(argv, "--env"), _flag(argv, "--learner")
+    if learner is not None and ":" in learner:
+        # Your own learner, MODULE:FACTORY (jaml.stream.loop.make_learner): any name.
+        return dataclasses.make_dataclass(
+            "Suite", [("learner", str)], bases=(Suite,), frozen=True,
+            namespace={"__doc__": Suite.__doc__, "__module__": __name__})
     if env not in _envs() or learner not in _learners():
         return Suite
     from jaml.stream import for_env

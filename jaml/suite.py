@@ -40,13 +40,28 @@ SCALES: dict[str, dict] = {
 
 def scaled(config: StreamConfig, scale: str) -> StreamConfig:
     """`config` with the sizes of `scale` ("smoke": minutes on a CPU; "paper": unchanged); PPO's
-    minibatches are cut to split the smoke run's envs."""
+    minibatches are cut to split the smoke run's envs, and a sequence learner's window (SVAE's
+    24 frames) keeps the rollout and batch long enough to hold one sequence."""
     if scale not in SCALES:
         raise ValueError(f"unknown scale {scale!r}; valid: {list(SCALES)}")
     changes = dict(SCALES[scale])
-    if changes and changes["num_envs"] % config.ppo.num_minibatches:
+    if not changes:
+        return config
+    if changes["num_envs"] % config.ppo.num_minibatches:
         changes["ppo"] = dataclasses.replace(config.ppo, num_minibatches=4)
+    seq_len = _seq_len(config)
+    changes["rollout_len"] = max(changes["rollout_len"], seq_len - 1)
+    changes["frames_per_batch"] = max(changes["frames_per_batch"], seq_len)
     return config.replace(**changes)
+
+
+def _seq_len(config: StreamConfig) -> int:
+    """The learner's sequence length (1 for a learner of your own: its factory is not called)."""
+    from jaml import learners
+
+    if config.learner not in learners.ALL_LEARNERS:
+        return 1
+    return learners.default_config(config.learner, ld_dim=1, **config.learner_overrides).seq_len
 
 
 @dataclasses.dataclass(frozen=True)

@@ -126,7 +126,10 @@ def run(
             done = recorded[: start.num_relations] + [
                 _restored_summary(start, k) for k in range(len(recorded), start.num_relations)
             ]
-            log.info("resuming %s after %d relations", out, start.num_relations)
+            # Relations are checkpointed as each finishes: the next one starts at step 0.
+            logging.getLogger("jaml.resume").info(
+                "%s: resumed from its checkpoint with %d of %d relations; g%d starts at step 0",
+                out, start.num_relations, cfg.max_relations, start.num_relations + 1)
 
         started = time.perf_counter()
         recorder = _Recorder(out, cfg, len(done), sum(r["steps"] for r in done), progress)
@@ -155,6 +158,9 @@ def run(
 
         try:
             rs = fit(source, cfg, start=start, callback=recorder, on_relation=on_relation)
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM (`jaml`): the suite's word for it
+            write_summary(None, "interrupted")
+            raise
         finally:
             recorder.close()
         status = "done" if rs.num_relations == cfg.max_relations else "stopped"

@@ -30,3 +30,17 @@ def test_fig2_smoke_trains_resumes_with_a_word_and_reports(tmp_path, capsys):
         assert summary["status"] == "finished" and summary["resumed_from"] == 2
     assert (tmp_path / "fig2.md").is_file()
     assert "CartPole" in (tmp_path / "fig2.md").read_text()
+
+
+def test_fig3_smoke_configs_take_the_smoke_sizes():
+    from jaml.cli import parse
+    from jaml.experiments import fig3
+
+    args = parse(["fig3", "--scale", "smoke", "--out", "unused"]).command
+    assert args.scale == "smoke"
+    config = fig3.config_for("SPAIR_4x4", 0, fig3.SCALE, fig3.SCHEDULE, preset=args.scale)
+    assert (config.num_envs, config.epochs, config.eval_rand, config.regressor_iterations) == (
+        8, 4, 64, 200)
+    assert config.learner_overrides["grid_size"] == 4 and not config.regressor_normalize
+    paper = fig3.config_for("SPAIR_4x4", 0, fig3.SCALE, fig3.SCHEDULE)
+    assert paper.num_envs == 64 and paper.epochs == fig3.SCHEDULE[0]

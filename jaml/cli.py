@@ -641,6 +641,11 @@ def main(argv=None) -> int:
         logging.getLogger(__name__).info("import mujoco.mjx: %s", line)
     # What a resumed run resumed from (jaml.stream.run), shown without -v.
     logging.getLogger("jaml.resume").setLevel(logging.INFO)
+    if not args.verbose:
+        # Orbax's absl warnings ("Waiting for previous save to complete took 1.7 seconds. If
+        # this number is high, consider checkpointing less frequently.") are about its own
+        # timing, not a problem of the run: shown with -v.
+        logging.getLogger("absl").setLevel(logging.ERROR)
     use_compilation_cache()
     try:
         with _sigterm_as_interrupt():

@@ -359,8 +359,11 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                 if (stop_after is not None and budget[id(r)] == 0 and r.status == "running"
                         and r.targets and r.manager.latest_step() != r.epoch):
                     r.save(jax.tree.map(lambda x, i=i: x[i], states))
-            bar.set_postfix(ret=f"{_last_finite(metrics['episode_return'][:, 0]):.3g}",
-                            loss=f"{_last_finite(metrics['learner/loss'][:, 0]):.4g}")
+            # Only what has a value: no episode ended yet reads "ret=nan", a learner that has
+            # not started "loss=nan".
+            shown = {"ret": _last_finite(metrics["episode_return"][:, 0]),
+                     "loss": _last_finite(metrics["learner/loss"][:, 0])}
+            bar.set_postfix({k: f"{v:.4g}" for k, v in shown.items() if np.isfinite(v)})
     except KeyboardInterrupt:
         for r in runs:
             r.status = "interrupted" if r.status == "running" else r.status

@@ -87,6 +87,9 @@ def test_wheel_installs_offline_and_renders_from_outside_the_checkout(tmp_path):
     assert clone[2] == str(ROOT / "assets")
     assert installed[3:5] == ["True", "True"]  # a 64x64 rendering, not a blank placeholder
     assert installed[5] == clone[5]
+    (entry_points,) = Path(site).glob("jaml-*.dist-info/entry_points.txt")
+    assert "jaml = jaml._launch:main" in entry_points.read_text()
+    assert (target / "bin" / "jaml").is_file()
 
 
 @pytest.mark.parametrize("name", ["cartpole.xml", "meshes/duck/textured.obj",

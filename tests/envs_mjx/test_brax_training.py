@@ -17,8 +17,8 @@ def test_device_put_replicated_copies_each_leaf_to_every_device():
         np.testing.assert_array_equal(np.asarray(shard.data)[0], tree["a"])
     assert {s.device for s in out["a"].addressable_shards} == set(devices)
     assert not brax_compat.install()  # installed by `import envs_mjx`: not twice
-    assert jax.device_put_replicated is brax_compat.device_put_replicated or hasattr(
-        jax._src.api, "device_put_replicated")
+    if jax.__version_info__[:2] == (0, 10):  # the pinned JAX has none of its own
+        assert jax.device_put_replicated is brax_compat.device_put_replicated
 
 
 def test_brax_ppo_train_runs_on_an_envs_mjx_env():

@@ -1,8 +1,9 @@
 """The evaluation suite's domains: MJCF models stepped in MJX, with LD state and pixels."""
 
+from envs_mjx import brax_compat
 from envs_mjx.base import Env, EnvConfig, State
 from envs_mjx.compile import compiler_options
-from envs_mjx.registry import ALL_ENVS, default_config, make
+from envs_mjx.registry import ALL_ENVS, default_config, load, make
 
 __all__ = [
     "ALL_ENVS",
@@ -11,9 +12,14 @@ __all__ = [
     "State",
     "compiler_options",
     "default_config",
+    "load",
     "make",
     "to_gymnasium",
 ]
+
+# Brax's trainers (`ppo.train(environment=envs_mjx.make(...))`) call a function JAX 0.10
+# removed: restored where missing, nothing else changed (envs_mjx/brax_compat.py).
+brax_compat.install()
 
 
 def __getattr__(name: str):

@@ -26,6 +26,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import importlib.util
+import math
 import warnings
 from collections.abc import Callable
 from typing import Any
@@ -75,6 +76,21 @@ class EnvConfig:
     n_frames: int = 1
     pixels: str = "auto"
     image_size: int = 64
+
+    def __post_init__(self):
+        problems = []
+        if self.episode_length is not None and self.episode_length < 1:
+            problems.append(f"episode_length must be ≥ 1 or None, got {self.episode_length}")
+        if self.reward_scale is not None and not math.isfinite(self.reward_scale):
+            problems.append(f"reward_scale must be finite or None, got {self.reward_scale}")
+        if self.n_frames < 1:
+            problems.append(f"n_frames must be ≥ 1, got {self.n_frames}")
+        if self.pixels not in ("auto", "required", "off"):
+            problems.append(f"pixels must be 'auto', 'required' or 'off', got {self.pixels!r}")
+        if self.image_size < 1:
+            problems.append(f"image_size must be ≥ 1, got {self.image_size}")
+        if problems:
+            raise ValueError(f"{type(self).__name__}: " + "; ".join(problems))
 
     @property
     def reward_multiplier(self) -> float:
@@ -300,7 +316,9 @@ class Env(brax_base.Env):
             obs=ld,
             reward=jnp.asarray(reward * self.config.reward_multiplier, jnp.float32),
             done=(terminated | truncated).astype(jnp.float32),
-            metrics={**metrics, "nonfinite_action": jnp.zeros(()),
+            # Entries a wrapper added (Brax's EvalWrapper keeps "reward" there) pass through,
+            # as Brax's own envs' `state.metrics.update(...)` keeps them.
+            metrics={**state.metrics, **metrics, "nonfinite_action": jnp.zeros(()),
                      "nonfinite_physics": jnp.zeros(())},
             info=info,
             pixels=self.pixels_fn(data, info),

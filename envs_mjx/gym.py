@@ -1,4 +1,10 @@
-"""Gymnasium interface: `to_gymnasium(name, num_envs, seed=0, **overrides)`.
+"""Gymnasium interface: `to_gymnasium(name, num_envs, seed=0, **overrides)`, and versioned ids.
+
+Importing this module registers every domain as `jaml/NAME-v0` (`GYM_IDS`), single and vector:
+`gym.make("jaml/CartPole-v0", seed=0, **overrides)` and `gym.make_vec("jaml/CartPole-v0", 8,
+vectorization_mode="vector_entry_point")` build what `to_gymnasium` builds; without importing
+envs_mjx.gym first, Gymnasium's module prefix does it: `gym.make("envs_mjx.gym:jaml/CartPole-v0")`.
+The version changes when a domain's dynamics, observations or rewards change.
 
 `num_envs=None` gives a `gymnasium.Env` (`MjxGymEnv`), `num_envs=N` a `gymnasium.vector.VectorEnv`
 (`MjxVectorEnv`) stepping N envs in one jitted, vmapped call. Observations are the uint8
@@ -25,6 +31,7 @@ batched call is what the pool is for.
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import gymnasium
@@ -37,7 +44,10 @@ from gymnasium.vector.utils import batch_space
 
 from envs_mjx.base import Env
 from envs_mjx.compile import compiler_options
-from envs_mjx.registry import make
+from envs_mjx.registry import ALL_ENVS, make
+
+# Registry name -> Gymnasium id (registered at import, `register_envs`).
+GYM_IDS: dict[str, str] = {name: f"jaml/{name}-v0" for name in ALL_ENVS}
 
 
 def to_gymnasium(name: str, num_envs: int | None, seed: int = 0, **overrides):
@@ -50,6 +60,26 @@ def to_gymnasium(name: str, num_envs: int | None, seed: int = 0, **overrides):
     if num_envs is None:
         return MjxGymEnv(env, seed=seed)
     return MjxVectorEnv(env, num_envs, seed=seed)
+
+
+def _single(name: str, seed: int = 0, render_mode: str | None = None, **overrides):
+    """gym.make's entry point: `to_gymnasium(name, None, seed, **overrides)`."""
+    return MjxGymEnv(make(name, **overrides), seed=seed, render_mode=render_mode)
+
+
+def _vector(name: str, num_envs: int, seed: int = 0, render_mode: str | None = None,
+            **overrides):
+    """gym.make_vec's entry point: `to_gymnasium(name, num_envs, seed, **overrides)`."""
+    del render_mode  # the vector env renders no window; frames are its observations
+    return MjxVectorEnv(make(name, **overrides), num_envs, seed=seed)
+
+
+def register_envs() -> None:
+    """Registers `GYM_IDS` with Gymnasium (idempotent)."""
+    for name, env_id in GYM_IDS.items():
+        if env_id not in gymnasium.registry:
+            gymnasium.register(env_id, entry_point=functools.partial(_single, name),
+                               vector_entry_point=functools.partial(_vector, name))
 
 
 def _spaces(env: Env) -> tuple[spaces.Box, spaces.Box]:
@@ -271,3 +301,6 @@ def _flags(floats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     both ends of an episode, truncation says which."""
     truncated = floats[..., -1] > 0
     return (floats[..., -2] > 0) & ~truncated, truncated
+
+
+register_envs()

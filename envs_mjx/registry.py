@@ -54,6 +54,19 @@ def make(name: str, pixels_fn: PixelsFn | None = None, **overrides) -> Env:
     return cls(dataclasses.replace(config, **overrides), pixels_fn=pixels_fn)
 
 
+def load(name: str, config: EnvConfig | None = None, config_overrides: dict | None = None,
+         pixels_fn: PixelsFn | None = None) -> Env:
+    """MuJoCo Playground's `registry.load`: the env from `config` (default: `default_config(name)`)
+    with `config_overrides` applied."""
+    config = default_config(name) if config is None else config
+    base = default_config(name)
+    if type(config) is not type(base):
+        raise ValueError(f"{name} needs a {type(base).__name__}, got {type(config).__name__}")
+    changed = {f.name: getattr(config, f.name) for f in dataclasses.fields(config)
+               if getattr(config, f.name) != getattr(base, f.name)}
+    return make(name, pixels_fn=pixels_fn, **changed, **(config_overrides or {}))
+
+
 def _lookup(name: str):
     try:
         return _REGISTRY[name]

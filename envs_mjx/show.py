@@ -3,6 +3,7 @@ of the env's own rendered frames from random-action rollouts. Behind `jaml envs 
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import jax
@@ -75,6 +76,19 @@ def grid(frames: np.ndarray, gap: int = 2) -> np.ndarray:
     return out
 
 
+def check_png_path(out: str | Path) -> Path:
+    """`out` as a Path, refused before any rendering unless it names a writable .png file."""
+    out = Path(out)
+    if out.suffix.lower() != ".png":
+        raise ValueError(f"--out {out}: the grid is written as PNG; give a path ending in .png")
+    if out.is_dir():
+        raise ValueError(f"--out {out} is a directory; give a file path ending in .png")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if not os.access(out.parent, os.W_OK):
+        raise ValueError(f"--out {out}: {out.parent} is not writable; choose another folder")
+    return out
+
+
 def show(
     name: str, out: str | Path, resets: int = 4, steps: int = 8, seed: int = 0, **overrides
 ) -> Path:
@@ -84,8 +98,7 @@ def show(
 
     if name not in envs_mjx.ALL_ENVS:
         raise ValueError(f"unknown env {name!r}; valid names: {list(envs_mjx.ALL_ENVS)}")
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    out = check_png_path(out)
     Image.fromarray(grid(rollout_frames(name, resets, steps, seed, **overrides))).save(out)
     return out
 

@@ -130,6 +130,10 @@ def _registry() -> tyro.constructors.ConstructorRegistry:
                 kind = tyro.conf.Suppress[kind]
             helptext = f.helptext() if callable(f.helptext) else f.helptext
             helptext = " ".join((helptext or docs.get(f.name) or "").split())  # unwrapped
+            if kind is bool and f.default is True and helptext:
+                # FlagCreatePairsOff: a True default makes the flag `--no-NAME`, which turns off
+                # what the field's doc describes; say so.
+                helptext = f"turn off (default on): {helptext}"
             fields.append(dataclasses.replace(f, type=kind, helptext=helptext or None))
         return dataclasses.replace(spec, fields=tuple(fields))
 
@@ -272,13 +276,16 @@ class Suite:
     env: Literal[_envs()]
     """the MJX domain (`jaml envs list`)"""
     learner: Literal[_learners()]
-    """the learner (jaml.learners)"""
+    """the learner (jaml.learners), or your own as MODULE:FACTORY (docs/own_learner.md)"""
     out: Path
     """run directory"""
     call: Annotated[CallOptions, tyro.conf.arg(name="")] = dataclasses.field(
         default_factory=CallOptions)
     no_progress: bool = False
     """no progress bar"""
+    scale: Literal["paper", "smoke"] = "paper"
+    """sizes: "paper" (the reference's, for a GPU) or "smoke" (8 envs, 4 epochs, small analysis
+    sets: minutes on a CPU; `jaml.suite.SCALES`); flags given beside it win"""
     config: Annotated[_suite_config(), tyro.conf.arg(name="")] = dataclasses.field(
         default_factory=_suite_config())
 
@@ -297,8 +304,10 @@ class Suite:
         env_config = getattr(self, "env_config", None)
         if env_config is not None:
             env_opt = _changed(env_config, _env_default(self.env))
-        return for_env(self.env, self.learner, **changed, learner_overrides=learner_opt,
-                       env_overrides=env_opt)
+        from jaml.suite import scaled
+
+        return scaled(base, self.scale).replace(**changed, learner_overrides=learner_opt,
+                                                env_overrides=env_opt)
 
     def run(self) -> int:
         from jaml.stream.run import run
@@ -306,8 +315,11 @@ class Suite:
         config = self.stream_config()
         summary = run(config, self.out, progress=not self.no_progress,
                       **dataclasses.asdict(self.call))
+        resumed = ("" if summary.get("resumed_from") is None
+                   else f", resumed from epoch {summary['resumed_from']}")
         print(f"{config.env} {config.learner} ({config.policy}): {summary['status']} at epoch "
-              f"{summary['epoch']}, checkpoint {summary['checkpoint_epoch']} -> {self.out}")
+              f"{summary['epoch']}{resumed}, checkpoint {summary['checkpoint_epoch']} -> "
+              f"{self.out}")
         for r in summary["final"]:
             errs = " ".join(f"{k}={v:.3f}" for k, v in r["errors"].items())
             print(f"  {r['test_set']}: {errs}")
@@ -339,6 +351,11 @@ def _suite_for(argv: list[str]) -> type:
     pair's (`for_env`) with the learner's and the env's configs as typed flags."""
 
     env, learner = _flag(argv, "--env"), _flag(argv, "--learner")
+    if learner is not None and ":" in learner:
+        # Your own learner, MODULE:FACTORY (jaml.stream.loop.make_learner): any name.
+        return dataclasses.make_dataclass(
+            "Suite", [("learner", str)], bases=(Suite,), frozen=True,
+            namespace={"__doc__": Suite.__doc__, "__module__": __name__})
     if env not in _envs() or learner not in _learners():
         return Suite
     from jaml.stream import for_env
@@ -627,15 +644,23 @@ def main(argv=None) -> int:
     )
     for line in captured:
         logging.getLogger(__name__).info("import mujoco.mjx: %s", line)
+    # What a resumed run resumed from (jaml.stream.run), shown without -v.
+    logging.getLogger("jaml.resume").setLevel(logging.INFO)
+    if not args.verbose:
+        # Orbax's absl warnings ("Waiting for previous save to complete took 1.7 seconds. If
+        # this number is high, consider checkpointing less frequently.") are about its own
+        # timing, not a problem of the run: shown with -v.
+        logging.getLogger("absl").setLevel(logging.ERROR)
     use_compilation_cache()
     try:
         with _sigterm_as_interrupt():
             return args.command.run()
-    except (ValueError, TypeError, FileNotFoundError) as error:
+    except Exception as error:  # every failure one line; the traceback with --debug
         if args.debug:
             traceback.print_exc()
         else:
-            print(f"jaml: error: {error} (--debug shows the traceback)", file=sys.stderr)
+            print(f"jaml: error: {error_line(error)} (--debug shows the traceback)",
+                  file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         if args.debug:
@@ -643,6 +668,15 @@ def main(argv=None) -> int:
         print("jaml: interrupted; run directories keep their last checkpoint and summary, and "
               "the same command resumes", file=sys.stderr)
         return 130
+
+
+def error_line(error: BaseException) -> str:
+    """One line naming the problem: the message unwrapped (its type for errors not raised by
+    jaml's own checks), cut at 400 characters."""
+    text = " ".join(str(error).split()) or "(no message)"
+    if not isinstance(error, ValueError | TypeError | FileNotFoundError | RuntimeError):
+        text = f"{type(error).__name__}: {text}"
+    return text if len(text) <= 400 else text[:399] + "…"
 
 
 @contextlib.contextmanager

@@ -19,6 +19,8 @@ Shapes: N points, Z latent width, D LD-state width, P pairs.
 
 from __future__ import annotations
 
+import warnings
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -26,6 +28,10 @@ import numpy as np
 from jaml.evaluation import _checks
 
 DEFAULT_NUM_PAIRS = 10_000
+
+
+class CollapsedPairsWarning(UserWarning):
+    """The distortion is +inf: distinct states got one latent (the count is in the message)."""
 
 
 def sample_pairs(num_points: int, num_pairs: int, seed: int = 0) -> tuple[jax.Array, jax.Array]:
@@ -85,6 +91,9 @@ def distortion(latents, states, num_pairs: int = DEFAULT_NUM_PAIRS, seed: int = 
             "inputs); need at least 2"
         )
     if np.isneginf(rho).any():
+        warnings.warn(f"distortion is inf: the encoder maps {int(np.isneginf(rho).sum())} of "
+                      f"{rho.size} pairs of distinct states (and inputs) to one latent",
+                      CollapsedPairsWarning, stacklevel=2)
         return float("inf")
     return float(np.var(rho))
 

@@ -109,6 +109,24 @@ def _spans_decades(curves) -> bool:
 TRAIN_STD = "test error (train std)"
 
 
+# The dashed curve of a panel whose records carry "baseline": the error of a prediction that
+# ignores the latents (`alignment.constant_errors`), the level an error is read against.
+CONSTANT = "constant predictor"
+
+
+def _constant_curve(history: list, test_set: str, dims: Sequence[str]):
+    """(steps, mean over records of the mean over `dims` of "baseline"), or None."""
+    points = defaultdict(list)
+    for r in history:
+        base = r.get("baseline") or {}
+        if r["test_set"] == test_set and all(d in base for d in dims):
+            points[int(r["step"])].append(float(np.mean([base[d] for d in dims])))
+    if not points:
+        return None
+    steps = sorted(points)
+    return np.asarray(steps), np.asarray([np.mean(points[s]) for s in steps])
+
+
 def plot_alignment(history: Iterable[Mapping], path,
                    groups: Mapping[str, Sequence[str]] | None = None,
                    ylabels: Mapping[str, str] | None = None) -> Figure:
@@ -126,7 +144,8 @@ def plot_alignment(history: Iterable[Mapping], path,
 
     A panel whose curves span more than LOG_SPAN (largest over smallest mean) is drawn on a log
     axis, "(log)" in its title: one learner that forgets (errors of 5 and more) would otherwise
-    flatten the others' curves near 0.1 into one line.
+    flatten the others' curves near 0.1 into one line. Records with "baseline" (a constant
+    predictor's errors, `jaml.stream.run`'s history) add a dashed grey curve of it.
     """
     history = [r for r in _check(history) if r.get("errors")]
     if not history:
@@ -159,6 +178,10 @@ def plot_alignment(history: Iterable[Mapping], path,
                 ax.plot(steps, mean, color=colors[learner], label=learner)
                 ax.fill_between(steps, lo, hi, color=colors[learner], alpha=0.2, linewidth=0)
                 drawn.append(mean)
+            constant = _constant_curve(history, test_set, dims)
+            if constant is not None:
+                ax.plot(*constant, color="0.45", linestyle="--", linewidth=1, label=CONSTANT)
+                drawn.append(constant[1])
             log = _spans_decades(drawn)
             ax.set_title(f"{title} ({test_set})" + (" (log)" if log else ""), fontsize=9)
             ax.set_xlabel("epoch")
@@ -170,8 +193,10 @@ def plot_alignment(history: Iterable[Mapping], path,
                 ax.set_ylim(bottom=0.0)
     # Every learner in the legend, also one absent from the first panel (a grid whose first
     # domain has fewer cells than a later one).
-    axes[0, 0].legend(handles=[Line2D([], [], color=colors[n], label=n) for n in learners],
-                      fontsize=8)
+    handles = [Line2D([], [], color=colors[n], label=n) for n in learners]
+    if any(r.get("baseline") for r in history):
+        handles.append(Line2D([], [], color="0.45", linestyle="--", linewidth=1, label=CONSTANT))
+    axes[0, 0].legend(handles=handles, fontsize=8)
     save_figure(fig, path)
     return fig
 

@@ -81,21 +81,25 @@ def family(env: str) -> str:
 
 
 def config_for(env: str, variant: str, seed: int, scale: dict, schedule: dict,
-               learner_opt: dict | None = None):
-    """The StreamConfig of one run of the grid."""
+               learner_opt: dict | None = None, preset: str = "paper"):
+    """The StreamConfig of one run of the grid; `preset` "smoke" replaces its sizes and
+    schedule by `jaml.suite.SCALES["smoke"]`."""
     from jaml.stream import for_env
+    from jaml.suite import scaled
 
     learner, overrides = VARIANTS[variant]
     epochs, eval_every = schedule[family(env)]
-    return for_env(env, learner, seed=seed, epochs=epochs, eval_every=eval_every, **scale,
-                   learner_overrides={**overrides, **(learner_opt or {})})
+    return scaled(for_env(env, learner, seed=seed, epochs=epochs, eval_every=eval_every, **scale,
+                          learner_overrides={**overrides, **(learner_opt or {})}), preset)
 
 
 def run_cell(out: Path, env: str, variant: str, seeds, scale: dict, schedule: dict,
-             learner_opt: dict | None = None, **call_options) -> list[dict]:
+             learner_opt: dict | None = None, preset: str = "paper",
+             **call_options) -> list[dict]:
     """Every seed of one (env, variant), trained together; returns their summaries.
     `call_options`: `_runs.CallOptions`'s fields (stop_after, checkpoint_every, …)."""
-    configs = [config_for(env, variant, s, scale, schedule, learner_opt) for s in seeds]
+    configs = [config_for(env, variant, s, scale, schedule, learner_opt, preset)
+               for s in seeds]
     dirs = [out / env / variant / f"seed_{s}" for s in seeds]
     return _runs.train_seeds(f"{env} {variant}", configs, dirs, **call_options)
 
@@ -443,6 +447,9 @@ class Args(_runs.Driver):
     """epochs between their analyses"""
     call: Annotated[_runs.CallOptions, tyro.conf.arg(name="")] = dataclasses.field(
         default_factory=_runs.CallOptions)
+    scale: Literal["paper", "smoke"] = "paper"
+    """"smoke": every run at `jaml.suite.SCALES["smoke"]` (4 epochs, small sets: minutes on a
+    CPU), replacing the size and schedule flags"""
     report_only: bool = False
     """no training: fig2.md and the figures from the runs under OUT"""
     compare_with: Annotated[tuple[Path, ...], tyro.conf.UseAppendAction] = ()
@@ -458,7 +465,8 @@ class Args(_runs.Driver):
         for env in self.envs:
             for variant in self.variants:
                 run_cell(self.out, env, variant, self.seeds, scale, schedule,
-                         key_values(self.learner_opt), **dataclasses.asdict(self.call))
+                         key_values(self.learner_opt), self.scale,
+                         **dataclasses.asdict(self.call))
 
     def report(self) -> str:
         for other in self.compare_with:

@@ -259,11 +259,13 @@ def _object_shapes(domain, slots: list[str]) -> tuple[dict[str, str], str | None
 
 
 def config_for(variant: str, seed: int, scale: dict, schedule: tuple[int, int],
-               learner_opt: dict | None = None, env_opt: dict | None = None, env: str = ENV):
+               learner_opt: dict | None = None, env_opt: dict | None = None, env: str = ENV,
+               preset: str = "paper"):
     """The StreamConfig of one run on `env` (one of ENVS). `scale` holds StreamConfig fields
     (SCALE's, or any others: the tests shrink everything); `learner_opt` learner config fields
-    for this variant."""
+    for this variant; `preset` "smoke" replaces sizes and schedule (`jaml.suite.SCALES`)."""
     from jaml.stream import for_env
+    from jaml.suite import scaled
 
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r}; valid: {', '.join(VARIANTS)}")
@@ -275,9 +277,9 @@ def config_for(variant: str, seed: int, scale: dict, schedule: tuple[int, int],
                      **overrides}
     epochs, eval_every = schedule
     settings = {**REARRANGE, "frames_per_batch": FRAMES_PER_BATCH[learner], **scale}
-    return for_env(env, learner, seed=seed, epochs=epochs, eval_every=eval_every, **settings,
-                   learner_overrides={**overrides, **(learner_opt or {})},
-                   env_overrides=dict(env_opt or {}))
+    return scaled(for_env(env, learner, seed=seed, epochs=epochs, eval_every=eval_every,
+                          **settings, learner_overrides={**overrides, **(learner_opt or {})},
+                          env_overrides=dict(env_opt or {})), preset)
 
 
 def learner_options(items, variants) -> dict[str, dict]:
@@ -301,10 +303,11 @@ def learner_options(items, variants) -> dict[str, dict]:
 
 def run_cell(out: Path, variant: str, seeds, scale: dict, schedule: tuple[int, int],
              learner_opt: dict | None = None, env_opt: dict | None = None, env: str = ENV,
-             **call_options) -> list[dict]:
+             preset: str = "paper", **call_options) -> list[dict]:
     """Every seed of one variant, trained together into OUT/VARIANT/seed_N; their summaries.
     `call_options`: `_runs.CallOptions`'s fields (stop_after, checkpoint_every, …)."""
-    configs = [config_for(variant, s, scale, schedule, learner_opt, env_opt, env) for s in seeds]
+    configs = [config_for(variant, s, scale, schedule, learner_opt, env_opt, env, preset)
+               for s in seeds]
     dirs = [out / variant / f"seed_{s}" for s in seeds]
     return _runs.train_seeds(variant, configs, dirs, **call_options)
 
@@ -619,6 +622,9 @@ class Args(_runs.Driver):
     """epochs between analyses"""
     call: Annotated[_runs.CallOptions, tyro.conf.arg(name="")] = dataclasses.field(
         default_factory=_runs.CallOptions)
+    scale: Literal["paper", "smoke"] = "paper"
+    """"smoke": every run at `jaml.suite.SCALES["smoke"]` (4 epochs, small sets), replacing
+    the size and schedule flags"""
     report_only: bool = False
     """no training: fig3.md and the images from the runs under OUT"""
 
@@ -630,7 +636,7 @@ class Args(_runs.Driver):
         for variant in self.variants:
             run_cell(self.out, variant, self.seeds, self.fields(SCALE),
                      (self.epochs, self.eval_every), options[variant], env_opt, self.env,
-                     **dataclasses.asdict(self.call))
+                     self.scale, **dataclasses.asdict(self.call))
 
     def report(self) -> str:
         return report(self.out, self.variants)

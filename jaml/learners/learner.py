@@ -102,6 +102,10 @@ class LearnerConfig:
             raise ValueError(f"ld_dim must be ≥ 1, got {self.ld_dim}")
         if self.latent_dim is not None and int(self.latent_dim) < 1:
             raise ValueError(f"latent_dim must be ≥ 1 or None, got {self.latent_dim}")
+        if not self.beta >= 0 or not self.learning_rate > 0 or not self.logvar_limit > 0:
+            raise ValueError(f"beta must be ≥ 0, learning_rate and logvar_limit > 0; got beta "
+                             f"{self.beta}, learning_rate {self.learning_rate}, logvar_limit "
+                             f"{self.logvar_limit}")
         if not 0.0 <= self.replay_keep_fraction < 1.0:
             raise ValueError(
                 f"replay_keep_fraction must be in [0, 1), got {self.replay_keep_fraction}"

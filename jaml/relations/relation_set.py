@@ -36,6 +36,19 @@ class RelationSet:
     def num_relations(self) -> int:
         return len(self.params)
 
+    def __repr__(self) -> str:
+        """One line: the relations with their widths and on/off means, not their weights."""
+        try:
+            means = [f"on {float(on):.3g} off {float(off):.3g}"
+                     for on, off in zip(self.on_means, self.off_means, strict=True)]
+        except (TypeError, jax.errors.ConcretizationTypeError):  # traced
+            means = ["traced"] * self.num_relations
+        rows = "; ".join(f"g{k + 1}: width {w}, {m}"
+                         for k, (w, m) in enumerate(zip(self.widths, means, strict=True)))
+        names = f" ({', '.join(self.dim_names)})" if self.dim_names else ""
+        return (f"RelationSet({self.num_relations} relations of τ in R^{self.dim}{names}, depth "
+                f"{self.depth}, tolerance {self.tolerance}: {rows})")
+
     def relation(self, k: int):
         """g_{k+1} as a function of τ [..., D] → [...]."""
         module = Relation(self.widths[k], self.depth)

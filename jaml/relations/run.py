@@ -50,8 +50,13 @@ class _Recorder:
                     "push": self.cfg.push_steps,
                     "syzygy": self.cfg.syzygy_steps,
                 }[phase]
-                self.bar = tqdm(total=budget, desc=f"g{k + 1} {phase}", unit="step", leave=False)
-                self.bar_key, self.last_step = (phase, k), 0
+                # No total: a phase stops at convergence, mostly well before its budget (a bar
+                # to the budget stopped at 2-38 %). Started at the first report's step, so the
+                # chunk run before the bar existed does not count as a rate (it read millions
+                # of steps/s).
+                self.bar = tqdm(desc=f"g{k + 1} {phase} (≤ {budget} steps)", unit="step",
+                                initial=metrics["step"], leave=False)
+                self.bar_key, self.last_step = (phase, k), metrics["step"]
             self.bar.update(metrics["step"] - self.last_step)
             self.last_step = metrics["step"]
             self.bar.set_postfix(
@@ -121,7 +126,10 @@ def run(
             done = recorded[: start.num_relations] + [
                 _restored_summary(start, k) for k in range(len(recorded), start.num_relations)
             ]
-            log.info("resuming %s after %d relations", out, start.num_relations)
+            # Relations are checkpointed as each finishes: the next one starts at step 0.
+            logging.getLogger("jaml.resume").info(
+                "%s: resumed from its checkpoint with %d of %d relations; g%d starts at step 0",
+                out, start.num_relations, cfg.max_relations, start.num_relations + 1)
 
         started = time.perf_counter()
         recorder = _Recorder(out, cfg, len(done), sum(r["steps"] for r in done), progress)
@@ -152,6 +160,9 @@ def run(
 
         try:
             rs = fit(source, cfg, start=start, callback=recorder, on_relation=on_relation)
+        except KeyboardInterrupt:  # Ctrl-C or SIGTERM (`jaml`): the suite's word for it
+            write_summary(None, "interrupted")
+            raise
         finally:
             recorder.close()
         status = "done" if rs.num_relations == cfg.max_relations else "stopped"

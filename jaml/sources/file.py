@@ -23,9 +23,14 @@ def _float(text: str) -> float | None:
 
 def _read_csv(path: Path) -> tuple[np.ndarray, tuple[str, ...]]:
     """Rows and column names of a CSV file; the first row is a header when any of its cells
-    is not a number."""
+    is not a number. Cells are separated by commas, or by semicolons or tabs when the first
+    line has those and no comma (read as one cell, "1;2;3" made a header of the first line)."""
     with path.open(newline="") as f:
-        lines = [row for row in csv.reader(f) if any(cell.strip() for cell in row)]
+        text = f.read()
+    first = next((line for line in text.splitlines() if line.strip()), "")
+    delimiter = next((d for d in ";\t" if d in first), ",") if "," not in first else ","
+    lines = [row for row in csv.reader(text.splitlines(), delimiter=delimiter)
+             if any(cell.strip() for cell in row)]
     if not lines:
         raise ValueError(f"{path}: the file is empty")
     names: tuple[str, ...] = ()

@@ -42,19 +42,22 @@ from jaml.stream.loop import Stream, StreamState
 from jaml.stream.programs import stream_jit
 
 
-def encoded_replay(stream: Stream, s: StreamState, key: jax.Array, num: int):
-    """(latents [N, Z], LD targets [N, D]) of N ≈ num sequences sampled from the replay."""
+def encoded_replay(stream: Stream, s: StreamState, key: jax.Array, num: int,
+                   store: list | None = None):
+    """(latents [N, Z], LD targets [N, D]) of N ≈ num sequences sampled from the replay.
+    `store`: a list that gets each chunk's sequences (host `Columns`; `jaml.suite`)."""
     keys = jax.random.split(key, _chunks(num, stream.config.num_envs))
-    return _map_chunks(_replay_chunk, stream, s, None, keys)
+    return _map_chunks(_replay_chunk, stream, s, None, keys, store=store)
 
 
 def encoded_rollouts(stream: Stream, s: StreamState, key: jax.Array, num: int, random: bool,
-                     fingerprints: bool = False, kept: PiRandSet | None = None):
+                     fingerprints: bool = False, kept: PiRandSet | None = None,
+                     store: list | None = None):
     """(latents, LD targets) of sequences cut from fresh rollouts: reset, `eval_transient`
     steps, then consecutive L-step rollouts per env (reference §5, start t = 0); with
     `fingerprints`, also each sequence's `input_fingerprints` [N, 2] (for the distortion).
     `kept` (π_rand only): the sequences are read from it when it holds this key's, else rolled
-    out and stored in it."""
+    out and stored in it. `store`: as `encoded_replay`'s (not with `kept`)."""
     _check_keepable(kept, random)
     if kept is not None and kept.holds(stream, key, num):
         return _map_chunks(_kept_chunk, stream, s, kept.chunks, range(len(kept.chunks)),
@@ -63,7 +66,7 @@ def encoded_rollouts(stream: Stream, s: StreamState, key: jax.Array, num: int, r
     random = jnp.asarray(random)
     env_state = _rollout_start(stream, s, k_start, random)
     keys = jax.random.split(k_chunks, _chunks(num, stream.config.num_envs))
-    store = None if kept is None else []
+    store = store if kept is None else []
     out = _map_chunks(_rollout_chunk, stream, s, (env_state, random), keys, fingerprints, store)
     if kept is not None:
         kept.store(stream, key, num, store)

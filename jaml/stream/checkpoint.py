@@ -50,10 +50,28 @@ def save(mgr: ocp.CheckpointManager, step: int, state) -> None:
     mgr.wait_until_finished()
 
 
+class CheckpointUnreadable(ValueError):
+    """A checkpoint step's files are incomplete or damaged (Orbax or TensorStore failed)."""
+
+
 def restore(mgr: ocp.CheckpointManager, abstract, step: int | None = None):
     """The state saved at `step` (default: the latest), shaped like `abstract` (an
-    `eval_shape` of the state). Raises CheckpointMismatch if the names differ."""
+    `eval_shape` of the state). Raises CheckpointMismatch if the names differ, and
+    CheckpointUnreadable, in one line, if Orbax cannot read the step's files."""
     step = mgr.latest_step() if step is None else step
+    try:
+        return _restore(mgr, abstract, step)
+    except CheckpointMismatch:
+        raise
+    except Exception as error:  # Orbax / TensorStore: a spec dump and asyncio tracebacks
+        first = (str(error).strip().splitlines() or [type(error).__name__])[0][:200]
+        raise CheckpointUnreadable(
+            f"{Path(mgr.directory) / str(step)} cannot be read ({type(error).__name__}: "
+            f"{first}); move that folder away to resume from an earlier checkpoint, or start a "
+            "new --out") from error
+
+
+def _restore(mgr: ocp.CheckpointManager, abstract, step: int):
     saved = set(mgr.item_metadata(step).keys())
     paths_leaves, treedef = jax.tree_util.tree_flatten_with_path(abstract)
     names = [_name(p) if np.prod(a.shape) > 0 else None for p, a in paths_leaves]

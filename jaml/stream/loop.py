@@ -467,19 +467,39 @@ def build(config: StreamConfig, latent_penalty=None) -> Stream:
     return base if base.config == config else dataclasses.replace(base, config=config)
 
 
+def make_learner(name: str, ld_dim: int, overrides: dict) -> learners.Learner:
+    """A registry learner, or your own: "MODULE:FACTORY" names `factory(ld_dim=D, **overrides)`
+    returning a `jaml.learners.Learner` (the protocol: docs/own_learner.md)."""
+    if ":" not in name:
+        return learners.make(name, ld_dim=ld_dim, **overrides)
+    import importlib
+
+    module, _, attr = name.partition(":")
+    try:
+        factory = getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError) as error:
+        raise ValueError(f"learner {name!r}: cannot import {attr} from {module} ({error}); give "
+                         "MODULE:FACTORY with MODULE importable (on PYTHONPATH)") from None
+    learner = factory(ld_dim=ld_dim, **overrides)
+    if not isinstance(learner, learners.Learner):
+        raise ValueError(f"learner {name!r}: {attr}(ld_dim=...) returned a "
+                         f"{type(learner).__name__}, not a jaml.learners.Learner")
+    return learner
+
+
 def _build(config: StreamConfig, latent_penalty) -> Stream:
     if config.env not in envs_mjx.ALL_ENVS:
         raise ValueError(f"unknown env {config.env!r}; valid names: {list(envs_mjx.ALL_ENVS)}")
-    if config.learner not in learners.ALL_LEARNERS:
+    if config.learner not in learners.ALL_LEARNERS and ":" not in config.learner:
         raise ValueError(f"unknown learner {config.learner!r}; valid names: "
-                         f"{list(learners.ALL_LEARNERS)}")
+                         f"{list(learners.ALL_LEARNERS)}, or your own as MODULE:FACTORY")
     env = envs_mjx.make(config.env, **config.env_overrides)
     ld_dim = len(env.ld_state_names)
     unknown = sorted(set(config.distortion_dims) - set(env.ld_state_names))
     if unknown:
         raise ValueError(f"distortion_dims {unknown} are not LD-state names of {config.env}: "
                          f"{list(env.ld_state_names)}")
-    learner = learners.make(config.learner, ld_dim=ld_dim, **config.learner_overrides)
+    learner = make_learner(config.learner, ld_dim, config.learner_overrides)
     problems = []
     if config.regressor_normalize and rotation.ld_blocks(env.ld_state_names,
                                                          env.ld_state_groups)[0]:

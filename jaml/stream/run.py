@@ -51,6 +51,8 @@ from jaml.stream.loop import (
 )
 
 log = logging.getLogger("jaml.stream")
+# What a run resumed from: the command line shows this logger at INFO (`jaml.cli.main`).
+resume_log = logging.getLogger("jaml.resume")
 
 
 class NonFiniteLoss(RuntimeError):
@@ -151,9 +153,12 @@ class _RunDir:
         (out / "recon").mkdir(exist_ok=True)
         k_init, self.k_eval, self.pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
         self.manager = checkpoint.manager(out)
+        self.resumed_from: int | None = None
         if self.manager.latest_step() is not None:
             self.state = checkpoint.restore(self.manager, jax.eval_shape(stream.init, k_init))
-            log.info("resuming %s at epoch %d", out, int(self.state.epoch))
+            self.resumed_from = int(self.state.epoch)
+            resume_log.info("%s: resumed from its checkpoint at epoch %d of %d", out,
+                            self.resumed_from, config.epochs)
         else:
             self.state = stream.init(k_init)
         self.epoch = int(self.state.epoch)
@@ -214,6 +219,7 @@ class _RunDir:
             "seconds_by_phase": self.seconds,
             "seconds_in_analysis": self.analysis_parts,
             "checkpoint_epoch": self.manager.latest_step(),
+            "resumed_from": self.resumed_from,
             "final": [r for r in self.history if r["step"] == last],
             **({"error": self.error} if self.error is not None else {}),
         }
@@ -353,8 +359,11 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                 if (stop_after is not None and budget[id(r)] == 0 and r.status == "running"
                         and r.targets and r.manager.latest_step() != r.epoch):
                     r.save(jax.tree.map(lambda x, i=i: x[i], states))
-            bar.set_postfix(ret=f"{_last_finite(metrics['episode_return'][:, 0]):.3g}",
-                            loss=f"{_last_finite(metrics['learner/loss'][:, 0]):.4g}")
+            # Only what has a value: no episode ended yet reads "ret=nan", a learner that has
+            # not started "loss=nan".
+            shown = {"ret": _last_finite(metrics["episode_return"][:, 0]),
+                     "loss": _last_finite(metrics["learner/loss"][:, 0])}
+            bar.set_postfix({k: f"{v:.4g}" for k, v in shown.items() if np.isfinite(v)})
     except KeyboardInterrupt:
         for r in runs:
             r.status = "interrupted" if r.status == "running" else r.status

@@ -200,3 +200,34 @@ def test_packed_state_round_trips_exactly_in_one_buffer_per_dtype(direct):
     back = jax.jit(packing.unpack)(packed)
     assert jax.tree.structure(back) == jax.tree.structure(state)
     jax.tree.map(np.testing.assert_array_equal, back, state)
+
+
+def test_registered_ids_build_the_named_domain_single_and_vector():
+    """`gym.make("jaml/NAME-v0")` and `gym.make_vec` build what `to_gymnasium` builds: the same
+    first LD state from the same seed as the env's own reset."""
+    from envs_mjx.gym import GYM_IDS
+
+    assert set(GYM_IDS) == set(envs_mjx.ALL_ENVS)
+    assert all(gymnasium.spec(i).vector_entry_point is not None for i in GYM_IDS.values())
+    env = gymnasium.make("envs_mjx.gym:jaml/InvertedPendulum-v0", pixels="off")
+    assert env.unwrapped.env.config.pixels == "off"
+    _, info = env.reset(seed=5)
+    direct = envs_mjx.make("InvertedPendulum", pixels="off")
+    _, sub = jax.random.split(jax.random.PRNGKey(5))
+    np.testing.assert_allclose(info["ld_state"], direct.reset(sub).ld_state, rtol=1e-6)
+    vec = gymnasium.make_vec("jaml/InvertedPendulum-v0", 3, vectorization_mode="vector_entry_point",
+                             pixels="off")
+    obs, info = vec.reset(seed=5)
+    assert obs.shape == (3, 64, 64, 3) and info["ld_state"].shape == (3, len(direct.ld_state_names))
+    with pytest.raises(gymnasium.error.Error):
+        gymnasium.make("jaml/InvertedPendulum-v1")
+
+
+def test_load_is_playground_style_default_config_plus_overrides():
+    config = envs_mjx.default_config("CartPole")
+    env = envs_mjx.load("CartPole", config.__class__(**{**vars(config), "episode_length": 7}),
+                        config_overrides={"pixels": "off"})
+    assert env.config.episode_length == 7 and env.config.pixels == "off"
+    assert env.config.n_frames == config.n_frames
+    with pytest.raises(ValueError, match="needs a"):
+        envs_mjx.load("CartPole", envs_mjx.default_config("HalfCheetah"))

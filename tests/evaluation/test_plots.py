@@ -120,3 +120,21 @@ def test_bad_histories_raise(tmp_path):
         evaluation.plot_distortion(no_distortion, tmp_path / "d.png")
     with pytest.raises(ValueError, match="names"):
         evaluation.history_records(0, "VAE", {"pi_rand": [0.1] * 3}, NAMES)
+
+
+def test_the_constant_predictor_is_drawn_dashed_where_records_carry_it(tmp_path):
+    history = [{"step": s, "learner": "PRED", "test_set": "pi_rand", "run": run,
+                "errors": {"x": 0.5 / s, "v": 0.9}, "baseline": {"x": 1.0 + run, "v": 2.0}}
+               for s in (1, 2) for run in (0, 1)]
+    fig = evaluation.plot_alignment(history, tmp_path / "a.png")
+    x_panel, v_panel = fig.axes[:2]
+    (dashed,) = [ln for ln in x_panel.get_lines() if ln.get_label() == "constant predictor"]
+    assert dashed.get_linestyle() == "--"
+    np.testing.assert_allclose(dashed.get_xdata(), [1, 2])
+    np.testing.assert_allclose(dashed.get_ydata(), [1.5, 1.5])  # the runs' mean
+    assert [t.get_text() for t in x_panel.get_legend().get_texts()] == ["PRED",
+                                                                        "constant predictor"]
+    assert any(ln.get_label() == "constant predictor" for ln in v_panel.get_lines())
+    plain = evaluation.plot_alignment([{k: v for k, v in r.items() if k != "baseline"}
+                                       for r in history], tmp_path / "b.png")
+    assert not [ln for ln in plain.axes[0].get_lines() if ln.get_label() == "constant predictor"]

@@ -1,0 +1,32 @@
+"""Quiet output: a RelationSet's repr is one short line; relation progress bars count real steps."""
+
+import jax.numpy as jnp
+
+from jaml.relations.config import Config
+from jaml.relations.relation_set import RelationSet
+from jaml.relations.run import _Recorder
+
+
+def test_relation_set_repr_is_short_and_names_widths_and_means():
+    weights = {"w": jnp.ones((3, 512)), "b": jnp.zeros(512)}
+    rs = RelationSet(params=(weights, weights), on_means=jnp.array([0.0123, 0.02]),
+                     off_means=jnp.array([0.5, 0.75]), widths=(64, 32), depth=2, dim=3,
+                     dim_names=("x", "y", "z"))
+    text = repr(rs)
+    assert text == str(rs) and "\n" not in text and len(text) < 200
+    assert "g1: width 64, on 0.0123 off 0.5" in text and "g2: width 32" in text
+    assert "(x, y, z)" in text and "1.0" not in text  # no weights
+
+
+def test_a_relation_bar_has_no_budget_total_and_no_rate_from_before_it(tmp_path):
+    """The first report (1000 steps run before the bar existed) is the bar's start, not a rate;
+    a phase that stops at convergence leaves no bar short of a 50 000-step total."""
+    rec = _Recorder(tmp_path, Config(max_relations=1), done=0, step_offset=0, progress=True)
+    rec("relation", 0, {"step": 1000, "on_mean": 0.1, "off_mean": 1.0})
+    bar = rec.bar
+    assert bar.total is None and "50000" in bar.desc
+    assert bar.n == 1000 and bar.format_dict["initial"] == 1000
+    assert bar.format_dict["rate"] is None  # no rate yet: nothing counted since the start
+    rec("relation", 0, {"step": 2000, "on_mean": 0.1, "off_mean": 1.0})
+    assert bar.n == 2000
+    rec.close()

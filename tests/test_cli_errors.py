@@ -1,0 +1,100 @@
+"""Every CLI failure one line naming the problem and the fix; flags' help says what they do."""
+
+import time
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import envs_mjx
+from jaml import _rundir, evaluation
+from jaml.cli import main
+from jaml.evaluation.distortion import CollapsedPairsWarning
+from jaml.stream import checkpoint
+
+_SUITE = ["suite", "--env", "CartPole", "--learner", "VAE_rpl", "--no-progress"]
+
+
+def _one_error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith(("jaml: error: ", "jaml suite: error: ")), err[0]
+    assert "Traceback" not in err[0]
+    return err[0]
+
+
+def test_a_run_directory_in_use_is_one_line(tmp_path, capsys):
+    held = _rundir.lock(tmp_path / "run")
+    try:
+        assert main([*_SUITE, "--out", str(tmp_path / "run")]) == 2
+    finally:
+        held.close()
+    line = _one_error_line(capsys)
+    assert "is being run by another process" in line and "choose another --out" in line
+
+
+def test_boolean_flags_help_says_what_the_flag_does(capsys):
+    with pytest.raises(SystemExit):
+        main(["suite", "--env", "CartPole", "--learner", "PRED", "--help"])
+    text = " ".join(capsys.readouterr().out.replace("│", " ").split())
+    for flag in ("--ppo.no-lr-decay", "--no-regressor-normalize"):
+        after = text.split(flag, 1)[1][:40]
+        assert after.lstrip().startswith("turn off (default on):"), (flag, after)
+
+
+def test_a_negative_beta_is_refused_before_any_work(tmp_path, capsys):
+    out = tmp_path / "b"
+    with pytest.raises(SystemExit) as exit_:  # refused while parsing the flags
+        main([*_SUITE[:4], "beta-VAE", "--out", str(out), "--learner-config.beta", "-1"])
+    assert exit_.value.code == 2
+    assert "beta must be ≥ 0" in _one_error_line(capsys)
+    assert not out.exists()
+
+
+def test_env_config_values_are_validated():
+    with pytest.raises(ValueError, match="n_frames must be ≥ 1"):
+        envs_mjx.make("CartPole", n_frames=0)
+    with pytest.raises(ValueError, match="episode_length must be ≥ 1 or None"):
+        envs_mjx.default_config("CartPole").__class__(episode_length=0)
+
+
+def test_envs_show_checks_the_output_path_before_rendering(tmp_path, capsys):
+    tic = time.perf_counter()
+    assert main(["envs", "show", "--env", "Ant", "--out", str(tmp_path / "x.jpgx")]) == 2
+    # Rendering Ant's grid compiles for ~50 s on two cores; the refusal comes first.
+    assert time.perf_counter() - tic < 20
+    assert "give a path ending in .png" in _one_error_line(capsys)
+    assert not list(tmp_path.iterdir())
+
+
+def test_an_unreadable_checkpoint_is_one_line(tmp_path, capsys):
+    state = {"a": jnp.arange(4.0), "b": jnp.ones((2, 2))}
+    mgr = checkpoint.manager(tmp_path)
+    checkpoint.save(mgr, 3, state)
+    step = tmp_path / "checkpoints" / "3"
+    for f in step.rglob("*"):
+        if f.is_file() and "manifest" in f.name:
+            f.unlink()
+    mgr = checkpoint.manager(tmp_path)
+    with pytest.raises(checkpoint.CheckpointUnreadable) as caught:
+        checkpoint.restore(mgr, jax.eval_shape(lambda: state))
+    message = str(caught.value)
+    assert "\n" not in message and str(step) in message and "move that folder away" in message
+    assert isinstance(caught.value, ValueError)  # the CLI's one-line errors
+
+
+def test_an_infinite_distortion_says_how_many_pairs_collapsed():
+    """Points 0 and 1 share a latent but not a state: every pair of them is collapsed."""
+    states = np.arange(12.0).reshape(6, 2)
+    latents = np.concatenate([np.zeros((2, 3)), np.arange(12.0).reshape(4, 3) + 1])
+    rho, valid = evaluation.distortion_coefficients(latents, states, num_pairs=50, seed=1)
+    i, j = (np.asarray(x) for x in evaluation.sample_pairs(6, 50, seed=1))
+    collapsed = int(np.sum((i < 2) & (j < 2)))
+    assert collapsed > 0 and collapsed == int(np.isneginf(np.asarray(rho)).sum())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert evaluation.distortion(latents, states, num_pairs=50, seed=1) == float("inf")
+    (w,) = [w for w in caught if w.category is CollapsedPairsWarning]
+    assert f"{collapsed} of {int(np.asarray(valid).sum())} pairs" in str(w.message)

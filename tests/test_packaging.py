@@ -1,0 +1,103 @@
+"""jaml as a package: the wheel ships both packages and assets/, installs offline, and works."""
+
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+import tomllib
+import venv
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+_SOURCES = ("jaml", "envs_mjx", "assets", "pyproject.toml", "README.md", "LICENSE")
+
+
+def _pyproject() -> dict:
+    return tomllib.loads((ROOT / "pyproject.toml").read_text())
+
+
+def test_the_listed_packages_are_the_folders_with_an_init():
+    """pyproject lists its packages (assets/ maps to envs_mjx.assets): none may be missing."""
+    listed = set(_pyproject()["tool"]["setuptools"]["packages"])
+    found = {".".join(p.parent.relative_to(ROOT).parts)
+             for top in ("jaml", "envs_mjx") for p in (ROOT / top).rglob("__init__.py")}
+    assert listed - {"envs_mjx.assets"} == found
+
+
+def test_license_is_apache_and_citation_names_the_paper():
+    text = (ROOT / "LICENSE").read_text()
+    assert "Apache License" in text and "Version 2.0, January 2004" in text
+    assert "END OF TERMS AND CONDITIONS" in text
+    assert _pyproject()["project"]["license"] == {"text": "Apache-2.0"}
+    cff = (ROOT / "CITATION.cff").read_text()
+    assert "Analytic Manifold Learning: Unifying & Evaluating Representations" in cff
+    assert "Antonova" in cff and "Hofmann" in cff
+
+
+_OUTSIDE = """
+import hashlib, jax, numpy as np, envs_mjx, jaml
+from envs_mjx.domains._assets import ASSETS
+pixels = np.asarray(envs_mjx.make("CartPole").reset(jax.random.PRNGKey(3)).pixels)
+print(jaml.__file__, envs_mjx.__file__, ASSETS, pixels.shape == (64, 64, 3), pixels.std() > 0,
+      hashlib.sha256(pixels.tobytes()).hexdigest(), sep="|")
+"""
+
+
+def test_wheel_installs_offline_and_renders_from_outside_the_checkout(tmp_path):
+    """Build the wheel (no network, this venv's setuptools), install it into a fresh venv with
+    `--no-index`, and from a folder outside the checkout make CartPole and render its first
+    frame: the same frame as the checkout's."""
+    src = tmp_path / "src"
+    for name in _SOURCES:
+        copy = shutil.copytree if (ROOT / name).is_dir() else shutil.copy
+        copy(ROOT / name, src / name, **({"ignore": shutil.ignore_patterns("__pycache__")}
+                                         if (ROOT / name).is_dir() else {}))
+    wheels = tmp_path / "wheels"
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps",
+                    "--no-build-isolation", "--no-index", "-w", wheels, src], check=True)
+    (wheel,) = wheels.glob("jaml-*.whl")
+    target = tmp_path / "venv"
+    venv.create(target, with_pip=False)
+    python = target / "bin" / "python"
+    # The dependencies: this interpreter's site-packages, after the fresh venv's own.
+    site = subprocess.run([python, "-c", "import site; print(site.getsitepackages()[0])"],
+                          capture_output=True, text=True, check=True).stdout.strip()
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "XLA_FLAGS")}
+    subprocess.run([sys.executable, "-m", "pip", "--python", python, "install", "--quiet",
+                    "--no-index", "--no-deps", wheel], check=True, env=env)
+    # Written after the install, so that pip does not see this venv's own jaml as installed.
+    deps = {sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]}
+    Path(site, "jaml_test_deps.pth").write_text("\n".join(sorted(deps)) + "\n")
+    # The same script from the checkout (in its own process, so both compile alike).
+    procs = [subprocess.Popen([python, "-c", _OUTSIDE], cwd=tmp_path, env=env, text=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE),
+             subprocess.Popen([sys.executable, "-c", _OUTSIDE], cwd=ROOT,
+                              env=env | {"PYTHONPATH": str(ROOT)}, text=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)]
+    outs = [p.communicate() for p in procs]
+    for p, (_, err) in zip(procs, outs, strict=True):
+        assert p.returncode == 0, err[-2000:]
+    installed, clone = (out.strip().splitlines()[-1].split("|") for out, _ in outs)
+    assert installed[:3] == [str(Path(site) / "jaml" / "__init__.py"),
+                             str(Path(site) / "envs_mjx" / "__init__.py"),
+                             str(Path(site) / "envs_mjx" / "assets")]
+    assert clone[2] == str(ROOT / "assets")
+    assert installed[3:5] == ["True", "True"]  # a 64x64 rendering, not a blank placeholder
+    assert installed[5] == clone[5]
+    (entry_points,) = Path(site).glob("jaml-*.dist-info/entry_points.txt")
+    assert "jaml = jaml._launch:main" in entry_points.read_text()
+    assert (target / "bin" / "jaml").is_file()
+
+
+@pytest.mark.parametrize("name", ["cartpole.xml", "meshes/duck/textured.obj",
+                                  "textures/clay.png"])
+def test_package_data_globs_cover_the_assets_the_domains_read(name):
+    """Every kind of file the domains open is matched by the wheel's package-data globs."""
+    import fnmatch
+
+    globs = _pyproject()["tool"]["setuptools"]["package-data"]["envs_mjx.assets"]
+    assert (ROOT / "assets" / name).is_file()
+    assert any(fnmatch.fnmatch(name, g.replace("**/", "*")) for g in globs)

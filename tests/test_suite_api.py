@@ -1,0 +1,78 @@
+"""jaml.suite: the runs' test sets and analysis for an encoder of one's own."""
+
+import jax
+import numpy as np
+import pytest
+
+from jaml import stream, suite
+from jaml.stream import analysis
+
+
+@pytest.fixture(scope="module")
+def run():
+    """A smoke-scale CartPole run at the end of its replay fill: (config, stream, state)."""
+    config = suite.scaled(stream.for_env("CartPole", "VAE_rpl"), "smoke")
+    s = stream.build(config)
+    k_init = jax.random.split(jax.random.PRNGKey(config.seed), 3)[0]
+    state, _ = s.run_epochs(s.init(k_init), config.fill_epochs)
+    return config, s, state
+
+
+def test_the_apis_numbers_equal_the_streams_own_analysis(run):
+    """The run's learner scored through `suite.evaluate` gets the report its analysis writes."""
+    config, s, state = run
+    _, k_eval, pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
+    own = analysis.evaluate(s, state, jax.random.fold_in(k_eval, int(state.epoch)), pi_rand_key)
+
+    def encode(frames, actions):
+        return s.learner.encode(state.learner.variables, frames, actions)
+
+    api = suite.evaluate(encode, config, state)
+    assert set(api["errors"]) == set(own["errors"]) == {"pi_rand", "pi_curr", "validation"}
+    for name in own["errors"]:
+        np.testing.assert_allclose(api["errors"][name], own["errors"][name], rtol=1e-5,
+                                   atol=1e-6)
+    assert api["baseline"] == own["baseline"]
+    np.testing.assert_allclose(api["distortion"], own["distortion"], rtol=1e-5)
+    assert api["error_names"] == list(s.env.ld_state_names)
+
+
+def test_test_sets_are_the_sequences_and_targets_a_run_builds(run):
+    config, s, state = run
+    sets = suite.test_sets(config, state)
+    assert set(sets) == {"train", "pi_rand", "pi_curr"}
+    rand = sets["pi_rand"]
+    assert rand.frames.shape == (config.eval_rand, s.seq_len, 64, 64, 3)
+    assert rand.frames.dtype == np.uint8 and rand.frames.std() > 0
+    np.testing.assert_array_equal(rand.states, rand.ld[:, s.hist - 1])
+    assert rand.names == tuple(s.env.ld_state_names)
+    # π_rand is a function of the run's key alone: the same sequences again.
+    again = suite.test_sets(config, state)["pi_rand"]
+    np.testing.assert_array_equal(again.frames, rand.frames)
+
+
+def test_linear_probe_recovers_an_affine_encoding_exactly():
+    rng = np.random.default_rng(0)
+    states = rng.normal(size=(200, 3))
+    mix = rng.normal(size=(3, 5))
+    latents = states @ mix + 2.0
+    out = suite.linear_probe(latents[:150], states[:150], {"test": (latents[150:], states[150:])})
+    np.testing.assert_allclose(out["r2"]["test"], 1.0, atol=1e-9)
+    np.testing.assert_allclose(out["errors"]["test"], 0.0, atol=1e-8)
+    noise = suite.linear_probe(rng.normal(size=(150, 5)), states[:150],
+                               {"test": (rng.normal(size=(50, 5)), states[150:])})
+    assert max(noise["r2"]["test"]) < 0.3
+
+
+def test_readme_random_projection_example(run):
+    """README's 'your encoder' snippet, on the smoke scale."""
+    config = run[0]
+    projection = jax.random.normal(jax.random.key(0), (64 * 64 * 3, 8))
+
+    def encode(frames, actions):  # uint8 [E, L, 64, 64, 3] -> [E, 8]
+        return (frames[:, -1].reshape(len(frames), -1) / 255.0) @ projection
+
+    report = suite.evaluate(encode, config, run[2])
+    assert len(report["errors"]["pi_rand"]) == len(report["error_names"])
+    assert np.all(np.isfinite(report["errors"]["pi_rand"]))
+    assert set(report["linear"]["r2"]) == {"pi_rand", "pi_curr"}

@@ -90,13 +90,11 @@ class LearnerConfig:
         if self.kl_form not in elbo.KL_FORMS:
             raise ValueError(f"kl_form must be one of {list(elbo.KL_FORMS)}, got "
                              f"{self.kl_form!r}")
-        if not self.beta >= 0:
-            raise ValueError(f"beta must be ≥ 0 (the KL's weight), got {self.beta}")
         if self.compute_dtype not in COMPUTE_DTYPES:
             raise ValueError(f"compute_dtype must be one of {list(COMPUTE_DTYPES)}, got "
                              f"{self.compute_dtype!r}")
         if self.frame_nll not in ("sum", "mean"):
-            raise ValueError(f"frame_nll must be 'sum' (paper) or 'mean' (reference), got "
+            raise ValueError(f"frame_nll must be 'sum' or 'mean', got "
                              f"{self.frame_nll!r}")
         if int(self.ld_dim) < 1:
             raise ValueError(f"ld_dim must be ≥ 1, got {self.ld_dim}")

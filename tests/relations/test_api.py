@@ -202,7 +202,7 @@ def test_a_checkpoint_loads_where_its_devices_do_not_exist(tiny_set, tmp_path):
 
     import jax
 
-    rs, rows = tiny_set
+    rs, _ = tiny_set
     assert len(jax.devices()) == 2  # tests/conftest.py
     relations.save(jax.device_put(rs, jax.devices()[1]), tmp_path / "rs")
     script = ("import sys, numpy as np; from jaml import relations; "

@@ -190,6 +190,10 @@ def plot(runs, path: Path):
                 axes[3].plot(steps, diffs[:, 0], color=f"C{k}", label=method)
                 axes[3].fill_between(steps, diffs[:, 1], diffs[:, 2], color=f"C{k}",
                                      alpha=0.15, linewidth=0)
+    for ax in axes[:3]:
+        if not ax.lines:
+            ax.text(0.5, 0.5, "not in these runs' records", ha="center", va="center",
+                    transform=ax.transAxes)
     axes[3].axhline(0.0, color="black", linewidth=0.8)
     titles = ("object position alignment error, π_rand", "distortion Var(ρ), π_rand (paper)",
               "irreg_std, π_rand (released code)", "Δ position error from PRED (paired 90 %)")
@@ -213,7 +217,10 @@ def report(out: Path, methods) -> str:
              "Streams (a seed's per-epoch episode returns and PPO losses against PRED's):",
              *stream_check(out, runs), ""]
     for metric in METRICS:
-        lines += [*metric_table(runs, metric), ""]
+        if any(values_at(seeds, metric) for seeds in runs.values()):
+            lines += [*metric_table(runs, metric), ""]
+        else:
+            lines += [f"**{METRICS[metric][0]}**: not in these runs' records.", ""]
     text = "\n".join(lines)
     write_text(out / "fig9.md", text)
     return text

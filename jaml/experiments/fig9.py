@@ -47,13 +47,16 @@ DYNAMICS = {
 }
 # name → (learner, relation set or None, control or None). A control imposes no penalty
 # (weight 0) and keeps the reference code's extra reconstruction term on "ok" rows: the rows the
-# AML_trnsv relations accept ("relations"), or as many rows per batch drawn at random ("random").
+# AML_trnsv relations accept ("relations"), as many rows per batch drawn at random ("random"), or
+# a fixed share of random rows ("random@p": 5 %, the PRED+AML_trnsv arm's share of ok rows over
+# learner epochs 100–200 of the 2026-11-27 run, docs/results/fig9.md).
 METHODS = {
     "PRED+AML_trnsv": ("PRED", "trnsv", None),
     "PRED+AML_syz": ("PRED", "syz", None),
     "PRED": ("PRED", None, None),
     "PRED+ok_rows": ("PRED", "trnsv", "relations"),
     "PRED+random_rows": ("PRED", "trnsv", "random"),
+    "PRED+random_rows_5pct": ("PRED", "trnsv", "random@0.05"),
     "VAE_rpl": ("VAE_rpl", None, None),
 }
 # PRED's per-step latent on the incline is [f_0, f_1, f_2, s_t, v_t] (static part 3, dynamic 2:
@@ -118,6 +121,7 @@ class Penalty:
     form: str = "hinge"
     ok_weight: float = 0.0
     ok_rows: str = "relations"
+    ok_fraction: float | None = None
 
 
 def learn_relations(out: Path, progress: bool = False, dynamics: str = "drawn") -> dict:
@@ -177,7 +181,7 @@ def penalty_for(out: Path, relation_set: str, penalty: Penalty, recipe: Recipe,
     return relations.latent_penalty(
         rs.select(used), relations.LatentLayout(**LAYOUT), latent_size=learner.penalty_dim,
         action_size=1, weight=penalty.weight, form=penalty.form, ok_weight=penalty.ok_weight,
-        ok_rows=penalty.ok_rows,
+        ok_rows=penalty.ok_rows, ok_fraction=penalty.ok_fraction,
     ), used
 
 
@@ -212,7 +216,9 @@ def method_penalty(method: str, penalty: Penalty) -> Penalty:
     control = METHODS[method][2]
     if control is None:
         return penalty
-    return dataclasses.replace(penalty, weight=0.0, ok_rows=control)
+    rows, _, share = control.partition("@")
+    return dataclasses.replace(penalty, weight=0.0, ok_rows=rows,
+                               ok_fraction=float(share) if share else None)
 
 
 def described(method: str, penalty: Penalty, recipe: Recipe, used) -> dict:
@@ -229,7 +235,7 @@ def _same_record(before: dict, now: dict) -> bool:
     """Records written before recipes and ok rows existed read as "ours" without them."""
     before = {"recipe": "ours", **before}
     if before.get("relations") is not None:
-        before = {"ok_weight": 0.0, "ok_rows": "relations", **before}
+        before = {"ok_weight": 0.0, "ok_rows": "relations", "ok_fraction": None, **before}
     return before == now
 
 

@@ -133,6 +133,7 @@ class LatentPenalty:
     form: str
     ok_weight: float = 0.0
     ok_rows: str = "relations"
+    ok_fraction: float | None = None
 
     def _tau(self, z: jax.Array, actions: jax.Array) -> jax.Array:
         if z.ndim != 3 or z.shape[-1] != self.latent_size or z.shape[1] < 2:
@@ -160,7 +161,10 @@ class LatentPenalty:
         """The penalty and the rows the learner re-weights: the relations' ok rows, or (the
         "random" control) as many rows drawn at random, so that only their choice differs."""
         ok = jax.lax.stop_gradient(self.ok(z, actions))
-        if self.ok_rows == "random":
+        if self.ok_rows == "random" and self.ok_fraction is not None:
+            count = round(self.ok_fraction * ok.shape[0])
+            ok = jax.random.permutation(key, jnp.arange(ok.shape[0]) < count)
+        elif self.ok_rows == "random":
             ok = jax.random.permutation(key, ok)
         return PenaltyTerms(self(z, actions), ok, self.ok_weight)
 
@@ -175,6 +179,7 @@ def latent_penalty(
     form: str = "hinge",
     ok_weight: float = 0.0,
     ok_rows: str = "relations",
+    ok_fraction: float | None = None,
 ) -> LatentPenalty:
     """`penalty(z [B, S, P], actions [B, S, A]) -> [B]`: weight × Σ_t penalty(τ_t), τ_t built
     from latent steps t, t + 1 by `layout`. Every mismatch is reported here, before training.
@@ -189,6 +194,8 @@ def latent_penalty(
       The paper's eq. 4 has no such term. The learners add it through `terms`.
     ok_rows: "relations" (the reference), or "random": the same number of rows per batch chosen
       at random (a control for what the re-weighting alone does).
+    ok_fraction: with ok_rows "random", draw round(ok_fraction × B) rows per batch instead (a
+      control at another arm's measured rate of ok rows).
     """
     if form not in FORMS:
         raise ValueError(f"form must be one of {FORMS}, got {form!r}")
@@ -198,6 +205,9 @@ def latent_penalty(
         raise ValueError(f"weight must be ≥ 0, got {weight}")
     if not ok_weight >= 0:
         raise ValueError(f"ok_weight must be ≥ 0, got {ok_weight}")
+    if ok_fraction is not None and (ok_rows != "random" or not 0 <= ok_fraction <= 1):
+        raise ValueError(f"ok_fraction must be in [0, 1] and needs ok_rows='random', got "
+                         f"{ok_fraction} with ok_rows={ok_rows!r}")
     if rs.num_relations == 0:
         raise ValueError("the relation set is empty: there is nothing to impose")
     if len(rs.dim_names) != rs.dim:
@@ -207,7 +217,8 @@ def latent_penalty(
         )
     plan = layout.gather(tuple(rs.dim_names), latent_size, action_size)
     return LatentPenalty(rs, tuple(plan), latent_size, action_size, float(weight), form,
-                         float(ok_weight), ok_rows)
+                         float(ok_weight), ok_rows,
+                         None if ok_fraction is None else float(ok_fraction))
 
 
 def residual(rs: RelationSet, layout: LatentLayout, z, actions) -> jax.Array:

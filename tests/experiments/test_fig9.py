@@ -189,10 +189,12 @@ def test_the_reference_recipe_and_its_controls():
     assert fig9.method_penalty("PRED+ok_rows", penalty) == fig9.Penalty(0.0, "hinge", 10.0)
     assert fig9.method_penalty("PRED+random_rows", penalty) == fig9.Penalty(
         0.0, "hinge", 10.0, "random")
+    assert fig9.method_penalty("PRED+random_rows_5pct", penalty) == fig9.Penalty(
+        0.0, "hinge", 10.0, "random", 0.05)
     assert fig9.described("PRED+random_rows", penalty, ref, [0, 1, 2]) == {
         "method": "PRED+random_rows", "relations": "trnsv", "recipe": "reference",
         "weight": 0.0, "form": "hinge", "ok_weight": 10.0, "ok_rows": "random",
-        "relations_used": [1, 2, 3]}
+        "ok_fraction": None, "relations_used": [1, 2, 3]}
     # A record written before recipes existed reads as "ours" without the ok-row term.
     old = {"method": "PRED+AML_trnsv", "relations": "trnsv", "weight": 100.0, "form": "hinge",
            "relations_used": [1, 2]}

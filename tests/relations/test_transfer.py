@@ -239,6 +239,14 @@ def test_ok_rows_are_those_under_every_on_mean_and_random_rows_match_their_count
     assert all(d.sum() == expected.sum() for d in draws)
     assert any((d != expected).any() for d in draws)
     np.testing.assert_array_equal(control(bad, actions), 0.0)
+    # At another arm's measured rate: round(0.3 × 8) = 2 random rows per batch, whatever the
+    # relations accept here.
+    rate = latent_penalty(rs, LAYOUT, latent_size=3, action_size=1, weight=0.0, ok_weight=10.0,
+                          ok_rows="random", ok_fraction=0.3)
+    draws = [np.asarray(rate.terms(bad, actions, jax.random.key(k)).ok) for k in range(20)]
+    assert all(d.sum() == 2 for d in draws) and len({d.tobytes() for d in draws}) > 1
+    with pytest.raises(ValueError, match="ok_fraction"):
+        latent_penalty(rs, LAYOUT, latent_size=3, action_size=1, ok_fraction=0.3)
     with pytest.raises(ValueError, match="ok_rows"):
         latent_penalty(rs, LAYOUT, latent_size=3, action_size=1, ok_rows="some")
     with pytest.raises(ValueError, match="ok_weight"):

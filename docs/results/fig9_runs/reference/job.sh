@@ -23,6 +23,7 @@ lane 1 AML_syz "${fig9[@]}" --methods PRED+AML_syz
 lane 1 ok_rows "${fig9[@]}" --methods PRED+ok_rows
 lane 2 random_rows "${fig9[@]}" --methods PRED+random_rows
 lane 2 VAE_rpl "${fig9[@]}" --methods VAE_rpl
+lane 3 random_rows_5pct "${fig9[@]}" --methods PRED+random_rows_5pct  # added after 2026-11-27
 lane 3 fig2_PRED_observed python -m jaml.experiments.fig2 --out "$out/fig2_observed" \
   --envs CartPole --variants PRED --learner-opt current_action=observed "${extra[@]}"
 wait

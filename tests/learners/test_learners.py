@@ -158,6 +158,19 @@ def test_the_encoder_sees_the_current_action_only_when_observed(runs, name):
         (0, 0) if name == "SPAIR" else (hist, hist - 1))
 
 
+def _sampled(learner, seed, b=B, key=1):
+    """(frames, actions, variables, the training-mode outputs) of a fresh learner on a batch."""
+    frames, actions = batch(seed, learner.seq_len, b=b)
+    opt = learners.default_optimizer(learner)
+    variables = learners.init_train_state(learner, opt, jax.random.key(0),
+                                          (frames, actions)).variables
+    x, a = learner.check_batch(frames, actions)
+    # Jitted: run eagerly, every op of the model compiles apart.
+    out = jax.jit(lambda v: learner.module.apply(v, x, a, jax.random.key(key), train=True,
+                                                 mutable=["batch_stats"])[0])(variables)
+    return frames, actions, variables, out
+
+
 def test_pred_static_part_is_shared_by_every_step_and_counted_once():
     """F static entries: one sample repeated over the T + L steps, [f, z_1..z_S] encoded, and
     the KL equals the hand-assembled sum (static once, dynamic per step)."""
@@ -165,14 +178,8 @@ def test_pred_static_part_is_shared_by_every_step_and_counted_once():
                             mlp_widths=(16,), static_dim=3, latent_dim=2)
     cfg = learner.config
     assert (cfg.penalty_dim, cfg.latent_size) == (3 + 2, 3 + 3 * 2)
-    frames, actions = batch(3, learner.seq_len)
-    opt = learners.default_optimizer(learner)
-    variables = learners.init_train_state(learner, opt, jax.random.key(0),
-                                          (frames, actions)).variables
+    frames, actions, variables, out = _sampled(learner, 3)
     x, a = learner.check_batch(frames, actions)
-    # Jitted: run eagerly, every op of the model compiles apart.
-    out = jax.jit(lambda v: learner.module.apply(v, x, a, jax.random.key(1), train=True,
-                                                 mutable=["batch_stats"])[0])(variables)
     assert out.z.shape == (B, 3, 5)
     np.testing.assert_array_equal(out.z[:, 1:, :3], np.broadcast_to(out.z[:, :1, :3],
                                                                     (B, 2, 3)))
@@ -203,13 +210,8 @@ def test_pred_static_per_step_and_the_reference_kl():
                             static_per_step=True, kl_form="reference")
     cfg = learner.config
     assert (cfg.penalty_dim, cfg.latent_size) == (5, 2 * 5)
-    frames, actions = batch(4, learner.seq_len)
-    opt = learners.default_optimizer(learner)
-    variables = learners.init_train_state(learner, opt, jax.random.key(0),
-                                          (frames, actions)).variables
+    frames, actions, variables, out = _sampled(learner, 4)
     x, a = learner.check_batch(frames, actions)
-    out = jax.jit(lambda v: learner.module.apply(v, x, a, jax.random.key(1), train=True,
-                                                 mutable=["batch_stats"])[0])(variables)
     assert out.z.shape == (B, 2, 5)
     assert not np.allclose(out.z[:, 0, :3], out.z[:, 1, :3])  # nothing ties the static parts
     (mu, logvar), _ = jax.jit(lambda v: learner.module.apply(
@@ -246,16 +248,11 @@ def test_reference_recipe_loss_is_s_times_the_released_formula(ok):
                             mlp_widths=(16,), static_dim=3, latent_dim=2,
                             static_per_step=True, kl_form="reference")
     b, s = 3, 2
-    frames, actions = batch(5, learner.seq_len, b=b)
-    opt = learners.default_optimizer(learner)
-    variables = learners.init_train_state(learner, opt, jax.random.key(0),
-                                          (frames, actions)).variables
-    key = jax.random.key(2)
+    frames, actions, variables, out = _sampled(learner, 5, b=b, key=2)
     penalty = _FixedTerms(ok, weight=s * 1e3, ok_weight=10.0)
-    loss, metrics = jax.jit(lambda v: learner.loss(v, key, frames, actions, penalty))(variables)
-    x, a = learner.check_batch(frames, actions)
-    out = jax.jit(lambda v: learner.module.apply(v, x, a, key, train=True,
-                                                 mutable=["batch_stats"])[0])(variables)
+    loss, metrics = jax.jit(lambda v: learner.loss(v, jax.random.key(2), frames, actions,
+                                                   penalty))(variables)
+    x, _ = learner.check_batch(frames, actions)
     loglik = -0.5 * np.sum((np.asarray(x, np.float64) - np.asarray(out.recon)) ** 2,
                            axis=(2, 3, 4))  # [B, S]
     frame_mean = loglik.mean(axis=1)

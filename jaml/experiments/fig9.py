@@ -124,9 +124,11 @@ class Penalty:
     ok_fraction: float | None = None
 
 
-def learn_relations(out: Path, progress: bool = False, dynamics: str = "drawn") -> dict:
+def learn_relations(out: Path, progress: bool = False, dynamics: str = "drawn",
+                    units: str = "env") -> dict:
     """OUT/relations/{trnsv,syz}: fitted (or resumed) relation sets on the source's rows with
-    `dynamics` (`DYNAMICS`); name → summary."""
+    `dynamics` (`DYNAMICS`), in the source's `units` (`sources.incline_env.UNITS`);
+    name → summary."""
     from jaml import relations
     from jaml.relations.run import run
 
@@ -134,9 +136,9 @@ def learn_relations(out: Path, progress: bool = False, dynamics: str = "drawn") 
     for name, options in RELATIONS.items():
         started = time.perf_counter()
         cfg, directory = relations.Config(**options), out / "relations" / name
-        finished = _finished(directory, cfg, _dynamics(dynamics))
-        summaries[name] = finished or run(SOURCE, cfg, directory,
-                                          source_options=_dynamics(dynamics) or None,
+        options = _dynamics(dynamics) | ({"units": units} if units != "env" else {})
+        finished = _finished(directory, cfg, options)
+        summaries[name] = finished or run(SOURCE, cfg, directory, source_options=options or None,
                                           progress=progress)
         print(f"relations {name}: {summaries[name]['num_relations']} in "
               f"{time.perf_counter() - started:.0f}s", flush=True)
@@ -313,6 +315,9 @@ class Args(_runs.Driver):
     dynamics: Literal[tuple(DYNAMICS)] = "drawn"
     """the objects' mass and friction in the source and the target: drawn per reset (the
     domains' defaults, the paper's) or fixed (0.2 kg, 0.3)"""
+    source_units: Literal["env", "reference"] = "env"
+    """units of the source's rows the relations learn from: the env's normalised LD state, or
+    the released code's (distance from the episode's start, unsigned speed, force in N)"""
     report_only: bool = False
     """no training: fig9.md and fig9.png from the runs under OUT"""
     pilot_only: bool = False
@@ -339,7 +344,7 @@ class Args(_runs.Driver):
         weights = self.weights or recipe.weights
         penalty = Penalty(weights[0], self.form, recipe.ok_weight)
         if self.pilot_only or any(METHODS[m][1] for m in self.methods):
-            learn_relations(self.out, dynamics=self.dynamics)
+            learn_relations(self.out, dynamics=self.dynamics, units=self.source_units)
             if len(weights) > 1:
                 penalty = choose_weight(self.out, weights, self.pilot_seed, self.form, recipe,
                                         self.dynamics, self._scale())

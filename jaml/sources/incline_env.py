@@ -39,7 +39,12 @@ DIM_NAMES = ("theta", "s0", "v0", "a0", "s1", "v1")
 # both domains under uniform actions in [−1, 1]; 0.75 leaves room for slower-ending settings.
 MIN_VALID_FRACTION = 0.75
 # The source's own options; every other keyword of `make` is an env config override.
-SOURCE_OPTIONS = ("action_range", "rollout_steps", "pool_size", "drop_clipped", "name")
+SOURCE_OPTIONS = ("action_range", "rollout_steps", "pool_size", "drop_clipped", "units", "name")
+# "env": the domain's normalised LD units (module docstring). "reference": the released code's
+# source rows (fig9_reference.md §4): position as the distance travelled from where the episode
+# began (its object is dropped there; ours starts at rest on the plank) ÷ 1.27 m, velocity as
+# the unsigned speed ÷ 3.1 m/s, the action as the force in N (±2).
+UNITS = ("env", "reference")
 
 
 class InclineEnvSource:
@@ -53,6 +58,7 @@ class InclineEnvSource:
       pool_size: rows `relations.fit` draws once and trains on (None: a rollout per batch).
       drop_clipped: with normalize_ld, also drop rows in which a position or velocity sits at
         its clip bound (the LD state stops following the dynamics there; ≈ 2% of rows).
+      units: "env" (default) or "reference" (`UNITS`).
       name: the source's name.
       **env_overrides: fields of the env's config (`envs_mjx.make`); pixels default to "off".
     """
@@ -65,6 +71,7 @@ class InclineEnvSource:
         rollout_steps: int = 64,
         pool_size: int | None = 131_072,
         drop_clipped: bool = True,
+        units: str = "env",
         name: str | None = None,
         **env_overrides: Any,
     ):
@@ -75,6 +82,8 @@ class InclineEnvSource:
             raise ValueError(f"rollout_steps must be ≥ 1, got {rollout_steps}")
         if pool_size is not None and pool_size < 2:
             raise ValueError(f"pool_size must be None or ≥ 2, got {pool_size}")
+        if units not in UNITS:
+            raise ValueError(f"units must be one of {UNITS}, got {units!r}")
         # A 1 × 1 placeholder image: states carry no 64 × 64 zeros through the rollout.
         env_overrides = {"pixels": "off", "image_size": 1, **env_overrides}
         self.env: Env = envs_mjx.make(env_name, **env_overrides)
@@ -92,6 +101,7 @@ class InclineEnvSource:
         self.pool_size = pool_size
         normalised = bool(getattr(self.env.config, "normalize_ld", False))
         self.drop_clipped = bool(drop_clipped) and normalised
+        self.units = units
         self.name = name or env_name
         self.sample = jax.jit(self._sample, static_argnums=1)
 
@@ -117,7 +127,8 @@ class InclineEnvSource:
         reset = jax.vmap(env.reset)
         step = jax.vmap(env.step)
 
-        def body(state: State, key):
+        def body(carry, key):
+            state, origin = carry
             k_action, k_fresh = jax.random.split(key)
             action = jax.random.uniform(k_action, (num_envs, 1), minval=lo, maxval=hi)
             nstate = step(state, action)
@@ -136,12 +147,16 @@ class InclineEnvSource:
             keep = nstate.done == 0
             if self.drop_clipped:
                 keep &= ~_clipped(row)
+            if self.units == "reference":
+                row = to_reference_units(row, origin, self.env.config.force_scale)
             done = nstate.done > 0
             fresh = reset(jax.random.split(k_fresh, num_envs))
-            return _swap_in(done, fresh, nstate), (row, keep)
+            origin = jnp.where(done, fresh.ld_state[:, pos], origin)
+            return (_swap_in(done, fresh, nstate), origin), (row, keep)
 
         state = reset(jax.random.split(k_reset, num_envs))
-        _, (rows, valid) = jax.lax.scan(body, state, jax.random.split(k_steps, self.rollout_steps))
+        _, (rows, valid) = jax.lax.scan(body, (state, state.ld_state[:, pos]),
+                                        jax.random.split(k_steps, self.rollout_steps))
         return rows, valid
 
     def _sample(self, key: jax.Array, n: int) -> jax.Array:
@@ -153,7 +168,8 @@ class InclineEnvSource:
         options = ", ".join(f"{k}={v!r}" for k, v in self.env_overrides.items())
         return (
             f"InclineEnvSource({self.env_name!r}, action_range={self.action_range}, "
-            f"rollout_steps={self.rollout_steps}, pool_size={self.pool_size}, {options})"
+            f"rollout_steps={self.rollout_steps}, pool_size={self.pool_size}, "
+            f"units={self.units!r}, {options})"
         )
 
 
@@ -169,6 +185,14 @@ def pick_valid(key: jax.Array, rows: jax.Array, valid: jax.Array, n: int) -> jax
     i = jnp.arange(n)
     picked = rows[order[jnp.where(i < count, i, i % jnp.maximum(count, 1))]]
     return jnp.where(count > 0, picked, jnp.nan)
+
+
+def to_reference_units(row: jax.Array, origin: jax.Array, force_scale: float) -> jax.Array:
+    """[E, 6] rows (θ, s0, v0, a0, s1, v1) in normalised units → the released code's: distance
+    from the episode's start position `origin` [E], unsigned speed, the force in N."""
+    theta, s0, v0, a0, s1, v1 = (row[:, i] for i in range(6))
+    return jnp.stack([theta, jnp.abs(s0 - origin), jnp.abs(v0), force_scale * a0,
+                      jnp.abs(s1 - origin), jnp.abs(v1)], axis=-1)
 
 
 def _clipped(row: jax.Array) -> jax.Array:

@@ -146,3 +146,27 @@ def test_overrides_and_pool():
     )
     assert args.command.source == "geom-on-incline"
     assert cli.key_values(args.command.source_opt) == {"pool_size": 4096}
+
+
+def test_reference_units_are_the_released_codes_rows_of_the_same_steps(drawn):
+    """units="reference" (fig9_reference.md §4) on the same key: the same steps (same picks),
+    θ as is, unsigned speed, the force in N, and the distance from the episode's start, which
+    lies in the reset range U(0.05, 0.15) m: s_env − s_ref is that start (or s_env + s_ref for
+    an object pushed uphill past it)."""
+    src, (rows, *_) = drawn
+    if src.name != "geom-on-incline":
+        pytest.skip("one scene is enough")
+    ref = sources.make("geom-on-incline", units="reference")
+    sample = jax.jit(ref.sample, static_argnums=1, compiler_options=FAST_COMPILE)
+    got = np.asarray(sample(jax.random.key(0), N)).astype(np.float64)
+    rows = rows.astype(np.float64)
+    np.testing.assert_array_equal(got[:, 0], rows[:, 0])
+    np.testing.assert_allclose(got[:, [2, 5]], np.abs(rows[:, [2, 5]]), rtol=1e-6)
+    np.testing.assert_allclose(got[:, 3], 2.0 * rows[:, 3], rtol=1e-6)
+    lo, hi = (x / incline.POSITION_SCALE for x in src.env.config.start_range)
+    for s_env, s_ref in ((rows[:, 1], got[:, 1]), (rows[:, 4], got[:, 4])):
+        start = np.where(s_env - s_ref >= lo - 1e-6, s_env - s_ref, s_env + s_ref)
+        assert np.all((start >= lo - 1e-6) & (start <= hi + 1e-6))
+    assert (got[:, [1, 2, 4, 5]] >= 0).all() and np.abs(got[:, 3]).max() > 1.0
+    with pytest.raises(ValueError, match="units"):
+        sources.make("geom-on-incline", units="si")

@@ -65,11 +65,15 @@ class CallOptions:
     records are the same); --no-keep-pi-rand rolls them out at every analysis"""
 
 
-def main(command: str, argv=None) -> int:
-    """`python -m jaml.experiments.COMMAND ARGS` is `jaml COMMAND ARGS`."""
-    from jaml import cli
+def main(command: str, args: type, argv=None) -> int:
+    """`python -m jaml.experiments.COMMAND ARGS` is `jaml COMMAND ARGS`: `args` (the driver's
+    `Args`) parsed and run by the command line's mechanism (`jaml._command`), the only command.
+    Imported here, not above: it captures what importing mujoco.mjx prints, which only an entry
+    point may do."""
+    from jaml import _command
 
-    return cli.main([command, *(sys.argv[1:] if argv is None else argv)])
+    return _command.main([command, *(sys.argv[1:] if argv is None else argv)],
+                         lambda _: {command: args}, command)
 
 
 def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,

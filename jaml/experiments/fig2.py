@@ -50,7 +50,7 @@ import tyro
 
 from jaml._options import key_values
 from jaml._rundir import write_text
-from jaml.evaluation import plots
+from jaml.evaluation import intervals, plots
 from jaml.experiments import _runs, fig2_claims
 from jaml.experiments._runs import cell
 from jaml.experiments.fig2_grid import (
@@ -346,10 +346,10 @@ def compare(out: Path, other: Path, envs, variants, relative: bool = False) -> s
                 continue
             last = max(k[0] for k in common)
             for key in (k for k in common if k[0] == last):
-                diff, low, high = _runs.welch_interval(a[key], b[key])
+                diff, low, high = intervals.welch_interval(a[key], b[key])
                 same = [k for k in common if k[1:] == key[1:]]
                 resolved = sum(not (lo <= 0 <= hi) for _, lo, hi in
-                               (_runs.welch_interval(a[k], b[k]) for k in same))
+                               (intervals.welch_interval(a[k], b[k]) for k in same))
                 lines.append(f"| {env} · {variant} | {key[1]} | {key[2]} | {last} | "
                              f"{np.mean(a[key]):.3f} | {np.mean(b[key]):.3f} | "
                              f"{diff:+.3f} [{low:+.3f}, {high:+.3f}] | {resolved} of {len(same)} |")

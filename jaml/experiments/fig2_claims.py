@@ -19,6 +19,7 @@ import dataclasses
 
 import numpy as np
 
+from jaml.evaluation import intervals
 from jaml.experiments import _runs
 from jaml.experiments.fig2_grid import (
     LOCOMOTION,
@@ -172,7 +173,7 @@ def _difference(x: list[float], y: list[float], sign: int) -> str:
 
 def _interval(x: list[float], y: list[float], sign: int) -> tuple[str, str]:
     """('d [low, high]', its mark for the side `sign` expects), or (why not, '')."""
-    diff, low, high = _runs.welch_interval(x, y)
+    diff, low, high = intervals.welch_interval(x, y)
     if not np.isfinite(diff):
         return "non-finite", ""
     if np.isnan(low):

@@ -92,7 +92,7 @@ import tyro
 
 from jaml._options import KeyValues, key_values
 from jaml._rundir import write_text
-from jaml.evaluation import plots, rotation
+from jaml.evaluation import intervals, plots, rotation
 from jaml.experiments import _runs
 from jaml.experiments._runs import cell
 
@@ -378,7 +378,7 @@ def _signed(text: str) -> str:
 def _welch(a: list[float], b: list[float]) -> str:
     if not a or not b:
         return "–"
-    diff, low, high = _runs.welch_interval(a, b)
+    diff, low, high = intervals.welch_interval(a, b)
     if np.isnan(low):
         return f"{diff:+.3f}"
     return f"{diff:+.3f} [{low:+.3f}, {high:+.3f}]"

@@ -14,7 +14,6 @@ confidence intervals over runs. Figures use matplotlib's Agg canvas; no global s
 
 from __future__ import annotations
 
-import math
 from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -23,9 +22,9 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
-from scipy import stats
 
 from jaml._rundir import write_atomically
+from jaml.evaluation.intervals import mean_interval
 
 
 def history_records(step: int, learner: str, errors: Mapping[str, Sequence[float]],
@@ -65,17 +64,6 @@ def _check(history: Iterable[Mapping]) -> list[Mapping]:
 
 def _ordered(values: Iterable) -> list:
     return list(dict.fromkeys(values))
-
-
-def mean_interval(samples: Sequence[float]) -> tuple[float, float, float]:
-    """(mean, low, high): the mean over runs and its 90 % Student-t confidence interval
-    (degenerate, low = high = mean, for one run)."""
-    a = np.asarray(samples, np.float64)
-    mean = float(a.mean())
-    if a.size < 2:
-        return mean, mean, mean
-    half = float(stats.t.ppf(0.95, a.size - 1)) * float(a.std(ddof=1)) / math.sqrt(a.size)
-    return mean, mean - half, mean + half
 
 
 def _curves(points: Mapping[int, list[float]]):

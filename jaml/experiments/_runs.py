@@ -1,5 +1,6 @@
 """What the figure drivers share: the command's skeleton (train, then report), training one
-cell's seeds together, reading run histories, interval statistics and table cells."""
+cell's seeds together, reading run histories, and table cells (their intervals:
+`jaml.evaluation.intervals`)."""
 
 from __future__ import annotations
 
@@ -9,9 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
-from jaml.evaluation import plots
+from jaml.evaluation import intervals
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,11 +64,15 @@ class CallOptions:
     records are the same); --no-keep-pi-rand rolls them out at every analysis"""
 
 
-def main(command: str, argv=None) -> int:
-    """`python -m jaml.experiments.COMMAND ARGS` is `jaml COMMAND ARGS`."""
-    from jaml import cli
+def main(command: str, args: type, argv=None) -> int:
+    """`python -m jaml.experiments.COMMAND ARGS` is `jaml COMMAND ARGS`: `args` (the driver's
+    `Args`) parsed and run by the command line's mechanism (`jaml._command`), the only command.
+    Imported here, not above: it captures what importing mujoco.mjx prints, which only an entry
+    point may do."""
+    from jaml import _command
 
-    return cli.main([command, *(sys.argv[1:] if argv is None else argv)])
+    return _command.main([command, *(sys.argv[1:] if argv is None else argv)],
+                         lambda _: {command: args}, command)
 
 
 def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,
@@ -158,24 +161,9 @@ def last_common_step(histories: list[list[dict]]) -> int:
     return min(max(r["step"] for r in h) for h in histories)
 
 
-def welch_interval(a, b, confidence: float = 0.90) -> tuple[float, float, float]:
-    """(mean(a) − mean(b), low, high): Welch's interval for the difference of two means
-    (scipy's unequal-variance t-test)."""
-    from scipy import stats
-
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    diff = float(a.mean() - b.mean())
-    if a.size < 2 or b.size < 2:
-        return diff, float("nan"), float("nan")
-    if a.var() == 0 and b.var() == 0:
-        return diff, diff, diff
-    ci = stats.ttest_ind(a, b, equal_var=False).confidence_interval(confidence)
-    return diff, float(ci.low), float(ci.high)
-
-
 def cell(values, digits: int = 3) -> str:
     """'0.123' for one run, '0.123 ± 0.045' (90 % confidence half-width) for several."""
-    mean, low, high = plots.mean_interval(values)
+    mean, low, high = intervals.mean_interval(values)
     if len(values) < 2:
         return f"{mean:.{digits}f}"
     return f"{mean:.{digits}f} ± {(high - low) / 2:.{digits}f}"

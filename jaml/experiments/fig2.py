@@ -40,7 +40,6 @@ pendulums, 300 on locomotion (the paper trained tens of thousands).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 import sys
 from pathlib import Path
@@ -49,14 +48,21 @@ from typing import Annotated, Literal
 import numpy as np
 import tyro
 
+from jaml._options import key_values
 from jaml._rundir import write_text
-from jaml.evaluation import plots
-from jaml.experiments import _runs
+from jaml.evaluation import intervals, plots
+from jaml.experiments import _runs, fig2_claims
 from jaml.experiments._runs import cell
+from jaml.experiments.fig2_grid import (
+    ENVS,
+    LOCOMOTION,
+    PENDULUMS,
+    SEEDS,
+    grid_histories,
+    group_value,
+    ld_groups,
+)
 
-PENDULUMS = ("CartPole", "InvertedPendulum")
-LOCOMOTION = ("HalfCheetah", "Ant")
-ENVS = PENDULUMS + LOCOMOTION
 # label → (learner, learner config overrides). β = 5 was the paper's best β; β = 20 one of the
 # values it found "significantly worse" (it tried 100, 20, 10, 5, 0.5).
 VARIANTS = {
@@ -68,7 +74,6 @@ VARIANTS = {
     "PRED": ("PRED", {}),
     "DSA": ("DSA", {}),
 }
-SEEDS = tuple(range(6))
 # Per epoch the paper's sizes; the regressor and test sets the reference's (§5).
 SCALE = dict(num_envs=64, replay_slots=5000 // 64 * 64, eval_train=10_000, eval_rand=10_048,
              eval_curr=2_500, regressor_iterations=10_000)
@@ -102,25 +107,6 @@ def run_cell(out: Path, env: str, variant: str, seeds, scale: dict, schedule: di
                for s in seeds]
     dirs = [out / env / variant / f"seed_{s}" for s in seeds]
     return _runs.train_seeds(f"{env} {variant}", configs, dirs, **call_options)
-
-
-def ld_groups(env: str) -> dict[str, list[str]]:
-    """group → LD-state names of `env`, from the domain's own metadata (`ld_state_groups`):
-    the paper aggregates position, velocity and contacts (Fig. 2, locomotion)."""
-    return {group: list(names) for group, names in _ld_groups(env)}
-
-
-@functools.cache
-def _ld_groups(env: str) -> tuple[tuple[str, tuple[str, ...]], ...]:
-    # Building the domain parses its MJCF; a report reads the groups for every cell and check.
-    import envs_mjx
-
-    domain = envs_mjx.make(env)
-    groups: dict[str, list[str]] = {}
-    for name, group in zip(domain.ld_state_names, domain.ld_state_groups, strict=True):
-        if group != "other":
-            groups.setdefault(group, []).append(name)
-    return tuple((group, tuple(names)) for group, names in groups.items())
 
 
 def final_records(history: list[dict], step: int) -> dict[str, dict]:
@@ -179,16 +165,6 @@ def grid_status(out: Path, envs, variants, seeds: int = len(SEEDS)) -> list[str]
             "in brackets the learner options given beyond the variant's, and seeds stopped by a "
             "non-finite loss (not counted, not read). "
             f"{complete} of {total} complete.", "", *lines, ""]
-
-
-def grid_histories(out: Path, env: str, variants) -> dict[str, list[list[dict]]]:
-    """variant → one history per seed run found under OUT/ENV/VARIANT."""
-    runs = {}
-    for variant in variants:
-        histories = _runs.seed_histories(out / env / variant)
-        if histories:
-            runs[variant] = histories
-    return runs
 
 
 # The y-axis of a locomotion panel: its values are fractions of each run's constant predictor's
@@ -259,7 +235,7 @@ def report(out: Path, envs, variants) -> str:
              "each run's constant predictor's error (their first tables raw, their second as "
              "fractions).", "",
              *grid_status(out, envs, variants),
-             *_claims(out, envs, variants),
+             *fig2_claims.claims_table(out, envs, variants),
              "Several seeds: mean ± the half-width of its 90 % confidence interval, at the last",
              "epoch all of a cell's seeds reached.", ""]
     grid = {env: grid_histories(out, env, variants) for env in envs}
@@ -308,31 +284,6 @@ def report(out: Path, envs, variants) -> str:
     text = "\n".join(lines) + "\n"
     write_text(out / "fig2.md", text)
     return text
-
-
-def _claims(out: Path, envs, variants) -> list[str]:
-    """`fig2_claims.claims_table`: imported here, as it builds on this module's readings."""
-    from jaml.experiments import fig2_claims
-
-    return fig2_claims.claims_table(out, envs, variants)
-
-
-def group_value(record: dict, dims, relative: bool = False) -> float | None:
-    """A record's mean error over `dims`, or (relative) that over the mean error of a constant
-    prediction on the same test rows (the record's `baseline`), None where the record has none.
-
-    Errors are in units of each run's regressor training targets, which come from its replay:
-    VAE_v0's replay holds only current-policy frames, VAE_rpl's keeps early random-policy ones,
-    and two runs' PPO streams differ, so the same error means different things across cells
-    (on HalfCheetah a constant scored 1.57 on π_rand position in VAE_v0's units, 1.15 in
-    VAE_rpl's). The fraction of the constant's error puts them on one scale."""
-    error = float(np.mean([record["errors"][d] for d in dims]))
-    if not relative:
-        return error
-    baseline = record.get("baseline")
-    if not baseline:
-        return None  # runs recorded before the analysis wrote baselines
-    return error / float(np.mean([baseline[d] for d in dims]))
 
 
 def _relative_table(env: str, groups: dict[str, list[str]],
@@ -395,10 +346,10 @@ def compare(out: Path, other: Path, envs, variants, relative: bool = False) -> s
                 continue
             last = max(k[0] for k in common)
             for key in (k for k in common if k[0] == last):
-                diff, low, high = _runs.welch_interval(a[key], b[key])
+                diff, low, high = intervals.welch_interval(a[key], b[key])
                 same = [k for k in common if k[1:] == key[1:]]
                 resolved = sum(not (lo <= 0 <= hi) for _, lo, hi in
-                               (_runs.welch_interval(a[k], b[k]) for k in same))
+                               (intervals.welch_interval(a[k], b[k]) for k in same))
                 lines.append(f"| {env} · {variant} | {key[1]} | {key[2]} | {last} | "
                              f"{np.mean(a[key]):.3f} | {np.mean(b[key]):.3f} | "
                              f"{diff:+.3f} [{low:+.3f}, {high:+.3f}] | {resolved} of {len(same)} |")
@@ -457,8 +408,6 @@ class Args(_runs.Driver):
     the same cell there (OUT − OTHER, Welch's 90 % interval), also written to OUT/compare.md"""
 
     def train(self) -> None:
-        from jaml.cli import key_values
-
         scale = self.fields(SCALE)
         schedule = {f: (getattr(self, f"{f}_epochs"), getattr(self, f"{f}_eval_every"))
                     for f in SCHEDULE}
@@ -483,7 +432,11 @@ class Args(_runs.Driver):
 
 def main(argv=None) -> int:
     """`python -m jaml.experiments.fig2 ARGS` is `jaml fig2 ARGS`."""
-    return _runs.main("fig2", argv)
+    # This module's importable copy (run as a script, this one is __main__, whose classes
+    # the command line's help rule does not read as jaml's): as `jaml fig2` has it.
+    from jaml.experiments import fig2
+
+    return _runs.main("fig2", fig2.Args, argv)
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ interval over seeds, and marks it ✓ (resolved on the paper's side), ✗ (resol
 
 Readings: the pendulums in the regressor's training-std units, as the paper plots them;
 locomotion's panel (the mean of its position, velocity and contact groups) and groups as
-fractions of each run's constant predictor's error (`fig2.group_value`), since each run's units
+fractions of each run's constant predictor's error (`fig2_grid.group_value`), since each run's units
 come from its own replay and a mean over groups of different scales needs a common one.
 """
 
@@ -19,8 +19,9 @@ import dataclasses
 
 import numpy as np
 
+from jaml.evaluation import intervals
 from jaml.experiments import _runs
-from jaml.experiments.fig2 import (
+from jaml.experiments.fig2_grid import (
     LOCOMOTION,
     PENDULUMS,
     SEEDS,
@@ -172,7 +173,7 @@ def _difference(x: list[float], y: list[float], sign: int) -> str:
 
 def _interval(x: list[float], y: list[float], sign: int) -> tuple[str, str]:
     """('d [low, high]', its mark for the side `sign` expects), or (why not, '')."""
-    diff, low, high = _runs.welch_interval(x, y)
+    diff, low, high = intervals.welch_interval(x, y)
     if not np.isfinite(diff):
         return "non-finite", ""
     if np.isnan(low):

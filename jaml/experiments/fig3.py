@@ -90,8 +90,9 @@ from typing import Annotated, Literal
 import numpy as np
 import tyro
 
+from jaml._options import KeyValues, key_values
 from jaml._rundir import write_text
-from jaml.evaluation import plots, rotation
+from jaml.evaluation import intervals, plots, rotation
 from jaml.experiments import _runs
 from jaml.experiments._runs import cell
 
@@ -286,8 +287,6 @@ def learner_options(items, variants) -> dict[str, dict]:
     """variant → learner config overrides from KEY=VALUE texts: KEY=VALUE for every variant,
     NAME.KEY=VALUE for the variants NAME labels (a variant, e.g. SPAIR_6x6, or a learner, e.g.
     SPAIR for both grids)."""
-    from jaml.cli import key_values
-
     names = set(VARIANTS) | {learner for learner, _ in VARIANTS.values()}
     options: dict[str, dict] = {v: {} for v in variants}
     for key, value in key_values(items).items():
@@ -379,7 +378,7 @@ def _signed(text: str) -> str:
 def _welch(a: list[float], b: list[float]) -> str:
     if not a or not b:
         return "–"
-    diff, low, high = _runs.welch_interval(a, b)
+    diff, low, high = intervals.welch_interval(a, b)
     if np.isnan(low):
         return f"{diff:+.3f}"
     return f"{diff:+.3f} [{low:+.3f}, {high:+.3f}]"
@@ -579,10 +578,6 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
 # The command.
 
 
-KeyValues = Annotated[tuple[str, ...], tyro.conf.UseAppendAction,
-                      tyro.conf.arg(metavar="KEY=VALUE")]
-
-
 @dataclasses.dataclass(frozen=True)
 class Args(_runs.Driver):
     """Paper Fig. 3: VAE_rpl and SPAIR (4×4, 6×6) on RearrangeGeom (or RearrangeYCB) with the
@@ -629,8 +624,6 @@ class Args(_runs.Driver):
     """no training: fig3.md and the images from the runs under OUT"""
 
     def train(self) -> None:
-        from jaml.cli import key_values
-
         options = learner_options(self.learner_opt, self.variants)
         env_opt = key_values(self.env_opt)
         for variant in self.variants:
@@ -644,7 +637,11 @@ class Args(_runs.Driver):
 
 def main(argv=None) -> int:
     """`python -m jaml.experiments.fig3 ARGS` is `jaml fig3 ARGS`."""
-    return _runs.main("fig3", argv)
+    # This module's importable copy (run as a script, this one is __main__, whose classes
+    # the command line's help rule does not read as jaml's): as `jaml fig3` has it.
+    from jaml.experiments import fig3
+
+    return _runs.main("fig3", fig3.Args, argv)
 
 
 if __name__ == "__main__":

@@ -364,7 +364,11 @@ class Args(_runs.Driver):
 
 def main(argv=None) -> int:
     """`python -m jaml.experiments.fig9 ARGS` is `jaml fig9 ARGS`."""
-    return _runs.main("fig9", argv)
+    # This module's importable copy (run as a script, this one is __main__, whose classes
+    # the command line's help rule does not read as jaml's): as `jaml fig9` has it.
+    from jaml.experiments import fig9
+
+    return _runs.main("fig9", fig9.Args, argv)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,8 @@ import numpy as np
 
 from jaml._rundir import write_text
 from jaml.evaluation import plots
-from jaml.experiments._runs import read_history, stopped_runs, welch_interval
+from jaml.evaluation.intervals import mean_interval, paired_interval, welch_interval
+from jaml.experiments._runs import read_history, stopped_runs
 
 BASE = "PRED"
 # name → (label, value of a π_rand analysis record or None)
@@ -64,18 +65,6 @@ def values_at(seeds: dict[int, list[dict]], metric: str) -> dict[int, dict[int, 
             if v is not None and math.isfinite(v):
                 table[int(r["step"])][seed] = float(v)
     return table
-
-
-def paired_interval(a: dict[int, float], b: dict[int, float], confidence: float = 0.90):
-    """(mean of a_s − b_s over the seeds s in both, low, high, n): the paired t interval."""
-    from scipy import stats
-
-    common = sorted(a.keys() & b.keys())
-    d = np.asarray([a[s] - b[s] for s in common], np.float64)
-    if d.size < 2:
-        return (float(d.mean()) if d.size else float("nan")), float("nan"), float("nan"), d.size
-    half = float(stats.t.ppf(0.5 + confidence / 2, d.size - 1)) * d.std(ddof=1) / math.sqrt(d.size)
-    return float(d.mean()), float(d.mean() - half), float(d.mean() + half), int(d.size)
 
 
 def primary(runs, fill_epochs: int) -> str:
@@ -178,7 +167,7 @@ def plot(runs, path: Path):
             steps = sorted(table)
             if not steps:
                 continue
-            bands = np.array([plots.mean_interval(list(table[s].values())) for s in steps])
+            bands = np.array([mean_interval(list(table[s].values())) for s in steps])
             ax.plot(steps, bands[:, 0], color=f"C{k}", label=f"{method} ({len(seeds)})")
             ax.fill_between(steps, bands[:, 1], bands[:, 2], color=f"C{k}", alpha=0.15,
                             linewidth=0)

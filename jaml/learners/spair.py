@@ -260,11 +260,6 @@ def bernoulli_kl(logit: jax.Array, prior) -> jax.Array:
     return q * (log_q - jnp.log(p)) + (1.0 - q) * (log_1q - jnp.log1p(-p))
 
 
-def relaxed_bernoulli(key: jax.Array, logit: jax.Array, temperature: float) -> jax.Array:
-    """[...] in (0, 1): binary-concrete sample σ((logit + log u − log(1 − u)) / temperature)."""
-    return jax.nn.sigmoid((logit + logistic_noise(key, logit.shape)) / temperature)
-
-
 def held(x: jax.Array, wheels) -> jax.Array:
     """x in the forward pass; its gradient scaled by 1 − wheels (0 while the wheels are on)."""
     return wheels * jax.lax.stop_gradient(x) + (1.0 - wheels) * x

@@ -40,7 +40,7 @@ from jaml.stream import ppo as ppo_lib
 from jaml.stream import replay as replay_lib
 from jaml.stream.collect import Episodes
 from jaml.stream.config import StreamConfig
-from jaml.stream.programs import stream_jit
+from jaml.stream.programs import on_release, stream_jit
 
 
 @struct.dataclass
@@ -443,6 +443,7 @@ _BUILT: collections.OrderedDict = collections.OrderedDict()
 _BUILT_KEPT = 8
 
 
+@on_release
 def forget_built() -> None:
     """Drops the kept Streams and their per-device executables (`Stream.programs`, shared with
     the Streams made from them for other seeds); part of `release_programs`."""

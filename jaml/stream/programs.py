@@ -26,6 +26,8 @@ import jax
 
 # Every jitted function whose static arguments include a Stream: cleared by `release_programs`.
 _KEYED: list = []
+# What else holds programs (`loop`'s kept Streams): called by `release_programs` after the clear.
+_RELEASES: list[Callable[[], None]] = []
 
 
 def stream_jit(fun: Callable | None = None, /, **options):
@@ -43,8 +45,14 @@ def release_programs() -> None:
 
     Call it between experiments that share no Stream, e.g. after each cell of a grid (the
     figure drivers do). A Stream still in use compiles its programs again at its next call."""
-    from jaml.stream import loop  # loop imports this module for `stream_jit`
-
     for jitted in _KEYED:
         jitted.clear_cache()
-    loop.forget_built()
+    for release in _RELEASES:
+        release()
+
+
+def on_release(release: Callable[[], None]) -> Callable[[], None]:
+    """Registers `release` (no arguments) to run at every `release_programs`, for a module that
+    keeps programs of its own (`loop.forget_built`); usable as a decorator."""
+    _RELEASES.append(release)
+    return release

@@ -7,12 +7,10 @@ import math
 import jax
 import numpy as np
 import pytest
-from scipy import stats
 
 import envs_mjx
 from jaml.evaluation import history_records
 from jaml.experiments import fig9, fig9_report
-from jaml.experiments._runs import welch_interval
 from jaml.relations.transfer import LatentLayout
 
 NAMES = ["texture_id", "object_id", "theta", "position", "velocity"]
@@ -35,30 +33,6 @@ def _write_metrics(path, returns):
     (path / "metrics.jsonl").write_text("".join(
         json.dumps({"epoch": e + 1, "episode_return": r, "ppo/total_loss": 0.5}) + "\n"
         for e, r in enumerate(returns)))
-
-
-def test_welch_interval_matches_a_hand_computation():
-    a, b = [1.0, 2.0, 3.0], [2.0, 4.0, 6.0, 8.0]
-    diff, low, high = welch_interval(a, b)
-    va, vb = np.var(a, ddof=1) / 3, np.var(b, ddof=1) / 4  # 1/3, 20/12
-    dof = (va + vb) ** 2 / (va**2 / 2 + vb**2 / 3)
-    assert dof == pytest.approx(4.0755, abs=1e-4)  # (1/3 + 5/3)² / ((1/3)²/2 + (5/3)²/3)
-    half = stats.t.ppf(0.95, dof) * math.sqrt(va + vb)
-    assert diff == -3.0
-    assert (low, high) == pytest.approx((-3.0 - half, -3.0 + half), abs=2e-3)
-
-
-def test_paired_interval_matches_a_hand_computation_and_beats_welch_on_shared_noise():
-    """Seed s's two values share its noise: the paired interval sees only the differences
-    (0.01, 0.02, 0.03: mean 0.02, s = 0.01, t(0.95, 2) = 2.91999), Welch's the seeds' spread."""
-    base = {0: 0.10, 1: 0.30, 2: 0.50, 7: 0.9}  # seed 7 has no partner: left out
-    aml = {0: 0.11, 1: 0.32, 2: 0.53}
-    d, lo, hi, n = fig9_report.paired_interval(aml, base)
-    half = 2.9199856 * 0.01 / math.sqrt(3)
-    assert (d, n) == (pytest.approx(0.02), 3)
-    assert (lo, hi) == pytest.approx((0.02 - half, 0.02 + half), rel=1e-6)
-    _, wlo, whi = welch_interval(list(aml.values()), [base[s] for s in (0, 1, 2)])
-    assert whi - wlo > 10 * (hi - lo)
 
 
 def test_report_leads_with_the_primary_comparison_and_tables_paired_differences(tmp_path):

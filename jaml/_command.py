@@ -1,0 +1,330 @@
+"""The command-line mechanism under `jaml.cli` and `python -m jaml.experiments.COMMAND`: tyro
+over dataclasses, help from docstrings, choices, one-line errors, and the run loop (logging, the
+compilation cache, SIGTERM as an interrupt). The commands themselves are given by the caller.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import io
+import logging
+import os
+import re
+import signal
+import sys
+import threading
+import traceback
+import typing
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, Literal
+
+import tyro
+
+
+def _import_mjx_quietly() -> list[str]:
+    """Import mujoco.mjx with stdout captured; return what it printed.
+
+    mujoco 4.0's mujoco.mjx.warp probes for MuJoCo Warp (optional, GPU; jaml does not use it)
+    and, when absent, `print`s "Failed to import warp: …" and "Failed to import mujoco_warp: …"
+    to stdout on every import: a print, not a logging call or warning, so no logger level or
+    warnings filter silences it. Only jaml's entry point captures it (libraries leave stdout
+    alone); `jaml -v` logs the captured lines."""
+    if "mujoco.mjx" in sys.modules:
+        return []
+    buffer = io.StringIO()
+    with contextlib.redirect_stdout(buffer), contextlib.suppress(ImportError):
+        import mujoco.mjx  # noqa: F401
+    return buffer.getvalue().splitlines()
+
+
+# Before anything imports envs_mjx (`jaml.cli`'s command classes read its registry): `jaml.cli`
+# imports this module first.
+_MJX_PRINTS = _import_mjx_quietly()
+
+# ---------------------------------------------------------------------------------------------
+# The mechanism: help from docstrings, choices, hidden fields, one-line errors.
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """Field → help from the `name: text` entries of `cls`'s docstrings (its bases' first, so
+    subclasses inherit them). Continuation lines (indented deeper) are joined; an entry may name
+    several fields (`a, b: text` or `a / b: text`)."""
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        current, indent = [], None
+        for line in (klass.__dict__.get("__doc__") or "").splitlines():
+            stripped = line.strip()
+            depth = len(line) - len(stripped)
+            head, _, text = stripped.partition(":")
+            names = [n.strip() for n in re.split(r"[,/]", head)]
+            if text and all(n.isidentifier() for n in names) and (indent is None
+                                                                   or depth <= indent):
+                current, indent = names, depth
+                for n in names:
+                    docs[n] = text.strip()
+            elif current and stripped and depth > indent:
+                for n in current:
+                    docs[n] += " " + stripped
+            else:
+                current = []
+    return docs
+
+
+def _choices() -> dict[tuple[str, str], tuple[str, ...]]:
+    """(class name, field) → its valid values, for `str` fields whose set is fixed elsewhere
+    (registries, validation in __post_init__)."""
+    from envs_mjx.domains.rearrange import ARMS
+    from jaml.stream import POLICIES
+
+    return {
+        ("StreamConfig", "policy"): POLICIES,
+        ("RearrangeConfig", "arm"): ARMS,
+        ("LearnerConfig", "frame_nll"): ("sum", "mean"),
+        ("EnvConfig", "pixels"): ("auto", "required", "off"),
+    }
+
+
+# (class name, field) of fields that are not flags: the suite sets them from --env/--learner
+# (the learner's ld_dim is the env's LD-state size) and from the typed learner/env configs.
+_SUITE_FIXED = ("env", "learner", "learner_overrides", "env_overrides")
+_HIDDEN = {("StreamConfig", name) for name in _SUITE_FIXED} | {("LearnerConfig", "ld_dim")}
+_in_rule = threading.local()
+
+
+def _registry() -> tyro.constructors.ConstructorRegistry:
+    """tyro's dataclass handling, plus: help from `field_docs` where tyro finds none, Literal
+    choices from `_choices`, and the `_HIDDEN` fields fixed to their defaults."""
+    registry = tyro.constructors.ConstructorRegistry()
+    choices = _choices()
+
+    @registry.struct_rule
+    def documented(info: tyro.constructors.StructTypeInfo):
+        cls = info.type
+        if getattr(_in_rule, "active", False) or not (
+            isinstance(cls, type) and dataclasses.is_dataclass(cls)
+            and cls.__module__.split(".")[0] in ("jaml", "envs_mjx")
+        ):
+            return None
+        _in_rule.active = True
+        try:
+            spec = tyro.constructors.ConstructorRegistry.get_struct_spec(info)
+        finally:
+            _in_rule.active = False
+        if not isinstance(spec, tyro.constructors.StructConstructorSpec):
+            return spec
+        docs = field_docs(cls)
+        bases = [k.__name__ for k in cls.__mro__]
+        fields = []
+        for f in spec.fields:
+            kind = f.type
+            values = next((choices[b, f.name] for b in bases if (b, f.name) in choices), None)
+            if values is not None:
+                kind = Literal[values]
+            if any((b, f.name) in _HIDDEN for b in bases):
+                kind = tyro.conf.Suppress[kind]
+            helptext = f.helptext() if callable(f.helptext) else f.helptext
+            helptext = " ".join((helptext or docs.get(f.name) or "").split())  # unwrapped
+            if kind is bool and f.default is True and helptext:
+                # FlagCreatePairsOff: a True default makes the flag `--no-NAME`, which turns off
+                # what the field's doc describes; say so.
+                helptext = f"turn off (default on): {helptext}"
+            fields.append(dataclasses.replace(f, type=kind, helptext=helptext or None))
+        return dataclasses.replace(spec, fields=tuple(fields))
+
+    return registry
+
+
+def _one_line(box: str) -> str:
+    """tyro's boxed error as one line: the message section, unwrapped, less the help texts of
+    the arguments it names (indented under them). The box is drawn in UTF-8 (title in the top
+    border) or, when stdout is not UTF-8, in ASCII (title, then a rule)."""
+    text = re.sub(r"\x1b\[[0-9;]*m", "", box)
+    unicode = text.lstrip().startswith("╭")
+    sections: list[list[str]] = [[]]
+    for line in text.splitlines():
+        if line.strip().startswith(("╭", "╰")):
+            continue
+        content = line.strip().strip("│").rstrip()
+        if content.strip() and set(content.strip()) <= set("─-"):
+            sections.append([])
+        elif content.strip():
+            sections[-1].append(content)
+    sections = [s for s in sections if s]
+    if not sections:
+        return "invalid arguments"
+    message = sections[0] if unicode or len(sections) < 2 else sections[1]
+    indent = min(len(x) - len(x.lstrip()) for x in message) if message else 0
+    kept = [x.strip() for x in message if len(x) - len(x.lstrip()) < indent + 8]
+    return " ".join(" ".join(kept).split()) or "invalid arguments"
+
+
+
+def use_compilation_cache() -> str | None:
+    """Turn on JAX's persistent compilation cache for the command line; returns its directory.
+
+    Most of a short command's time on CPU is XLA compiling (`jaml relations` on the ellipse:
+    the two relations' training loops take longer to compile than to run), and a second run of
+    the same command compiles the same programs. The cache lives in $JAML_XLA_CACHE, default
+    $XDG_CACHE_HOME/jaml/xla (~/.cache/jaml/xla); JAML_XLA_CACHE=off turns it off. A cache
+    directory configured already (JAX_COMPILATION_CACHE_DIR, or by the caller) is kept. Only the
+    command line does this: importing jaml as a library changes no global JAX setting."""
+    import jax
+
+    if jax.config.jax_compilation_cache_dir:
+        return jax.config.jax_compilation_cache_dir
+    setting = os.environ.get("JAML_XLA_CACHE", "")
+    if setting.lower() == "off":
+        return None
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    path = Path(setting) if setting else base / "jaml" / "xla"
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    # JAX caches only programs that took over jax_persistent_cache_min_compile_time_secs to
+    # compile (1 s by default). On CPU a relation's Flax init and its mean-|g| program take
+    # 0.4-0.8 s each, ~2 s of every `jaml relations` run, against a file read of milliseconds.
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+    return str(path)
+
+
+def _root(argv: list[str], commands: Callable[[list[str]], dict[str, type]],
+          description: str) -> type:
+    """The `jaml` dataclass: global flags and one subcommand per command (`commands(argv)`)."""
+    choices = [Annotated[cls, tyro.conf.subcommand(name)] for name, cls in commands(argv).items()]
+    if len(choices) < 2:  # a Union needs two members: one command is padded as tyro.extras does
+        choices.append(Annotated[None, tyro.conf.Suppress])
+    union = typing.Union[tuple(choices)]  # noqa: UP007
+
+    help_debug = "show full tracebacks (and tyro's full parse errors) instead of one line"
+    jaml = dataclasses.make_dataclass("Jaml", [
+        ("command", tyro.conf.OmitSubcommandPrefixes[union]),
+        ("debug", Annotated[bool, tyro.conf.CascadeSubcommandArgs,
+                            tyro.conf.arg(help=help_debug)], False),
+        ("verbose", Annotated[bool, tyro.conf.CascadeSubcommandArgs,
+                              tyro.conf.arg(aliases=("-v",), help="log at INFO level")], False),
+    ], frozen=True, namespace={"__doc__": description, "__module__": __name__})
+    return jaml
+
+
+# ---------------------------------------------------------------------------------------------
+# The entry point.
+
+
+def _deprecated_forms(argv: list[str]) -> list[str]:
+    """`envs show NAME` (positional) → `envs show --env NAME`, with a deprecation note."""
+    for i in range(len(argv) - 2):
+        if argv[i:i + 2] == ["envs", "show"] and not argv[i + 2].startswith("-"):
+            print(f"jaml: `envs show {argv[i + 2]}` is deprecated; use `envs show --env "
+                  f"{argv[i + 2]}`", file=sys.stderr)
+            return [*argv[:i + 2], "--env", *argv[i + 2:]]
+    return argv
+
+
+def parse(argv: list[str], commands: Callable[[list[str]], dict[str, type]],
+          description: str):
+    """The parsed `jaml` dataclass. Parse errors exit with status 2 after one line on stderr
+    (tyro's full message with --debug); --help exits 0."""
+    argv = _deprecated_forms(list(argv))
+    debug = "--debug" in argv
+    helping = "-h" in argv or "--help" in argv
+    captured = io.StringIO()
+    # One line per error message (so that it reads back as one line), unless shown in full.
+    environ = {} if helping or debug else {"COLUMNS": "10000"}
+    with contextlib.ExitStack() as stack:
+        if not helping:
+            stack.enter_context(contextlib.redirect_stderr(captured))
+        old = {k: os.environ.get(k) for k in environ}
+        os.environ.update(environ)
+        try:
+            return tyro.cli(_root(argv, commands, description), args=argv, prog="jaml",
+                            registry=_registry(), config=(tyro.conf.FlagCreatePairsOff,))
+        except SystemExit as exit_:
+            if exit_.code:
+                stack.close()
+                prog = " ".join(["jaml", *[a for a in argv[:1] if not a.startswith("-")]])
+                if debug:
+                    sys.stderr.write(captured.getvalue())
+                elif not helping:  # with --help, tyro's own message went to stderr as is
+                    print(f"{prog}: error: {_one_line(captured.getvalue())} "
+                          f"(see `{prog} --help`)", file=sys.stderr)
+            raise
+        finally:
+            for k, v in old.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+
+
+def main(argv, commands: Callable[[list[str]], dict[str, type]], description: str) -> int:
+    """Parses `argv` (sys.argv[1:] when None) over `commands(argv)` (name → dataclass with a
+    `run()` returning the exit status) and runs the command: every failure one line on stderr
+    (status 2), an interrupt status 130."""
+    captured = [*_MJX_PRINTS, *_import_mjx_quietly()]
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = parse(argv, commands, description)
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="%(asctime)s %(name)s %(message)s",
+        datefmt="%H:%M:%S",
+        # Importing orbax-checkpoint logs through absl (ArrayHandler's vlog), and absl calls
+        # logging.basicConfig() when the root logger has no handler; ours would then be a no-op
+        # and `-v` silent: replace that handler.
+        force=True,
+    )
+    for line in captured:
+        logging.getLogger("jaml.cli").info("import mujoco.mjx: %s", line)
+    # What a resumed run resumed from (jaml.stream.run), shown without -v.
+    logging.getLogger("jaml.resume").setLevel(logging.INFO)
+    if not args.verbose:
+        # Orbax's absl warnings ("Waiting for previous save to complete took 1.7 seconds. If
+        # this number is high, consider checkpointing less frequently.") are about its own
+        # timing, not a problem of the run: shown with -v.
+        logging.getLogger("absl").setLevel(logging.ERROR)
+    use_compilation_cache()
+    try:
+        with _sigterm_as_interrupt():
+            return args.command.run()
+    except Exception as error:  # every failure one line; the traceback with --debug
+        if args.debug:
+            traceback.print_exc()
+        else:
+            print(f"jaml: error: {error_line(error)} (--debug shows the traceback)",
+                  file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        if args.debug:
+            traceback.print_exc()
+        print("jaml: interrupted; run directories keep their last checkpoint and summary, and "
+              "the same command resumes", file=sys.stderr)
+        return 130
+
+
+def error_line(error: BaseException) -> str:
+    """One line naming the problem: the message unwrapped (its type for errors not raised by
+    jaml's own checks), cut at 400 characters."""
+    text = " ".join(str(error).split()) or "(no message)"
+    if not isinstance(error, ValueError | TypeError | FileNotFoundError | RuntimeError):
+        text = f"{type(error).__name__}: {text}"
+    return text if len(text) <= 400 else text[:399] + "…"
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """SIGTERM (`timeout`, a batch scheduler's preemption) raises KeyboardInterrupt like Ctrl-C,
+    so runs unwind through their `finally` blocks and write their summaries instead of dying
+    mid-epoch. Only the main thread can install handlers; elsewhere this does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+

@@ -210,21 +210,11 @@ def _root(argv: list[str], commands: Callable[[list[str]], dict[str, type]],
 # The entry point.
 
 
-def _deprecated_forms(argv: list[str]) -> list[str]:
-    """`envs show NAME` (positional) → `envs show --env NAME`, with a deprecation note."""
-    for i in range(len(argv) - 2):
-        if argv[i:i + 2] == ["envs", "show"] and not argv[i + 2].startswith("-"):
-            print(f"jaml: `envs show {argv[i + 2]}` is deprecated; use `envs show --env "
-                  f"{argv[i + 2]}`", file=sys.stderr)
-            return [*argv[:i + 2], "--env", *argv[i + 2:]]
-    return argv
-
-
 def parse(argv: list[str], commands: Callable[[list[str]], dict[str, type]],
           description: str):
     """The parsed `jaml` dataclass. Parse errors exit with status 2 after one line on stderr
     (tyro's full message with --debug); --help exits 0."""
-    argv = _deprecated_forms(list(argv))
+    argv = list(argv)
     debug = "--debug" in argv
     helping = "-h" in argv or "--help" in argv
     captured = io.StringIO()

@@ -245,12 +245,6 @@ def test_a_npy_of_the_wrong_shape_is_a_clear_error(tmp_path, capsys):
         capsys.readouterr().err)
 
 
-def test_envs_show_positional_name_still_works_with_a_deprecation_note(capsys):
-    args = cli.parse(["envs", "show", "CartPole", "--steps", "2"])
-    assert args.command.action.env == "CartPole" and args.command.action.steps == 2
-    assert "deprecated; use `envs show --env CartPole`" in capsys.readouterr().err
-
-
 def test_envs_show_takes_the_envs_own_typed_options(monkeypatch, capsys, tmp_path):
     from envs_mjx import show
 

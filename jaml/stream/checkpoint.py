@@ -3,8 +3,7 @@
 Each leaf is saved under its pytree path ("learner.params.conv0.kernel", "env.data.qpos", …),
 so a checkpoint says what it holds and one written by a different `StreamState` is refused with
 the names that differ, rather than failing on a shape at some leaf index. The manager's root
-metadata records `FORMAT`; format 1 (leaves named by position, "leaf_00042", before commit
-e2a3174's successor) is still read when the leaf count matches. Zero-size leaves (mjx.Data has
+metadata records `FORMAT`. Zero-size leaves (mjx.Data has
 some, e.g. `act` of a model without actuator state) are not saved (Orbax refuses them) and are
 restored as zeros. Saving is atomic: Orbax writes a step to a temporary directory and renames it.
 """
@@ -19,7 +18,6 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 FORMAT = 2
-_POSITIONAL = "leaf_"
 
 
 class CheckpointMismatch(ValueError):
@@ -76,16 +74,6 @@ def _restore(mgr: ocp.CheckpointManager, abstract, step: int):
     paths_leaves, treedef = jax.tree_util.tree_flatten_with_path(abstract)
     names = [_name(p) if np.prod(a.shape) > 0 else None for p, a in paths_leaves]
     wanted = {n for n in names if n is not None}
-    if saved != wanted and all(k.startswith(_POSITIONAL) for k in saved) \
-            and len(saved) == len(wanted):
-        # Format 1: the same leaves, named by their index among all leaves.
-        positional = {n: f"{_POSITIONAL}{i:05d}" for i, n in enumerate(names) if n is not None}
-        if set(positional.values()) == saved:
-            target = {positional[n]: a for n, (_, a) in zip(names, paths_leaves, strict=True)
-                      if n is not None}
-            flat = mgr.restore(step, args=ocp.args.StandardRestore(target))
-            return _build(treedef, paths_leaves, names, {n: flat[p] for n, p in
-                                                         positional.items()})
     if saved != wanted:
         missing, unexpected = sorted(wanted - saved), sorted(saved - wanted)
         raise CheckpointMismatch(

@@ -136,8 +136,11 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
     errors = evaluation.alignment_errors(latents["train"], sets["train"].states, tests,
                                          seed=seed, **analysis._regressor_options(stream))
     rand = sets["pi_rand"]
+    # What the config's learner reads of each sequence (`LearnerConfig.actions_seen`): pairs
+    # with equal inputs are skipped as the run's own analysis skips them.
     inputs = analysis.input_fingerprints(stream.hist, jnp.asarray(rand.frames),
-                                         jnp.asarray(rand.actions))
+                                         jnp.asarray(rand.actions),
+                                         stream.learner.config.actions_seen)
     return {
         "errors": {k: np.asarray(v).tolist() for k, v in errors.items()},
         "baseline": analysis._constant_levels(stream, sets["train"].states,
@@ -145,6 +148,10 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
         "distortion": float(evaluation.distortion(
             latents["pi_rand"], rand.states[:, analysis.distortion_columns(stream)],
             inputs=inputs)),
+        "irregularity": {"replay": analysis.irregularity(stream, latents["train"],
+                                                         sets["train"].states),
+                         "pi_rand": analysis.irregularity(stream, latents["pi_rand"],
+                                                          rand.states)},
         "linear": linear_probe(latents["train"], sets["train"].states, tests,
                                normalize=stream.config.regressor_normalize),
         "error_names": analysis.error_names(stream),

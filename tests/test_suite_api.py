@@ -34,6 +34,7 @@ def test_the_apis_numbers_equal_the_streams_own_analysis(run):
                                    atol=1e-6)
     assert api["baseline"] == own["baseline"]
     np.testing.assert_allclose(api["distortion"], own["distortion"], rtol=1e-5)
+    assert api["irregularity"] == pytest.approx(own["irregularity"], rel=1e-5)
     assert api["error_names"] == list(s.env.ld_state_names)
 
 

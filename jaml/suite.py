@@ -120,10 +120,13 @@ def test_sets(config: StreamConfig, state: StreamState | None = None) -> dict[st
 test_sets.__test__ = False  # not a pytest test
 
 
-def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None = None) -> dict:
+def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None = None, *,
+             actions_seen: int = 0) -> dict:
     """A run's analysis report for `encode(frames uint8 [E, L, 64, 64, 3], actions [E, L, A])
     -> latents [E, Z]`, plus "linear" (a least-squares probe's errors and R², per test set)
-    and "error_names"."""
+    and "error_names". `actions_seen`: how many of a sequence's first actions `encode` reads
+    (0: frames only; a suite learner's: `config.actions_seen`); the distortion skips pairs whose
+    inputs `encode` cannot tell apart."""
     stream, state, key, pi_rand_key = _prepare(config, state)
     chunks = _chunks(stream, state, key, pi_rand_key)
     latents = {k: np.concatenate([np.asarray(encode(jnp.asarray(c.frames),
@@ -136,11 +139,8 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
     errors = evaluation.alignment_errors(latents["train"], sets["train"].states, tests,
                                          seed=seed, **analysis._regressor_options(stream))
     rand = sets["pi_rand"]
-    # What the config's learner reads of each sequence (`LearnerConfig.actions_seen`): pairs
-    # with equal inputs are skipped as the run's own analysis skips them.
     inputs = analysis.input_fingerprints(stream.hist, jnp.asarray(rand.frames),
-                                         jnp.asarray(rand.actions),
-                                         stream.learner.config.actions_seen)
+                                         jnp.asarray(rand.actions), actions_seen)
     return {
         "errors": {k: np.asarray(v).tolist() for k, v in errors.items()},
         "baseline": analysis._constant_levels(stream, sets["train"].states,

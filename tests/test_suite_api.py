@@ -27,7 +27,7 @@ def test_the_apis_numbers_equal_the_streams_own_analysis(run):
     def encode(frames, actions):
         return s.learner.encode(state.learner.variables, frames, actions)
 
-    api = suite.evaluate(encode, config, state)
+    api = suite.evaluate(encode, config, state, actions_seen=s.learner.config.actions_seen)
     assert set(api["errors"]) == set(own["errors"]) == {"pi_rand", "pi_curr", "validation"}
     for name in own["errors"]:
         np.testing.assert_allclose(api["errors"][name], own["errors"][name], rtol=1e-5,

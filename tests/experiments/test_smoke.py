@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from jaml import stream, suite
 from jaml.cli import main
 
@@ -14,6 +16,8 @@ def test_smoke_keeps_a_sequence_learners_window_and_builds():
     assert suite.scaled(config, "paper") == config
 
 
+# ~200 s of the default suite's wall on two cores (clean clone, 2026-11-27): out of it.
+@pytest.mark.slow
 def test_fig2_smoke_trains_resumes_with_a_word_and_reports(tmp_path, capsys):
     args = ["fig2", "--scale", "smoke", "--envs", "CartPole", "--variants", "VAE_rpl",
             "--seeds", "0", "--out", str(tmp_path)]

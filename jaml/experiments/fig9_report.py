@@ -35,6 +35,10 @@ METRICS = {
 # AML_trnsv minus PRED, averaged over the analyses more than 500 learner epochs in, with the
 # paired 90 % interval over seeds.
 PRIMARY = dict(method="PRED+AML_trnsv", metric="position", after_learner_epochs=500)
+# What the penalty adds over the reconstruction term it brings with it: each AML arm against
+# each control (same ok-row term, no penalty), seed by seed.
+ARMS = ("PRED+AML_trnsv", "PRED+AML_syz")
+CONTROLS = ("PRED+ok_rows", "PRED+random_rows", "PRED+random_rows_5pct")
 
 
 def collect(out: Path, methods) -> dict[str, dict[int, list[dict]]]:
@@ -122,6 +126,37 @@ def metric_table(runs, metric: str) -> list[str]:
     return lines
 
 
+def contrast_table(runs, step: int | None = None) -> list[str]:
+    """Each AML arm − each control, every metric, paired 90 % intervals, at the last analysis
+    every run reached (or `step`)."""
+    pairs = [(a, c) for a in ARMS for c in CONTROLS if a in runs and c in runs]
+    if not pairs:
+        return []
+    tables = {m: {metric: values_at(runs[m], metric) for metric in METRICS} for m in runs}
+    if step is None:
+        common = set.intersection(*(set(tables[m]["position"]) for pair in pairs for m in pair))
+        if not common:
+            return []
+        step = max(common)
+    lines = [f"**Penalty against its controls** at epoch {step}: arm − control, paired 90 % "
+             "interval (a control keeps the arm's reconstruction term on ok rows and drops "
+             "the penalty).", "",
+             "| arm − control | " + " | ".join(METRICS[m][0] for m in METRICS) + " |",
+             "|---" * (len(METRICS) + 1) + "|"]
+    for arm, control in pairs:
+        cells = []
+        for metric in METRICS:
+            a, c = tables[arm][metric].get(step, {}), tables[control][metric].get(step, {})
+            if not a or not c:
+                cells.append("")
+                continue
+            d, lo, hi, _ = paired_interval(a, c)
+            mark = "**" if lo > 0 or hi < 0 else ""
+            cells.append(f"{mark}{d:+.4f} [{lo:+.4f}, {hi:+.4f}]{mark}")
+        lines.append(f"| {arm} − {control} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def stream_check(out: Path, methods) -> list[str]:
     """Whether each seed's stream was the same for every method: its per-epoch episode returns
     and PPO losses (metrics.jsonl) compared with PRED's, bit for bit."""
@@ -205,6 +240,9 @@ def report(out: Path, methods) -> str:
     lines = [primary(runs, fill), "",
              "Streams (a seed's per-epoch episode returns and PPO losses against PRED's):",
              *stream_check(out, runs), ""]
+    contrasts = contrast_table(runs)
+    if contrasts:
+        lines += [*contrasts, ""]
     for metric in METRICS:
         if any(values_at(seeds, metric) for seeds in runs.values()):
             lines += [*metric_table(runs, metric), ""]

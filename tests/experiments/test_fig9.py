@@ -59,6 +59,21 @@ def test_report_leads_with_the_primary_comparison_and_tables_paired_differences(
     assert (tmp_path / "fig9.png").stat().st_size > 0
 
 
+def test_the_penalty_is_contrasted_with_its_controls_seed_by_seed(tmp_path):
+    """AML − ok_rows at the last common analysis: the control is AML + (0.01, 0.02, 0.03)."""
+    for seed in range(3):
+        aml = (0.3, 0.2, 0.1 + 0.01 * seed)
+        _write_run(tmp_path / "PRED+AML_trnsv" / f"seed_{seed}", seed, aml)
+        _write_run(tmp_path / "PRED+ok_rows" / f"seed_{seed}", seed,
+                   (0.3, 0.2, aml[2] + 0.01 * (seed + 1)))
+    text = fig9_report.report(tmp_path, ["PRED+AML_trnsv", "PRED+ok_rows"])
+    half = 2.9199856 * 0.01 / math.sqrt(3)
+    row = next(line for line in text.splitlines()
+               if line.startswith("| PRED+AML_trnsv − PRED+ok_rows |"))
+    assert "**Penalty against its controls** at epoch 1078" in text
+    assert row.split(" | ")[1] == f"**-0.0200 [{-0.02 - half:+.4f}, {-0.02 + half:+.4f}]**"
+
+
 def test_the_figure_draws_each_methods_seed_mean_and_90_percent_band(tmp_path):
     """Per panel and step: the mean over seeds and mean ± t(0.95, n−1)·s/√n, by hand."""
     ends = [(0.10, 1.0), (0.12, 1.2), (0.17, 1.9)]

@@ -70,6 +70,11 @@ RELATIONS = {
     "syz": dict(max_relations=3, independence="syzygy", max_steps=20_000,
                 syzygies_per_relation=2, syzygy_max_steps=4_000, syzygy_push_steps=4_000),
 }
+# --scale smoke: each relation a few hundred steps on a small pool, to check the pipeline.
+SMOKE_RELATIONS = dict(max_steps=300, pretrain_steps=100, chunk_steps=100, batch_size=256,
+                       stop_patience=50, eval_batches=2, syzygy_max_steps=100,
+                       syzygy_push_steps=100)
+SMOKE_SOURCE = dict(pool_size=4096)
 _STEPS = 2  # PRED on the incline decodes hist + pred = 2 frames
 
 
@@ -125,18 +130,21 @@ class Penalty:
 
 
 def learn_relations(out: Path, progress: bool = False, dynamics: str = "drawn",
-                    units: str = "env") -> dict:
+                    units: str = "env", smoke: bool = False) -> dict:
     """OUT/relations/{trnsv,syz}: fitted (or resumed) relation sets on the source's rows with
-    `dynamics` (`DYNAMICS`), in the source's `units` (`sources.incline_env.UNITS`);
-    name → summary."""
+    `dynamics` (`DYNAMICS`), in the source's `units` (`sources.incline_env.UNITS`); `smoke`:
+    `SMOKE_RELATIONS` on a `SMOKE_SOURCE` pool. name → summary."""
     from jaml import relations
     from jaml.relations.run import run
 
     summaries = {}
     for name, options in RELATIONS.items():
         started = time.perf_counter()
+        if smoke:
+            options = options | SMOKE_RELATIONS
         cfg, directory = relations.Config(**options), out / "relations" / name
-        options = _dynamics(dynamics) | ({"units": units} if units != "env" else {})
+        options = (_dynamics(dynamics) | ({"units": units} if units != "env" else {})
+                   | (SMOKE_SOURCE if smoke else {}))
         finished = _finished(directory, cfg, options)
         summaries[name] = finished or run(SOURCE, cfg, directory, source_options=options or None,
                                           progress=progress)
@@ -344,7 +352,8 @@ class Args(_runs.Driver):
         weights = self.weights or recipe.weights
         penalty = Penalty(weights[0], self.form, recipe.ok_weight)
         if self.pilot_only or any(METHODS[m][1] for m in self.methods):
-            learn_relations(self.out, dynamics=self.dynamics, units=self.source_units)
+            learn_relations(self.out, dynamics=self.dynamics, units=self.source_units,
+                            smoke=self.scale == "smoke")
             if len(weights) > 1:
                 penalty = choose_weight(self.out, weights, self.pilot_seed, self.form, recipe,
                                         self.dynamics, self._scale())

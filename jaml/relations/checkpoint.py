@@ -107,3 +107,36 @@ def load(path) -> RelationSet:
         np.round(np.asarray(rs.off_means), 4),
     )
     return rs
+
+
+def save_loop_state(state, path, meta: dict) -> Path:
+    """Write a training loop's state (`relations.loop.LoopState`) and a JSON `meta` to the
+    directory `path`, atomically, replacing what is there."""
+    path = Path(path).absolute()
+    arrays = state.replace(key=jax.random.key_data(state.key))
+    with ocp.Checkpointer(ocp.CompositeCheckpointHandler()) as ckptr:
+        ckptr.save(path, args=ocp.args.Composite(arrays=ocp.args.StandardSave(arrays),
+                                                 meta=ocp.args.JsonSave(meta)), force=True)
+    return path
+
+
+def loop_state_meta(path) -> dict | None:
+    """The `meta` a `save_loop_state` directory holds, or None where there is none."""
+    path = Path(path).absolute()
+    if not path.is_dir():
+        return None
+    with ocp.Checkpointer(ocp.CompositeCheckpointHandler()) as ckptr:
+        return ckptr.restore(path, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
+
+
+def load_loop_state(path, template):
+    """The loop state at `path`, shaped as `template`, on this process's first device."""
+    path = Path(path).absolute()
+    here = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+    target = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=here),
+                          template.replace(key=jax.random.key_data(template.key)))
+    with ocp.Checkpointer(ocp.CompositeCheckpointHandler()) as ckptr:
+        arrays = ckptr.restore(path, args=ocp.args.Composite(
+            arrays=ocp.args.StandardRestore(target)))["arrays"]
+    return arrays.replace(key=jax.random.wrap_key_data(
+        arrays.key, impl=jax.random.key_impl(template.key)))

@@ -128,16 +128,18 @@ def make_chunk(train_step: Callable, length: int, draw: Callable | None = None):
     return jax.jit(run, compiler_options=LOOP_COMPILER_OPTIONS)
 
 
-def run_until_done(chunk, state: LoopState, args, on_chunk: Callable | None = None) -> LoopState:
-    """Call a compiled chunk until the state reports done; `on_chunk(state, metrics)` per call.
-
-    `metrics` passed to on_chunk are host floats averaged over the chunk's active steps.
-    """
+def run_until_done(chunk, state: LoopState, args, on_chunk: Callable | None = None,
+                   on_state: Callable[[LoopState], None] | None = None) -> LoopState:
+    """Call a compiled chunk until the state reports done; `on_chunk(state, metrics, n)` per
+    call, with host floats averaged over the chunk's n active steps; `on_state(state)` after
+    every call (where a caller keeps the loop's state to resume from)."""
     while True:
         state, metrics, valid = chunk(state, args)
         valid = jax.device_get(valid)
         if on_chunk is not None and valid.any():
             host = jax.device_get(metrics)
             on_chunk(state, {k: float(v[valid].mean()) for k, v in host.items()}, int(valid.sum()))
+        if on_state is not None:
+            on_state(state)
         if bool(state.done):
             return state

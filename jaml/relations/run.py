@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import shutil
 import time
 from pathlib import Path
 
@@ -26,10 +27,13 @@ log = logging.getLogger("jaml.relations")
 
 class _Recorder:
     """Metrics to metrics.jsonl and TensorBoard scalars; a tqdm bar per relation. On resume,
-    metrics.jsonl keeps the records of the `done` relations the checkpoint holds."""
+    metrics.jsonl keeps the records of the `done` relations the checkpoint holds and of the
+    next one's first `kept_steps` (the state in OUT/partial)."""
 
-    def __init__(self, out: Path, cfg: Config, done: int, step_offset: int, progress: bool):
-        self.log = RunLog(out, keep=lambda r: r["relation"] <= done)
+    def __init__(self, out: Path, cfg: Config, done: int, step_offset: int, progress: bool,
+                 kept_steps: int = 0):
+        self.log = RunLog(out, keep=lambda r: r["relation"] <= done or (
+            r["relation"] == done + 1 and r["phase"] == "relation" and r["step"] <= kept_steps))
         self.cfg, self.offset, self.progress = cfg, step_offset, progress
         self.bar, self.bar_key, self.last_step = None, None, 0
 
@@ -77,6 +81,42 @@ class _Recorder:
         self.log.close()
 
 
+class _PartialDir:
+    """The relation in training's loop state in OUT/partial (`training.Partial`), written every
+    `every` seconds and when the relation's training ends; removed once the relation is in the
+    checkpoint."""
+
+    def __init__(self, path: Path, every: float = 30.0):
+        self.path, self.every, self.last = path, every, time.monotonic()
+        self.meta = checkpoint.loop_state_meta(path)
+
+    def step(self, k: int) -> int:
+        """The step relation k's kept state reached (0 when none is kept)."""
+        return self.meta["step"] if self.holds(k) else 0
+
+    def holds(self, k: int) -> bool:
+        return self.meta is not None and self.meta.get("relation") == k + 1
+
+    def restore(self, k: int, template):
+        if not self.holds(k):
+            return None
+        state = checkpoint.load_loop_state(self.path, template)
+        logging.getLogger("jaml.resume").info(
+            "%s: g%d resumes at step %d", self.path.parent, k + 1, int(state.step))
+        return state
+
+    def save(self, k: int, state) -> None:
+        if bool(state.done) or time.monotonic() - self.last >= self.every:
+            self.meta = {"relation": k + 1, "step": int(state.step)}
+            checkpoint.save_loop_state(state, self.path, self.meta)
+            self.last = time.monotonic()
+
+    def clear(self) -> None:
+        if self.path.exists():
+            shutil.rmtree(self.path)
+        self.meta = None
+
+
 def _restored_summary(rs: RelationSet, k: int) -> dict:
     """A summary entry rebuilt from a checkpoint whose summary.json was lost."""
     on, off = float(rs.on_means[k]), float(rs.off_means[k])
@@ -118,7 +158,11 @@ def run(
     with lock(out):  # one process per run directory (`_rundir.lock`)
         summary_path, ckpt_path = out / "summary.json", out / "checkpoint"
         start, done = None, []
-        if claim(out, resolved) and ckpt_path.exists():
+        resuming = claim(out, resolved)
+        partial = _PartialDir(out / "partial")
+        if not resuming:
+            partial.clear()
+        if resuming and ckpt_path.exists():
             start = checkpoint.load(ckpt_path)
             recorded = []
             if summary_path.exists():
@@ -126,13 +170,13 @@ def run(
             done = recorded[: start.num_relations] + [
                 _restored_summary(start, k) for k in range(len(recorded), start.num_relations)
             ]
-            # Relations are checkpointed as each finishes: the next one starts at step 0.
             logging.getLogger("jaml.resume").info(
-                "%s: resumed from its checkpoint with %d of %d relations; g%d starts at step 0",
-                out, start.num_relations, cfg.max_relations, start.num_relations + 1)
+                "%s: resumed from its checkpoint with %d of %d relations", out,
+                start.num_relations, cfg.max_relations)
 
         started = time.perf_counter()
-        recorder = _Recorder(out, cfg, len(done), sum(r["steps"] for r in done), progress)
+        recorder = _Recorder(out, cfg, len(done), sum(r["steps"] for r in done), progress,
+                             partial.step(len(done)))
         summaries = list(done)
 
         def write_summary(rs: RelationSet | None, status: str):
@@ -157,9 +201,11 @@ def run(
             # summary is cut back to it.
             write_summary(rs, "running")
             checkpoint.save(rs, ckpt_path)
+            partial.clear()
 
         try:
-            rs = fit(source, cfg, start=start, callback=recorder, on_relation=on_relation)
+            rs = fit(source, cfg, start=start, callback=recorder, on_relation=on_relation,
+                     partial=partial)
         except KeyboardInterrupt:  # Ctrl-C or SIGTERM (`jaml`): the suite's word for it
             write_summary(None, "interrupted")
             raise

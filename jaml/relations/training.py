@@ -15,6 +15,7 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from typing import Protocol
 
 import jax
 import jax.numpy as jnp
@@ -30,6 +31,7 @@ from jaml.relations.loop import (
     NONFINITE,
     ONCE_COMPILER_OPTIONS,
     STATUS_NAMES,
+    LoopState,
     init_state,
     make_chunk,
     optimizer_step,
@@ -202,6 +204,7 @@ def _fit_relation(
     callback=None,
     phase="relation",
     compiled=None,
+    partial: Partial | None = None,
 ):
     k = rs.num_relations
     chunk, state, args = relation_trainer(
@@ -212,7 +215,11 @@ def _fit_relation(
     report = None
     if callback is not None:
         report = lambda s, m, n: callback(phase, k, {"step": int(s.step), "steps": n, **m})  # noqa: E731
-    return run_until_done(chunk, state, args, report)
+    keep = None
+    if partial is not None:
+        state = partial.restore(k, state) or state
+        keep = lambda s: partial.save(k, s)  # noqa: E731
+    return run_until_done(chunk, state, args, report, keep)
 
 
 def fit_syzygy(
@@ -345,6 +352,20 @@ def _stack(trees):
     return jax.tree.map(lambda *xs: jnp.stack(xs), *trees)
 
 
+class Partial(Protocol):
+    """Where the relation in training keeps its loop state, so that an interrupted fit resumes
+    mid-relation (`relations.run` keeps it in the run directory). k is 0-based."""
+
+    def holds(self, k: int) -> bool:
+        """Whether a state of relation k is kept."""
+
+    def restore(self, k: int, template: LoopState) -> LoopState | None:
+        """Relation k's kept state, shaped as `template`, or None."""
+
+    def save(self, k: int, state: LoopState) -> None:
+        """Keep relation k's state (called after every compiled chunk; may skip some)."""
+
+
 def fit(
     on_manifold,
     config: Config | None = None,
@@ -353,6 +374,7 @@ def fit(
     start: RelationSet | None = None,
     callback: Callback | None = None,
     on_relation: Callable[[RelationSet, RelationSummary], None] | None = None,
+    partial: Partial | None = None,
 ) -> RelationSet:
     """Learn relations that vanish on `on_manifold` (Algorithm 1).
 
@@ -365,6 +387,9 @@ def fit(
         next relation.
       callback: called as (phase, k, metrics) once per compiled chunk, for logging.
       on_relation: called with the grown RelationSet and a summary after each relation.
+      partial: keeps the training state of the relation in progress (`Partial`); a fit
+        started again with the same data, config and `start` continues that relation from its
+        kept state, step for step as if it had not stopped (syzygy rounds restart).
 
     Returns:
       RelationSet with up to `max_relations` relations. A relation whose loss turns non-finite
@@ -385,7 +410,7 @@ def fit(
 
     pool = ThreadPoolExecutor(1, thread_name_prefix="jaml-compile")
     try:
-        return _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool)
+        return _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partial)
     finally:
         pool.shutdown(wait=False, cancel_futures=True)
 
@@ -415,7 +440,7 @@ def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, 
     return {k_next: pool.submit(chunk.lower(state, args).compile, LOOP_COMPILER_OPTIONS)}
 
 
-def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool):
+def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partial=None):
     ahead = {}
     for k in range(rs.num_relations, cfg.max_relations):
         started = time.perf_counter()
@@ -426,7 +451,8 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool):
         init = jax.jit(module.init, compiler_options=ONCE_COMPILER_OPTIONS)
         params = init(k_init, jnp.zeros((1, batches.dim)))
         ahead |= _compile_ahead(cfg, batches, rs, params, k + 1, pool)
-        if priors is not None and k < len(priors) and priors[k] is not None:
+        resuming = partial is not None and partial.holds(k)
+        if priors is not None and k < len(priors) and priors[k] is not None and not resuming:
             params = _pretrain(cfg, batches, module, params, priors[k], k_pre)
         compiled = ahead.pop(k, None)
         state = _fit_relation(
@@ -438,6 +464,7 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool):
             cfg.max_steps,
             callback=callback,
             compiled=compiled.result() if compiled is not None else None,
+            partial=partial,
         )
         steps, status, rounds = int(state.step), int(state.status), []
         if cfg.independence == "syzygy" and k > 0 and status != NONFINITE:
@@ -526,6 +553,7 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool):
 
 
 __all__ = [
+    "Partial",
     "RelationSummary",
     "choose_thickening",
     "fit",

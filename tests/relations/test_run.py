@@ -81,6 +81,37 @@ def test_an_interrupted_run_resumes_after_its_last_finished_relation(tmp_path, m
     assert [r["index"] for r in summary["relations"]] == [1, 2]
 
 
+def test_a_relation_interrupted_mid_training_resumes_step_for_step(tmp_path, monkeypatch):
+    """Killed after g1's third kept state (one per 20-step chunk), the run resumes g1 from that
+    state and ends with the relation an uninterrupted run learns, to the bit."""
+    cfg = _tiny_config(max_relations=1, max_steps=100, stop_patience=1000)
+    monkeypatch.setattr(run_module._PartialDir.__init__, "__defaults__", (0.0,))
+    whole = run_module.run("ellipse", cfg, tmp_path / "whole", progress=False, figures=False)
+    real_save, saves = run_module._PartialDir.save, []
+
+    def save_then_die(self, k, state):
+        real_save(self, k, state)
+        saves.append(int(state.step))
+        if len(saves) == 3:
+            raise KeyboardInterrupt
+
+    out = tmp_path / "cut"
+    monkeypatch.setattr(run_module._PartialDir, "save", save_then_die)
+    with pytest.raises(KeyboardInterrupt):
+        run_module.run("ellipse", cfg, out, progress=False, figures=False)
+    assert saves == [20, 40, 60] and not (out / "checkpoint").exists()
+    monkeypatch.setattr(run_module._PartialDir, "save", real_save)
+    resumed = run_module.run("ellipse", cfg, out, progress=False, figures=False)
+    assert resumed["relations"][0]["steps"] == whole["relations"][0]["steps"] == 100
+    assert not (out / "partial").exists()
+    tau = sources.make("ellipse").sample(jax.random.key(0), 16)
+    np.testing.assert_array_equal(
+        relations.evaluate(relations.load(out / "checkpoint"), tau),
+        relations.evaluate(relations.load(tmp_path / "whole" / "checkpoint"), tau))
+    steps = [json.loads(x)["step"] for x in (out / "metrics.jsonl").read_text().splitlines()]
+    assert steps == list(range(20, 101, 20))
+
+
 def test_a_different_configuration_in_the_same_directory_is_refused(tmp_path, capsys):
     out = tmp_path / "run"
     run_module.run("ellipse", _tiny_config(max_relations=1), out, progress=False, figures=False)

@@ -1,11 +1,11 @@
 """C MuJoCo substeps inside a jitted, vmapped env step: the CPU physics backend.
 
-On a CPU, MJX's JAX physics is many times slower than C MuJoCo stepping the same model (the
-Rearrange scene: one MJX substep of 256 envs 105 ms on two cores, 256 x 8 C substeps 21 ms; see
-docs/rearrange.md). `CPhysics` steps a batch in C instead: `mujoco.rollout` (a C++ thread pool,
-one MjData per thread, each env with its own MjModel) called through `jax.pure_callback`, so the
-env's step stays one pure function that `jax.jit`, `jax.vmap` and `lax.scan` take as before. The
-renderer, the LD state, the reward and everything around the substeps stay JAX.
+On a CPU, MJX's JAX physics is many times slower than C MuJoCo stepping the same model
+(benchmarks/RESULTS.md; docs/notes/rearrange.md). `CPhysics` steps a batch in C instead:
+`mujoco.rollout` (a C++ thread pool, one MjData per thread, each env with its own MjModel)
+called through `jax.pure_callback`, so the env's step stays one pure function that `jax.jit`,
+`jax.vmap` and `lax.scan` take as before. The renderer, the LD state, the reward and everything
+around the substeps stay JAX.
 
 What the callback carries across: qpos, qvel and the time (through MuJoCo's full-physics state);
 ctrl is held for the call's substeps. Not carried: the constraint solver's warm start (each call

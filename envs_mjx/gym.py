@@ -25,7 +25,7 @@ Speed on a CPU: the single env makes one small jitted call per step, and XLA:CPU
 spends more handing that call's work between cores than it saves. On two Intel Xeon cores,
 against one PyBullet process side by side, CartPole's single env made 0.59× its frames/s with
 the process pinned to one core (`taskset -c 0`) and 0.41× unpinned, InvertedPendulum 1.07× and
-0.67×, in two runs of the benchmark (docs/render.md, "One env on one core"). The vector env's
+0.67×, in two runs of the benchmark (docs/notes/render.md, "One env on one core"). The vector env's
 batched call is what the pool is for.
 """
 

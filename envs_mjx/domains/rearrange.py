@@ -208,7 +208,7 @@ class RearrangeConfig(EnvConfig):
       env's resets and from the four objects dropped into a corner on top of each other): at most
       16 contacts at once with the reacher, 20 with the Franka; 32 leaves room for more. On the
       2-core CPU it cut an MJX substep of 256 reacher envs from 156 to 105 ms (the constraint
-      solve from 112 to 43 ms; see docs/rearrange.md). None: every slot.
+      solve from 112 to 43 ms; see docs/notes/rearrange.md). None: every slot.
     physics: "mjx" (MJX's JAX physics: any device, differentiable) or "c" (C MuJoCo's substeps
       through `envs_mjx.c_physics`, a callback into `mujoco.rollout`'s thread pool: the fast
       path on a CPU; each 2-substep Bullet step starts the solver cold; `max_contacts` does not

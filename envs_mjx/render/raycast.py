@@ -414,7 +414,7 @@ def _render_frame(ctx: RenderContext, pose: _Pose) -> RenderOutput:
         # per-byte loop, re-running it per channel, unvectorised. A buffer in between: the
         # single env's step 2.6x faster, 256 envs' 1.7x (CartPole, 2-core Xeon, A/B in one
         # process). Not on a GPU: there the buffer cost CartPole 0.87x its frames/s at 1024
-        # envs and changed nothing for Ant or RearrangeGeom (one H100, A/B, docs/render.md).
+        # envs and changed nothing for Ant or RearrangeGeom (one H100, A/B, docs/notes/render.md).
         packed = _materialise(packed, never)
     rgb8 = lax.bitcast_convert_type(packed, jnp.uint8)[:, :3]  # little-endian byte order
     shape = (ctx.height, ctx.width)

@@ -51,7 +51,7 @@ class SPAIRConfig(SingleFrameConfig):
       With Adam, loss = nll + β·KL trains like a Gaussian likelihood of σ = √β ≈ 0.32, close to
       the weight SPAIR's per-pixel cross-entropy gives a pixel (its curvature 1/(p(1 − p)) is
       4 at p = ½, 11 at p = 0.1). At β = 1 an object's pixels were worth less than its KLs and
-      the presences died on the toy task (docs/learners.md, `spair_probe`).
+      the presences died on the toy task (docs/notes/learners.md, `spair_probe`).
     grid_size: G, cells per side (4; the paper's other grid is 6); any of 1..8.
     glimpse_size: side g of the object glimpse (the AML paper's 28); a multiple of 4.
     what_dim: K, appearance latent per cell (SPAIR's A = 50). bg_dim: Q, background latent.

@@ -18,7 +18,7 @@ from flax import struct
 RUNNING, CONVERGED, CAPPED, NONFINITE = 0, 1, 2, 3
 # XLA:CPU backend (LLVM) optimisation for the training loops: level 1 compiles them faster than
 # the default 3 at the same step rate; programs run once (initialisation, recorded means, the
-# rank check) take level 0. See docs/relations.md, "Cold path".
+# rank check) take level 0. See docs/notes/relations.md, "Cold path".
 LOOP_COMPILER_OPTIONS = {"xla_backend_optimization_level": 1}
 ONCE_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
 PASS_RATE = 0.9  # share of recent steps on which the stopping rule must hold

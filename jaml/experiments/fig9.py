@@ -59,6 +59,7 @@ METHODS = {
     "PRED+random_rows_5pct": ("PRED", "trnsv", "random@0.05"),
     "VAE_rpl": ("VAE_rpl", None, None),
 }
+PILOT = "PRED+AML_trnsv"  # the method whose pilot runs choose the weight ("ours")
 # PRED's per-step latent on the incline is [f_0, f_1, f_2, s_t, v_t] (static part 3, dynamic 2:
 # `stream.for_env`); θ is read from step 0's last static entry (the reference's), the action
 # between the steps from the env's action.
@@ -71,8 +72,8 @@ RELATIONS = {
                 syzygies_per_relation=2, syzygy_max_steps=4_000, syzygy_push_steps=4_000),
 }
 # --scale smoke: each relation a few hundred steps on a small pool, to check the pipeline.
-SMOKE_RELATIONS = dict(max_steps=300, pretrain_steps=100, chunk_steps=100, batch_size=256,
-                       stop_patience=50, eval_batches=2, syzygy_max_steps=100,
+SMOKE_RELATIONS = dict(max_relations=2, max_steps=300, pretrain_steps=100, chunk_steps=100,
+                       batch_size=256, stop_patience=50, eval_batches=2, syzygy_max_steps=100,
                        syzygy_push_steps=100)
 SMOKE_SOURCE = dict(pool_size=4096)
 _STEPS = 2  # PRED on the incline decodes hist + pred = 2 frames
@@ -130,15 +131,17 @@ class Penalty:
 
 
 def learn_relations(out: Path, progress: bool = False, dynamics: str = "drawn",
-                    units: str = "env", smoke: bool = False) -> dict:
-    """OUT/relations/{trnsv,syz}: fitted (or resumed) relation sets on the source's rows with
-    `dynamics` (`DYNAMICS`), in the source's `units` (`sources.incline_env.UNITS`); `smoke`:
-    `SMOKE_RELATIONS` on a `SMOKE_SOURCE` pool. name → summary."""
+                    units: str = "env", smoke: bool = False, sets=tuple(RELATIONS)) -> dict:
+    """OUT/relations/<set> for each of `sets` (`RELATIONS`): fitted (or resumed) relation sets
+    on the source's rows with `dynamics` (`DYNAMICS`), in the source's `units`
+    (`sources.incline_env.UNITS`); `smoke`: `SMOKE_RELATIONS` on a `SMOKE_SOURCE` pool.
+    name → summary."""
     from jaml import relations
     from jaml.relations.run import run
 
     summaries = {}
-    for name, options in RELATIONS.items():
+    for name in sets:
+        options = RELATIONS[name]
         started = time.perf_counter()
         if smoke:
             options = options | SMOKE_RELATIONS
@@ -285,7 +288,7 @@ def choose_weight(out: Path, weights, pilot_seed: int, form: str, recipe: Recipe
     scores = {}
     for w in weights:
         directory = out / "pilot" / f"w{w:g}"
-        run_method(out, "PRED+AML_trnsv", [pilot_seed], dataclasses.replace(base, weight=w),
+        run_method(out, PILOT, [pilot_seed], dataclasses.replace(base, weight=w),
                    recipe, run_dir=directory, dynamics=dynamics, scale=scale)
         history = read_history(directory / f"seed_{pilot_seed}" / "history.jsonl")
         last = max(r["step"] for r in history)
@@ -351,9 +354,13 @@ class Args(_runs.Driver):
         recipe = RECIPES[self.recipe]
         weights = self.weights or recipe.weights
         penalty = Penalty(weights[0], self.form, recipe.ok_weight)
-        if self.pilot_only or any(METHODS[m][1] for m in self.methods):
+        sets = {METHODS[m][1] for m in self.methods} - {None}
+        if sets and len(weights) > 1:
+            sets.add(METHODS[PILOT][1])
+        if self.pilot_only or sets:
             learn_relations(self.out, dynamics=self.dynamics, units=self.source_units,
-                            smoke=self.scale == "smoke")
+                            smoke=self.scale == "smoke",
+                            sets=tuple(RELATIONS) if self.pilot_only else sorted(sets))
             if len(weights) > 1:
                 penalty = choose_weight(self.out, weights, self.pilot_seed, self.form, recipe,
                                         self.dynamics, self._scale())

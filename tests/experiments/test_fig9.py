@@ -190,3 +190,25 @@ def test_the_reference_recipe_and_its_controls():
     now = fig9.described("PRED+AML_trnsv", fig9.Penalty(100.0), fig9.RECIPES["ours"], [0, 1])
     assert fig9._same_record(old, now)
 
+
+
+@pytest.mark.slow  # compile-bound on a CPU: relations and PRED alone took 26 min on 2 cores
+def test_the_driver_runs_end_to_end_at_smoke_scale(tmp_path, monkeypatch):
+    """`jaml fig9 --scale smoke` on two seeds: relations (only the set the methods use), PRED and
+    PRED+AML_trnsv trained on one stream per seed, then the report. The target is Geom-on-incline
+    here: MeshOnIncline's MJX program compiles for tens of minutes on a CPU, and the driver's
+    path does not depend on which incline it trains on."""
+    monkeypatch.setattr(fig9, "TARGET", "GeomOnIncline")
+    out = tmp_path / "fig9"
+    assert fig9.main(["--out", str(out), "--scale", "smoke", "--methods", "PRED",
+                      "PRED+AML_trnsv", "--seeds", "0", "1"]) == 0
+    assert sorted(p.name for p in (out / "relations").iterdir()) == ["trnsv"]
+    summary = json.loads((out / "relations" / "trnsv" / "summary.json").read_text())
+    assert summary["num_relations"] == 2
+    penalty = json.loads((out / "PRED+AML_trnsv" / "seed_1" / "penalty.json").read_text())
+    assert penalty["weight"] == 2000.0 and penalty["relations_used"] == [1, 2]
+    text = (out / "fig9.md").read_text()
+    assert "- PRED+AML_trnsv vs PRED: 2 seeds identical" in text
+    assert text.startswith("Primary comparison: no analysis after learner epoch 500")
+    config = json.loads((out / "PRED" / "seed_0" / "config.json").read_text())
+    assert "GeomOnIncline" in json.dumps(config)

@@ -26,7 +26,8 @@ import numpy as np
 from jaml import evaluation
 from jaml.stream import analysis
 from jaml.stream.config import StreamConfig
-from jaml.stream.loop import Stream, StreamState, build
+from jaml.stream.executor import build, run_epochs
+from jaml.stream.loop import Stream, StreamState
 
 # Sizes for a run that finishes in minutes on two CPU cores (`jaml suite --scale smoke`), and
 # the paper's (the StreamConfig defaults, `for_env`'s per-domain settings).
@@ -84,7 +85,7 @@ def _prepare(config: StreamConfig, state: StreamState | None):
     stream = build(config)
     k_init, k_eval, pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
     if state is None:
-        state, _ = stream.run_epochs(stream.init(k_init), config.fill_epochs)
+        state, _ = run_epochs(stream, stream.init(k_init), config.fill_epochs)
     return stream, state, jax.random.fold_in(k_eval, int(state.epoch)), pi_rand_key
 
 

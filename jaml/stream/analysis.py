@@ -39,7 +39,7 @@ from jaml.evaluation import alignment, rotation
 from jaml.stream import collect
 from jaml.stream import replay as replay_lib
 from jaml.stream.loop import Stream, StreamState
-from jaml.stream.programs import stream_jit
+from jaml.stream.programs import jitted
 
 
 def encoded_replay(stream: Stream, s: StreamState, key: jax.Array, num: int,
@@ -257,7 +257,7 @@ def _map_chunks(producer, stream: Stream, s: StreamState, carry, keys,
     A host loop over one jitted producer and one jitted encoder on every backend: a scan over
     the chunks would compile the encoder once per data set (its length is static), and the
     per-chunk dispatch costs milliseconds against seconds of compilation (and XLA:CPU runs
-    convolutions inside loops slowly, see `jaml.stream.loop.run_epochs`)."""
+    convolutions inside loops slowly, see `executor.run_stacked_epochs`)."""
     outs = []
     for k in keys:
         carry, seqs = producer(stream, s, carry, k)
@@ -327,9 +327,9 @@ def _kept_chunk_runs(stream: Stream, states, chunks: list, c):
     return chunks, jax.device_put(jax.tree.map(lambda *x: np.stack(x), *runs))
 
 
-# Module-level jitted functions keyed on the Stream: a `jax.jit` made per call would recompile
-# at every analysis (`release_programs` drops what they compiled).
-@stream_jit(static_argnums=0)
+# Jitted functions keyed on the Stream, kept by the current `programs` scope: a `jax.jit` made
+# per call would recompile at every analysis.
+@jitted(static_argnums=0)
 def _reconstruct(stream: Stream, variables, frames, actions):
     return stream.learner.reconstruct(variables, frames, actions)
 
@@ -353,7 +353,7 @@ def input_fingerprints(hist: int, frames, actions, actions_seen: int | None = No
     return jnp.stack([jnp.sum(words * w, axis=-1, dtype=jnp.uint32) for w in weights], axis=-1)
 
 
-@stream_jit(static_argnums=(0, 3))
+@jitted(static_argnums=(0, 3))
 def _encode(stream: Stream, variables, seqs: replay_lib.Columns, fingerprints: bool = False):
     z = stream.learner.encode(variables, seqs.frames, seqs.actions)
     out = (z, seqs.ld[:, stream.hist - 1])
@@ -363,7 +363,7 @@ def _encode(stream: Stream, variables, seqs: replay_lib.Columns, fingerprints: b
     return out
 
 
-@stream_jit(static_argnums=(0, 3))
+@jitted(static_argnums=(0, 3))
 def _encode_runs(stream: Stream, variables, seqs: replay_lib.Columns,
                  fingerprints: bool = False):
     """`_encode` of R stacked runs ([R, E, ...] sequences, per-run variables), the encoder
@@ -391,12 +391,12 @@ def _replay_chunk_one(stream: Stream, s: StreamState, key):
     return replay_lib.sample(s.replay, key, stream.config.num_envs, stream.seq_len)
 
 
-@stream_jit(static_argnums=0)
+@jitted(static_argnums=0)
 def _replay_chunk(stream: Stream, s: StreamState, carry, key):
     return carry, _replay_chunk_one(stream, s, key)
 
 
-@stream_jit(static_argnums=0)
+@jitted(static_argnums=0)
 def _replay_chunk_runs(stream: Stream, states: StreamState, carry, keys):
     return carry, jax.vmap(lambda s, k: _replay_chunk_one(stream, s, k))(states, keys)
 
@@ -408,7 +408,7 @@ def _rollout_chunk_one(stream: Stream, s: StreamState, env_state: State, random,
     return env_state, jax.vmap(replay_lib.window, (0, None, None))(columns, 0, L)
 
 
-@stream_jit(static_argnums=0)
+@jitted(static_argnums=0)
 def _rollout_chunk(stream: Stream, s: StreamState, carry, key):
     """carry (env state, traced π_rand flag) → L steps, one test sequence per env."""
     env_state, random = carry
@@ -416,7 +416,7 @@ def _rollout_chunk(stream: Stream, s: StreamState, carry, key):
     return (env_state, random), seqs
 
 
-@stream_jit(static_argnums=0)
+@jitted(static_argnums=0)
 def _rollout_chunk_runs(stream: Stream, states: StreamState, carry, keys):
     """`_rollout_chunk` of R stacked runs: carry (env states [R, E], one traced flag)."""
     env_states, random = carry
@@ -425,12 +425,12 @@ def _rollout_chunk_runs(stream: Stream, states: StreamState, carry, keys):
     return (env_states, random), seqs
 
 
-@stream_jit(static_argnums=0)
+@jitted(static_argnums=0)
 def _rollout_start(stream: Stream, s: StreamState, key: jax.Array, random: jax.Array) -> State:
     return _rollout_start_one(stream, s, key, random)
 
 
-@stream_jit(static_argnums=0)
+@jitted(static_argnums=0)
 def _rollout_start_runs(stream: Stream, states: StreamState, keys: jax.Array,
                         random: jax.Array) -> State:
     return jax.vmap(lambda s, k: _rollout_start_one(stream, s, k, random))(states, keys)

@@ -41,14 +41,14 @@ from jaml._rundir import RunLog, claim, lock, truncate_jsonl, write_json
 from jaml.evaluation import plots
 from jaml.stream import analysis, checkpoint
 from jaml.stream.config import StreamConfig
-from jaml.stream.loop import (
-    Stream,
-    StreamState,
+from jaml.stream.executor import (
     build,
+    due_by_device,
     run_stacked_epochs,
     stack_runs,
     unstack_runs,
 )
+from jaml.stream.loop import Stream, StreamState
 
 log = logging.getLogger("jaml.stream")
 # What a run resumed from: the command line shows this logger at INFO (`jaml.cli.main`).
@@ -436,7 +436,7 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
     holding a single due run evaluates it alone. Each run then writes its records, figures and
     checkpoint as alone."""
     reports = {}
-    for device_states, members in _due_by_device(states, due):
+    for device_states, members in due_by_device(states, due):
         if len(members) == 1:
             continue
         tic = time.perf_counter()
@@ -457,32 +457,6 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
     for i, r in due:
         r.analyse(stream, jax.tree.map(lambda x, i=i: x[i], states), reports.get(i),
                   checkpoint_every)
-
-
-def _due_by_device(states: StreamState, due: list) -> list[tuple[StreamState, list]]:
-    """The runs `due` grouped by the device that holds them (the first, where the states are
-    replicated): per device, its due runs' states stacked on it and their entries of `due`.
-
-    Taken from each device's own shard, so nothing crosses devices; a device's whole shard is
-    used as is (no copy of its replays) when every run in it is due."""
-    owner = {}
-    for shard in states.epoch.addressable_shards:
-        start, stop, _ = shard.index[0].indices(states.epoch.shape[0])
-        for i in range(start, stop):
-            owner.setdefault(i, shard.device)
-    groups: dict = {}
-    for i, r in due:
-        groups.setdefault(owner[i], []).append((i, r))
-
-    def local(x, device, index):
-        shard = next(s for s in x.addressable_shards if s.device == device)
-        start, stop, _ = shard.index[0].indices(x.shape[0])
-        if index == list(range(start, stop)):
-            return shard.data
-        return shard.data[np.asarray(index) - start]
-
-    return [(jax.tree.map(lambda x, d=device, m=members: local(x, d, [i for i, _ in m]), states),
-             members) for device, members in groups.items()]
 
 
 def _analyse(stream: Stream, state: StreamState, key, pi_rand_key, names, out: Path,

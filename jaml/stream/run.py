@@ -179,16 +179,14 @@ class _RunDir:
         """The analysis key of the current epoch."""
         return jax.random.fold_in(self.k_eval, self.epoch)
 
-    def analyse(self, stream: Stream, state: StreamState, report: dict | None = None,
+    def analyse(self, stream: Stream, state: StreamState, report: dict,
                 checkpoint_every: int | None = None) -> None:
-        """Analysis, figures and (see `checkpoint_due`) an atomic checkpoint at the current
-        epoch. `report`: this run's `analysis.evaluate` report when computed already (with other
-        runs', see `_analyse_together`)."""
+        """Records, figures and (see `checkpoint_due`) an atomic checkpoint at the current
+        epoch, from this run's `analysis.evaluate_runs` report (see `_analyse_together`)."""
         with _timed(self.seconds, "analysis"):
-            records = _analyse(stream, state, self.eval_key(), self.pi_rand_key,
-                               analysis.error_names(stream), self.out, self.epoch, report,
-                               seed=self.config.seed, seconds=self.analysis_parts,
-                               pi_rand_set=self.pi_rand_set)
+            records = _analyse(stream, state, self.eval_key(), analysis.error_names(stream),
+                               self.out, self.epoch, report, seed=self.config.seed,
+                               seconds=self.analysis_parts)
             with _timed(self.analysis_parts, "records"):
                 self.history += records
                 with (self.out / "history.jsonl").open("a") as f:
@@ -430,15 +428,10 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
     devices taken in turn. Not one host thread per device, as the epochs run: the analysis
     traces its programs as it goes, and a worker thread does not see the caller's JAX config
     contexts (e.g. `jax.threefry_partitionable`, which decides the random bits of the test
-    sets and the regressor). Tried 2026-11-25: with threads, the slow test
-    `test_runs_split_across_devices_are_analysed_per_device_as_alone`, run under
-    `threefry_partitionable(False)`, recorded other errors than the runs alone. A device
-    holding a single due run evaluates it alone. Each run then writes its records, figures and
-    checkpoint as alone."""
+    sets and the regressor). Each run then writes its records, figures and checkpoint as
+    alone."""
     reports = {}
     for device_states, members in due_by_device(states, due):
-        if len(members) == 1:
-            continue
         tic = time.perf_counter()
         runs = [r for _, r in members]
         parts: dict[str, float] = {}
@@ -455,19 +448,15 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
                 r.analysis_parts[part] = r.analysis_parts.get(part, 0.0) + seconds / len(members)
             reports[i] = report
     for i, r in due:
-        r.analyse(stream, jax.tree.map(lambda x, i=i: x[i], states), reports.get(i),
+        r.analyse(stream, jax.tree.map(lambda x, i=i: x[i], states), reports[i],
                   checkpoint_every)
 
 
-def _analyse(stream: Stream, state: StreamState, key, pi_rand_key, names, out: Path,
-             epoch: int, report: dict | None = None, *, seed: int,
-             seconds: dict | None = None,
-             pi_rand_set: analysis.PiRandSet | None = None) -> list[dict]:
+def _analyse(stream: Stream, state: StreamState, key, names, out: Path, epoch: int,
+             report: dict, *, seed: int, seconds: dict | None = None) -> list[dict]:
+    """One run's history records from its report, and its reconstructions drawn."""
     # `seed` is the run's own: runs trained together share one Stream, whose config carries
-    # the first run's seed. `seconds`: the analysis parts' wall times (`analysis.evaluate`).
-    if report is None:
-        report = analysis.evaluate(stream, state, key, pi_rand_key, seconds=seconds,
-                                   pi_rand_set=pi_rand_set)
+    # the first run's seed. `seconds`: the analysis parts' wall times.
     errors = {k: v for k, v in report["errors"].items() if k != "validation"}
     records = plots.history_records(epoch, stream.config.learner, errors, names,
                                     report["distortion"], run=seed)

@@ -67,11 +67,10 @@ class Stream:
     ppo: ppo_lib.PPO
     optimizer: Any
     train_step: Any
-    keep_fraction: float
 
     @functools.cached_property
-    def _program(self) -> tuple:
-        return self.config.program_key(), self.keep_fraction
+    def _program(self) -> str:
+        return self.config.program_key()
 
     def with_config(self, config: StreamConfig) -> Stream:
         """This Stream with another seed's config (the same parts, hence the same programs)."""
@@ -121,7 +120,7 @@ class Stream:
                                               (frames, actions)),
             replay=replay_lib.init(
                 cfg.replay_columns, cfg.rollout_len + 1, learners.learner.FRAME_SHAPE,
-                self.env.action_size, len(self.env.ld_state_names), self.keep_fraction,
+                self.env.action_size, len(self.env.ld_state_names), cfg.keep_fraction,
             ),
         )
         # Distinct buffers for every leaf: the executor donates the state, and a buffer shared
@@ -295,8 +294,7 @@ def make(config: StreamConfig, latent_penalty=None) -> Stream:
             f"frames_per_batch ({config.frames_per_batch}) holds no {learner.seq_len}-frame "
             "sequence"
         )
-    keep = (learner.config.replay_keep_fraction if config.replay_keep_fraction is None
-            else config.replay_keep_fraction)
+    keep = config.keep_fraction
     columns = config.replay_columns
     if config.num_envs > columns - int(keep * columns):
         problems.append(
@@ -313,5 +311,5 @@ def make(config: StreamConfig, latent_penalty=None) -> Stream:
     ppo = ppo_lib.make(ld_dim, env.action_size, config.ppo, total_updates=config.epochs)
     optimizer = learners.default_optimizer(learner)
     train_step = learners.make_train_step(learner, optimizer, latent_penalty)
-    return Stream(config, env, learner, ppo, optimizer, train_step, float(keep))
+    return Stream(config, env, learner, ppo, optimizer, train_step)
 

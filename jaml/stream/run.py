@@ -1,6 +1,7 @@
 """A `jaml suite` run directory: the learning loop with logs, figures and resumable checkpoints.
 
-    OUT/config.json       resolved StreamConfig (a different config in the same OUT is refused)
+    OUT/config.json       the resolved StreamConfig, whole (`StreamConfig.resolved`; a different
+                          config in the same OUT is refused; `StreamConfig.from_dict` reads it)
     OUT/metrics.jsonl     one line per epoch (episode return, PPO and learner losses); "epoch"
                           counts epochs completed, as an analysis's "step" does
     OUT/history.jsonl     one record per analysis and test set (`jaml.evaluation.plots` format;
@@ -57,6 +58,17 @@ resume_log = logging.getLogger("jaml.resume")
 
 class NonFiniteLoss(RuntimeError):
     """The learner's loss became NaN/inf; the run stopped at its last good checkpoint."""
+
+
+def claim_run(out: Path, config: StreamConfig) -> bool:
+    """`_rundir.claim` for a stream run: config.json holds the resolved config; a recorded one
+    (older runs left derived fields to defaults) is the same run when it resolves to it."""
+    resolved = config.resolved().to_dict()
+
+    def same(recorded: dict) -> bool:
+        return StreamConfig.from_dict(recorded).resolved().to_dict() == resolved
+
+    return claim(out, resolved, same)
 
 
 def analysis_epochs(config: StreamConfig) -> list[int]:
@@ -149,7 +161,7 @@ class _RunDir:
             raise
 
     def _open(self, stream: Stream, config: StreamConfig, out: Path) -> None:
-        claim(out, config.to_dict())
+        claim_run(out, config)
         (out / "recon").mkdir(exist_ok=True)
         k_init, self.k_eval, self.pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
         self.manager = checkpoint.manager(out)

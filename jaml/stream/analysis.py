@@ -224,11 +224,14 @@ def distortion_columns(stream: Stream) -> np.ndarray:
 
 
 def reconstructions(stream: Stream, s: StreamState, key: jax.Array, num: int = 8):
-    """(true, decoded) last frames of `num` replay sequences, uint8 [num, 64, 64, 3] each."""
+    """(true, decoded) last frames of `num` replay sequences of one run, uint8 [num, 64, 64, 3]
+    each; a learner with boxes (SPAIR) has them drawn over the true frames."""
     seqs = replay_lib.sample(s.replay, key, num, stream.seq_len)
     recon = _reconstruct(stream, s.learner.variables, seqs.frames, seqs.actions)
-    return (np.asarray(seqs.frames[:, -1]),
-            np.asarray(jnp.round(recon[:, -1] * 255)).astype(np.uint8))
+    truth = np.asarray(seqs.frames[:, -1])
+    if hasattr(stream.learner, "draw_boxes"):
+        truth = stream.learner.draw_boxes(s.learner.variables, truth)
+    return truth, np.asarray(jnp.round(recon[:, -1] * 255)).astype(np.uint8)
 
 
 def _chunks(num: int, num_envs: int) -> int:

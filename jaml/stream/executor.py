@@ -12,6 +12,7 @@ Shapes: R runs.
 from __future__ import annotations
 
 import concurrent.futures
+import dataclasses
 import functools
 
 import jax
@@ -45,7 +46,7 @@ def build(config: StreamConfig, latent_penalty=None) -> Stream:
             built.popitem(last=False)
     built.move_to_end(cache_key)
     base = built[cache_key]
-    return base if base.config == config else base.with_config(config)
+    return base if base.config == config else dataclasses.replace(base, config=config)
 
 
 def run_epochs(stream: Stream, s: StreamState, n: int):
@@ -102,12 +103,18 @@ def run_stacked_epochs(stream: Stream, states: StreamState, n: int, *, mesh: Mes
     calls computing the same function with the same keys: XLA:CPU runs convolutions inside a
     while loop many times slower than outside one.
     """
-    count = int(states.epoch.shape[0])
     if host_loop is None:
         host_loop = jax.default_backend() == "cpu"
-    if host_loop:
-        return _host_loop(stream, states, n)
-    mesh = runs_mesh(count) if mesh is None else mesh
+    if not host_loop:
+        return _device_loop(stream, states, n, runs_mesh(states.epoch.shape[0])
+                            if mesh is None else mesh)
+    return _host_loop(stream, states, n)
+
+
+def _device_loop(stream: Stream, states: StreamState, n: int, mesh: Mesh):
+    """n epochs in blocks of up to `_BLOCK` per device call, the runs padded to and sharded
+    along `mesh` (see `run_stacked_epochs`)."""
+    count = int(states.epoch.shape[0])
     padded = -count % mesh.size
     if padded:
         states = jax.tree.map(

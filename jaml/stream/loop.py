@@ -72,10 +72,6 @@ class Stream:
     def _program(self) -> str:
         return self.config.program_key()
 
-    def with_config(self, config: StreamConfig) -> Stream:
-        """This Stream with another seed's config (the same parts, hence the same programs)."""
-        return dataclasses.replace(self, config=config)
-
     def _parts(self) -> tuple:
         return (self.env, self.learner, self.ppo, self.optimizer, self.train_step)
 

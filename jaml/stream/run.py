@@ -191,22 +191,20 @@ class _RunDir:
         """The analysis key of the current epoch."""
         return jax.random.fold_in(self.k_eval, self.epoch)
 
-    def analyse(self, stream: Stream, state: StreamState, report: dict,
+    def analyse(self, stream: Stream, state: StreamState, report: dict, names: list[str],
                 checkpoint_every: int | None = None) -> None:
         """Records, figures and (see `checkpoint_due`) an atomic checkpoint at the current
-        epoch, from this run's `analysis.evaluate_runs` report (see `_analyse_together`)."""
-        with _timed(self.seconds, "analysis"):
-            records = _analyse(stream, state, self.eval_key(), analysis.error_names(stream),
-                               self.out, self.epoch, report, seed=self.config.seed,
-                               seconds=self.analysis_parts)
-            with _timed(self.analysis_parts, "records"):
-                self.history += records
-                with (self.out / "history.jsonl").open("a") as f:
-                    # One write per analysis, so a report read beside it (`_runs.read_history`
-                    # skips an unterminated line) almost never sees part of an epoch's records.
-                    f.write("".join(json.dumps(r) + "\n" for r in records))
-                self.logs.analysis(self.epoch, records)
-                self.figures.submit(self.out, list(self.history))
+        epoch, from this run's `analysis.evaluate_runs` report and its error names (see
+        `_analyse_together`)."""
+        with _timed(self.seconds, "analysis"), _timed(self.analysis_parts, "records"):
+            records = _records(stream, names, self.epoch, report, seed=self.config.seed)
+            self.history += records
+            with (self.out / "history.jsonl").open("a") as f:
+                # One write per analysis, so a report read beside it (`_runs.read_history`
+                # skips an unterminated line) almost never sees part of an epoch's records.
+                f.write("".join(json.dumps(r) + "\n" for r in records))
+            self.logs.analysis(self.epoch, records)
+            self.figures.submit(self.out, list(self.history))
         if checkpoint_due(self.epoch, self.manager.latest_step(), checkpoint_every,
                           last=not self.targets and self.final_checkpoint):
             self.save(state)
@@ -459,16 +457,20 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
             for part, seconds in parts.items():
                 r.analysis_parts[part] = r.analysis_parts.get(part, 0.0) + seconds / len(members)
             reports[i] = report
+    names = analysis.error_names(stream)
     for i, r in due:
-        r.analyse(stream, jax.tree.map(lambda x, i=i: x[i], states), reports[i],
-                  checkpoint_every)
+        state = jax.tree.map(lambda x, i=i: x[i], states)
+        with _timed(r.seconds, "analysis"), _timed(r.analysis_parts, "reconstructions"):
+            frames = analysis.reconstructions(stream, state, jax.random.fold_in(r.eval_key(), 7))
+            _save_png(r.out / "recon" / f"epoch_{r.epoch:06d}.png", list(frames))
+        r.analyse(stream, state, reports[i], names, checkpoint_every)
 
 
-def _analyse(stream: Stream, state: StreamState, key, names, out: Path, epoch: int,
-             report: dict, *, seed: int, seconds: dict | None = None) -> list[dict]:
-    """One run's history records from its report, and its reconstructions drawn."""
+def _records(stream: Stream, names: list[str], epoch: int, report: dict, *,
+             seed: int) -> list[dict]:
+    """One run's history records from its report."""
     # `seed` is the run's own: runs trained together share one Stream, whose config carries
-    # the first run's seed. `seconds`: the analysis parts' wall times.
+    # the first run's seed.
     errors = {k: v for k, v in report["errors"].items() if k != "validation"}
     records = plots.history_records(epoch, stream.config.learner, errors, names,
                                     report["distortion"], run=seed)
@@ -479,11 +481,6 @@ def _analyse(stream: Stream, state: StreamState, key, names, out: Path, epoch: i
                     "baseline": dict(zip(names, report["baseline"][r["test_set"]], strict=True)),
                     "irregularity": report.get("irregularity")}
                for r in records]
-    with _timed({} if seconds is None else seconds, "reconstructions"):
-        truth, recon = analysis.reconstructions(stream, state, jax.random.fold_in(key, 7))
-        if hasattr(stream.learner, "draw_boxes"):  # SPAIR: its boxes drawn over the frames
-            truth = stream.learner.draw_boxes(state.learner.variables, truth)
-        _save_png(out / "recon" / f"epoch_{epoch:06d}.png", [truth, recon])
     return records
 
 

@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks import harness
 from jaml import learners
 from jaml.stream import build, for_env
-from jaml.stream.loop import (
+from jaml.stream.executor import (
     _act_runs,
     _learn_step_runs,
     run_stacked_epochs,

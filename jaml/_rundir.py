@@ -72,15 +72,17 @@ def lock(out: Path):
     return handle
 
 
-def claim(out: Path, resolved: dict) -> bool:
+def claim(out: Path, resolved: dict, same: Callable[[dict], bool] | None = None) -> bool:
     """Make `out` the directory of the run that `resolved` (JSON-ready) describes: created if
     missing, config.json written. Returns True when it held this run already (a resume).
 
-    Raises ValueError when `out` holds a run with another configuration, so that resuming never
-    mixes two runs' checkpoints and logs."""
+    Raises ValueError when `out` holds a run with another configuration (`same(recorded)` is
+    False; default: the recorded JSON differs from `resolved`), so that resuming never mixes
+    two runs' checkpoints and logs."""
     config_path = Path(out) / "config.json"
     resuming = config_path.exists()
-    if resuming and json.loads(config_path.read_text()) != resolved:
+    same = (lambda recorded: recorded == resolved) if same is None else same
+    if resuming and not same(json.loads(config_path.read_text())):
         raise ValueError(f"{out} holds a run with a different configuration ({config_path}); "
                          "resume with the same options or choose a new --out")
     Path(out).mkdir(parents=True, exist_ok=True)

@@ -24,9 +24,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaml import evaluation
+from jaml.evaluation import alignment
 from jaml.stream import analysis
 from jaml.stream.config import StreamConfig
-from jaml.stream.loop import Stream, StreamState, build
+from jaml.stream.executor import build, run_epochs
+from jaml.stream.loop import Stream, StreamState
 
 # Sizes for a run that finishes in minutes on two CPU cores (`jaml suite --scale smoke`), and
 # the paper's (the StreamConfig defaults, `for_env`'s per-domain settings).
@@ -84,23 +86,24 @@ def _prepare(config: StreamConfig, state: StreamState | None):
     stream = build(config)
     k_init, k_eval, pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
     if state is None:
-        state, _ = stream.run_epochs(stream.init(k_init), config.fill_epochs)
+        state, _ = run_epochs(stream, stream.init(k_init), config.fill_epochs)
     return stream, state, jax.random.fold_in(k_eval, int(state.epoch)), pi_rand_key
 
 
 def _chunks(stream: Stream, state: StreamState, key, pi_rand_key) -> dict[str, list]:
-    """{set: host `Columns` chunks} from the analysis's own samplers and keys."""
+    """{set: host `Columns` chunks} from the analysis's own samplers and keys (one run: R = 1)."""
     cfg = stream.config
     k_train, k_curr, _ = jax.random.split(key, 3)
+    states = jax.tree.map(lambda x: x[None], state)
     out = {"train": [], "pi_rand": []}
-    analysis.encoded_replay(stream, state, k_train, cfg.eval_train, store=out["train"])
-    analysis.encoded_rollouts(stream, state, pi_rand_key, cfg.eval_rand, random=True,
+    analysis.encoded_replay(stream, states, k_train[None], cfg.eval_train, store=out["train"])
+    analysis.encoded_rollouts(stream, states, pi_rand_key[None], cfg.eval_rand, random=True,
                               store=out["pi_rand"])
     if cfg.policy == "ppo" and cfg.eval_curr > 0:
         out["pi_curr"] = []
-        analysis.encoded_rollouts(stream, state, k_curr, cfg.eval_curr, random=False,
+        analysis.encoded_rollouts(stream, states, k_curr[None], cfg.eval_curr, random=False,
                                   store=out["pi_curr"])
-    return out
+    return {k: [jax.tree.map(lambda x: x[0], c) for c in chunks] for k, chunks in out.items()}
 
 
 def _test_set(stream: Stream, chunks: list) -> TestSet:
@@ -136,8 +139,12 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
     tests = {k: (latents[k], sets[k].states) for k in sets if k != "train"}
     k_reg = jax.random.split(key, 3)[2]
     seed = int(jax.random.randint(k_reg, (), 0, 2**31 - 1))  # as `analysis.evaluate`'s
-    errors = evaluation.alignment_errors(latents["train"], sets["train"].states, tests,
-                                         seed=seed, **analysis._regressor_options(stream))
+    # The analysis' own regressor fit (over R runs, here R = 1).
+    errors = alignment.alignment_errors_runs(
+        latents["train"][None], sets["train"].states[None],
+        {k: (lat[None], st[None]) for k, (lat, st) in tests.items()}, seeds=[seed],
+        **analysis._regressor_options(stream))
+    errors = {k: np.asarray(v)[0] for k, v in errors.items()}
     rand = sets["pi_rand"]
     inputs = analysis.input_fingerprints(stream.hist, jnp.asarray(rand.frames),
                                          jnp.asarray(rand.actions), actions_seen)

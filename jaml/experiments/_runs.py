@@ -82,19 +82,17 @@ def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,
     each in its resumable directory; prints one line per seed (status, seconds by phase) and
     one for the cell. Returns the runs' summaries.
 
-    The cell's compiled programs are released when it ends (`stream.release_programs`): a
-    driver's next cell shares none of them, and on XLA:CPU a process that kept every cell's
-    would run out of memory mappings."""
-    from jaml.stream import release_programs
+    The cell compiles in its own programs scope, released when it ends: a driver's next cell
+    shares none of its programs, and on XLA:CPU a process that kept every cell's would run out
+    of memory mappings."""
+    from jaml.stream import programs_scope
     from jaml.stream.run import run_many
 
     started = time.perf_counter()
-    try:
+    with programs_scope():
         summaries = run_many(list(configs), list(dirs), progress=False, stop_after=stop_after,
                              checkpoint_every=checkpoint_every, final_checkpoint=final_checkpoint,
                              latent_penalty=latent_penalty, keep_pi_rand=keep_pi_rand)
-    finally:
-        release_programs()
     for config, summary in zip(configs, summaries, strict=True):
         phases = ", ".join(f"{k} {v:.0f}s" for k, v in summary["seconds_by_phase"].items())
         print(f"{label} seed {config.seed}: {summary['status']} at epoch {summary['epoch']} "

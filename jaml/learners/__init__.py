@@ -32,8 +32,8 @@ from jaml.learners.vae import VAEConfig, make_vae
 
 # name → (config class, defaults that differ from the class's, builder)
 _REGISTRY = {
-    "VAE_v0": (VAEConfig, {"replay_keep_fraction": 0.0}, make_vae),
-    # VAE_rpl differs from VAE_v0 only in the replay (data side): it keeps half the slots.
+    # VAE_rpl differs from VAE_v0 only in the stream's replay (`StreamConfig.keep_fraction`).
+    "VAE_v0": (VAEConfig, {}, make_vae),
     "VAE_rpl": (VAEConfig, {}, make_vae),
     "beta-VAE": (VAEConfig, {"beta": 5.0}, make_vae),
     "SVAE": (SVAEConfig, {}, make_svae),

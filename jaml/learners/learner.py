@@ -50,8 +50,6 @@ class LearnerConfig:
     beta: weight of the KL term (β-VAE; DSA weighs only the dynamic KL with it).
     mu_nl: the reference's `mu_nl=Sigmoid`: ELU on the posterior mean and a sigmoid on the
       sample before decoding.
-    replay_keep_fraction: read by the stream's replay, not by the model: the share of replay
-      slots kept from the initial policy (VAE_rpl; 0 for VAE_v0).
     frame_nll: how the decoded frames' log-likelihoods combine: "sum" is the sequence ELBO of
       paper eq. 4 (log p(x_{1:S} | τ) = Σ_t log p(x_t | τ_t)), the reference's balance too (it
       averages likelihood and KL over the frames); "mean" averages the likelihood alone, which
@@ -77,7 +75,6 @@ class LearnerConfig:
     conv_filters: tuple[int, ...] = (64, 128, 128, 256)
     conv_features: int = 128
     deconv_filters: tuple[int, ...] = (256, 128, 128, 64)
-    replay_keep_fraction: float = 0.5
     frame_nll: str = "sum"
     compute_dtype: str = "float32"
     current_action: str = "observed"
@@ -104,10 +101,6 @@ class LearnerConfig:
             raise ValueError(f"beta must be ≥ 0, learning_rate and logvar_limit > 0; got beta "
                              f"{self.beta}, learning_rate {self.learning_rate}, logvar_limit "
                              f"{self.logvar_limit}")
-        if not 0.0 <= self.replay_keep_fraction < 1.0:
-            raise ValueError(
-                f"replay_keep_fraction must be in [0, 1), got {self.replay_keep_fraction}"
-            )
 
     def replace(self, **changes) -> LearnerConfig:
         return dataclasses.replace(self, **changes)

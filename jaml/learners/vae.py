@@ -23,8 +23,8 @@ from jaml.learners.networks import MLP, ConvDecoder, ConvEncoder, GaussianHead
 class VAEConfig(SingleFrameConfig):
     """VAE on single frames (PARAMS_VAE: hist 1, past 1, pred 0; latent 2·D).
 
-    VAE_v0 sets replay_keep_fraction 0; VAE_rpl keeps 0.5; β-VAE defaults to β = 5, the best of
-    the paper's {100, 20, 10, 5, 0.5}.
+    VAE_v0 and VAE_rpl differ in the stream's replay alone (`StreamConfig.keep_fraction`: 0
+    and 0.5); β-VAE defaults to β = 5, the best of the paper's {100, 20, 10, 5, 0.5}.
     """
 
     mlp_widths: tuple[int, ...] = (1024, 512)

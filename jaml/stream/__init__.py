@@ -4,17 +4,16 @@
     cfg = stream.for_env("CartPole", "VAE_rpl", epochs=200, replay_slots=1024)
     s = stream.build(cfg)
     state = s.init(jax.random.PRNGKey(0))
-    state, metrics = s.run_epochs(state, 10)       # 10 epochs, metrics stacked [10]
+    state, metrics = stream.run_epochs(s, state, 10)   # 10 epochs, metrics stacked [10]
     report = stream.evaluate(s, state, key, pi_rand_key)   # alignment on π_rand / π_curr
 
     # Six seeds as one program (vmapped; split across the local devices on GPU/TPU):
     states = stream.stack_runs([s.init(jax.random.PRNGKey(i)) for i in range(6)])
     states, metrics = stream.run_stacked_epochs(s, states, 10)   # metrics [10, 6]
 
-A process that trains many configs one after another calls `stream.release_programs()` between
-them: the jitted functions keep what they compiled for every Stream they saw, and on XLA:CPU,
-where each compiled kernel takes its own memory mappings, a process that kept them all ran out
-of mappings during its second tiny RearrangeGeom cell (`jaml.stream.programs`).
+What is compiled for a Stream belongs to the current programs scope: a process that trains many
+configs one after another opens one per config (`with stream.programs_scope(): ...`), which
+releases them when it ends (`jaml.stream.programs`).
 
 `jaml suite` (jaml.stream.run) wraps this with a run directory and resumable checkpoints;
 `jaml.stream.run.run_many` trains several seeds together, each in its own directory.
@@ -23,17 +22,17 @@ of mappings during its second tiny RearrangeGeom cell (`jaml.stream.programs`).
 from jaml.stream.analysis import evaluate
 from jaml.stream.collect import Episodes, rollout
 from jaml.stream.config import POLICIES, StreamConfig, for_env
-from jaml.stream.loop import (
-    Stream,
-    StreamState,
+from jaml.stream.executor import (
     build,
+    run_epochs,
     run_stacked_epochs,
     runs_mesh,
     stack_runs,
     unstack_runs,
 )
+from jaml.stream.loop import Stream, StreamState
 from jaml.stream.ppo import PPO, PPOConfig, PPOState, random_policy
-from jaml.stream.programs import release_programs
+from jaml.stream.programs import scope as programs_scope
 from jaml.stream.replay import Columns, Replay
 
 __all__ = [
@@ -50,9 +49,10 @@ __all__ = [
     "build",
     "evaluate",
     "for_env",
+    "programs_scope",
     "random_policy",
-    "release_programs",
     "rollout",
+    "run_epochs",
     "run_stacked_epochs",
     "runs_mesh",
     "stack_runs",

@@ -5,8 +5,8 @@ random policy (π_rand, the same set at every analysis: a fixed key) and of the 
 (π_curr); fit a fresh regressor latents → LD state of each sequence's last input frame and report
 its per-dimension test error, the error of a constant prediction that ignores the latents (the
 training targets' median, `evaluation.constant_errors`: what the error is read against), and the
-distortion ρ on π_rand. The functions take one run's (unstacked) `StreamState`, except
-`evaluate_runs`, which analyses R stacked runs at once.
+distortion ρ on π_rand. The functions analyse R stacked runs at once (states with a leading
+runs axis); one run is R = 1 (`evaluate`).
 
 The π_rand set depends on the env, the run's π_rand key and its size alone (a uniform policy),
 so a `PiRandSet` can keep a run's sequences on the host after their first rollout: later
@@ -39,37 +39,48 @@ from jaml.evaluation import alignment, rotation
 from jaml.stream import collect
 from jaml.stream import replay as replay_lib
 from jaml.stream.loop import Stream, StreamState
-from jaml.stream.programs import stream_jit
+from jaml.stream.programs import jitted
 
 
-def encoded_replay(stream: Stream, s: StreamState, key: jax.Array, num: int,
+def encoded_replay(stream: Stream, states: StreamState, keys: jax.Array, num: int,
                    store: list | None = None):
-    """(latents [N, Z], LD targets [N, D]) of N ≈ num sequences sampled from the replay.
-    `store`: a list that gets each chunk's sequences (host `Columns`; `jaml.suite`)."""
-    keys = jax.random.split(key, _chunks(num, stream.config.num_envs))
-    return _map_chunks(_replay_chunk, stream, s, None, keys, store=store)
+    """(latents [R, N, Z], LD targets [R, N, D]) of N ≈ num sequences sampled from each of R
+    stacked runs' replays (keys [R]). `store`: a list that gets each chunk's sequences (host
+    `Columns` [R, E, L]; `jaml.suite`)."""
+    n = _chunks(num, stream.config.num_envs)
+    chunks = jax.vmap(lambda k: jax.random.split(k, n))(keys)
+    return _map_chunks(_replay_chunk, stream, states, None, chunks, store=store)
 
 
-def encoded_rollouts(stream: Stream, s: StreamState, key: jax.Array, num: int, random: bool,
-                     fingerprints: bool = False, kept: PiRandSet | None = None,
-                     store: list | None = None):
-    """(latents, LD targets) of sequences cut from fresh rollouts: reset, `eval_transient`
-    steps, then consecutive L-step rollouts per env (reference §5, start t = 0); with
-    `fingerprints`, also each sequence's `input_fingerprints` [N, 2] (for the distortion).
-    `kept` (π_rand only): the sequences are read from it when it holds this key's, else rolled
-    out and stored in it. `store`: as `encoded_replay`'s (not with `kept`)."""
+def encoded_rollouts(stream: Stream, states: StreamState, keys: jax.Array, num: int,
+                     random: bool, fingerprints: bool = False,
+                     kept: list[PiRandSet] | None = None, store: list | None = None):
+    """(latents, LD targets) [R, N, ...] of sequences cut from fresh rollouts of R stacked runs
+    (keys [R]): reset, `eval_transient` steps, then consecutive L-step rollouts per env
+    (reference §5, start t = 0); with `fingerprints`, also each sequence's
+    `input_fingerprints` [R, N, 2] (for the distortion). `kept` (π_rand only, one `PiRandSet`
+    per run): the sequences are read from them when every one holds its run's key, else rolled
+    out and stored in them. `store`: as `encoded_replay`'s (not with `kept`)."""
     _check_keepable(kept, random)
-    if kept is not None and kept.holds(stream, key, num):
-        return _map_chunks(_kept_chunk, stream, s, kept.chunks, range(len(kept.chunks)),
+    if kept is not None and all(k.holds(stream, key, num)
+                                for k, key in zip(kept, keys, strict=True)):
+        chunks = [[k.chunks[c] for k in kept] for c in range(len(kept[0].chunks))]
+        return _map_chunks(_kept_chunk, stream, states, chunks, np.arange(len(chunks))[None],
                            fingerprints)
-    k_start, k_chunks = jax.random.split(key)
+    split = jax.vmap(jax.random.split)(keys)
     random = jnp.asarray(random)
-    env_state = _rollout_start(stream, s, k_start, random)
-    keys = jax.random.split(k_chunks, _chunks(num, stream.config.num_envs))
+    env_states = _rollout_start(stream, states, split[:, 0], random)
+    n = _chunks(num, stream.config.num_envs)
+    chunks = jax.vmap(lambda k: jax.random.split(k, n))(split[:, 1])
     store = store if kept is None else []
-    out = _map_chunks(_rollout_chunk, stream, s, (env_state, random), keys, fingerprints, store)
+    out = _map_chunks(_rollout_chunk, stream, states, (env_states, random), chunks,
+                      fingerprints, store)
     if kept is not None:
-        kept.store(stream, key, num, store)
+        for r, (k, key) in enumerate(zip(kept, keys, strict=True)):
+            # Copies, not views of the stacked chunks: a finished run's set is then freed
+            # alone while the others' stay.
+            k.store(stream, key, num,
+                    [jax.tree.map(lambda x, r=r: np.array(x[r]), seqs) for seqs in store])
     return out
 
 
@@ -141,59 +152,35 @@ def _part(seconds: dict | None, name: str, fn, *args, **kwargs):
 
 def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Array, *,
              seconds: dict | None = None, pi_rand_set: PiRandSet | None = None) -> dict:
-    """Alignment errors [D + J] (`error_names`) on π_rand (and π_curr under PPO), the held-out
-    validation error, and the distortion of the π_rand latents. Host-side numbers (floats /
-    lists). `seconds`: a dict that gets each part's wall time added (train_set, pi_rand,
-    pi_curr, regressor). `pi_rand_set`: the run's kept π_rand sequences (read when they are
-    this key's, else rolled out and kept there)."""
-    cfg = stream.config
-    k_train, k_curr, k_reg = jax.random.split(key, 3)
-    train = _part(seconds, "train_set", encoded_replay, stream, s, k_train, cfg.eval_train)
-    lat, st, inputs = _part(seconds, "pi_rand", encoded_rollouts, stream, s, pi_rand_key,
-                            cfg.eval_rand, random=True, fingerprints=True, kept=pi_rand_set)
-    tests = {"pi_rand": (lat, st)}
-    if cfg.policy == "ppo" and cfg.eval_curr > 0:
-        tests["pi_curr"] = _part(seconds, "pi_curr", encoded_rollouts, stream, s, k_curr,
-                                 cfg.eval_curr, random=False)
-    errors = _part(seconds, "regressor", evaluation.alignment_errors,
-                   *train, tests, seed=int(jax.random.randint(k_reg, (), 0, 2**31 - 1)),
-                   **_regressor_options(stream))
-    return {
-        "errors": {k: np.asarray(v).tolist() for k, v in errors.items()},
-        "baseline": _constant_levels(stream, train[1], {k: t for k, (_, t) in tests.items()}),
-        "distortion": float(evaluation.distortion(lat, st[:, distortion_columns(stream)],
-                                                  inputs=inputs)),
-        "irregularity": {"replay": irregularity(stream, *train),
-                         "pi_rand": irregularity(stream, lat, st)},
-    }
+    """`evaluate_runs` of one run (R = 1): its report."""
+    return evaluate_runs(stream, jax.tree.map(lambda x: x[None], s), key[None],
+                         pi_rand_key[None], seconds=seconds,
+                         pi_rand_sets=None if pi_rand_set is None else [pi_rand_set])[0]
 
 
 def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
                   pi_rand_keys: jax.Array, *, seconds: dict | None = None,
                   pi_rand_sets: list[PiRandSet] | None = None) -> list[dict]:
-    """`evaluate` of R stacked runs (states with a leading runs axis, keys [R] and pi_rand_keys
-    [R] raw keys): one report per run, what `evaluate(stream, state_r, keys[r],
-    pi_rand_keys[r])` reports for it alone, up to float rounding. `seconds` as `evaluate`'s
-    (the R runs' parts together); `pi_rand_sets`: one per run, as `evaluate`'s `pi_rand_set`
-    (read when every run's holds its key, else all rolled out and kept).
+    """Per run of R stacked runs (keys [R] and pi_rand_keys [R] raw keys): alignment errors
+    [D + J] (`error_names`) on π_rand (and π_curr under PPO), the held-out validation error,
+    a latent-free constant's errors ("baseline") and the distortion of the π_rand latents, as
+    host-side numbers. `seconds`: a dict that gets each part's wall time added (train_set,
+    pi_rand, pi_curr, regressor), the R runs' together. `pi_rand_sets`: one per run, its kept
+    π_rand sequences (read when every run's holds its key, else all rolled out and kept).
 
-    On a GPU the per-run analysis is latency bound (hundreds of small chunk calls and a
-    10 000-step regressor scan), so one call for R runs costs about what one run costs. The
-    replay samplers, the rollouts (physics, renderer, policy) and the regressor fits are
-    vmapped over the runs; the encoder is applied run by run inside one jitted call (unrolled
-    over R), see `_encode_runs`."""
+    On a GPU the analysis is latency bound, so one call for R runs costs about what one run
+    costs: the replay samplers, the rollouts and the regressor fits are vmapped over the runs;
+    the encoder is applied run by run inside one jitted call (`_encode`)."""
     cfg = stream.config
     split = jax.vmap(lambda k: jax.random.split(k, 3))(keys)
     k_train, k_curr, k_reg = split[:, 0], split[:, 1], split[:, 2]
-    train = _part(seconds, "train_set", _encoded_replay_runs, stream, states, k_train,
-                  cfg.eval_train)
-    lat, st, inputs = _part(seconds, "pi_rand", _encoded_rollouts_runs, stream, states,
-                            pi_rand_keys, cfg.eval_rand, random=True, fingerprints=True,
-                            kept=pi_rand_sets)
+    train = _part(seconds, "train_set", encoded_replay, stream, states, k_train, cfg.eval_train)
+    lat, st, inputs = _part(seconds, "pi_rand", encoded_rollouts, stream, states, pi_rand_keys,
+                            cfg.eval_rand, random=True, fingerprints=True, kept=pi_rand_sets)
     tests = {"pi_rand": (lat, st)}
     if cfg.policy == "ppo" and cfg.eval_curr > 0:
-        tests["pi_curr"] = _part(seconds, "pi_curr", _encoded_rollouts_runs, stream, states,
-                                 k_curr, cfg.eval_curr, random=False)
+        tests["pi_curr"] = _part(seconds, "pi_curr", encoded_rollouts, stream, states, k_curr,
+                                 cfg.eval_curr, random=False)
     seeds = jax.vmap(lambda k: jax.random.randint(k, (), 0, 2**31 - 1))(k_reg)
     errors = _part(seconds, "regressor", alignment.alignment_errors_runs,
                    *train, tests, seeds=np.asarray(seeds).tolist(), **_regressor_options(stream))
@@ -237,99 +224,50 @@ def distortion_columns(stream: Stream) -> np.ndarray:
 
 
 def reconstructions(stream: Stream, s: StreamState, key: jax.Array, num: int = 8):
-    """(true, decoded) last frames of `num` replay sequences, uint8 [num, 64, 64, 3] each."""
+    """(true, decoded) last frames of `num` replay sequences of one run, uint8 [num, 64, 64, 3]
+    each; a learner with boxes (SPAIR) has them drawn over the true frames."""
     seqs = replay_lib.sample(s.replay, key, num, stream.seq_len)
     recon = _reconstruct(stream, s.learner.variables, seqs.frames, seqs.actions)
-    return (np.asarray(seqs.frames[:, -1]),
-            np.asarray(jnp.round(recon[:, -1] * 255)).astype(np.uint8))
+    truth = np.asarray(seqs.frames[:, -1])
+    if hasattr(stream.learner, "draw_boxes"):
+        truth = stream.learner.draw_boxes(s.learner.variables, truth)
+    return truth, np.asarray(jnp.round(recon[:, -1] * 255)).astype(np.uint8)
 
 
 def _chunks(num: int, num_envs: int) -> int:
     return max(1, math.ceil(num / num_envs))
 
 
-def _map_chunks(producer, stream: Stream, s: StreamState, carry, keys,
+def _map_chunks(producer, stream: Stream, states: StreamState, carry, keys,
                 fingerprints: bool = False, store: list | None = None):
-    """For each key, `producer(stream, s, carry, key) -> (carry, Columns [E, L])`, encoded;
-    returns (latents [N, Z], LD targets [N, D]) with N = E · len(keys), and with `fingerprints`
-    the input fingerprints [N, 2]. `store`: a list that gets a host copy of each chunk.
+    """For each chunk c, `producer(stream, states, carry, keys[:, c]) -> (carry, Columns
+    [R, E, L])`, encoded; returns (latents [R, N, Z], LD targets [R, N, D]) with
+    N = E · C, and with `fingerprints` the input fingerprints [R, N, 2]. `store`: a list that
+    gets a host copy of each chunk.
 
     A host loop over one jitted producer and one jitted encoder on every backend: a scan over
     the chunks would compile the encoder once per data set (its length is static), and the
     per-chunk dispatch costs milliseconds against seconds of compilation (and XLA:CPU runs
-    convolutions inside loops slowly, see `jaml.stream.loop.run_epochs`)."""
-    outs = []
-    for k in keys:
-        carry, seqs = producer(stream, s, carry, k)
-        outs.append(_encode(stream, s.learner.variables, seqs, fingerprints))
-        if store is not None:
-            store.append(jax.device_get(seqs))
-    return tuple(jnp.concatenate(x) for x in zip(*outs, strict=True))
-
-
-def _kept_chunk(stream: Stream, s, chunks: list, c: int):
-    """A producer over kept chunks (carry: the list, key: the chunk's index)."""
-    return chunks, jax.device_put(chunks[c])
-
-
-def _encoded_replay_runs(stream: Stream, states: StreamState, keys: jax.Array, num: int):
-    """`encoded_replay` of R stacked runs (keys [R]): ([R, N, Z], [R, N, D])."""
-    chunks = jax.vmap(lambda k: jax.random.split(k, _chunks(num, stream.config.num_envs)))(keys)
-    return _map_chunks_runs(_replay_chunk_runs, stream, states, None, chunks)
-
-
-def _encoded_rollouts_runs(stream: Stream, states: StreamState, keys: jax.Array, num: int,
-                           random: bool, fingerprints: bool = False,
-                           kept: list[PiRandSet] | None = None):
-    """`encoded_rollouts` of R stacked runs (keys [R]): ([R, N, Z], [R, N, D]) and with
-    `fingerprints` [R, N, 2]; `kept`: one `PiRandSet` per run."""
-    _check_keepable(kept, random)
-    if kept is not None and all(k.holds(stream, key, num)
-                                for k, key in zip(kept, keys, strict=True)):
-        chunks = [[k.chunks[c] for k in kept] for c in range(len(kept[0].chunks))]
-        return _map_chunks_runs(_kept_chunk_runs, stream, states, chunks,
-                                np.arange(len(chunks))[None], fingerprints)
-    split = jax.vmap(jax.random.split)(keys)
-    random = jnp.asarray(random)
-    env_states = _rollout_start_runs(stream, states, split[:, 0], random)
-    n = _chunks(num, stream.config.num_envs)
-    chunks = jax.vmap(lambda k: jax.random.split(k, n))(split[:, 1])
-    store = None if kept is None else []
-    out = _map_chunks_runs(_rollout_chunk_runs, stream, states, (env_states, random), chunks,
-                           fingerprints, store)
-    if kept is not None:
-        for r, (k, key) in enumerate(zip(kept, keys, strict=True)):
-            # Copies, not views of the stacked chunks: a finished run's set is then freed
-            # alone while the others' stay.
-            k.store(stream, key, num,
-                    [jax.tree.map(lambda x, r=r: np.array(x[r]), seqs) for seqs in store])
-    return out
-
-
-def _map_chunks_runs(producer, stream: Stream, states: StreamState, carry, keys,
-                     fingerprints: bool = False, store: list | None = None):
-    """`_map_chunks` of R stacked runs: keys [R, C], one producer and one encoder call per
-    chunk for all runs; returns ([R, N, Z], [R, N, D]) and with `fingerprints` [R, N, 2].
-    `store`: a list that gets a host copy of each chunk ([R, E, L] columns)."""
+    convolutions inside loops slowly, see `executor.run_stacked_epochs`)."""
     outs = []
     for c in range(keys.shape[1]):
         carry, seqs = producer(stream, states, carry, keys[:, c])
-        outs.append(_encode_runs(stream, states.learner.variables, seqs, fingerprints))
+        outs.append(_encode(stream, states.learner.variables, seqs, fingerprints))
         if store is not None:
             store.append(jax.device_get(seqs))
     return tuple(jnp.concatenate(x, axis=1) for x in zip(*outs, strict=True))
 
 
-def _kept_chunk_runs(stream: Stream, states, chunks: list, c):
+def _kept_chunk(stream: Stream, states, chunks: list, c):
     """A producer over kept chunks: carry the chunks ([chunk][run] host columns), key [1] the
     chunk's index; the runs' columns stacked [R, E, L] on the device."""
     runs = chunks[int(c[0])]
     return chunks, jax.device_put(jax.tree.map(lambda *x: np.stack(x), *runs))
 
 
-# Module-level jitted functions keyed on the Stream: a `jax.jit` made per call would recompile
-# at every analysis (`release_programs` drops what they compiled).
-@stream_jit(static_argnums=0)
+# Jitted functions keyed on the Stream, kept by the current `programs` scope: a `jax.jit` made
+# per call would recompile at every analysis.
+@jitted(static_argnums=0)
 def _reconstruct(stream: Stream, variables, frames, actions):
     return stream.learner.reconstruct(variables, frames, actions)
 
@@ -353,28 +291,17 @@ def input_fingerprints(hist: int, frames, actions, actions_seen: int | None = No
     return jnp.stack([jnp.sum(words * w, axis=-1, dtype=jnp.uint32) for w in weights], axis=-1)
 
 
-@stream_jit(static_argnums=(0, 3))
+@jitted(static_argnums=(0, 3))
 def _encode(stream: Stream, variables, seqs: replay_lib.Columns, fingerprints: bool = False):
-    z = stream.learner.encode(variables, seqs.frames, seqs.actions)
-    out = (z, seqs.ld[:, stream.hist - 1])
-    if fingerprints:
-        out += (input_fingerprints(stream.hist, seqs.frames, seqs.actions,
-                                   stream.learner.config.actions_seen),)
-    return out
-
-
-@stream_jit(static_argnums=(0, 3))
-def _encode_runs(stream: Stream, variables, seqs: replay_lib.Columns,
-                 fingerprints: bool = False):
-    """`_encode` of R stacked runs ([R, E, ...] sequences, per-run variables), the encoder
-    applied run by run in one program (a Python loop over the static R, no device loop).
+    """(latents [R, E, Z], LD targets [R, E, D]) of R stacked runs' sequences ([R, E, ...], per
+    run variables), and with `fingerprints` [R, E, 2]: the encoder applied run by run in one
+    program (a Python loop over the static R, no device loop).
 
     Not vmapped: vmapping a convolution over per-run weights turns it into one grouped
     convolution, which GPU libraries run far slower than R ordinary ones (see
     `Stream.learn_runs`), and it would change each run's float rounding. Not `lax.map`:
-    XLA:CPU runs convolutions inside loops 20–40× slower (see `run_stacked_epochs`), and on a
-    GPU the unrolled calls are the same R ordinary convolutions without the loop. The
-    forward pass is small, so R copies of it compile quickly."""
+    XLA:CPU runs convolutions inside loops slowly (see `executor.run_stacked_epochs`), and on
+    a GPU the unrolled calls are the same R ordinary convolutions without the loop."""
     z = jnp.stack([
         stream.learner.encode(jax.tree.map(lambda v, r=r: v[r], variables), seqs.frames[r],
                               seqs.actions[r])
@@ -387,52 +314,35 @@ def _encode_runs(stream: Stream, variables, seqs: replay_lib.Columns,
     return out
 
 
-def _replay_chunk_one(stream: Stream, s: StreamState, key):
-    return replay_lib.sample(s.replay, key, stream.config.num_envs, stream.seq_len)
+@jitted(static_argnums=0)
+def _replay_chunk(stream: Stream, states: StreamState, carry, keys):
+    """carry unchanged → one replay sample of `num_envs` sequences per run (keys [R])."""
+    def one(s, key):
+        return replay_lib.sample(s.replay, key, stream.config.num_envs, stream.seq_len)
+
+    return carry, jax.vmap(one)(states, keys)
 
 
-@stream_jit(static_argnums=0)
-def _replay_chunk(stream: Stream, s: StreamState, carry, key):
-    return carry, _replay_chunk_one(stream, s, key)
-
-
-@stream_jit(static_argnums=0)
-def _replay_chunk_runs(stream: Stream, states: StreamState, carry, keys):
-    return carry, jax.vmap(lambda s, k: _replay_chunk_one(stream, s, k))(states, keys)
-
-
-def _rollout_chunk_one(stream: Stream, s: StreamState, env_state: State, random, key):
-    L = stream.seq_len
-    env_state, _, columns, _ = collect.rollout(stream.env, env_state,
-                                               stream.test_policy(s.ppo, random), key, L)
-    return env_state, jax.vmap(replay_lib.window, (0, None, None))(columns, 0, L)
-
-
-@stream_jit(static_argnums=0)
-def _rollout_chunk(stream: Stream, s: StreamState, carry, key):
-    """carry (env state, traced π_rand flag) → L steps, one test sequence per env."""
-    env_state, random = carry
-    env_state, seqs = _rollout_chunk_one(stream, s, env_state, random, key)
-    return (env_state, random), seqs
-
-
-@stream_jit(static_argnums=0)
-def _rollout_chunk_runs(stream: Stream, states: StreamState, carry, keys):
-    """`_rollout_chunk` of R stacked runs: carry (env states [R, E], one traced flag)."""
+@jitted(static_argnums=0)
+def _rollout_chunk(stream: Stream, states: StreamState, carry, keys):
+    """carry (env states [R, E], one traced π_rand flag) → L steps, one test sequence per env
+    and run (keys [R])."""
     env_states, random = carry
-    env_states, seqs = jax.vmap(
-        lambda s, e, k: _rollout_chunk_one(stream, s, e, random, k))(states, env_states, keys)
+    L = stream.seq_len
+
+    def one(s, env_state, key):
+        env_state, _, columns, _ = collect.rollout(stream.env, env_state,
+                                                   stream.test_policy(s.ppo, random), key, L)
+        return env_state, jax.vmap(replay_lib.window, (0, None, None))(columns, 0, L)
+
+    env_states, seqs = jax.vmap(one)(states, env_states, keys)
     return (env_states, random), seqs
 
 
-@stream_jit(static_argnums=0)
-def _rollout_start(stream: Stream, s: StreamState, key: jax.Array, random: jax.Array) -> State:
-    return _rollout_start_one(stream, s, key, random)
-
-
-@stream_jit(static_argnums=0)
-def _rollout_start_runs(stream: Stream, states: StreamState, keys: jax.Array,
-                        random: jax.Array) -> State:
+@jitted(static_argnums=0)
+def _rollout_start(stream: Stream, states: StreamState, keys: jax.Array,
+                   random: jax.Array) -> State:
+    """The R runs' envs reset and past their `eval_transient` steps (keys [R])."""
     return jax.vmap(lambda s, k: _rollout_start_one(stream, s, k, random))(states, keys)
 
 

@@ -17,6 +17,10 @@ from jaml.stream.ppo import PPOConfig
 POLICIES = ("ppo", "random")
 # The reference's replay size in columns (suite_reference.md §3).
 REFERENCE_REPLAY_COLUMNS = 5000
+# The share of replay slots kept from the initial policy, by learner (reference §3): the paper's
+# replay keeps half for every learner but VAE_v0, whose only difference from VAE_rpl it is.
+REPLAY_KEEP_FRACTION = {"VAE_v0": 0.0}
+DEFAULT_REPLAY_KEEP_FRACTION = 0.5
 _PENDULUMS = ("CartPole", "InvertedPendulum")
 _INCLINES = ("GeomOnIncline", "MeshOnIncline")
 _REARRANGES = ("RearrangeGeom", "RearrangeYCB")
@@ -33,8 +37,8 @@ class StreamConfig:
     rollout_len: steps per env per epoch (a column holds rollout_len + 1 frames).
     replay_slots: replay columns, a multiple of num_envs; None (default): the reference's 5000
       rounded down to a multiple of num_envs (4992 at 64 envs), see `replay_columns`.
-    replay_keep_fraction: share of slots kept from the start; default: the learner's (VAE_v0
-      0, others 0.5).
+    replay_keep_fraction: share of slots kept from the start; None (default): the learner's
+      (`REPLAY_KEEP_FRACTION`: VAE_v0 0, others 0.5), see `keep_fraction`.
     learner_steps: learner gradient steps per epoch once the replay is full.
     frames_per_batch: frames per learner step; the batch has frames_per_batch // L sequences.
     epochs: total epochs of the run.
@@ -118,14 +122,27 @@ class StreamConfig:
         return max(1, REFERENCE_REPLAY_COLUMNS // self.num_envs) * self.num_envs
 
     @property
+    def keep_fraction(self) -> float:
+        """The replay's kept share: replay_keep_fraction, or the learner's default."""
+        if self.replay_keep_fraction is not None:
+            return self.replay_keep_fraction
+        return REPLAY_KEEP_FRACTION.get(self.learner, DEFAULT_REPLAY_KEEP_FRACTION)
+
+    @property
     def fill_epochs(self) -> int:
         """Epochs until the replay is full and the learner starts (reference §3)."""
         return self.replay_columns // self.num_envs
 
+    def resolved(self) -> StreamConfig:
+        """This config with the defaults that depend on other fields filled in (the replay's
+        columns and kept share): what a run records, so its config.json reads without rules."""
+        return self.replace(replay_slots=self.replay_columns,
+                            replay_keep_fraction=self.keep_fraction)
+
     def program_key(self) -> str:
-        """The config without its seed, as canonical JSON: what the compiled loop depends on
-        (the seed only picks the run's keys)."""
-        return json.dumps(self.replace(seed=0).to_dict(), sort_keys=True)
+        """The resolved config without its seed, as canonical JSON: what the compiled loop
+        depends on (the seed only picks the run's keys)."""
+        return json.dumps(self.resolved().replace(seed=0).to_dict(), sort_keys=True)
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -133,6 +150,8 @@ class StreamConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> StreamConfig:
+        """The config a `to_dict` (a run's config.json, resolved or as older runs wrote it)
+        describes."""
         d = dict(d)
         ppo = d.pop("ppo", {})
         ppo = PPOConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in ppo.items()})

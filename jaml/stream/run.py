@@ -1,6 +1,7 @@
 """A `jaml suite` run directory: the learning loop with logs, figures and resumable checkpoints.
 
-    OUT/config.json       resolved StreamConfig (a different config in the same OUT is refused)
+    OUT/config.json       the resolved StreamConfig, whole (`StreamConfig.resolved`; a different
+                          config in the same OUT is refused; `StreamConfig.from_dict` reads it)
     OUT/metrics.jsonl     one line per epoch (episode return, PPO and learner losses); "epoch"
                           counts epochs completed, as an analysis's "step" does
     OUT/history.jsonl     one record per analysis and test set (`jaml.evaluation.plots` format;
@@ -41,14 +42,14 @@ from jaml._rundir import RunLog, claim, lock, truncate_jsonl, write_json
 from jaml.evaluation import plots
 from jaml.stream import analysis, checkpoint
 from jaml.stream.config import StreamConfig
-from jaml.stream.loop import (
-    Stream,
-    StreamState,
+from jaml.stream.executor import (
     build,
+    due_by_device,
     run_stacked_epochs,
     stack_runs,
     unstack_runs,
 )
+from jaml.stream.loop import Stream, StreamState
 
 log = logging.getLogger("jaml.stream")
 # What a run resumed from: the command line shows this logger at INFO (`jaml.cli.main`).
@@ -57,6 +58,17 @@ resume_log = logging.getLogger("jaml.resume")
 
 class NonFiniteLoss(RuntimeError):
     """The learner's loss became NaN/inf; the run stopped at its last good checkpoint."""
+
+
+def claim_run(out: Path, config: StreamConfig) -> bool:
+    """`_rundir.claim` for a stream run: config.json holds the resolved config; a recorded one
+    (older runs left derived fields to defaults) is the same run when it resolves to it."""
+    resolved = config.resolved().to_dict()
+
+    def same(recorded: dict) -> bool:
+        return StreamConfig.from_dict(recorded).resolved().to_dict() == resolved
+
+    return claim(out, resolved, same)
 
 
 def analysis_epochs(config: StreamConfig) -> list[int]:
@@ -149,7 +161,7 @@ class _RunDir:
             raise
 
     def _open(self, stream: Stream, config: StreamConfig, out: Path) -> None:
-        claim(out, config.to_dict())
+        claim_run(out, config)
         (out / "recon").mkdir(exist_ok=True)
         k_init, self.k_eval, self.pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
         self.manager = checkpoint.manager(out)
@@ -179,24 +191,20 @@ class _RunDir:
         """The analysis key of the current epoch."""
         return jax.random.fold_in(self.k_eval, self.epoch)
 
-    def analyse(self, stream: Stream, state: StreamState, report: dict | None = None,
+    def analyse(self, stream: Stream, state: StreamState, report: dict, names: list[str],
                 checkpoint_every: int | None = None) -> None:
-        """Analysis, figures and (see `checkpoint_due`) an atomic checkpoint at the current
-        epoch. `report`: this run's `analysis.evaluate` report when computed already (with other
-        runs', see `_analyse_together`)."""
-        with _timed(self.seconds, "analysis"):
-            records = _analyse(stream, state, self.eval_key(), self.pi_rand_key,
-                               analysis.error_names(stream), self.out, self.epoch, report,
-                               seed=self.config.seed, seconds=self.analysis_parts,
-                               pi_rand_set=self.pi_rand_set)
-            with _timed(self.analysis_parts, "records"):
-                self.history += records
-                with (self.out / "history.jsonl").open("a") as f:
-                    # One write per analysis, so a report read beside it (`_runs.read_history`
-                    # skips an unterminated line) almost never sees part of an epoch's records.
-                    f.write("".join(json.dumps(r) + "\n" for r in records))
-                self.logs.analysis(self.epoch, records)
-                self.figures.submit(self.out, list(self.history))
+        """Records, figures and (see `checkpoint_due`) an atomic checkpoint at the current
+        epoch, from this run's `analysis.evaluate_runs` report and its error names (see
+        `_analyse_together`)."""
+        with _timed(self.seconds, "analysis"), _timed(self.analysis_parts, "records"):
+            records = _records(stream, names, self.epoch, report, seed=self.config.seed)
+            self.history += records
+            with (self.out / "history.jsonl").open("a") as f:
+                # One write per analysis, so a report read beside it (`_runs.read_history`
+                # skips an unterminated line) almost never sees part of an epoch's records.
+                f.write("".join(json.dumps(r) + "\n" for r in records))
+            self.logs.analysis(self.epoch, records)
+            self.figures.submit(self.out, list(self.history))
         if checkpoint_due(self.epoch, self.manager.latest_step(), checkpoint_every,
                           last=not self.targets and self.final_checkpoint):
             self.save(state)
@@ -430,15 +438,10 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
     devices taken in turn. Not one host thread per device, as the epochs run: the analysis
     traces its programs as it goes, and a worker thread does not see the caller's JAX config
     contexts (e.g. `jax.threefry_partitionable`, which decides the random bits of the test
-    sets and the regressor). Tried 2026-11-25: with threads, the slow test
-    `test_runs_split_across_devices_are_analysed_per_device_as_alone`, run under
-    `threefry_partitionable(False)`, recorded other errors than the runs alone. A device
-    holding a single due run evaluates it alone. Each run then writes its records, figures and
-    checkpoint as alone."""
+    sets and the regressor). Each run then writes its records, figures and checkpoint as
+    alone."""
     reports = {}
-    for device_states, members in _due_by_device(states, due):
-        if len(members) == 1:
-            continue
+    for device_states, members in due_by_device(states, due):
         tic = time.perf_counter()
         runs = [r for _, r in members]
         parts: dict[str, float] = {}
@@ -454,46 +457,20 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
             for part, seconds in parts.items():
                 r.analysis_parts[part] = r.analysis_parts.get(part, 0.0) + seconds / len(members)
             reports[i] = report
+    names = analysis.error_names(stream)
     for i, r in due:
-        r.analyse(stream, jax.tree.map(lambda x, i=i: x[i], states), reports.get(i),
-                  checkpoint_every)
+        state = jax.tree.map(lambda x, i=i: x[i], states)
+        with _timed(r.seconds, "analysis"), _timed(r.analysis_parts, "reconstructions"):
+            frames = analysis.reconstructions(stream, state, jax.random.fold_in(r.eval_key(), 7))
+            _save_png(r.out / "recon" / f"epoch_{r.epoch:06d}.png", list(frames))
+        r.analyse(stream, state, reports[i], names, checkpoint_every)
 
 
-def _due_by_device(states: StreamState, due: list) -> list[tuple[StreamState, list]]:
-    """The runs `due` grouped by the device that holds them (the first, where the states are
-    replicated): per device, its due runs' states stacked on it and their entries of `due`.
-
-    Taken from each device's own shard, so nothing crosses devices; a device's whole shard is
-    used as is (no copy of its replays) when every run in it is due."""
-    owner = {}
-    for shard in states.epoch.addressable_shards:
-        start, stop, _ = shard.index[0].indices(states.epoch.shape[0])
-        for i in range(start, stop):
-            owner.setdefault(i, shard.device)
-    groups: dict = {}
-    for i, r in due:
-        groups.setdefault(owner[i], []).append((i, r))
-
-    def local(x, device, index):
-        shard = next(s for s in x.addressable_shards if s.device == device)
-        start, stop, _ = shard.index[0].indices(x.shape[0])
-        if index == list(range(start, stop)):
-            return shard.data
-        return shard.data[np.asarray(index) - start]
-
-    return [(jax.tree.map(lambda x, d=device, m=members: local(x, d, [i for i, _ in m]), states),
-             members) for device, members in groups.items()]
-
-
-def _analyse(stream: Stream, state: StreamState, key, pi_rand_key, names, out: Path,
-             epoch: int, report: dict | None = None, *, seed: int,
-             seconds: dict | None = None,
-             pi_rand_set: analysis.PiRandSet | None = None) -> list[dict]:
+def _records(stream: Stream, names: list[str], epoch: int, report: dict, *,
+             seed: int) -> list[dict]:
+    """One run's history records from its report."""
     # `seed` is the run's own: runs trained together share one Stream, whose config carries
-    # the first run's seed. `seconds`: the analysis parts' wall times (`analysis.evaluate`).
-    if report is None:
-        report = analysis.evaluate(stream, state, key, pi_rand_key, seconds=seconds,
-                                   pi_rand_set=pi_rand_set)
+    # the first run's seed.
     errors = {k: v for k, v in report["errors"].items() if k != "validation"}
     records = plots.history_records(epoch, stream.config.learner, errors, names,
                                     report["distortion"], run=seed)
@@ -504,11 +481,6 @@ def _analyse(stream: Stream, state: StreamState, key, pi_rand_key, names, out: P
                     "baseline": dict(zip(names, report["baseline"][r["test_set"]], strict=True)),
                     "irregularity": report.get("irregularity")}
                for r in records]
-    with _timed({} if seconds is None else seconds, "reconstructions"):
-        truth, recon = analysis.reconstructions(stream, state, jax.random.fold_in(key, 7))
-        if hasattr(stream.learner, "draw_boxes"):  # SPAIR: its boxes drawn over the frames
-            truth = stream.learner.draw_boxes(state.learner.variables, truth)
-        _save_png(out / "recon" / f"epoch_{epoch:06d}.png", [truth, recon])
     return records
 
 

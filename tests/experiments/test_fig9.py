@@ -98,7 +98,7 @@ def test_the_layout_reads_every_relation_coordinate_from_the_incline_pred():
     action sizes of the PRED the experiment builds (`penalty_for`'s): θ in the static part, s
     and v in each step's dynamic part, the action of the first step."""
     from jaml import sources
-    from jaml.stream.loop import build
+    from jaml.stream import build
 
     names = tuple(sources.make(fig9.SOURCE).dim_names)
     assert sorted(names) == sorted(("theta", "s0", "v0", "a0", "s1", "v1"))

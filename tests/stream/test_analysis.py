@@ -141,10 +141,8 @@ def _fake_stream(monkeypatch, env_name, **changes):
         sets = [one(stream_, None, k, num, fingerprints=fingerprints) for k in keys]
         return tuple(np.stack(x) for x in zip(*sets, strict=True))
 
-    monkeypatch.setattr(analysis, "encoded_replay", one)
-    monkeypatch.setattr(analysis, "encoded_rollouts", one)
-    monkeypatch.setattr(analysis, "_encoded_replay_runs", runs)
-    monkeypatch.setattr(analysis, "_encoded_rollouts_runs", runs)
+    monkeypatch.setattr(analysis, "encoded_replay", runs)
+    monkeypatch.setattr(analysis, "encoded_rollouts", runs)
     return fake
 
 
@@ -308,12 +306,7 @@ def _stand_ins(monkeypatch):
     counter), and an encoder whose latents depend on the variables; counts the rollouts."""
     calls = {"chunks": 0}
 
-    def chunk(stream_, s, carry, key):
-        calls["chunks"] += 1
-        env_state, random = carry
-        return (env_state + 1, random), _columns(jax.random.fold_in(key, env_state))
-
-    def chunk_runs(stream_, states, carry, keys):
+    def chunk(stream_, states, carry, keys):
         calls["chunks"] += 1
         env_states, random = carry
         return (env_states + 1, random), jax.vmap(
@@ -325,13 +318,10 @@ def _stand_ins(monkeypatch):
         out = (pixels.mean(-1, keepdims=True) * scale, seqs.ld[..., -1, :])
         return (*out, pixels[..., :2].astype(np.uint32)) if fingerprints else out
 
-    monkeypatch.setattr(analysis, "_rollout_start", lambda stream_, s, k, random: jnp.int32(0))
-    monkeypatch.setattr(analysis, "_rollout_start_runs",
+    monkeypatch.setattr(analysis, "_rollout_start",
                         lambda stream_, states, ks, random: jnp.zeros(len(ks), jnp.int32))
     monkeypatch.setattr(analysis, "_rollout_chunk", chunk)
-    monkeypatch.setattr(analysis, "_rollout_chunk_runs", chunk_runs)
     monkeypatch.setattr(analysis, "_encode", encode)
-    monkeypatch.setattr(analysis, "_encode_runs", encode)
     config = types.SimpleNamespace(env="CartPole", env_overrides={}, num_envs=E,
                                    eval_transient=120)
     return types.SimpleNamespace(config=config, seq_len=L), calls
@@ -351,19 +341,24 @@ def test_a_kept_pi_rand_set_is_encoded_again_not_rolled_out_again(monkeypatch):
     fake, calls = _stand_ins(monkeypatch)
     key, num = jax.random.PRNGKey(5), 10  # 3 chunks of 4 envs
     kept = analysis.PiRandSet()
-    first = analysis.encoded_rollouts(fake, _state(1.0), key, num, True, True, kept=kept)
+
+    def encoded_rollouts(variables, key, random=True, kept=None):  # one run: R = 1
+        return analysis.encoded_rollouts(fake, _state([variables]), key[None], num, random,
+                                         True, kept=None if kept is None else [kept])
+
+    first = encoded_rollouts(1.0, key, kept=kept)
     assert calls["chunks"] == 3 and kept.holds(fake, key, num) and len(kept.chunks) == 3
     assert isinstance(kept.chunks[0].frames, np.ndarray)  # on the host
     # Later analyses (trained variables): the kept sequences, encoded by the new encoder, are
     # what rolling them out again from the same key gives.
-    again = analysis.encoded_rollouts(fake, _state(2.0), key, num, True, True, kept=kept)
+    again = encoded_rollouts(2.0, key, kept=kept)
     assert calls["chunks"] == 3
-    _assert_same(again, analysis.encoded_rollouts(fake, _state(2.0), key, num, True, True))
+    _assert_same(again, encoded_rollouts(2.0, key))
     assert calls["chunks"] == 6
     assert not np.array_equal(first[0], again[0])  # the encoder's change shows
     # Another key (or size) is rolled out and replaces the kept set.
     other = jax.random.PRNGKey(6)
-    analysis.encoded_rollouts(fake, _state(2.0), other, num, True, True, kept=kept)
+    encoded_rollouts(2.0, other, kept=kept)
     assert calls["chunks"] == 9 and kept.holds(fake, other, num)
     assert not kept.holds(fake, key, num) and not kept.holds(fake, other, 11)
     # Nor a stream whose rollouts differ (another transient), nor π_curr's sequences.
@@ -371,7 +366,7 @@ def test_a_kept_pi_rand_set_is_encoded_again_not_rolled_out_again(monkeypatch):
         **vars(fake.config), "eval_transient": 121}), seq_len=L)
     assert not kept.holds(longer, other, num)
     with pytest.raises(ValueError, match="π_rand"):
-        analysis.encoded_rollouts(fake, _state(2.0), other, num, False, kept=kept)
+        encoded_rollouts(2.0, other, random=False, kept=kept)
 
 
 def test_kept_pi_rand_sets_of_stacked_runs_are_each_runs_own(monkeypatch):
@@ -379,22 +374,22 @@ def test_kept_pi_rand_sets_of_stacked_runs_are_each_runs_own(monkeypatch):
     keys, num = jnp.stack([jax.random.PRNGKey(5), jax.random.PRNGKey(7)]), 10
     states = _state([1.0, 3.0])
     kept = [analysis.PiRandSet(), analysis.PiRandSet()]
-    first = analysis._encoded_rollouts_runs(fake, states, keys, num, True, True, kept=kept)
+    first = analysis.encoded_rollouts(fake, states, keys, num, True, True, kept=kept)
     assert calls["chunks"] == 3
     assert kept[0].holds(fake, keys[0], num) and kept[1].holds(fake, keys[1], num)
     assert kept[0].chunks[0].frames.shape == (E, L, 2, 2, 3)  # one run's columns each,
     assert kept[0].chunks[0].frames.base is None  # a copy: freed with its run's set alone
-    again = analysis._encoded_rollouts_runs(fake, states, keys, num, True, True, kept=kept)
+    again = analysis.encoded_rollouts(fake, states, keys, num, True, True, kept=kept)
     assert calls["chunks"] == 3
     _assert_same(first, again)
-    _assert_same(first, analysis._encoded_rollouts_runs(fake, states, keys, num, True, True))
+    _assert_same(first, analysis.encoded_rollouts(fake, states, keys, num, True, True))
     # A run's kept set is what its rollouts give alone (the stand-in's per-key sequences).
     alone = analysis.PiRandSet()
-    analysis.encoded_rollouts(fake, _state(1.0), keys[1], num, True, True, kept=alone)
+    analysis.encoded_rollouts(fake, _state([1.0]), keys[1:], num, True, True, kept=[alone])
     assert calls["chunks"] == 9
     for c in range(3):
         np.testing.assert_array_equal(kept[1].chunks[c].frames, alone.chunks[c].frames)
     # One run without its set: every run is rolled out again, and every set refreshed.
     kept[1] = analysis.PiRandSet()
-    analysis._encoded_rollouts_runs(fake, states, keys, num, True, True, kept=kept)
+    analysis.encoded_rollouts(fake, states, keys, num, True, True, kept=kept)
     assert calls["chunks"] == 12 and kept[1].holds(fake, keys[1], num)

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from jaml import stream
-from jaml.stream import checkpoint, loop
+from jaml.stream import checkpoint, programs
 from jaml.stream import run as run_lib
 
 
@@ -112,7 +112,7 @@ def test_checkpoint_round_trip_keeps_every_leaf_by_name(tmp_path):
 
 def test_test_policy_is_uniform_or_current_by_a_traced_flag():
     """π_rand and π_curr share one compiled policy; each flag value gives that policy's actions."""
-    st = loop.build(tiny())
+    st = stream.build(tiny())
     ppo_state = jax.jit(st.ppo.init)(jax.random.PRNGKey(1))
     obs = jax.random.normal(jax.random.PRNGKey(2), (8, 4))
     key = jax.random.PRNGKey(3)
@@ -133,7 +133,8 @@ def test_test_policy_is_uniform_or_current_by_a_traced_flag():
 
 
 def test_streams_of_other_seeds_share_compiled_code_not_their_seed():
-    a, b, other = loop.build(tiny()), loop.build(tiny(seed=7)), loop.build(tiny(learner_steps=3))
+    a, b = stream.build(tiny()), stream.build(tiny(seed=7))
+    other = stream.build(tiny(learner_steps=3))
     assert (a.config.seed, b.config.seed) == (0, 7)
     assert a == b and hash(a) == hash(b) and a.learner is b.learner
     assert other != a
@@ -268,19 +269,20 @@ def test_a_non_finite_loss_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_
     config = tiny(seed=3)
     run_lib.run(config, tmp_path, progress=False, stop_after=2)  # checkpoint at epoch 2
     # The seed-independent Stream that build() keeps for this config (see Stream's hashing).
-    cache_key = next(k for k, v in loop._BUILT.items() if v == stream.build(config))
-    good = loop._BUILT[cache_key]
+    built = programs.current().built
+    cache_key = next(k for k, v in built.items() if v == stream.build(config))
+    good = built[cache_key]
 
     def poisoned(state, batch, key):
         state, metrics = good.train_step(state, batch, key)
         return state, {**metrics, "loss": jnp.full_like(metrics["loss"], jnp.nan)}
 
-    loop._BUILT[cache_key] = dataclasses.replace(good, train_step=poisoned)
+    built[cache_key] = dataclasses.replace(good, train_step=poisoned)
     try:
         with pytest.raises(run_lib.NonFiniteLoss, match="non-finite at epoch 3"):
             run_lib.run(config, tmp_path, progress=False)
     finally:
-        loop._BUILT[cache_key] = good
+        built[cache_key] = good
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["status"] == "nonfinite" and summary["checkpoint_epoch"] == 2
     assert summary["error"].startswith("learner loss became non-finite at epoch 3;")

@@ -1,7 +1,7 @@
-"""Releasing the programs compiled for a Stream (`stream.release_programs`): every jitted
-function keyed on a Stream is registered, releasing empties their caches and `build`'s kept
-Streams, and the executables' memory mappings go back to the system (on XLA:CPU each kernel is
-mapped on its own, and a process that kept every cell's programs ran out of mappings)."""
+"""The programs compiled for a Stream belong to a scope (`stream.programs_scope`): what is built
+and compiled inside one is kept there, and leaving it gives the programs and their memory
+mappings back (on XLA:CPU each kernel is mapped on its own, and a process that kept every
+cell's programs ran out of mappings)."""
 
 import os
 
@@ -11,25 +11,16 @@ import pytest
 
 from jaml import stream
 from jaml.experiments import _runs
-from jaml.stream import analysis, loop, programs
+from jaml.stream import programs
 from tests.stream.test_loop import tiny
 
 
-def _module_jits(module) -> list:
-    """The module's own module-level jitted functions (what `jax.jit` returns)."""
-    return [value for name, value in vars(module).items()
-            if hasattr(value, "clear_cache") and hasattr(value, "lower")
-            and getattr(value, "__module__", module.__name__) == module.__name__]
-
-
-def test_every_jitted_function_keyed_on_a_stream_is_released():
-    jits = _module_jits(loop) + _module_jits(analysis)
-    assert len(jits) >= 10  # the loop's epochs/act/learn programs and the analysis' rollouts
-    keyed = {id(j) for j in programs._KEYED}
-    assert [j for j in jits if id(j) not in keyed] == []
-    # The learner-options variants are made at first use; they are registered too.
-    made = loop._with_learner_options(loop._block)
-    assert id(made) in {id(j) for j in programs._KEYED}
+@programs.jitted(static_argnums=0)
+def _program(st, x):
+    # Sorts and scans between the elementwise steps keep XLA from fusing it into one kernel.
+    for k in range(12):
+        x = jnp.sort(jnp.sin(x * (k + st.config.learner_steps))) + jnp.cumsum(x) * 1e-3
+    return x
 
 
 def _mappings() -> int:
@@ -38,51 +29,61 @@ def _mappings() -> int:
 
 
 @pytest.mark.skipif(not os.path.exists("/proc/self/maps"), reason="counts Linux mappings")
-def test_release_drops_compiled_programs_and_their_memory_mappings():
-    s = loop.build(tiny())
-    assert any(v is s for v in loop._BUILT.values())
-    s.programs["device", "avals"] = "an executable"
-
-    @programs.stream_jit(static_argnums=0)
-    def program(st, x):
-        # Sorts and scans between the elementwise steps keep XLA from fusing it into one kernel.
-        for k in range(12):
-            x = jnp.sort(jnp.sin(x * (k + st.config.learner_steps))) + jnp.cumsum(x) * 1e-3
-        return x
-
-    try:
+def test_leaving_a_scope_drops_its_programs_and_their_memory_mappings():
+    outside = programs.current()
+    before_outside = outside.cache_sizes()
+    with stream.programs_scope() as scope:
+        assert programs.current() is scope and scope is not outside
+        s = stream.build(tiny())
+        assert list(scope.built.values()) == [s]
         before = _mappings()
-        program(s, jnp.ones(64)).block_until_ready()
+        first = _program(s, jnp.ones(64)).block_until_ready()
+        jitted = scope.jit(_program.__wrapped__, static_argnums=0)
+        assert jitted._cache_size() == 1 and scope.cache_sizes()["jitted"] == 1
         added = _mappings() - before
         assert added >= 30  # a few mappings per compiled kernel
-        assert program._cache_size() == 1
-        stream.release_programs()
-        assert program._cache_size() == 0
-        assert _mappings() - before < added / 3
-        assert loop._BUILT == {} and s.programs == {}
-        # A released Stream still runs: it compiles again.
-        assert jnp.allclose(program(s, jnp.ones(64)), program(loop.build(tiny()), jnp.ones(64)))
-    finally:
-        programs._KEYED.remove(program)
+    assert programs.current() is outside and outside.cache_sizes() == before_outside
+    assert scope.cache_sizes() == {"jitted": 0, "built": 0, "executables": 0}
+    assert jitted._cache_size() == 0
+    assert _mappings() - before < added / 3
+    # The Stream still runs after its scope: it compiles again, in the scope current then.
+    with stream.programs_scope() as again:
+        assert jnp.array_equal(_program(s, jnp.ones(64)), first)
+        assert again.cache_sizes()["jitted"] == 1
+
+
+def test_scopes_nest_and_release_on_an_exception():
+    with stream.programs_scope() as outer:
+        s = stream.build(tiny())
+        with pytest.raises(RuntimeError, match="inside"), stream.programs_scope() as inner:
+            assert stream.build(tiny(seed=3)) is not s  # another scope, another Stream
+            assert len(inner.built) == 1
+            raise RuntimeError("inside")
+        assert inner.cache_sizes()["built"] == 0
+        assert programs.current() is outer
+        # Within one scope, another seed's config shares the Stream's parts (and programs).
+        assert stream.build(tiny(seed=3)) == s and len(outer.built) == 1
 
 
 def test_a_figure_cell_releases_its_programs_even_when_it_fails(monkeypatch):
-    released = []
-    monkeypatch.setattr("jaml.stream.release_programs", lambda: released.append(True))
+    seen = []
 
-    def failing_run_many(*args, **kwargs):
+    def failing_run_many(configs, *args, **kwargs):
+        seen.append(programs.current())
+        stream.build(configs[0])
         raise RuntimeError("a run failed")
 
     monkeypatch.setattr("jaml.stream.run.run_many", failing_run_many)
     with pytest.raises(RuntimeError, match="a run failed"):
         _runs.train_seeds("cell", [tiny()], ["unused"])
-    assert released == [True]
+    assert seen and seen[0] is not programs.current()
+    assert seen[0].cache_sizes() == {"jitted": 0, "built": 0, "executables": 0}
 
 
-def test_stream_jit_is_jax_jit():
-    f = programs.stream_jit(lambda n, x: x * n, static_argnums=0)
-    try:
+def test_jitted_is_jax_jit_in_the_current_scope():
+    f = programs.jitted(lambda n, x: x * n, static_argnums=0)
+    with stream.programs_scope() as scope:
         assert int(f(3, jnp.int32(2))) == 6
         assert f(2, 1.0) == jax.jit(lambda n, x: x * n, static_argnums=0)(2, 1.0)
-    finally:
-        programs._KEYED.remove(f)
+        assert scope.cache_sizes()["jitted"] == 2
+        assert f.lower(3, jnp.int32(2)).compile()(jnp.int32(2)) == 6

@@ -13,8 +13,8 @@ import jax
 import numpy as np
 import pytest
 
-from jaml import stream
-from jaml.stream import loop
+from jaml import learners, stream
+from jaml.stream import executor
 from jaml.stream import run as run_lib
 from tests.stream.test_loop import tiny
 
@@ -42,16 +42,20 @@ def _fast_compiling_prng():
 
 
 def test_runs_split_across_two_devices_match_each_run_alone():
+    with stream.programs_scope() as programs:
+        _runs_split_across_two_devices_match_each_run_alone(programs)
+
+
+def _runs_split_across_two_devices_match_each_run_alone(programs):
     s = stream.build(small())
-    learn_step = loop._with_learner_options(loop._vmapped_learn_step)
-    compiled_before = learn_step._cache_size()  # other modules on this worker may have run
     alone = []
     for seed in SEEDS:
-        _, metrics = s.run_epochs(s.init(jax.random.PRNGKey(seed)), EPOCHS)
+        _, metrics = stream.run_epochs(s, s.init(jax.random.PRNGKey(seed)), EPOCHS)
         alone.append(metrics)
-    # The CPU's host loop compiled its learner step at most once (with the learner's compiler
-    # options, `loop._with_learner_options`) and reused it for every step of every seed.
-    assert learn_step._cache_size() - compiled_before <= 1
+    # The CPU's host loop compiled its learner step once (with the learner's compiler options,
+    # `executor._learner_jit`) and reused it for every step of every seed.
+    assert programs.jit(executor._vmapped_learn_step, static_argnums=0, donate_argnums=1,
+                        compiler_options=learners.compiler_options())._cache_size() == 1
     # Three runs on two devices: one device steps two runs, the other one run and a padding copy.
     assert jax.device_count() == 2, "tests/conftest.py asks XLA for two CPU devices"
     mesh = stream.runs_mesh(len(SEEDS))
@@ -61,7 +65,8 @@ def test_runs_split_across_two_devices_match_each_run_alone():
     states, first = stream.run_stacked_epochs(s, states, 1, mesh=mesh, host_loop=False)
     states, second = stream.run_stacked_epochs(s, states, EPOCHS - 1, mesh=mesh,
                                                host_loop=False)
-    assert sorted(d.id for d, _ in s.programs) == [0, 1], "one program per device, reused"
+    assert sorted(d.id for _, d, _ in programs.executables) == [0, 1], (
+        "one program per device, reused")
     together = jax.tree.map(lambda a, b: np.concatenate([a, b]), first, second)
     assert mesh.size == 2 and states.epoch.tolist() == [EPOCHS] * len(SEEDS)
     assert [np.asarray(m["learner/training"]).tolist() for m in alone] == [[0, 1]] * 3
@@ -129,26 +134,27 @@ def _numbers(record) -> list[float]:
 
 
 def test_due_runs_are_analysed_in_one_call_per_device():
-    """`_due_by_device` hands each device its due runs' states, taken from its own shard."""
+    """`due_by_device` hands each device its due runs' states, taken from its own shard."""
     from typing import NamedTuple
 
     from jax.sharding import NamedSharding
     from jax.sharding import PartitionSpec as P
 
-    class State(NamedTuple):  # the two things `_due_by_device` reads of a StreamState
+    class State(NamedTuple):  # the two things `due_by_device` reads of a StreamState
         epoch: jax.Array
         replay: jax.Array
 
     runs = State(np.arange(4, dtype=np.int32), np.arange(4 * 3, dtype=np.float32).reshape(4, 3))
     mesh = stream.runs_mesh(4)
     sharded = jax.device_put(jax.tree.map(jax.numpy.asarray, runs),
-                             NamedSharding(mesh, P(loop.RUNS_AXIS)))
+                             NamedSharding(mesh, P(executor.RUNS_AXIS)))
     devices = list(mesh.devices.flat)
 
     def grouped(states, due):
         return [(sorted(d.id for d in s.replay.devices()), np.asarray(s.replay).tolist(),
                  [i for i, _ in members])
-                for s, members in run_lib._due_by_device(states, [(i, f"run{i}") for i in due])]
+                for s, members in executor.due_by_device(states,
+                                                          [(i, f"run{i}") for i in due])]
 
     rows = runs.replay.tolist()
     # Every run due: one group per device, each its own shard (runs 0, 1 and 2, 3).

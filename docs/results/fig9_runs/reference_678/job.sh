@@ -3,7 +3,7 @@
 # learner epochs, each method as two three-seed lanes, two lanes per GPU. Every process stops
 # after LIMIT seconds (or STOP_AFTER epochs); the next call of the same hold resumes each run
 # from its last checkpoint (one every CHECKPOINT_EVERY epochs).
-#   bash docs/results/fig9_runs/reference/job_2000.sh OUT LIMIT [STOP_AFTER] [CHECKPOINT_EVERY]
+#   bash docs/results/fig9_runs/reference_678/job.sh OUT LIMIT [STOP_AFTER] [CHECKPOINT_EVERY]
 set -u
 out=${1:-runs/fig9ref}; limit=${2:-540}; stop=${3:-}; every=${4:-100}
 mkdir -p "$out/logs"

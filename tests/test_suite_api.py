@@ -65,15 +65,17 @@ def test_linear_probe_recovers_an_affine_encoding_exactly():
     assert max(noise["r2"]["test"]) < 0.3
 
 
-def test_readme_random_projection_example(run):
-    """README's 'your encoder' snippet, on the smoke scale."""
-    config = run[0]
-    projection = jax.random.normal(jax.random.key(0), (64 * 64 * 3, 8))
+def test_readme_encoder_snippet_runs_as_written(run):
+    """README's 'your encoder' snippet, as written (its own smoke run, filled inside `suite`):
+    in this module, whose `run` has the snippet's config, so its programs are compiled once."""
+    from tests.test_readme import snippet
 
-    def encode(frames, actions):  # uint8 [E, L, 64, 64, 3] -> [E, 8]
-        return (frames[:, -1].reshape(len(frames), -1) / 255.0) @ projection
-
-    report = suite.evaluate(encode, config, run[2])
-    assert len(report["errors"]["pi_rand"]) == len(report["error_names"])
+    namespace = {}
+    exec(compile(snippet("encoder"), "README:encoder", "exec"), namespace)
+    report, sets = namespace["report"], namespace["sets"]
+    assert namespace["config"] == run[0]  # the fixture's config: the programs it compiled
+    assert set(sets) == {"train", "pi_rand", "pi_curr"}
+    assert len(report["errors"]["pi_rand"]) == len(report["error_names"]) == 4
     assert np.all(np.isfinite(report["errors"]["pi_rand"]))
+    assert np.isfinite(report["distortion"])
     assert set(report["linear"]["r2"]) == {"pi_rand", "pi_curr"}

@@ -175,6 +175,7 @@ def test_envs_throughput_records_a_side_by_side_row_for_cartpole(tmp_path, monke
     assert "quoted_pybullet_1core_frames_per_s" in (tmp_path / "RESULTS.md").read_text()
 
 
+@pytest.mark.slow  # the benchmark's plumbing, on two compiles
 def test_envs_throughput_records_the_compiler_options_pair(tmp_path, monkeypatch):
     """`--parts options`: one row per env, both programs timed in the same rounds, the ratio the
     two medians', which one jaml uses, recorded under its own benchmark name."""
@@ -208,6 +209,7 @@ def test_the_render_part_times_the_frames_env_step_draws():
     assert len(np.unique(np.asarray(frames))) > 2  # a drawn scene, not a blank frame
 
 
+@pytest.mark.slow  # the peer's frame count, on a compiled rollout
 def test_the_physics_part_counts_frames_as_actions_not_substeps():
     """A physics row's frames/s is batch × actions over the time, its substeps/s that times the
     env's substeps per action (4 on HalfCheetah, 8 on the Rearrange scenes): converting one

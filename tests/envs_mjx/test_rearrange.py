@@ -51,7 +51,10 @@ def _row(tree, i):
 # The reacher pairs here (RearrangeYCB's is RearrangeGeom's scene with other meshes, ~40 s of
 # compile on two cores); the Franka pairs in test_rearrange_franka.py, a module of their own that
 # xdist starts first (its two contracts are the longest checks).
-REACHER = [(n, "reacher") for n in ("RearrangeGeom", "RearrangeYCB")]
+# RearrangeGeom's reacher contract is slow-marked: the Geom scene's contract runs with the Franka
+# (test_rearrange_franka.py), the reacher's with RearrangeYCB here.
+REACHER = [pytest.param("RearrangeGeom", "reacher", marks=pytest.mark.slow),
+           ("RearrangeYCB", "reacher")]
 
 
 @pytest.mark.parametrize("name,arm", REACHER)

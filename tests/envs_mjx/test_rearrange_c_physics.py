@@ -38,7 +38,7 @@ def env_and_programs(arm):
     return env, reset, step
 
 
-@pytest.mark.parametrize("arm", ["reacher", "franka"])
+@pytest.mark.parametrize("arm", ["reacher", pytest.param("franka", marks=pytest.mark.slow)])
 def test_steps_as_a_plain_mj_step_loop(arm):
     env, reset, step = env_and_programs(arm)
     state0 = reset(jax.random.key(0))

@@ -180,6 +180,7 @@ def test_thinned_checkpoints_fall_on_the_first_analysis_due_and_the_last():
         run_lib.run_many([tiny()], ["unused"], checkpoint_every=0)
 
 
+@pytest.mark.slow  # a whole run for one option; checkpoint_due's schedule is tested alone
 def test_without_a_final_checkpoint_a_run_writes_its_records_and_no_checkpoint(tmp_path):
     """--no-final-checkpoint on a machine whose disk goes with the run: the last analysis does
     not force one, so with checkpoints thinned past the run's length none is written."""
@@ -192,6 +193,7 @@ def test_without_a_final_checkpoint_a_run_writes_its_records_and_no_checkpoint(t
     assert not [p for p in (tmp_path / "checkpoints").iterdir() if p.name.isdigit()]  # no step
 
 
+@pytest.mark.slow  # two whole runs for one option (--keep-pi-rand)
 def test_a_run_rolls_its_pi_rand_set_out_once_and_records_what_rolling_it_every_time_gives(
         tmp_path, monkeypatch):
     """`run_many` keeps each run's π_rand sequences after its first analysis (`PiRandSet`):

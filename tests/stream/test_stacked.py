@@ -41,6 +41,7 @@ def _fast_compiling_prng():
         yield
 
 
+@pytest.mark.slow  # two compiles of the device loop; the one-device stacked tests stay default
 def test_runs_split_across_two_devices_match_each_run_alone():
     with stream.programs_scope() as programs:
         _runs_split_across_two_devices_match_each_run_alone(programs)

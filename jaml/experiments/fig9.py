@@ -140,16 +140,14 @@ def learn_relations(out: Path, progress: bool = False, dynamics: str = "drawn",
     from jaml.relations.run import run
 
     summaries = {}
+    source = (_dynamics(dynamics) | ({"units": units} if units != "env" else {})
+              | (SMOKE_SOURCE if smoke else {}))
     for name in sets:
-        options = RELATIONS[name]
         started = time.perf_counter()
-        if smoke:
-            options = options | SMOKE_RELATIONS
-        cfg, directory = relations.Config(**options), out / "relations" / name
-        options = (_dynamics(dynamics) | ({"units": units} if units != "env" else {})
-                   | (SMOKE_SOURCE if smoke else {}))
-        finished = _finished(directory, cfg, options)
-        summaries[name] = finished or run(SOURCE, cfg, directory, source_options=options or None,
+        cfg = relations.Config(**RELATIONS[name] | (SMOKE_RELATIONS if smoke else {}))
+        directory = out / "relations" / name
+        finished = _finished(directory, cfg, source)
+        summaries[name] = finished or run(SOURCE, cfg, directory, source_options=source or None,
                                           progress=progress)
         print(f"relations {name}: {summaries[name]['num_relations']} in "
               f"{time.perf_counter() - started:.0f}s", flush=True)

@@ -96,6 +96,13 @@ def primary(runs, fill_epochs: int) -> str:
             f"interval over {n} seeds): **{d:+.4f} [{lo:+.4f}, {hi:+.4f}]**.")
 
 
+def _paired(values: dict[int, float], base: dict[int, float]) -> str:
+    """`d [lo, hi]`, the paired difference and its 90 % interval, bold when it excludes 0."""
+    d, lo, hi, _ = paired_interval(values, base)
+    mark = "**" if lo > 0 or hi < 0 else ""
+    return f"{mark}{d:+.4f} [{lo:+.4f}, {hi:+.4f}]{mark}"
+
+
 def metric_table(runs, metric: str) -> list[str]:
     """Per analysis step: each method's mean and, for the others, Δ from PRED (paired, and
     Welch's)."""
@@ -116,11 +123,8 @@ def metric_table(runs, metric: str) -> list[str]:
             text = f"{np.mean(list(vals.values())):.4f} ({len(vals)})"
             base = tables.get(BASE, {}).get(step, {})
             if m != BASE and base:
-                d, lo, hi, _ = paired_interval(vals, base)
                 _, wlo, whi = welch_interval(list(vals.values()), list(base.values()))
-                mark = "**" if lo > 0 or hi < 0 else ""
-                text += (f"<br>Δ {mark}{d:+.4f} [{lo:+.4f}, {hi:+.4f}]{mark}"
-                         f"<br>W [{wlo:+.4f}, {whi:+.4f}]")
+                text += f"<br>Δ {_paired(vals, base)}<br>W [{wlo:+.4f}, {whi:+.4f}]"
             cells.append(text)
         lines.append(f"| {step} | " + " | ".join(cells) + " |")
     return lines
@@ -150,9 +154,7 @@ def contrast_table(runs, step: int | None = None) -> list[str]:
             if not a or not c:
                 cells.append("")
                 continue
-            d, lo, hi, _ = paired_interval(a, c)
-            mark = "**" if lo > 0 or hi < 0 else ""
-            cells.append(f"{mark}{d:+.4f} [{lo:+.4f}, {hi:+.4f}]{mark}")
+            cells.append(_paired(a, c))
         lines.append(f"| {arm} − {control} | " + " | ".join(cells) + " |")
     return lines
 

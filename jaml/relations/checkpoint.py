@@ -40,6 +40,18 @@ def _describe(rs: RelationSet) -> dict:
     }
 
 
+def _here(tree):
+    """Restore targets shaped as `tree` on this process's first device: a checkpoint records the
+    devices it was saved from (a CPU's, another GPU's), which need not exist here."""
+    here = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+    return jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=here), tree)
+
+
+def _read_meta(path: Path):
+    with ocp.Checkpointer(ocp.CompositeCheckpointHandler()) as ckptr:
+        return ckptr.restore(path, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
+
+
 def save(rs: RelationSet, path, *, overwrite: bool = True) -> Path:
     """Write `rs` to the directory `path` (atomically; replaces an existing one if overwrite)."""
     path = Path(path).absolute()
@@ -60,18 +72,13 @@ def load(path) -> RelationSet:
     if not path.is_dir():
         raise FileNotFoundError(f"no relations checkpoint at {path}")
     try:
-        with ocp.Checkpointer(ocp.CompositeCheckpointHandler()) as ckptr:
-            meta = ckptr.restore(path, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
+        meta = _read_meta(path)
     except Exception as error:
         raise ValueError(f"corrupt or foreign relations checkpoint at {path}: {error}") from error
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise ValueError(f"{path} is not a jaml relations checkpoint (format {meta!r})")
     dim, depth, widths = meta["dim"], meta["depth"], meta["widths"]
-    # Every array onto this process's first device: the checkpoint records the devices it was
-    # saved from (a CPU's, another GPU's), which need not exist here.
-    here = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
-    target = jax.tree.map(
-        lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=here),
+    target = _here(
         {
             "params": [
                 jax.eval_shape(Relation(w, depth).init, jax.random.key(0), jnp.zeros((1, dim)))
@@ -123,18 +130,13 @@ def save_loop_state(state, path, meta: dict) -> Path:
 def loop_state_meta(path) -> dict | None:
     """The `meta` a `save_loop_state` directory holds, or None where there is none."""
     path = Path(path).absolute()
-    if not path.is_dir():
-        return None
-    with ocp.Checkpointer(ocp.CompositeCheckpointHandler()) as ckptr:
-        return ckptr.restore(path, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
+    return _read_meta(path) if path.is_dir() else None
 
 
 def load_loop_state(path, template):
     """The loop state at `path`, shaped as `template`, on this process's first device."""
     path = Path(path).absolute()
-    here = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
-    target = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=here),
-                          template.replace(key=jax.random.key_data(template.key)))
+    target = _here(template.replace(key=jax.random.key_data(template.key)))
     with ocp.Checkpointer(ocp.CompositeCheckpointHandler()) as ckptr:
         arrays = ckptr.restore(path, args=ocp.args.Composite(
             arrays=ocp.args.StandardRestore(target)))["arrays"]

@@ -217,7 +217,9 @@ def _fit_relation(
         report = lambda s, m, n: callback(phase, k, {"step": int(s.step), "steps": n, **m})  # noqa: E731
     keep = None
     if partial is not None:
-        state = partial.restore(k, state) or state
+        restored = partial.restore(k, state)
+        if restored is not None:
+            state = restored
         keep = lambda s: partial.save(k, s)  # noqa: E731
     return run_until_done(chunk, state, args, report, keep)
 

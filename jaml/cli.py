@@ -153,7 +153,7 @@ class Suite:
 
         config = self.stream_config()
         summary = run(config, self.out, progress=not self.no_progress,
-                      **dataclasses.asdict(self.call))
+                      **self.call.run_options())
         resumed = ("" if summary.get("resumed_from") is None
                    else f", resumed from epoch {summary['resumed_from']}")
         print(f"{config.env} {config.learner} ({config.policy}): {summary['status']} at epoch "

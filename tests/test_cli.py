@@ -12,6 +12,7 @@ import pytest
 
 from jaml import cli
 from jaml.cli import _INFO_PACKAGES, main
+from jaml.experiments import _runs
 
 
 def test_info_names_the_cpu_device_versions_and_mjx_imports(capsys):
@@ -145,9 +146,13 @@ def test_suite_call_flags_reach_the_run(monkeypatch, tmp_path):
     monkeypatch.setattr(run_lib, "run", run)
     assert cli.main(["suite", "--env", "CartPole", "--learner", "VAE_rpl",
                      "--out", str(tmp_path), "--stop-after", "3", "--checkpoint-every", "50",
-                     "--no-final-checkpoint", "--no-keep-pi-rand", "--no-progress"]) == 0
+                     "--no-final-checkpoint", "--no-keep-pi-rand", "--no-progress",
+                     "--time-limit", "600"]) == 0
+    deadline = seen.pop("deadline")
     assert seen == {"progress": False, "stop_after": 3, "checkpoint_every": 50,
                     "final_checkpoint": False, "keep_pi_rand": False}
+    # Counted from the command's start (the module's import), not from the call.
+    assert deadline == pytest.approx(_runs._STARTED + 600)
 
 
 def test_a_bad_choice_is_one_line_naming_the_valid_values(capsys):

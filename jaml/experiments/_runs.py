@@ -12,6 +12,10 @@ from pathlib import Path
 
 from jaml.evaluation import intervals
 
+# When the command started (this module is imported as its flags are parsed): the origin of
+# --time-limit.
+_STARTED = time.monotonic()
+
 
 @dataclasses.dataclass(frozen=True)
 class Driver:
@@ -62,6 +66,22 @@ class CallOptions:
     """keep each run's π_rand test sequences on the host after its first analysis in this call
     and encode them again at the later ones (≈ 2 GB per run at 16 frames per sequence; the
     records are the same); --no-keep-pi-rand rolls them out at every analysis"""
+    time_limit: float | None = None
+    """seconds this command may train, from its start: no block of epochs starts that would end
+    later (at the pace so far); the runs then checkpoint and stop, and the next call resumes.
+    Leave a margin for those checkpoints"""
+
+    def __post_init__(self):
+        if self.time_limit is not None and self.time_limit <= 0:
+            raise ValueError(f"--time-limit must be a positive number of seconds, got "
+                             f"{self.time_limit}")
+
+    def run_options(self) -> dict:
+        """The keyword arguments of `stream.run.run` / `train_seeds`: these fields, the time
+        limit as a `time.monotonic()` deadline."""
+        options = dataclasses.asdict(self)
+        limit = options.pop("time_limit")
+        return options | {"deadline": None if limit is None else _STARTED + limit}
 
 
 def main(command: str, args: type, argv=None) -> int:
@@ -77,7 +97,8 @@ def main(command: str, args: type, argv=None) -> int:
 
 def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,
                 checkpoint_every: int | None = None, final_checkpoint: bool = True,
-                latent_penalty=None, keep_pi_rand: bool = True) -> list[dict]:
+                latent_penalty=None, keep_pi_rand: bool = True,
+                deadline: float | None = None) -> list[dict]:
     """Every seed of one cell trained together (`run_many`: one program, the seeds stacked),
     each in its resumable directory; prints one line per seed (status, seconds by phase) and
     one for the cell. Returns the runs' summaries.
@@ -92,7 +113,8 @@ def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,
     with programs_scope():
         summaries = run_many(list(configs), list(dirs), progress=False, stop_after=stop_after,
                              checkpoint_every=checkpoint_every, final_checkpoint=final_checkpoint,
-                             latent_penalty=latent_penalty, keep_pi_rand=keep_pi_rand)
+                             latent_penalty=latent_penalty, keep_pi_rand=keep_pi_rand,
+                             deadline=deadline)
     for config, summary in zip(configs, summaries, strict=True):
         phases = ", ".join(f"{k} {v:.0f}s" for k, v in summary["seconds_by_phase"].items())
         print(f"{label} seed {config.seed}: {summary['status']} at epoch {summary['epoch']} "

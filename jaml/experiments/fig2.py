@@ -102,7 +102,7 @@ def run_cell(out: Path, env: str, variant: str, seeds, scale: dict, schedule: di
              learner_opt: dict | None = None, preset: str = "paper",
              **call_options) -> list[dict]:
     """Every seed of one (env, variant), trained together; returns their summaries.
-    `call_options`: `_runs.CallOptions`'s fields (stop_after, checkpoint_every, …)."""
+    `call_options`: `_runs.CallOptions.run_options()` (stop_after, deadline, …)."""
     configs = [config_for(env, variant, s, scale, schedule, learner_opt, preset)
                for s in seeds]
     dirs = [out / env / variant / f"seed_{s}" for s in seeds]
@@ -415,7 +415,7 @@ class Args(_runs.Driver):
             for variant in self.variants:
                 run_cell(self.out, env, variant, self.seeds, scale, schedule,
                          key_values(self.learner_opt), self.scale,
-                         **dataclasses.asdict(self.call))
+                         **self.call.run_options())
 
     def report(self) -> str:
         for other in self.compare_with:

@@ -304,7 +304,7 @@ def run_cell(out: Path, variant: str, seeds, scale: dict, schedule: tuple[int, i
              learner_opt: dict | None = None, env_opt: dict | None = None, env: str = ENV,
              preset: str = "paper", **call_options) -> list[dict]:
     """Every seed of one variant, trained together into OUT/VARIANT/seed_N; their summaries.
-    `call_options`: `_runs.CallOptions`'s fields (stop_after, checkpoint_every, …)."""
+    `call_options`: `_runs.CallOptions.run_options()` (stop_after, deadline, …)."""
     configs = [config_for(variant, s, scale, schedule, learner_opt, env_opt, env, preset)
                for s in seeds]
     dirs = [out / variant / f"seed_{s}" for s in seeds]
@@ -629,7 +629,7 @@ class Args(_runs.Driver):
         for variant in self.variants:
             run_cell(self.out, variant, self.seeds, self.fields(SCALE),
                      (self.epochs, self.eval_every), options[variant], env_opt, self.env,
-                     self.scale, **dataclasses.asdict(self.call))
+                     self.scale, **self.call.run_options())
 
     def report(self) -> str:
         return report(self.out, self.variants)

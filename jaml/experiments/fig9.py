@@ -254,7 +254,7 @@ def run_method(out: Path, method: str, seeds, penalty: Penalty, recipe: Recipe, 
                run_dir=None, dynamics: str = "drawn", scale: dict | None = None,
                **call_options) -> None:
     """Every seed of one method, trained together (`run_many`: one program, seeds stacked).
-    `call_options`: `_runs.CallOptions`'s fields (stop_after, checkpoint_every, …)."""
+    `call_options`: `_runs.CallOptions.run_options()` (stop_after, deadline, …)."""
     learner, relation_set, _ = METHODS[method]
     latent_penalty, used = None, []
     if relation_set is not None:
@@ -367,7 +367,7 @@ class Args(_runs.Driver):
             return False
         for method in self.methods:
             run_method(self.out, method, self.seeds, penalty, recipe, dynamics=self.dynamics,
-                       scale=self._scale(), **dataclasses.asdict(self.call))
+                       scale=self._scale(), **self.call.run_options())
         return True
 
     def report(self) -> str:

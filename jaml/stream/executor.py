@@ -112,7 +112,7 @@ def run_stacked_epochs(stream: Stream, states: StreamState, n: int, *, mesh: Mes
 
 
 def _device_loop(stream: Stream, states: StreamState, n: int, mesh: Mesh):
-    """n epochs in blocks of up to `_BLOCK` per device call, the runs padded to and sharded
+    """n epochs in blocks of up to `BLOCK` per device call, the runs padded to and sharded
     along `mesh` (see `run_stacked_epochs`)."""
     count = int(states.epoch.shape[0])
     padded = -count % mesh.size
@@ -122,8 +122,8 @@ def _device_loop(stream: Stream, states: StreamState, n: int, mesh: Mesh):
     if mesh.size > 1:
         states = jax.device_put(states, NamedSharding(mesh, P(RUNS_AXIS)))
     blocks = []
-    for start in range(0, n, _BLOCK):
-        k = min(_BLOCK, n - start)
+    for start in range(0, n, BLOCK):
+        k = min(BLOCK, n - start)
         states, metrics = _blocks_per_device(stream, mesh, states, k)
         blocks.append(jax.tree.map(lambda x, k=k: x[:k, :count], metrics))
     if padded:
@@ -131,9 +131,9 @@ def _device_loop(stream: Stream, states: StreamState, n: int, mesh: Mesh):
     return states, jax.tree.map(lambda *x: jnp.concatenate(x), *blocks)
 
 
-# Epochs per device call: the loop runs n ≤ _BLOCK epochs with n a traced bound, so one
+# Epochs per device call: the loop runs n ≤ BLOCK epochs with n a traced bound, so one
 # compilation serves every block length a run asks for.
-_BLOCK = 32
+BLOCK = 32
 
 
 def _blocks_per_device(stream: Stream, mesh: Mesh, states: StreamState, n: int):
@@ -178,9 +178,9 @@ def _blocks_per_device(stream: Stream, mesh: Mesh, states: StreamState, n: int):
 
 
 def _block(stream: Stream, states: StreamState, n: jax.Array):
-    """n (traced, ≤ _BLOCK) epochs of stacked runs; metrics in [_BLOCK, R] buffers, NaN past n."""
+    """n (traced, ≤ BLOCK) epochs of stacked runs; metrics in [BLOCK, R] buffers, NaN past n."""
     shapes = jax.eval_shape(functools.partial(_epochs, stream), states)[1]
-    buffers = jax.tree.map(lambda x: jnp.full((_BLOCK, *x.shape), jnp.nan, x.dtype), shapes)
+    buffers = jax.tree.map(lambda x: jnp.full((BLOCK, *x.shape), jnp.nan, x.dtype), shapes)
 
     def body(i, carry):
         states, buffers = carry

@@ -43,6 +43,7 @@ from jaml.evaluation import plots
 from jaml.stream import analysis, checkpoint
 from jaml.stream.config import StreamConfig
 from jaml.stream.executor import (
+    BLOCK,
     build,
     due_by_device,
     run_stacked_epochs,
@@ -243,13 +244,15 @@ class _RunDir:
 
 def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | None = None,
         checkpoint_every: int | None = None, final_checkpoint: bool = True,
-        latent_penalty=None, keep_pi_rand: bool = True) -> dict:
-    """Runs (or resumes) the loop in `out`; returns the summary. `stop_after` ends the process's
-    work after that many epochs in this call (a deliberate interruption, for tests and jobs
-    with a time limit); the next call resumes. A non-finite loss raises `NonFiniteLoss`."""
+        latent_penalty=None, keep_pi_rand: bool = True, deadline: float | None = None) -> dict:
+    """Runs (or resumes) the loop in `out`; returns the summary. `stop_after` (epochs) and
+    `deadline` (a `time.monotonic()` instant) end the process's work early, with a checkpoint
+    (a deliberate interruption, for jobs with a time limit); the next call resumes. A
+    non-finite loss raises `NonFiniteLoss`."""
     summary = run_many([config], [out], progress=progress, stop_after=stop_after,
                        checkpoint_every=checkpoint_every, final_checkpoint=final_checkpoint,
-                       latent_penalty=latent_penalty, keep_pi_rand=keep_pi_rand)[0]
+                       latent_penalty=latent_penalty, keep_pi_rand=keep_pi_rand,
+                       deadline=deadline)[0]
     if summary["status"] == "nonfinite":
         raise NonFiniteLoss(summary["error"])
     return summary
@@ -258,7 +261,7 @@ def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | N
 def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
              stop_after: int | None = None, checkpoint_every: int | None = None,
              final_checkpoint: bool = True, latent_penalty=None, mesh=None,
-             keep_pi_rand: bool = True) -> list[dict]:
+             keep_pi_rand: bool = True, deadline: float | None = None) -> list[dict]:
     """Runs (or resumes) several runs of one program, each in its own directory, trained
     together: the configs may differ only in their seeds, and their states are stacked and
     advanced by one compiled loop (`run_stacked_epochs`; several devices split the runs, see
@@ -278,7 +281,13 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     `keep_pi_rand`: each run keeps its π_rand test sequences on the host after its first
     analysis in this call (`analysis.PiRandSet`; ≈ 2 GB per run at the paper's eval_rand and 16
     frames per sequence), so later analyses encode them again instead of rolling them out
-    again; the reports are the same. False rolls them out at every analysis."""
+    again; the reports are the same. False rolls them out at every analysis.
+
+    `deadline`: a `time.monotonic()` instant (a job's wall-clock limit). Epochs then run in
+    blocks of at most `DEADLINE_BLOCK`, and a block that would end past the deadline (at the
+    last block's pace, plus the last analysis's time if it ends at one) is not started: every
+    run still going checkpoints where it is and stops ("interrupted"). Leave a margin for
+    those checkpoints."""
     if len(configs) != len(outs) or not configs:
         raise ValueError(f"run_many needs one out directory per config, got {len(configs)} "
                          f"configs and {len(outs)} directories")
@@ -310,6 +319,8 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     # next while the group stays the same (the common case: all runs at one epoch).
     members: list[_RunDir] = []
     states = None
+    pace = None  # seconds per epoch of the last block, and of the last analysis (deadline)
+    analysis_seconds = 0.0
     try:
         while True:
             for r in runs:
@@ -328,6 +339,13 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                 for r in group:
                     r.status = "interrupted"
                 continue
+            if deadline is not None:
+                n = min(n, DEADLINE_BLOCK)
+                ahead = 0.0 if pace is None else pace * n + (
+                    analysis_seconds if epoch + n == target else 0.0)
+                if _clock() + ahead > deadline:
+                    _stop_in_time(active, members, states)
+                    continue
             if group != members:
                 if states is not None:
                     for r, state in zip(members, unstack_runs(states), strict=True):
@@ -339,7 +357,8 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
             tic = time.perf_counter()
             states, metrics = run_stacked_epochs(stream, states, n, mesh=mesh)
             metrics = jax.tree.map(np.asarray, metrics)
-            share = (time.perf_counter() - tic) / len(group)
+            pace = (time.perf_counter() - tic) / n
+            share = pace * n / len(group)
             bar.update(n * len(group))
             due = []  # (index, run) of the runs at an analysis epoch, analysed together
             for i, r in enumerate(group):
@@ -360,7 +379,10 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                 if r.epoch == target:
                     r.targets.pop(0)
                     due.append((i, r))
+            tic = time.perf_counter()
             _analyse_together(stream, states, due, checkpoint_every)
+            if due:
+                analysis_seconds = time.perf_counter() - tic
             # A run stopped by `stop_after` between analyses keeps its epochs: checkpointed
             # here (no analysis), so the next call resumes where this one stopped.
             for i, r in enumerate(group):
@@ -388,6 +410,25 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
             summaries.append(r.close())
     figures.check()  # a figure that failed to draw, after every summary is written
     return summaries
+
+
+# Epochs between deadline checks: the device loop's block, so no block is split.
+DEADLINE_BLOCK = BLOCK
+_clock = time.monotonic  # what deadlines are read against
+
+
+def _stop_in_time(active: list[_RunDir], members: list[_RunDir], states) -> None:
+    """The deadline's stop: each active run checkpoints at its epoch (unless its last
+    checkpoint is there) and is marked interrupted. `members` are the runs whose states are
+    stacked in `states`; the others hold theirs in `run.state`."""
+    for r in active:
+        if r.targets and r.manager.latest_step() != r.epoch:
+            if r in members:
+                i = members.index(r)
+                r.save(jax.tree.map(lambda x, i=i: x[i], states))
+            else:
+                r.save(r.state)
+        r.status = "interrupted"
 
 
 def checkpoint_due(epoch: int, last_checkpoint: int | None, every: int | None, *,

@@ -161,7 +161,8 @@ def contrast_table(runs, step: int | None = None) -> list[str]:
 
 def stream_check(out: Path, methods) -> list[str]:
     """Whether each seed's stream was the same for every method: its per-epoch episode returns
-    and PPO losses (metrics.jsonl) compared with PRED's, bit for bit."""
+    and PPO losses (metrics.jsonl) compared with PRED's, bit for bit; a seed that differs is
+    named with the first epoch where it does."""
     keys = ("episode_return", "ppo/total_loss")
     lines = []
     for method in methods:
@@ -176,7 +177,11 @@ def stream_check(out: Path, methods) -> list[str]:
             a = {r["epoch"]: json.dumps([r.get(k) for k in keys]) for r in _jsonl(mine)}
             b = {r["epoch"]: json.dumps([r.get(k) for k in keys]) for r in _jsonl(base)}
             common = sorted(a.keys() & b.keys())
-            (same if common and all(a[e] == b[e] for e in common) else differ).append(d.name)
+            first = next((e for e in common if a[e] != b[e]), None)
+            if common and first is None:
+                same.append(d.name)
+            else:
+                differ.append(d.name if first is None else f"{d.name} from epoch {first}")
         parts = [f"{len(same)} seeds identical"]
         if differ:
             parts.append(f"differ: {', '.join(differ)}")

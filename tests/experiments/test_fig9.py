@@ -51,7 +51,7 @@ def test_report_leads_with_the_primary_comparison_and_tables_paired_differences(
     half = 2.9199856 * 0.01 / math.sqrt(3)
     assert text.splitlines()[0].startswith("**Primary comparison** (PRED+AML_trnsv − PRED")
     assert f"**-0.0200 [{-0.02 - half:+.4f}, {-0.02 + half:+.4f}]**" in text.splitlines()[0]
-    assert "- PRED+AML_trnsv vs PRED: 2 seeds identical; differ: seed_2" in text
+    assert "- PRED+AML_trnsv vs PRED: 2 seeds identical; differ: seed_2 from epoch 2" in text
     row = next(line for line in text.splitlines() if line.startswith("| 1078 |"))
     assert f"Δ **-0.0200 [{-0.02 - half:+.4f}, {-0.02 + half:+.4f}]**" in row
     assert "irreg_std, π_rand" in text and "VAE_rpl" not in text

@@ -60,10 +60,10 @@ METHODS = {
     "VAE_rpl": ("VAE_rpl", None, None),
 }
 PILOT = "PRED+AML_trnsv"  # the method whose pilot runs choose the weight ("ours")
-# PRED's per-step latent on the incline is [f_0, f_1, f_2, s_t, v_t] (static part 3, dynamic 2:
-# `stream.for_env`); θ is read from step 0's last static entry (the reference's), the action
-# between the steps from the env's action.
-LAYOUT = dict(static={"theta": 2}, dynamic={"s": 3, "v": 4}, actions={"a": 0})
+# Where the relations' coordinates sit in PRED's per-step latent, placed on the slots the learner
+# declares (`LearnerConfig.penalty_slots`): θ on the last static entry (the reference's θ̃), s and
+# v on the dynamic entries; the action between the steps is the env's action.
+COORDINATES = dict(static=("theta",), dynamic=("s", "v"))
 # Relations: 3 per set as in the paper's block-on-incline figures, with budgets cut to fit the
 # experiment's time (the stopping rule usually ends a relation well before them).
 RELATIONS = {
@@ -190,7 +190,8 @@ def penalty_for(out: Path, relation_set: str, penalty: Penalty, recipe: Recipe,
     rs = relations.load(out / "relations" / relation_set / "checkpoint")
     used = list(range(rs.num_relations)) if recipe.all_relations else converged(out, relation_set)
     return relations.latent_penalty(
-        rs.select(used), relations.LatentLayout(**LAYOUT), latent_size=learner.penalty_dim,
+        rs.select(used), relations.LatentLayout.place(learner.penalty_slots, **COORDINATES),
+        latent_size=learner.penalty_dim,
         action_size=1, weight=penalty.weight, form=penalty.form, ok_weight=penalty.ok_weight,
         ok_rows=penalty.ok_rows, ok_fraction=penalty.ok_fraction,
     ), used

@@ -147,6 +147,14 @@ class LearnerConfig:
         """Z: size of `encode`'s flattened posterior mean."""
         return self.static_size + self.latent_steps * self.z_step
 
+    @property
+    def penalty_slots(self) -> dict[str, tuple[int, ...]]:
+        """Which entries of the per-step penalty latent (P) are static (one value per
+        sequence) and which dynamic (one per step): what `relations.LatentLayout.place` puts a
+        relation set's coordinates on."""
+        return {"static": tuple(range(self.static_size)),
+                "dynamic": tuple(range(self.static_size, self.penalty_dim))}
+
 
 @dataclasses.dataclass(frozen=True)
 class SingleFrameConfig(LearnerConfig):

@@ -31,7 +31,7 @@ Shapes: B batch, S latent steps, P per-step latent, A action, D relation input, 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -58,6 +58,26 @@ class LatentLayout:
     static: Mapping[str, int]
     dynamic: Mapping[str, int]
     actions: Mapping[str, int] = dataclasses.field(default_factory=lambda: {"a": 0})
+
+    @classmethod
+    def place(cls, slots: Mapping[str, Sequence[int]], static: Sequence[str] = (),
+              dynamic: Sequence[str] = (), actions: Mapping[str, int] | None = None
+              ) -> LatentLayout:
+        """The layout that puts relation coordinates on a learner's declared latent
+        (`LearnerConfig.penalty_slots`): the `static` names on its last static entries (the
+        reference reads θ from PRED's last static entry), the `dynamic` names on its first
+        dynamic entries, in order; `actions` as in the constructor (default {"a": 0})."""
+        have = {kind: tuple(slots.get(kind, ())) for kind in ("static", "dynamic")}
+        for kind, names in (("static", static), ("dynamic", dynamic)):
+            if len(names) > len(have[kind]):
+                raise LayoutError(f"{len(names)} {kind} coordinates {list(names)} but the "
+                                  f"learner's latent has {len(have[kind])} {kind} entries; "
+                                  f"give it a larger {kind} part")
+        placed_static = dict(zip(static, have["static"][len(have["static"]) - len(static):],
+                                 strict=True))
+        placed_dynamic = dict(zip(dynamic, have["dynamic"][:len(dynamic)], strict=True))
+        return cls(placed_static, placed_dynamic,
+                   {"a": 0} if actions is None else dict(actions))
 
     def gather(self, names: tuple[str, ...], latent_size: int, action_size: int):
         """For each relation coordinate, (source, index, step offset) with source "z" or "a";

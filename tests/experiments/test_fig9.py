@@ -104,8 +104,9 @@ def test_the_layout_reads_every_relation_coordinate_from_the_incline_pred():
     assert sorted(names) == sorted(("theta", "s0", "v0", "a0", "s1", "v1"))
     stream = build(fig9._config("PRED", 0, fig9.RECIPES["reference"]))
     assert stream.learner.config.static_per_step
-    plan = LatentLayout(**fig9.LAYOUT).gather(names, stream.learner.config.penalty_dim,
-                                              stream.env.action_size)
+    config = stream.learner.config
+    plan = LatentLayout.place(config.penalty_slots, **fig9.COORDINATES).gather(
+        names, config.penalty_dim, stream.env.action_size)
     expected = {"theta": ("z", 2, 0), "s0": ("z", 3, 0), "v0": ("z", 4, 0), "a0": ("a", 0, 0),
                 "s1": ("z", 3, 1), "v1": ("z", 4, 1)}
     assert [p[:3] for p in plan] == [expected[n] for n in names]

@@ -286,3 +286,19 @@ def test_the_ok_term_reweights_the_ok_rows_nll_and_no_ok_row_adds_nothing():
     none = latent_penalty(trapezoid_relations(on_mean=1e-12), LAYOUT, latent_size=3,
                           action_size=1, weight=0.0, ok_weight=10.0)
     np.testing.assert_allclose(loss(none), plain, rtol=1e-6)
+
+
+def test_a_layout_placed_on_a_learners_declared_slots():
+    """PRED with a static part of 3 and a dynamic part of 2 declares P = 5 entries: θ goes to
+    the last static one (2), s and v to the dynamic ones (3, 4); too many names is refused."""
+    from jaml import learners
+
+    config = learners.default_config("PRED", ld_dim=5, static_dim=3, latent_dim=2)
+    assert config.penalty_slots == {"static": (0, 1, 2), "dynamic": (3, 4)}
+    placed = LatentLayout.place(config.penalty_slots, static=("theta",), dynamic=("s", "v"))
+    assert placed == LatentLayout(static={"theta": 2}, dynamic={"s": 3, "v": 4},
+                                  actions={"a": 0})
+    vae = learners.default_config("VAE_rpl", ld_dim=5)
+    assert vae.penalty_slots["static"] == ()
+    with pytest.raises(LayoutError, match=r"1 static coordinates.*0 static entries"):
+        LatentLayout.place(vae.penalty_slots, static=("theta",), dynamic=("s", "v"))

@@ -273,7 +273,7 @@ def alignment_errors(latents_train, states_train, test_sets: Mapping[str, tuple]
 
     The result also carries "validation": the error on the held-out leading training rows.
     With `rotation_starts` (J blocks) each is [D + J]: the per-entry errors, then each block's
-    mean principal-axis error (`rotation_errors`).
+    mean principal-axis error (`rotation_errors`). `alignment_errors_runs` with one run.
     """
     if not isinstance(test_sets, Mapping) or not test_sets:
         raise ValueError("test_sets must be a non-empty mapping name → (latents, states)")
@@ -283,6 +283,7 @@ def alignment_errors(latents_train, states_train, test_sets: Mapping[str, tuple]
         if not isinstance(pair, tuple | list) or len(pair) != 2:
             raise ValueError(f"test_sets[{name!r}] must be a pair (latents, states)")
     x, y = _checks.paired(("latents_train", "states_train"), latents_train, states_train)
+    tests = {}
     for name, (lat, st) in test_sets.items():  # fail before the (long) fit, not after it
         xt, yt = _checks.paired((f"latents_{name}", f"states_{name}"), lat, st)
         if xt.shape[1] != x.shape[1] or yt.shape[1] != y.shape[1]:
@@ -290,22 +291,9 @@ def alignment_errors(latents_train, states_train, test_sets: Mapping[str, tuple]
                 f"test set {name!r}: widths (Z={xt.shape[1]}, D={yt.shape[1]}) differ from the "
                 f"training set's (Z={x.shape[1]}, D={y.shape[1]})"
             )
-    config = _resolve(config, overrides)
-    regressor = fit_regressor(x, y, seed, config)
-    errors = {
-        name: regressor_error(regressor, lat, st, name) for name, (lat, st) in test_sets.items()
-    }
-    errors["validation"] = regressor.validation_error
-    starts = config.rotation_starts
-    if starts:
-        for name, (lat, st) in test_sets.items():
-            errors[name] = jnp.concatenate(
-                [errors[name], rotation_errors(regressor, lat, st, starts, name)])
-        n_val = config.split(x.shape[0])
-        held_out = (rotation_errors(regressor, x[:n_val], y[:n_val], starts, "validation")
-                    if n_val > 0 else jnp.full((len(starts),), jnp.nan, jnp.float32))
-        errors["validation"] = jnp.concatenate([errors["validation"], held_out])
-    return errors
+        tests[name] = (xt[None], yt[None])
+    errors = alignment_errors_runs(x[None], y[None], tests, [seed], config, **overrides)
+    return {name: e[0] for name, e in errors.items()}
 
 
 def alignment_error(latents_train, states_train, latents_test, states_test, seed: int = 0,
@@ -325,11 +313,9 @@ def alignment_errors_runs(latents_train, states_train, test_sets: Mapping[str, t
 
     latents_train [R, N, Z], states_train [R, N, D], test_sets {name: ([R, Nt, Z], [R, Nt, D])},
     seeds [R] ints: errors [R, D] per name (and "validation"), where row r is what
-    `alignment_errors` gives for run r's arrays and seeds[r] ([D + J] with `rotation_starts`),
-    up to float rounding (here the
-    normalisation stats are computed on the device, there on the host). One compiled program
-    fits every run: on a GPU the fit is latency bound (a scan of small steps), so R fits cost
-    about one.
+    `alignment_errors` gives for run r's arrays and seeds[r] ([D + J] with `rotation_starts`).
+    One compiled program fits every run: on a GPU the fit is latency bound (a scan of small
+    steps), so R fits cost about one.
     """
     if not isinstance(test_sets, Mapping) or not test_sets:
         raise ValueError("test_sets must be a non-empty mapping name → (latents, states)")

@@ -8,7 +8,7 @@ a depth and a relaxed-Bernoulli presence. The presence prior is SPAIR's prior on
 count, a truncated geometric annealed over training. Objects are decoded to RGB + alpha glimpses,
 placed back with the inverse transform and composed over a decoded background by SPAIR's
 importance-weighted rule. For the first training steps SPAIR's training wheels hold the box,
-depth and presence posteriors out of the gradient; `jaml.learners.spair_probe` checks that the
+depth and presence posteriors out of the gradient; `jaml.experiments.spair_probe` checks that the
 presences find objects on a toy task. Shapes: B batch, N = G² cells, g glimpse side,
 H = W = 64, C = 3, K what size, Q background size, P = 4 + K + 2 per-cell program (box, what,
 depth, presence).

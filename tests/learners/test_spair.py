@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from jaml import learners
-from jaml.learners import spair, spair_probe
+from jaml.experiments import spair_probe
+from jaml.learners import spair
 
 B, K, Q = 2, 2, 2
 TINY = {"backbone_filters": (8, 8, 8), "conv_features": 16, "lateral_widths": (16,),

@@ -1,4 +1,4 @@
-"""Does SPAIR find objects? A toy task and its measures (`python -m jaml.learners.spair_probe`).
+"""Does SPAIR find objects? A toy task and its measures (`python -m jaml.experiments.spair_probe`).
 
 Synthetic 64×64 frames with 1–4 coloured squares and discs at random, non-overlapping positions
 on a plain or lightly textured background of a random dark colour, trained through the shared

@@ -113,14 +113,10 @@ class _Logs(RunLog):
 
 class _FigureWriter:
     """Draws the runs' figures (alignment.png, distortion.png) on one background thread, so the
-    loop's next epochs run while matplotlib draws.
-
-    Drawn in line, they held the loop up at every analysis of every run: on the host of one
-    H100, a HalfCheetah run's figures (26 dimensions, 52 alignment panels) took 10.5–11.1 s of
-    its 50 s analysis phase over two analyses, the first of which compiled
-    (`seconds_in_analysis`, commit 175b49e), one run after another. A run's figures are
-    drawn from its newest history only: a request still queued when a newer one for the same
-    run arrives is skipped. `wait` drains the queue; `check` raises the first drawing error."""
+    loop's next epochs run while matplotlib draws (drawn in line, they held up every analysis
+    of every run; docs/notes/stream.md). A run's figures are drawn from its newest history
+    only: a request still queued when a newer one for the same run arrives is skipped. `wait`
+    drains the queue; `check` raises the first drawing error."""
 
     def __init__(self):
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaml-figures")
@@ -274,8 +270,8 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     analysis and where `stop_after` stops it. A checkpoint holds the replay (≈ 2 GB per
     pendulum run, 4 GB per locomotion run at 64×64), so on a machine that is not kept, whose
     disk goes with the runs, writing one at every analysis buys little and costs minutes.
-    There, `final_checkpoint=False` also drops the forced one at the last analysis (≈ 15 s per
-    locomotion run on an H100; the run's records and summary are written as always): the last
+    There, `final_checkpoint=False` also drops the forced one at the last analysis (the run's
+    records and summary are written as always): the last
     analysis then checkpoints only where `checkpoint_every` says so.
 
     `keep_pi_rand`: each run keeps its π_rand test sequences on the host after its first

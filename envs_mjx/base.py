@@ -108,9 +108,7 @@ class PixelsUnavailableWarning(UserWarning):
 # stream's epoch loop, the analysis rollouts) calls the same traced and batched jaxpr, which JAX
 # caches per input shapes, instead of re-tracing MJX's ~1.5 s of Python at each call site and
 # re-batching it under every vmap level around a loop. XLA inlines the call, so the compiled
-# program is unchanged. Measured on the 2-core CPU (RearrangeGeom, fig3's SPAIR config, three
-# runs stacked): tracing + lowering the epoch block 78 -> 39 s, the analysis's rollout start
-# 64 -> 19 s.
+# program is unchanged; tracing and lowering take far less time (docs/notes/envs.md).
 physics_step = jax.jit(mjx.step)
 
 

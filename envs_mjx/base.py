@@ -159,7 +159,7 @@ def renderer_pixels_fn(
         return render.render(c, data).rgb
 
     # Jitted for the trace cache, as `physics_step`: a reset and a step draw with one trace
-    # (fig3's epoch block: tracing + lowering 28.5 -> 23.8 s; the rollout start 19 -> 9.5 s).
+    # (docs/notes/envs.md).
     return jax.jit(pixels_fn)
 
 

@@ -324,8 +324,7 @@ def render(ctx: RenderContext, data) -> RenderOutput:
 
 # Frames per chunk when a batch is rendered on the CPU. XLA:CPU runs each fused loop over the
 # whole batch before the next, so a large batch streams every intermediate [B, H*W] buffer
-# through memory; in chunks they stay in cache. 2-core EPYC, batch 256, CPU time per frame:
-# cartpole 260 -> 133 us, Ant 450 -> 311 us (chunks of 16 or 64 did about as well).
+# through memory; in chunks they stay in cache (docs/notes/render.md).
 CPU_BATCH_CHUNK = 32
 
 

@@ -15,15 +15,10 @@ resumable on its own. Then OUT/fig3.md and the images are written from whatever 
                            the half-width of its 90 % confidence interval), and the numbers that
                            bear on the paper's claims next to them
 
-The LD groups come from the env's metadata (`ld_state_groups`: position / orientation / other)
-and its state names (sin_qJ / cos_qJ are arm joints, objK_* object K's entries); the "largest
-object" is the slot whose shape has the largest bounding box in every version the env uses.
-Positions and joints are scored by the mean |prediction − truth| of their entries; an object's
-orientation by the reference's principal-axis error of its rotation block (suite_reference §5,
-`jaml.evaluation.rotation`), which the stream records as objK_rotation: with M = R_trueᵀR̂, the
-mean over i of min(|M[i, 2] − e_z[i]|, |M[i, 2] + e_z[i]|). The reference reports it as is,
-neither degrees nor radians: 0 when the major axes agree up to sign, 2/3 for perpendicular axes,
-1/3 for a zero prediction (R̂ is a regressor output, not re-orthonormalised, so not bounded by 1).
+The LD groups come from the env's metadata (`ld_state_groups`) and state names (sin_qJ / cos_qJ
+arm joints, objK_* object K); the "largest object" has the largest bounding box in every
+version used. Positions and joints score by mean |prediction − truth|, orientation by the
+reference's principal-axis error (`jaml.evaluation.rotation`, docs/evaluation.md).
 
 What the paper reports (Fig. 3's caption, and §2 "Benchmarking latent state alignment"):
 "VAE_rpl encoded angle of the main robot joint, location & partly orientation (major axis) of
@@ -34,13 +29,9 @@ training (bounding boxes not tight)."
     python -m jaml.experiments.fig3 --out runs/fig3 --variants SPAIR_4x4 --stop-after 100
     python -m jaml.experiments.fig3 --out runs/fig3 --report-only       # report from the runs
 
-Settings are the reference's for Rearrange (suite_reference §3–5): 64 envs × 10 steps per epoch
-(the rollout it forces for Rearrange), a 4992-column replay that keeps its initial half, 50
-learner steps per epoch, 1024 frames per VAE batch and 64 per SPAIR batch (the paper's), the
-VAE's PARAMS_VAE_REARR latent (53 = D entries, plain μ head, log-variances within ±20), PPO's
-MLP 256 with 50 × 4 minibatches, LD targets used as is (not z-scored), regressor sets of 10 000 /
-10 048 / 2 500 sequences and 10 000 regressor steps. The paper does not give Fig. 3's training
-length; the default is 300 epochs (222 of them training: 11 100 learner steps), analysed every 50.
+Settings are the reference's for Rearrange (suite_reference §3–5; `REARRANGE`, `SCALE`,
+`FRAMES_PER_BATCH` below, listed in docs/results/fig3.md). The paper does not give Fig. 3's
+training length; the default is 300 epochs (222 of them training), analysed every 50.
 
 The variants share nothing, so on one GPU they can run as parallel processes (more throughput
 than one process; docs/notes/experiments.md), then one call writes the report:

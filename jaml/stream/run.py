@@ -271,8 +271,8 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     pendulum run, 4 GB per locomotion run at 64×64), so on a machine that is not kept, whose
     disk goes with the runs, writing one at every analysis buys little and costs minutes.
     There, `final_checkpoint=False` also drops the forced one at the last analysis (the run's
-    records and summary are written as always): the last
-    analysis then checkpoints only where `checkpoint_every` says so.
+    records and summary are written as always): the last analysis then checkpoints only where
+    `checkpoint_every` says so.
 
     `keep_pi_rand`: each run keeps its π_rand test sequences on the host after its first
     analysis in this call (`analysis.PiRandSet`; ≈ 2 GB per run at the paper's eval_rand and 16

@@ -66,8 +66,8 @@ def _nearest_primitive(ctx, frames, x, y, never):
     The chain over geoms carries one int32 per pixel: the bits of t (positive floats order like
     their bit patterns) with the low bits replaced by the geom's index, so the whole chain is a
     single fused loop with one output. Carrying normals and uv as well made XLA:CPU fuse the
-    chain into every carried field's loop and re-run it per field (Ant's 12 capsules: 14x the
-    cost of this pass alone); carrying t and the index as two arrays made it split the chain
+    chain into every carried field's loop and re-run it per field (docs/notes/render.md);
+    carrying t and the index as two arrays made it split the chain
     into a buffer per geom. The cost: t loses its low bits (relative 2^-(23 - index bits)), and
     surfaces that close in depth tie-break by index."""
     bits = max(1, (len(frames) - 1).bit_length())

@@ -106,7 +106,7 @@ class PixelsUnavailableWarning(UserWarning):
 
 # `mjx.step` behind one jit: every env program (reset's settle steps, each step's substeps, the
 # stream's epoch loop, the analysis rollouts) calls the same traced and batched jaxpr, which JAX
-# caches per input shapes, instead of re-tracing MJX's ~1.5 s of Python at each call site and
+# caches per input shapes, instead of re-tracing MJX's Python at each call site and
 # re-batching it under every vmap level around a loop. XLA inlines the call, so the compiled
 # program is unchanged; tracing and lowering take far less time (docs/notes/envs.md).
 physics_step = jax.jit(mjx.step)

@@ -1,27 +1,6 @@
 """A `jaml suite` run directory: the learning loop with logs, figures and resumable checkpoints.
 
-    OUT/config.json       the resolved StreamConfig, whole (`StreamConfig.resolved`; a different
-                          config in the same OUT is refused; `StreamConfig.from_dict` reads it)
-    OUT/metrics.jsonl     one line per epoch (episode return, PPO and learner losses); "epoch"
-                          counts epochs completed, as an analysis's "step" does
-    OUT/history.jsonl     one record per analysis and test set (`jaml.evaluation.plots` format;
-                          Rearrange adds objK_rotation, `analysis.error_names`; "baseline":
-                          a latent-free constant's errors on the same rows)
-    OUT/tensorboard/      the same scalars
-    OUT/checkpoints/      Orbax: the whole StreamState (envs, PPO, learner, optimiser states,
-                          replay, RNG key) as named arrays, written atomically after every
-                          analysis (`jaml.stream.checkpoint`)
-    OUT/alignment.png     alignment errors over training, and OUT/distortion.png: redrawn after
-                          each analysis, on a background thread (`_FigureWriter`)
-    OUT/recon/            epoch_XXXXXX.png: true and reconstructed frames at each analysis
-    OUT/.lock             held by the process running the run (`_rundir.lock`)
-    OUT/summary.json      status, epoch, wall seconds of this call by phase, the last analysis's
-                          records; rewritten after every analysis (status "running") and at the end
-
-Restarted with the same config, a run resumes from its newest checkpoint and drops the JSON-lines
-records written after it, so the logs and the state agree and nothing is counted twice
-(TensorBoard event files are append-only: a resumed run's scalars overlap the lost ones). A
-non-finite learner loss stops the run with a message; the last good checkpoint stays.
+The directory's files and the resume rules are listed in docs/stream.md, "Run directory".
 """
 
 from __future__ import annotations

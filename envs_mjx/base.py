@@ -106,11 +106,9 @@ class PixelsUnavailableWarning(UserWarning):
 
 # `mjx.step` behind one jit: every env program (reset's settle steps, each step's substeps, the
 # stream's epoch loop, the analysis rollouts) calls the same traced and batched jaxpr, which JAX
-# caches per input shapes, instead of re-tracing MJX's ~1.5 s of Python at each call site and
+# caches per input shapes, instead of re-tracing MJX's Python at each call site and
 # re-batching it under every vmap level around a loop. XLA inlines the call, so the compiled
-# program is unchanged. Measured on the 2-core CPU (RearrangeGeom, fig3's SPAIR config, three
-# runs stacked): tracing + lowering the epoch block 78 -> 39 s, the analysis's rollout start
-# 64 -> 19 s.
+# program is unchanged; tracing and lowering take far less time (docs/notes/envs.md).
 physics_step = jax.jit(mjx.step)
 
 
@@ -161,7 +159,7 @@ def renderer_pixels_fn(
         return render.render(c, data).rgb
 
     # Jitted for the trace cache, as `physics_step`: a reset and a step draw with one trace
-    # (fig3's epoch block: tracing + lowering 28.5 -> 23.8 s; the rollout start 19 -> 9.5 s).
+    # (docs/notes/envs.md).
     return jax.jit(pixels_fn)
 
 

@@ -78,10 +78,8 @@ class CPhysics:
 
         Returns {"qpos", "qvel"} of the final state; with `bias`, also "qfrc_bias" as the last
         substep computed it (at the state one substep before the end, where `mj_step` and
-        `mjx.step` leave it), computed in C: MJX's own kinematics of the Franka scene took 2.2 s
-        for 64 envs on a CPU with XLA's default options (≈ 0.1 ms per env with the older
-        emitters of `envs_mjx.compiler_options(env)`, envs_mjx/compile.py), and C needs no XLA
-        program.
+        `mjx.step` leave it), computed in C: MJX's own kinematics of the Franka scene is slow on
+        a CPU under XLA's default options (docs/notes/envs.md), and C needs no XLA program.
         """
         if nstep < 1 or (bias and nstep < 2):
             raise ValueError(f"nstep must be >= {2 if bias else 1}, got {nstep}")

@@ -22,11 +22,9 @@ Terminated vs truncated: the envs follow Brax, where `state.done` is set for bot
 `terminated = done and not truncated`.
 
 Speed on a CPU: the single env makes one small jitted call per step, and XLA:CPU's thread pool
-spends more handing that call's work between cores than it saves. On two Intel Xeon cores,
-against one PyBullet process side by side, CartPole's single env made 0.59× its frames/s with
-the process pinned to one core (`taskset -c 0`) and 0.41× unpinned, InvertedPendulum 1.07× and
-0.67×, in two runs of the benchmark (docs/notes/render.md, "One env on one core"). The vector env's
-batched call is what the pool is for.
+spends more handing that call's work between cores than it saves, so a single env is slower
+than PyBullet's (docs/notes/render.md, "One env on one core"); pinning the process to one core
+(`taskset -c 0`) helps. The vector env's batched call is what the pool is for.
 """
 
 from __future__ import annotations
@@ -92,9 +90,8 @@ def _spaces(env: Env) -> tuple[spaces.Box, spaces.Box]:
 class _Packing:
     """An env state as one flat buffer per dtype, and back (exactly: slices and reshapes).
 
-    A jitted call pays a fixed cost per argument and result buffer: on the 2-core CPU `jax.jit`
-    of x + 0 over the CartPole state's 95 leaves took ~430 µs, twice the step's own work inside
-    a scan (~210 µs with pixels). The envs run one call per Gymnasium step, so they pass their
+    A jitted call pays a fixed cost per argument and result buffer, more than a small env's
+    step (docs/notes/envs.md). The envs run one call per Gymnasium step, so they pass their
     state packed: four buffers (float32, int32, bool, uint8) instead of 95."""
 
     def __init__(self, example):
@@ -143,9 +140,8 @@ class _Report:
         """(uint8 frames, float32 [..., D + 3]: LD state, reward, done, truncation) as numpy.
 
         Plain numpy from here on, no `jax.device_get` (its tree map and host-value machinery)
-        and, in the single env, Python scalars for the flags: a single CartPole step took 313
-        against 218 µs with them (median of 10 alternated rounds in one process, pinned to one
-        core, 2-core Xeon; 320 against 283 µs on both cores)."""
+        and, in the single env, Python scalars for the flags: both cost a small env's step
+        noticeably (docs/notes/envs.md)."""
         report = np.asarray(buffer)
         n = self.frame_size
         return (report[:n].reshape(self.frame_shape),
@@ -232,10 +228,8 @@ class MjxVectorEnv(_KeyedState, VectorEnv):
     Autoreset (Gymnasium's NEXT_STEP mode): an env that ends (terminated or truncated) on step t
     is reset on step t + 1, whose action it ignores; that step returns its reset observation and
     info with reward 0 and terminated / truncated False. The state travels packed and the
-    report comes back in one transfer, as the single env's (`MjxGymEnv`): against the state's
-    95 leaves and five transfers, CartPole's vector step ran 2.3× as fast with 1 env, 1.7× with
-    8 and 1.1× with 64, HalfCheetah's 1.2× with 8 (medians of 8 alternated rounds of 100 steps
-    in one process, 2-core Xeon).
+    report comes back in one transfer, as the single env's (`MjxGymEnv`), which pays most for
+    few envs (docs/notes/envs.md).
     """
 
     def __init__(self, env: Env, num_envs: int, seed: int = 0):

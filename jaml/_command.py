@@ -181,8 +181,8 @@ def use_compilation_cache() -> str | None:
     path = Path(setting) if setting else base / "jaml" / "xla"
     jax.config.update("jax_compilation_cache_dir", str(path))
     # JAX caches only programs that took over jax_persistent_cache_min_compile_time_secs to
-    # compile (1 s by default). On CPU a relation's Flax init and its mean-|g| program take
-    # 0.4-0.8 s each, ~2 s of every `jaml relations` run, against a file read of milliseconds.
+    # compile (1 s by default); a relation's Flax init and its mean-|g| program compile in less
+    # on a CPU, yet cost more than a cache read (docs/notes/relations.md).
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
     return str(path)
 

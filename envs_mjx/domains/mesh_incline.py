@@ -32,9 +32,7 @@ object's collision and one object's triangles in the renderer (`_render_context`
 slot and texture) whatever N is. `mj_model_for(info)` gives C MuJoCo and mujoco.Renderer the same
 object by pointing the geoms at its meshes and material. Switching the convex data reaches into
 MJX's private `Model._impl.mesh_convex` (mujoco-mjx 3.17); tests/envs_mjx/test_mesh_incline.py
-checks each object in a mixed batch against C MuJoCo (to 4e-5 m for those resting on a hull
-face; the duck and the can rest on one hull vertex and tip, where the two engines' contact
-points differ, as they did for the single duck before).
+checks each object in a mixed batch against C MuJoCo (agreement: docs/notes/envs.md).
 
 Plank and ground. texture_id (drawn per reset, as in GeomOnIncline) picks one of
 SURFACE_PAIRS, image textures from robosuite (tinted where a pair needs a colour) standing in for

@@ -197,18 +197,13 @@ class RearrangeConfig(EnvConfig):
     max_joint_velocity: the arm's joint speeds are clipped to this (rad/s) after every Bullet
       step, as Bullet's multibodies cap their joint velocities (`btMultiBody`'s
       maxCoordinateVelocity, 100 by default, which the reference's loadMJCF arm kept). Without
-      it nothing bounds the undamped reacher's speed under random ±3 N·m torques: measured on
-      the 2-core CPU, in each of 3 batches of 64 envs under uniform random actions, one env's
-      physics turned NaN within 37-68 steps after its shoulder spun up to ~100-900 rad/s.
-      None: no cap.
+      it nothing bounds the undamped reacher's speed under random torques and its physics turns
+      NaN (docs/notes/rearrange.md). None: no cap.
     max_contacts: MJX keeps this many contacts per step, the deepest (its `max_contact_points`
       numeric; C MuJoCo ignores it), instead of a slot for every contact the scene's geom pairs
-      could make (97 with the reacher, 127 with the Franka), touching or not. Measured in C
-      MuJoCo (`mj_step` of each version's model, 32 envs x 60 steps of random torques, from the
-      env's resets and from the four objects dropped into a corner on top of each other): at most
-      16 contacts at once with the reacher, 20 with the Franka; 32 leaves room for more. On the
-      2-core CPU it cut an MJX substep of 256 reacher envs from 156 to 105 ms (the constraint
-      solve from 112 to 43 ms; see docs/notes/rearrange.md). None: every slot.
+      could make (97 with the reacher, 127 with the Franka), touching or not; 32 leaves room
+      above the most contacts seen at once, and cuts the constraint solve's cost
+      (docs/notes/rearrange.md). None: every slot.
     physics: "mjx" (MJX's JAX physics: any device, differentiable) or "c" (C MuJoCo's substeps
       through `envs_mjx.c_physics`, a callback into `mujoco.rollout`'s thread pool: the fast
       path on a CPU; each 2-substep Bullet step starts the solver cold; `max_contacts` does not

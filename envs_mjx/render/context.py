@@ -306,7 +306,7 @@ def make_context(mj_model: mujoco.MjModel, camera: str | int, height: int = 64, 
     emis = np.where(has_mat, emis, 0.0)
     # Planes map local (x, y) to uv = ((x + sx) * cx, (sy - y) * cy): the texture starts at the
     # plane's (-x, +y) corner and tiles texrepeat times across the plane's full width 2*s, or
-    # with texuniform texrepeat times per 2 length units (both measured against mujoco.Renderer);
+    # with texuniform texrepeat times per 2 length units (both checked against mujoco.Renderer);
     # MuJoCo maps an infinite plane as if its half-size were 1.
     plane_size = np.where(m.geom_size[:, :2] > 0, m.geom_size[:, :2], 1.0)
     uvscale = np.where(uniform[:, None], repeat / 2.0, repeat / (2.0 * plane_size))

@@ -66,8 +66,8 @@ def _nearest_primitive(ctx, frames, x, y, never):
     The chain over geoms carries one int32 per pixel: the bits of t (positive floats order like
     their bit patterns) with the low bits replaced by the geom's index, so the whole chain is a
     single fused loop with one output. Carrying normals and uv as well made XLA:CPU fuse the
-    chain into every carried field's loop and re-run it per field (Ant's 12 capsules: 14x the
-    cost of this pass alone); carrying t and the index as two arrays made it split the chain
+    chain into every carried field's loop and re-run it per field (docs/notes/render.md);
+    carrying t and the index as two arrays made it split the chain
     into a buffer per geom. The cost: t loses its low bits (relative 2^-(23 - index bits)), and
     surfaces that close in depth tie-break by index."""
     bits = max(1, (len(frames) - 1).bit_length())
@@ -92,8 +92,7 @@ def _materialise(a, never):
 
     `never` is a bool scalar that is always False but must not be known at compile time, so it
     comes from the data: the context is often a compile-time constant (the envs close over it),
-    and a trip count XLA can fold removes the loop (Ant through env.step, 2-core CPU: 550
-    frames/s with the count from ctx.cam_id, 1,430 with it from the camera's position)."""
+    and a trip count XLA can fold removes the loop (see docs/notes/render.md)."""
     trips = 1 + never.astype(jnp.int32)
 
     def identity(i, v):  # one trip, but XLA cannot tell
@@ -108,7 +107,7 @@ def _primitive_hit(ctx, frames, t, idx, x, y) -> _Hit:
     """Pass 2: normal (and checker / texture coordinates) of each pixel's nearest primitive.
 
     The winner's frame (m, o_l, size) and geom id reach each pixel by a select chain over the
-    primitives (a gather of table rows measured ~1.5x slower on XLA:CPU); its normal is then
+    primitives (a gather of table rows is slower on XLA:CPU); its normal is then
     computed once per type present, and chosen by the index range the type occupies."""
     found = idx >= 0
     fields = [jnp.zeros_like(x)] * 15
@@ -156,8 +155,8 @@ def _plane_uv(ctx, g, m, o, t, x, y):
     and for an image texture (ctx.mip_geoms) the mip level of each pixel's footprint (else 0).
     For a checker texture, u carries the checker's value box-filtered over the pixel (v unused).
     """
-    # Recomputed from the plane's own (scalar) frame: reusing pass 2's per-pixel d_l and p_l,
-    # equal where the plane wins, measured 4-8 % slower on the CPU (HalfCheetah, Ant).
+    # Recomputed from the plane's own (scalar) frame: cheaper on the CPU than reusing pass 2's
+    # per-pixel d_l and p_l, which are equal where the plane wins.
     d_l = tuple(m[0, j] * x + m[1, j] * y - m[2, j] for j in range(3))
     p_l = tuple(o[j] + t * d_l[j] for j in range(3))
     corner, scale = ctx.geom_uvorigin[g], ctx.geom_uvscale[g]
@@ -237,7 +236,7 @@ def _mesh_hits(ctx, coef, table, x, y, best: _Hit) -> _Hit:
     # floats order like their bit patterns) with the low bits replaced by the triangle index.
     # One carry keeps each step a single fused elementwise loop with pixels contiguous; two
     # carries (1/t and index) made XLA evaluate the edge functions twice, and a max/argmax
-    # reduction over a [T, P] array did not vectorise across pixels (3-4x slower). Triangles
+    # reduction over a [T, P] array did not vectorise across pixels. Triangles
     # closer than 2^-(23 - index bits) relative depth tie-break by index; the winner's exact
     # 1/t is recomputed below.
     n_tri = coef.shape[0]
@@ -325,8 +324,7 @@ def render(ctx: RenderContext, data) -> RenderOutput:
 
 # Frames per chunk when a batch is rendered on the CPU. XLA:CPU runs each fused loop over the
 # whole batch before the next, so a large batch streams every intermediate [B, H*W] buffer
-# through memory; in chunks they stay in cache. 2-core EPYC, batch 256, CPU time per frame:
-# cartpole 260 -> 133 us, Ant 450 -> 311 us (chunks of 16 or 64 did about as well).
+# through memory; in chunks they stay in cache (docs/notes/render.md).
 CPU_BATCH_CHUNK = 32
 
 
@@ -390,8 +388,7 @@ def _render_frame(ctx: RenderContext, pose: _Pose) -> RenderOutput:
             best = _mesh_hits(ctx, *mesh, x, y, best)
         if ctx.mip_geoms:
             # Mip sampling reads the hit's uv and level in several gathers; without a buffer
-            # XLA re-ran the selects that produce them inside each (a 2.6x slower frame, with
-            # 8-tap trilinear sampling, on the incline's textured floor and plank).
+            # XLA re-runs the selects that produce them inside each.
             u, v, lod, tex = _materialise((best.u, best.v, best.lod, best.tex), never)
             best = best._replace(u=u, v=v, lod=lod, tex=tex)
         found = best.t <= ctx.zfar
@@ -400,21 +397,18 @@ def _render_frame(ctx: RenderContext, pose: _Pose) -> RenderOutput:
         rgb8 = [jnp.round(jnp.where(found, rgb[i], ctx.background[i]) * 255.0)
                 .astype(jnp.uint32) for i in range(3)]
         # Channels leave as one packed uint32 per pixel: a [P, 3] stack fused with shading
-        # ran unvectorised and recomputed shading per channel (10x slower).
+        # ran unvectorised and recomputed shading per channel.
         packed = rgb8[0] | (rgb8[1] << 8) | (rgb8[2] << 16)
         return packed, jnp.where(found, best.t, ctx.zfar), geom
 
-    # (Running one frame's pixels through in chunks with lax.map, to keep a chunk's
-    # intermediates in cache between XLA's fused loops, measured 5x slower on XLA:CPU; chunks
-    # of whole frames, in _render_batch, pay.)
+    # One frame's pixels are not chunked (slower on XLA:CPU); chunks of whole frames, in
+    # _render_batch, pay.
     packed, depth, geom = pixels(ctx.rays)
     if jax.default_backend() == "cpu":
         # The frame leaves as bytes ([P, 4] -> [P, 3]); a consumer of those bytes, such as
         # env.step's select of the new or the previous frame, fused the shading into its own
-        # per-byte loop, re-running it per channel, unvectorised. A buffer in between: the
-        # single env's step 2.6x faster, 256 envs' 1.7x (CartPole, 2-core Xeon, A/B in one
-        # process). Not on a GPU: there the buffer cost CartPole 0.87x its frames/s at 1024
-        # envs and changed nothing for Ant or RearrangeGeom (one H100, A/B, docs/notes/render.md).
+        # per-byte loop, re-running it per channel, unvectorised, so a buffer goes in between.
+        # Not on a GPU, where the buffer costs frames/s (docs/notes/render.md).
         packed = _materialise(packed, never)
     rgb8 = lax.bitcast_convert_type(packed, jnp.uint8)[:, :3]  # little-endian byte order
     shape = (ctx.height, ctx.width)

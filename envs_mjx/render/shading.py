@@ -27,9 +27,8 @@ def sample_mip(tex_mip, tex_mip_adr, tex_w, tex_h, tex_id, u, v, lod):
     LINEAR_MIPMAP_NEAREST); lod <= 0.5 (magnification, or about one texel per pixel) reads
     level 0.
 
-    Against mujoco.Renderer's trilinear (LINEAR_MIPMAP_LINEAR) the incline's floor differs by
-    a mean |rgb| of 2.1 of 255 where trilinear differs by 1.8, at half its cost on the CPU
-    (4 gathers instead of 8: 240 against 550 us per frame on the incline's scene, batch 64).
+    Nearly as close to mujoco.Renderer's trilinear (LINEAR_MIPMAP_LINEAR) as trilinear
+    sampling, with 4 gathers instead of 8 (docs/notes/render.md).
 
     tex_mip: [M] int32 packed texels of every level (context.mip_levels, r | g << 8 | b << 16);
     tex_mip_adr: [ntex, L] int32 where each level starts; tex_w, tex_h: [ntex] level-0 size;
@@ -52,7 +51,7 @@ def sample_mip(tex_mip, tex_mip_adr, tex_w, tex_h, tex_id, u, v, lod):
     out = [0.0, 0.0, 0.0]
     for row, col, weight in ((y0, x0, (1.0 - fx) * (1.0 - fy)), (y0, x1, fx * (1.0 - fy)),
                              (y1, x0, (1.0 - fx) * fy), (y1, x1, fx * fy)):
-        # Separate gathers: one gather of stacked indices measured 1.2x slower (8 taps).
+        # Separate gathers: one gather of stacked indices is slower here (docs/notes/render.md).
         texel = tex_mip[adr + row * lw + col]
         weight = weight * (1.0 / 255.0)
         out = [o + ((texel >> shift) & 0xFF).astype(jnp.float32) * weight
@@ -78,7 +77,7 @@ def square_wave_mean(u, width, min_width=1e-2):
 def rsqrt(v):
     """1/sqrt(v) for v > 0 to float32 precision (relative error < 3e-7).
 
-    XLA:CPU rewrites 1/sqrt(v) into an rsqrt that runs ~10x slower than a multiply; an initial
+    XLA:CPU rewrites 1/sqrt(v) into an rsqrt that runs far slower than a multiply; an initial
     guess from the float's bits and three Newton steps stay vectorised.
     """
     i = lax.bitcast_convert_type(v, jnp.int32)

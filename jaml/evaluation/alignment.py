@@ -1,24 +1,8 @@
 """Latent–state alignment (paper §2.1, Fig. 2): test error of an MLP regressor latents → LD state.
 
-A fresh regressor is trained for every analysis, as in the reference suite
-(`reference/suite_reference.md` §5): MLP Z → 256 → 256 → D with ReLU and dropout 0.2 after each
-hidden layer, L1 loss, Adam (lr 1e-4), 10 000 iterations on minibatches of
-min(4·(1024 // L), N) rows drawn at random each iteration, targets z-scored with the training
-rows' mean and std (+1e-6), the first 30 % of the training set split off as (unused) validation.
-The reported error is the per-dimension mean |prediction − target| on a test set, in units of
-each dimension's training std.
-
-Rotation blocks (Rearrange: 9 row-major rotation entries per object, `rotation_starts`) are
-fit and scored as the reference does, by the principal-axis error of R_trueᵀ R̂
-(`jaml.evaluation.rotation`); `rotation_errors` reports it per block, and `alignment_errors` /
-`alignment_errors_runs` then return per test set [D + J] errors: the D per-entry L1 errors (the
-rotation entries' too), then the J blocks' mean principal-axis errors.
-
-Deviations from the reference, recorded also in `docs/evaluation.md`:
-  - minibatch rows are drawn with replacement (the reference's sampler is not pinned down);
-  - the normalisation stats come from the rows the regressor is fit on (after the 30 % split).
-
-Shapes: N rows, Z latent width, D LD-state width, J rotation blocks.
+A fresh regressor per analysis, as in the reference suite (`reference/suite_reference.md` §5);
+its architecture, training, units, rotation blocks and deviations are tabled in
+docs/evaluation.md. Shapes: N rows, Z latent width, D LD-state width, J rotation blocks.
 """
 
 from __future__ import annotations

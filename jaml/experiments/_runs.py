@@ -60,8 +60,8 @@ class CallOptions:
     them on a machine whose disk does not outlive the call"""
     final_checkpoint: bool = True
     """checkpoint each run at its last analysis (--no-final-checkpoint: only where
-    --checkpoint-every says so; for a machine whose disk goes with the runs, ≈ 15 s per
-    locomotion run saved)"""
+    --checkpoint-every says so; for a machine whose disk goes with the runs, one checkpoint
+    write per run saved)"""
     keep_pi_rand: bool = True
     """keep each run's π_rand test sequences on the host after its first analysis in this call
     and encode them again at the later ones (≈ 2 GB per run at 16 frames per sequence; the

@@ -15,15 +15,10 @@ resumable on its own. Then OUT/fig3.md and the images are written from whatever 
                            the half-width of its 90 % confidence interval), and the numbers that
                            bear on the paper's claims next to them
 
-The LD groups come from the env's metadata (`ld_state_groups`: position / orientation / other)
-and its state names (sin_qJ / cos_qJ are arm joints, objK_* object K's entries); the "largest
-object" is the slot whose shape has the largest bounding box in every version the env uses.
-Positions and joints are scored by the mean |prediction − truth| of their entries; an object's
-orientation by the reference's principal-axis error of its rotation block (suite_reference §5,
-`jaml.evaluation.rotation`), which the stream records as objK_rotation: with M = R_trueᵀR̂, the
-mean over i of min(|M[i, 2] − e_z[i]|, |M[i, 2] + e_z[i]|). The reference reports it as is,
-neither degrees nor radians: 0 when the major axes agree up to sign, 2/3 for perpendicular axes,
-1/3 for a zero prediction (R̂ is a regressor output, not re-orthonormalised, so not bounded by 1).
+The LD groups come from the env's metadata (`ld_state_groups`) and state names (sin_qJ / cos_qJ
+arm joints, objK_* object K); the "largest object" has the largest bounding box in every
+version used. Positions and joints score by mean |prediction − truth|, orientation by the
+reference's principal-axis error (`jaml.evaluation.rotation`, docs/evaluation.md).
 
 What the paper reports (Fig. 3's caption, and §2 "Benchmarking latent state alignment"):
 "VAE_rpl encoded angle of the main robot joint, location & partly orientation (major axis) of
@@ -34,46 +29,23 @@ training (bounding boxes not tight)."
     python -m jaml.experiments.fig3 --out runs/fig3 --variants SPAIR_4x4 --stop-after 100
     python -m jaml.experiments.fig3 --out runs/fig3 --report-only       # report from the runs
 
-Settings are the reference's for Rearrange (suite_reference §3–5): 64 envs × 10 steps per epoch
-(the rollout it forces for Rearrange), a 4992-column replay that keeps its initial half, 50
-learner steps per epoch, 1024 frames per VAE batch and 64 per SPAIR batch (the paper's), the
-VAE's PARAMS_VAE_REARR latent (53 = D entries, plain μ head, log-variances within ±20), PPO's
-MLP 256 with 50 × 4 minibatches, LD targets used as is (not z-scored), regressor sets of 10 000 /
-10 048 / 2 500 sequences and 10 000 regressor steps. The paper does not give Fig. 3's training
-length; the default is 300 epochs (222 of them training: 11 100 learner steps), analysed every 50.
+Settings are the reference's for Rearrange (suite_reference §3–5; `REARRANGE`, `SCALE`,
+`FRAMES_PER_BATCH` below, listed in docs/results/fig3.md). The paper does not give Fig. 3's
+training length; the default is 300 epochs (222 of them training), analysed every 50.
 
-The variants share nothing, so on one GPU they can run as parallel processes (fig9's runs got
-2.1× the throughput of one process that way), then one call writes the report:
+The variants share nothing, so on one GPU they can run as parallel processes (more throughput
+than one process; docs/notes/experiments.md), then one call writes the report:
 
     for v in VAE_rpl SPAIR_4x4 SPAIR_6x6; do
       XLA_PYTHON_CLIENT_MEM_FRACTION=0.3 python -m jaml.experiments.fig3 --out runs/fig3 \
         --variants $v & done; wait
     python -m jaml.experiments.fig3 --out runs/fig3 --report-only
 
-GPU time, measured on one H100 (2026-11-23, commits f2d0df1 / f84e8a3, jax 0.11.2; the three
-variants as parallel processes with fig9's analysis sizes `--eval-train 4096 --eval-rand 4096
---eval-curr 1024 --regressor-iterations 4000`; from the calls' logs and the run files' times,
-since no call reached its end):
-  - start-up (tracing and compiling the epoch program on a fresh machine, the three processes
-    compiling at once on its 16 cores): 3.5–4 min before the first epoch runs;
-  - fill epochs (acting and PPO only): 64–75 s per 40 epochs of three seeds, ≈ 1.7 s per epoch;
-  - training epochs: ≈ 4.5 s (VAE_rpl) and ≈ 7.4 s (SPAIR 4×4) per epoch of three seeds, the
-    GPU shared by the three processes;
-  - the first analysis also compiles its programs (rollout start, rollout, encoder, regressor):
-    a lone SPAIR_4x4 process on a fresh machine had not finished it 265 s after its start; a
-    later analysis took ≈ 80 s, then ≈ 13 s more per seed (figures, checkpoint).
-At the default 300 epochs (78 fill, 222 training) and 6 analyses, that is ≈ 2.2 min of fill,
-≈ 27 min of training and ≈ 12 min of analyses after the start-up: ≈ 45 min for the three
-variants at once. A run cannot move between machines (its replay is far larger than what a
-call may carry), so it must finish within one machine's hold (here 30 min, in calls of at most
-10 min, each paying the start-up again unless the compilation cache of the previous call is
-kept: set JAX_COMPILATION_CACHE_DIR to a folder outside the checkout). On such a machine run
-one or two variants per hold, with `--stop-after` ending each call on an epoch the run reaches
-in time (a run stopped between analyses checkpoints where it stopped). Or start the processes
-detached (`setsid`) so that they outlive a call, and poll: that is how the committed short run
-(`docs/results/fig3.md`: 153 epochs analysed every 25, fig9's analysis sizes, commit 3e30304)
-ran, the three variants at once on one H100 in 1193 s (VAE_rpl), 1401 s (SPAIR 4×4) and
-1415 s (SPAIR 6×6) each, start-up included.
+A run cannot move between machines (its replay is too large to carry), so on a machine held for
+a limited time end each call with `--stop-after` (a run stopped between analyses checkpoints
+where it stopped; set JAX_COMPILATION_CACHE_DIR outside the checkout to keep the compiled
+programs), or start the processes detached (`setsid`) and poll. GPU time per phase, and how
+the committed run was made: docs/notes/experiments.md.
 """
 
 from __future__ import annotations

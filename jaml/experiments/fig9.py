@@ -48,8 +48,8 @@ DYNAMICS = {
 # name → (learner, relation set or None, control or None). A control imposes no penalty
 # (weight 0) and keeps the reference code's extra reconstruction term on "ok" rows: the rows the
 # AML_trnsv relations accept ("relations"), as many rows per batch drawn at random ("random"), or
-# a fixed share of random rows ("random@p": 5 %, the PRED+AML_trnsv arm's share of ok rows over
-# learner epochs 100–200 of the 2026-11-27 run, docs/results/fig9.md).
+# a fixed share of random rows ("random@p": 5 %, the PRED+AML_trnsv arm's share of ok rows,
+# docs/results/fig9.md; provenance in docs/notes/experiments.md).
 METHODS = {
     "PRED+AML_trnsv": ("PRED", "trnsv", None),
     "PRED+AML_syz": ("PRED", "syz", None),

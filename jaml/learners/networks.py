@@ -44,8 +44,8 @@ def _halving_kernel_grad(x: jax.Array, g: jax.Array) -> jax.Array:
 
     The kernel gradient of the k4 s2 p1 convolution; `_doubling`'s is the same sum with the
     roles swapped. Few channels (the frames' 3): x's 4×4 patches [N·H·W, 16·C] times g, one
-    matmul (XLA's convolution transposes x to [C, …, N] and ran ~3× slower on the 2-core CPU);
-    otherwise as XLA computes it, a convolution whose "kernel" is g.
+    matmul (XLA's convolution transposes x to [C, …, N], slower on the CPU; see
+    docs/notes/learners.md); otherwise as XLA computes it, a convolution whose "kernel" is g.
     """
     n, h, w, o = g.shape
     c = x.shape[-1]
@@ -75,8 +75,7 @@ def _phase_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
 
     One convolution per phase (r_h, r_w), x padded by (1 − r, r), then interleaved; with few
     output channels one convolution of x padded by one onto all four ((H+1)(W+1) windows), each
-    phase read off at its own offset, keeps the matmul wide (the last layer's O = 3: 5 against
-    21 ms at 64 frames; at H = 4, O = 128 the split form took 7 against 12 ms).
+    phase read off at its own offset, keeps the matmul wide (docs/notes/learners.md).
     """
     n, h, w, i = x.shape
     o = kernel.shape[-1]
@@ -97,7 +96,7 @@ def _phase_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
 # ConvTranspose2d(4, 2, 1)) are each other's input gradients, so each one's backward pass runs
 # the other's forward pass, and both kernel gradients are `_halving_kernel_grad`. XLA's own
 # input gradients are input-dilated convolutions, which its CPU backend runs on a slow generic
-# path (the encoder's 32×32 layer: 80 ms against 30 ms at 64 frames on the 2-core CPU).
+# path (docs/notes/learners.md).
 @jax.custom_vjp
 def _halving(x: jax.Array, kernel: jax.Array) -> jax.Array:
     return _xla_conv(x, kernel, (2, 2), _HALVE)
@@ -143,8 +142,7 @@ _elu_from_output.defvjp(_elu_fwd, _elu_bwd)
 
 def elu(x: jax.Array, cpu_kernels: bool | None = None) -> jax.Array:
     """`nn.elu`; with cpu_kernels (None: on the CPU) its gradient from the output (equal to
-    float32 rounding: exp(x) against expm1(x) + 1), which trained the VAE_rpl step ~6 % faster
-    on the 2-core CPU."""
+    float32 rounding: exp(x) against expm1(x) + 1), cheaper on the CPU (docs/notes/learners.md)."""
     return _elu_from_output(x) if _use_cpu_kernels(cpu_kernels) else nn.elu(x)
 
 
@@ -225,7 +223,7 @@ def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,
 
     out[s·i − p + k] += x[i]·w[k] per axis, without input dilation: XLA's CPU backend runs
     input-dilated convolutions (its transposed-conv lowering and their gradients) on a slow
-    generic path (the decoder's backward pass was ~10× slower that way). On the GPU (cpu_kernels
+    generic path (docs/notes/learners.md). On the GPU (cpu_kernels
     False; None: by the default backend) a stride-1 3×3 convolution onto the four output phases,
     then depth-to-space. On the CPU `_doubling`: a 2×2 convolution of the padded input onto the
     four phases (`_phase_conv`), whose input gradient is the k4 s2 p1 convolution's forward pass.

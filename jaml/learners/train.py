@@ -56,11 +56,9 @@ def init_train_state(learner: Learner, optimizer: optax.GradientTransformation, 
 
 
 # XLA options for programs that train the learners on the CPU (`compiler_options`). jaxlib
-# 0.10's CPU backend hands dots, reductions and convolutions to YNNPACK; there the conv stacks'
-# kernel-gradient convolutions ran 1.3–7.5× slower than on XLA's Eigen path and the k4 s2 p1
-# forward passes ~1.25× (docs/notes/learners.md, Measurements). The list is that default less
-# LIBRARY_FUSION_TYPE_INDIVIDUAL_CONVOLUTION (VAE_rpl train step on the 2-core CPU: ~100 → ~148
-# frames/s at batch 64; also handing it the elementwise fusions, or none, was slower).
+# 0.10's CPU backend hands dots, reductions and convolutions to YNNPACK, where the conv stacks'
+# convolutions run slower than on XLA's Eigen path; the list is that default less
+# LIBRARY_FUSION_TYPE_INDIVIDUAL_CONVOLUTION (docs/notes/learners.md, Measurements).
 CPU_COMPILER_OPTIONS = {
     "xla_cpu_experimental_ynn_fusion_type":
         "LIBRARY_FUSION_TYPE_INDIVIDUAL_DOT,LIBRARY_FUSION_TYPE_REDUCE",

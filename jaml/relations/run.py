@@ -54,10 +54,9 @@ class _Recorder:
                     "push": self.cfg.push_steps,
                     "syzygy": self.cfg.syzygy_steps,
                 }[phase]
-                # No total: a phase stops at convergence, mostly well before its budget (a bar
-                # to the budget stopped at 2-38 %). Started at the first report's step, so the
-                # chunk run before the bar existed does not count as a rate (it read millions
-                # of steps/s).
+                # No total: a phase stops at convergence, mostly well before its budget.
+                # Started at the first report's step, so the chunk run before the bar existed
+                # does not count as a rate.
                 self.bar = tqdm(desc=f"g{k + 1} {phase} (≤ {budget} steps)", unit="step",
                                 initial=metrics["step"], leave=False)
                 self.bar_key, self.last_step = (phase, k), metrics["step"]

@@ -1,31 +1,10 @@
 """Imposing learned relations on a learner's latent space (paper §4, eq. 4): the latent penalty.
 
-A relation set learned on a source domain's low-dimensional transitions, e.g. rows
-τ = (theta, s0, v0, a0, s1, v1), is evaluated on the learner's sampled latents instead: a
-`LatentLayout` says which per-step latent entry plays each source coordinate, and
-`latent_penalty` builds the function `(z [B, S, P], actions [B, S, A]) -> [B]` that the learners'
-loss takes (`Learner.loss(..., latent_penalty=...)`, `jaml.stream.build(config, penalty)`).
-
-Relation coordinates are matched by name, in the relation set's own order:
-  - a `static` name (here "theta") reads one latent entry, shared by all steps (read at step 0);
-  - a `dynamic` name d with suffix 0 / 1 (here "s0", "v0", "s1", "v1") reads d's latent entry at
-    step t / t + 1;
-  - an `actions` name a with suffix 0 (here "a0") reads action column a at step t.
-g_k is evaluated on every consecutive pair (t, t + 1), t = 0 .. S − 2, of the S latent steps, and
-the penalty sums over pairs (the paper's penalty is on the whole sampled sequence τ̃_{1:T+L}).
-
-The reference code also re-weights reconstruction: `ok_weight` × the NLL of the rows whose
-latents satisfy every relation, averaged over those rows (`LatentPenalty.terms`).
-
-Two forms of the per-pair value, both times `weight`:
-  - "sum": Σ_k |g_k| (the paper's eq. 4);
-  - "hinge": mean_k |g_k|·[|g_k| > on_mean_k] (the reference's `latent_transfer_loss`: a relation
-    counts only where it is violated by more than its recorded on-manifold mean).
-Latents meet relations raw: the sampled, pre-sigmoid τ̃ of eq. 4, which must then be on the scale
-the relations were trained on (the source's units); configure the learner without the output
-squashing (`mu_nl=False`) when the source's units are not (0, 1) (see docs/transfer.md).
-
-Shapes: B batch, S latent steps, P per-step latent, A action, D relation input, K relations.
+How relation coordinates map onto latent steps and actions, and the reference's ok-row term:
+docs/transfer.md. Latents meet relations raw (the sampled, pre-sigmoid τ̃ of eq. 4), so they must
+be on the scale the relations were trained on: configure the learner with `mu_nl=False` when
+the source's units are not (0, 1). Shapes: B batch, S latent steps, P per-step latent, A action,
+D relation input, K relations.
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ from jaml.sources.incline import BlockOnIncline
 
 def _incline_env(name: str) -> Callable[..., Source]:
     def build(**options) -> Source:
-        from jaml.sources import incline_env  # local: importing envs_mjx costs ~2 s
+        from jaml.sources import incline_env  # local: importing envs_mjx is slow
 
         return incline_env.make(name, **options)
 

@@ -1,26 +1,9 @@
 """The periodic analysis of a run (reference §5): alignment of its latents with the true state.
 
-Encode sequences from the replay (the regressor's training set) and from fresh rollouts of a
-random policy (π_rand, the same set at every analysis: a fixed key) and of the current policy
-(π_curr); fit a fresh regressor latents → LD state of each sequence's last input frame and report
-its per-dimension test error, the error of a constant prediction that ignores the latents (the
-training targets' median, `evaluation.constant_errors`: what the error is read against), and the
-distortion ρ on π_rand. The functions analyse R stacked runs at once (states with a leading
-runs axis); one run is R = 1 (`evaluate`).
-
-The π_rand set depends on the env, the run's π_rand key and its size alone (a uniform policy),
-so a `PiRandSet` can keep a run's sequences on the host after their first rollout: later
-analyses encode the same sequences again instead of rolling them out again (`run_many` keeps one
-per run; the reports are the same either way).
-
-Rotation blocks (Rearrange: the 9 row-major rotation entries of each object, the env's
-"orientation" LD group, `rotation_blocks`) are treated as the reference does (§5): the regressor
-minimises L1 on the other entries plus each block's principal-axis error of R_trueᵀR̂, and the
-report holds, after the D per-entry errors, each block's mean principal-axis error (named by
-`error_names`: objK_rotation). Domains without such blocks are fit and scored as before.
-
-Shapes: R runs, E envs, L = learner.seq_len, N sequences, Z latent, D LD state, J rotation
-blocks.
+What is encoded, fit and reported (π_rand, π_curr, rotation blocks): docs/stream.md,
+"Analysis"; beside each error, a constant prediction's (the training targets' median,
+`evaluation.constant_errors`), which the error is read against. Shapes: R runs, E envs,
+L = learner.seq_len, N sequences, Z latent, D LD state, J rotation blocks.
 """
 
 from __future__ import annotations

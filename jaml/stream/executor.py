@@ -91,8 +91,7 @@ def run_stacked_epochs(stream: Stream, states: StreamState, n: int, *, mesh: Mes
     argument). Every run computes the function it would alone, with the same keys, so one call
     trains R seeds with one compiled program. Its bits are reproducible for a given stacking,
     not across stackings: on a GPU the acting's batched kernels round differently for another
-    R (a Fig. 9 seed's stream, bit-identical across methods at a fixed R, diverged when it was
-    resumed in a group of another size).
+    R (docs/notes/stream.md).
 
     The device loop (default on GPU/TPU) runs up to 32 epochs per call inside `fori_loop`.
     With a mesh of several devices (default: `runs_mesh(R)`) the states are sharded along its

@@ -187,8 +187,7 @@ class Stream:
         Each step samples every run's batch at once (vmapped), then takes the runs' gradient
         steps one after another (`lax.map`): vmapped, the runs' different conv weights become
         one grouped convolution, which GPU libraries run far slower than R ordinary ones
-        (H100, VAE_rpl at the paper's batch: 6 runs vmapped trained 33K frames/s in all, one run
-        alone 76K)."""
+        (docs/notes/stream.md)."""
 
         def step(learner_state, step_keys):
             batch, k_step = jax.vmap(self.sample_batch)(replay, step_keys)

@@ -1,27 +1,6 @@
 """A `jaml suite` run directory: the learning loop with logs, figures and resumable checkpoints.
 
-    OUT/config.json       the resolved StreamConfig, whole (`StreamConfig.resolved`; a different
-                          config in the same OUT is refused; `StreamConfig.from_dict` reads it)
-    OUT/metrics.jsonl     one line per epoch (episode return, PPO and learner losses); "epoch"
-                          counts epochs completed, as an analysis's "step" does
-    OUT/history.jsonl     one record per analysis and test set (`jaml.evaluation.plots` format;
-                          Rearrange adds objK_rotation, `analysis.error_names`; "baseline":
-                          a latent-free constant's errors on the same rows)
-    OUT/tensorboard/      the same scalars
-    OUT/checkpoints/      Orbax: the whole StreamState (envs, PPO, learner, optimiser states,
-                          replay, RNG key) as named arrays, written atomically after every
-                          analysis (`jaml.stream.checkpoint`)
-    OUT/alignment.png     alignment errors over training, and OUT/distortion.png: redrawn after
-                          each analysis, on a background thread (`_FigureWriter`)
-    OUT/recon/            epoch_XXXXXX.png: true and reconstructed frames at each analysis
-    OUT/.lock             held by the process running the run (`_rundir.lock`)
-    OUT/summary.json      status, epoch, wall seconds of this call by phase, the last analysis's
-                          records; rewritten after every analysis (status "running") and at the end
-
-Restarted with the same config, a run resumes from its newest checkpoint and drops the JSON-lines
-records written after it, so the logs and the state agree and nothing is counted twice
-(TensorBoard event files are append-only: a resumed run's scalars overlap the lost ones). A
-non-finite learner loss stops the run with a message; the last good checkpoint stays.
+The directory's files and the resume rules are listed in docs/stream.md, "Run directory".
 """
 
 from __future__ import annotations
@@ -113,14 +92,10 @@ class _Logs(RunLog):
 
 class _FigureWriter:
     """Draws the runs' figures (alignment.png, distortion.png) on one background thread, so the
-    loop's next epochs run while matplotlib draws.
-
-    Drawn in line, they held the loop up at every analysis of every run: on the host of one
-    H100, a HalfCheetah run's figures (26 dimensions, 52 alignment panels) took 10.5–11.1 s of
-    its 50 s analysis phase over two analyses, the first of which compiled
-    (`seconds_in_analysis`, commit 175b49e), one run after another. A run's figures are
-    drawn from its newest history only: a request still queued when a newer one for the same
-    run arrives is skipped. `wait` drains the queue; `check` raises the first drawing error."""
+    loop's next epochs run while matplotlib draws (drawn in line, they held up every analysis
+    of every run; docs/notes/stream.md). A run's figures are drawn from its newest history
+    only: a request still queued when a newer one for the same run arrives is skipped. `wait`
+    drains the queue; `check` raises the first drawing error."""
 
     def __init__(self):
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaml-figures")
@@ -274,9 +249,9 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     analysis and where `stop_after` stops it. A checkpoint holds the replay (≈ 2 GB per
     pendulum run, 4 GB per locomotion run at 64×64), so on a machine that is not kept, whose
     disk goes with the runs, writing one at every analysis buys little and costs minutes.
-    There, `final_checkpoint=False` also drops the forced one at the last analysis (≈ 15 s per
-    locomotion run on an H100; the run's records and summary are written as always): the last
-    analysis then checkpoints only where `checkpoint_every` says so.
+    There, `final_checkpoint=False` also drops the forced one at the last analysis (the run's
+    records and summary are written as always): the last analysis then checkpoints only where
+    `checkpoint_every` says so.
 
     `keep_pi_rand`: each run keeps its π_rand test sequences on the host after its first
     analysis in this call (`analysis.PiRandSet`; ≈ 2 GB per run at the paper's eval_rand and 16

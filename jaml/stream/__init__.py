@@ -19,21 +19,47 @@ releases them when it ends (`jaml.stream.programs`).
 `jaml.stream.run.run_many` trains several seeds together, each in its own directory.
 """
 
-from jaml.stream.analysis import evaluate
-from jaml.stream.collect import Episodes, rollout
-from jaml.stream.config import POLICIES, StreamConfig, for_env
-from jaml.stream.executor import (
-    build,
-    run_epochs,
-    run_stacked_epochs,
-    runs_mesh,
-    stack_runs,
-    unstack_runs,
-)
-from jaml.stream.loop import Stream, StreamState
-from jaml.stream.ppo import PPO, PPOConfig, PPOState, random_policy
-from jaml.stream.programs import scope as programs_scope
-from jaml.stream.replay import Columns, Replay
+# Public names, imported from their modules on first use (PEP 562): `jaml.stream.config` (and
+# so `jaml suite --help`) stays free of JAX, which every other module here imports.
+_EXPORTS = {
+    "evaluate": "analysis",
+    "Episodes": "collect",
+    "rollout": "collect",
+    "POLICIES": "config",
+    "PPOConfig": "config",
+    "StreamConfig": "config",
+    "for_env": "config",
+    "build": "executor",
+    "run_epochs": "executor",
+    "run_stacked_epochs": "executor",
+    "runs_mesh": "executor",
+    "stack_runs": "executor",
+    "unstack_runs": "executor",
+    "Stream": "loop",
+    "StreamState": "loop",
+    "PPO": "ppo",
+    "PPOState": "ppo",
+    "random_policy": "ppo",
+    "programs_scope": "programs:scope",
+    "Columns": "replay",
+    "Replay": "replay",
+}
+
+
+def __getattr__(name: str):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+
+    module, _, attr = _EXPORTS[name].partition(":")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), attr or name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))
+
 
 __all__ = [
     "POLICIES",

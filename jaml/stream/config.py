@@ -12,8 +12,6 @@ import dataclasses
 import json
 from typing import Any
 
-from jaml.stream.ppo import PPOConfig
-
 POLICIES = ("ppo", "random")
 # The reference's replay size in columns (suite_reference.md §3).
 REFERENCE_REPLAY_COLUMNS = 5000
@@ -24,6 +22,57 @@ DEFAULT_REPLAY_KEEP_FRACTION = 0.5
 _PENDULUMS = ("CartPole", "InvertedPendulum")
 _INCLINES = ("GeomOnIncline", "MeshOnIncline")
 _REARRANGES = ("RearrangeGeom", "RearrangeYCB")
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """PPO hyper-parameters; defaults are the reference's pendulum settings.
+
+    hidden: widths of the policy's and the value function's MLP hidden layers.
+    learning_rate: Adam step size at the start of the run.
+    lr_decay: decay the step size linearly to 0 over the run's epochs (one PPO update each).
+    discounting: the discount γ.
+    gae_lambda: GAE's λ; 1 (the reference) gives discounted returns bootstrapped from the value
+      at the rollout's end.
+    clipping_epsilon: PPO's ratio clip.
+    vf_coefficient: weight of the value loss.
+    entropy_cost: weight of the entropy bonus.
+    max_grad_norm: global gradient-norm clip.
+    num_updates: passes over each rollout.
+    num_minibatches: minibatches per pass, each of whole env trajectories (must divide
+      num_envs).
+    normalize_observations: running mean/std normalisation of the LD-state observations.
+    normalize_advantage: standardise advantages per minibatch.
+    reward_scaling: multiplies rewards inside the loss.
+    """
+
+    hidden: tuple[int, ...] = (64, 64)
+    learning_rate: float = 1e-4
+    lr_decay: bool = True
+    discounting: float = 0.99
+    gae_lambda: float = 1.0
+    clipping_epsilon: float = 0.2
+    vf_coefficient: float = 0.5
+    entropy_cost: float = 0.01
+    max_grad_norm: float = 0.5
+    num_updates: int = 3
+    num_minibatches: int = 8
+    normalize_observations: bool = True
+    normalize_advantage: bool = True
+    reward_scaling: float = 1.0
+
+    def __post_init__(self):
+        problems = []
+        if not self.hidden or any(h < 1 for h in self.hidden):
+            problems.append(f"ppo hidden must be positive widths, got {self.hidden}")
+        if self.learning_rate <= 0:
+            problems.append(f"ppo learning_rate must be > 0, got {self.learning_rate}")
+        if not 0 < self.discounting <= 1 or not 0 <= self.gae_lambda <= 1:
+            problems.append("ppo discounting must be in (0, 1] and gae_lambda in [0, 1]")
+        if self.num_updates < 1 or self.num_minibatches < 1:
+            problems.append("ppo num_updates and num_minibatches must be ≥ 1")
+        if problems:
+            raise ValueError("; ".join(problems))
 
 
 @dataclasses.dataclass(frozen=True)

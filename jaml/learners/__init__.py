@@ -12,65 +12,82 @@
 
 from __future__ import annotations
 
-import dataclasses
+import typing
 
-from jaml.learners.dsa import DSAConfig, make_dsa
-from jaml.learners.learner import LatentPenalty, Learner, LearnerConfig, Outputs
-from jaml.learners.pred import PREDConfig, make_pred
-from jaml.learners.spair import SPAIRConfig, make_spair
-from jaml.learners.svae import SVAEConfig, make_svae
-from jaml.learners.train import (
-    CPU_COMPILER_OPTIONS,
-    Batch,
-    TrainState,
-    compiler_options,
-    default_optimizer,
-    init_train_state,
-    make_train_step,
+from jaml.learners.config import (
+    ALL_LEARNERS,
+    DSAConfig,
+    LearnerConfig,
+    PREDConfig,
+    SPAIRConfig,
+    SVAEConfig,
+    VAEConfig,
+    default_config,
 )
-from jaml.learners.vae import VAEConfig, make_vae
 
-# name → (config class, defaults that differ from the class's, builder)
-_REGISTRY = {
-    # VAE_rpl differs from VAE_v0 only in the stream's replay (`StreamConfig.keep_fraction`).
-    "VAE_v0": (VAEConfig, {}, make_vae),
-    "VAE_rpl": (VAEConfig, {}, make_vae),
-    "beta-VAE": (VAEConfig, {"beta": 5.0}, make_vae),
-    "SVAE": (SVAEConfig, {}, make_svae),
-    "PRED": (PREDConfig, {}, make_pred),
-    "DSA": (DSAConfig, {}, make_dsa),
-    # 4×4 grid by default; make("SPAIR", ld_dim=D, grid_size=6) for the paper's 6×6 variant.
-    "SPAIR": (SPAIRConfig, {}, make_spair),
+if typing.TYPE_CHECKING:
+    from jaml.learners.learner import Learner
+
+# name → the module:function that builds it from its config (the configs and defaults:
+# `jaml.learners.config.LEARNERS`).
+_BUILDERS = {
+    "VAE_v0": "vae:make_vae",
+    "VAE_rpl": "vae:make_vae",
+    "beta-VAE": "vae:make_vae",
+    "SVAE": "svae:make_svae",
+    "PRED": "pred:make_pred",
+    "DSA": "dsa:make_dsa",
+    "SPAIR": "spair:make_spair",
 }
-ALL_LEARNERS = tuple(_REGISTRY)
-
-
-def default_config(name: str, **overrides) -> LearnerConfig:
-    """The named learner's config: reference defaults, then `overrides` (ld_dim is required)."""
-    if name not in _REGISTRY:
-        raise ValueError(f"unknown learner {name!r}; valid names: {', '.join(ALL_LEARNERS)}")
-    cls, defaults, _ = _REGISTRY[name]
-    fields = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(overrides) - fields)
-    if unknown:
-        raise ValueError(f"{name}: unknown config fields {unknown}; valid: {sorted(fields)}")
-    if "ld_dim" not in overrides:
-        raise ValueError(f"{name}: ld_dim (the true LD-state size) is required")
-    return cls(**{**defaults, **overrides})
 
 
 def make(name: str, config: LearnerConfig | None = None, **overrides) -> Learner:
     """The learner `name` built from `config`, or from its defaults updated with `overrides`."""
+    import importlib
+
+    from jaml.learners.config import LEARNERS
+
     if config is None:
         config = default_config(name, **overrides)
-    elif name not in _REGISTRY:
+    elif name not in LEARNERS:
         raise ValueError(f"unknown learner {name!r}; valid names: {', '.join(ALL_LEARNERS)}")
-    elif not isinstance(config, _REGISTRY[name][0]):
-        raise ValueError(f"{name} needs a {_REGISTRY[name][0].__name__}, got "
+    elif not isinstance(config, LEARNERS[name][0]):
+        raise ValueError(f"{name} needs a {LEARNERS[name][0].__name__}, got "
                          f"{type(config).__name__}")
     elif overrides:
         config = config.replace(**overrides)
-    return _REGISTRY[name][2](name, config)
+    module, function = _BUILDERS[name].split(":")
+    return getattr(importlib.import_module(f"{__name__}.{module}"), function)(name, config)
+
+
+# The rest, imported from their modules on first use (PEP 562): the configs above (and so
+# `jaml suite --learner L --help`) stay free of JAX and Flax, which the models import.
+_EXPORTS = {
+    "LatentPenalty": "learner",
+    "Learner": "learner",
+    "Outputs": "learner",
+    "CPU_COMPILER_OPTIONS": "train",
+    "Batch": "train",
+    "TrainState": "train",
+    "compiler_options": "train",
+    "default_optimizer": "train",
+    "init_train_state": "train",
+    "make_train_step": "train",
+}
+
+
+def __getattr__(name: str):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))
 
 
 __all__ = [

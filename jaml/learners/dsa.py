@@ -7,47 +7,14 @@ Z dynamic size per step, A action.
 
 from __future__ import annotations
 
-import dataclasses
-import typing
-
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
 from jaml.learners import elbo
-from jaml.learners.learner import FRAME_SHAPE, Learner, Outputs, RecurrentConfig
+from jaml.learners.config import DSAConfig
+from jaml.learners.learner import FRAME_SHAPE, Learner, Outputs
 from jaml.learners.networks import ConvDecoder, ConvEncoder, GaussianHead, RNNEncoder, lstm
-
-
-@dataclasses.dataclass(frozen=True)
-class DSAConfig(RecurrentConfig):
-    """DSA_SEQ24 by default: static F = D and dynamic Z = D per step (2·D in all), hist 24.
-
-    latent_dim is the dynamic size (None → ld_dim); static_dim None → ld_dim. β weighs only
-    the dynamic KL: loss = −(recon − (KL_f + β Σ_t KL_z)).
-    """
-
-    static_dim: int | None = None
-    prior_hidden: int = 512
-    min_hist: typing.ClassVar[int] = 2  # its static encoder sees half the frames
-
-    def __post_init__(self):
-        super().__post_init__()
-        if self.kl_form != "standard":
-            raise ValueError(f"DSA's KLs are to learned priors: kl_form must be 'standard', got "
-                             f"{self.kl_form!r}")
-
-    @property
-    def z_step(self) -> int:
-        return self.latent_dim or self.ld_dim
-
-    @property
-    def f_size(self) -> int:
-        return self.static_dim or self.ld_dim
-
-    @property
-    def static_size(self) -> int:
-        return self.f_size
 
 
 def _random_half(key, b: int, t: int) -> jax.Array:

@@ -8,6 +8,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from jaml.learners.config import CURRENT_ACTIONS, KL_FORMS
+
 
 def frames_to_float(frames: jax.Array) -> jax.Array:
     """uint8 [..., H, W, C] in 0..255 → float32 in [0, 1]; floating frames pass as float32."""
@@ -18,7 +20,6 @@ def frames_to_float(frames: jax.Array) -> jax.Array:
     return frames.astype(jnp.float32)
 
 
-CURRENT_ACTIONS = ("observed", "hidden")
 
 
 def encoder_actions(a: jax.Array, hist: int, current_action: str = "observed") -> jax.Array:
@@ -44,7 +45,6 @@ def reparameterize(key: jax.Array, mu: jax.Array, logvar: jax.Array) -> jax.Arra
     return mu + jax.random.normal(key, mu.shape, mu.dtype) * jnp.exp(0.5 * logvar)
 
 
-KL_FORMS = ("standard", "reference")
 
 
 def kl_to_standard_normal(mu: jax.Array, logvar: jax.Array, form: str = "standard") -> jax.Array:

@@ -7,7 +7,6 @@ P per-step latent passed to a penalty, Z flattened latent code.
 from __future__ import annotations
 
 import dataclasses
-import typing
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -17,6 +16,12 @@ import jax.numpy as jnp
 from flax import struct
 
 from jaml.learners import elbo
+from jaml.learners.config import (  # noqa: F401  (the learners import them from here)
+    COMPUTE_DTYPE_NAMES,
+    LearnerConfig,
+    RecurrentConfig,
+    SingleFrameConfig,
+)
 
 FRAME_SHAPE = (64, 64, 3)
 
@@ -38,164 +43,8 @@ class PenaltyTerms:
     ok_weight: float = struct.field(pytree_node=False, default=0.0)
 
 
-COMPUTE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
-
-
-@dataclasses.dataclass(frozen=True)
-class LearnerConfig:
-    """What every learner shares; defaults reproduce the reference (suite_reference.md §4).
-
-    ld_dim: size D of the true low-dimensional state; the per-step latent defaults to 2·D.
-    latent_dim: per-step latent size; None means 2·ld_dim (DSA: the dynamic part, None → D).
-    beta: weight of the KL term (β-VAE; DSA weighs only the dynamic KL with it).
-    mu_nl: the reference's `mu_nl=Sigmoid`: ELU on the posterior mean and a sigmoid on the
-      sample before decoding.
-    frame_nll: how the decoded frames' log-likelihoods combine: "sum" is the sequence ELBO of
-      paper eq. 4 (log p(x_{1:S} | τ) = Σ_t log p(x_t | τ_t)), the reference's balance too (it
-      averages likelihood and KL over the frames); "mean" averages the likelihood alone, which
-      weighs the KL S times more per frame and collapsed the posteriors of PRED and SVAE
-      (S = 24) in our runs (docs/learners.md). Same for S = 1.
-    compute_dtype: "float32" (default) or "bfloat16": the dtype of the shared conv encoder's
-      and decoder's convolutions (VAEs, PRED, SVAE, DSA; not SPAIR's): mixed precision, with
-      parameters, batch norms, heads, the loss and the optimizer in float32. Not in the
-      reference.
-    current_action: "observed" (the reference code): the encoder sees the executed action of
-      every input frame, the one into the first predicted frame included; "hidden": that last
-      action is zeroed (`elbo.encoder_actions`).
-    kl_form: "standard" KL to N(0, I), or the reference code's form (`elbo.kl_to_standard_normal`;
-      learners with a standard-normal prior: VAEs, PRED, SVAE).
-    """
-
-    ld_dim: int
-    latent_dim: int | None = None
-    beta: float = 1.0
-    learning_rate: float = 1e-4
-    logvar_limit: float = 6.0
-    mu_nl: bool = True
-    conv_filters: tuple[int, ...] = (64, 128, 128, 256)
-    conv_features: int = 128
-    deconv_filters: tuple[int, ...] = (256, 128, 128, 64)
-    frame_nll: str = "sum"
-    compute_dtype: str = "float32"
-    current_action: str = "observed"
-    kl_form: str = "standard"
-
-    def __post_init__(self):
-        if self.current_action not in elbo.CURRENT_ACTIONS:
-            raise ValueError(f"current_action must be one of {list(elbo.CURRENT_ACTIONS)}, got "
-                             f"{self.current_action!r}")
-        if self.kl_form not in elbo.KL_FORMS:
-            raise ValueError(f"kl_form must be one of {list(elbo.KL_FORMS)}, got "
-                             f"{self.kl_form!r}")
-        if self.compute_dtype not in COMPUTE_DTYPES:
-            raise ValueError(f"compute_dtype must be one of {list(COMPUTE_DTYPES)}, got "
-                             f"{self.compute_dtype!r}")
-        if self.frame_nll not in ("sum", "mean"):
-            raise ValueError(f"frame_nll must be 'sum' or 'mean', got "
-                             f"{self.frame_nll!r}")
-        if int(self.ld_dim) < 1:
-            raise ValueError(f"ld_dim must be ≥ 1, got {self.ld_dim}")
-        if self.latent_dim is not None and int(self.latent_dim) < 1:
-            raise ValueError(f"latent_dim must be ≥ 1 or None, got {self.latent_dim}")
-        if not self.beta >= 0 or not self.learning_rate > 0 or not self.logvar_limit > 0:
-            raise ValueError(f"beta must be ≥ 0, learning_rate and logvar_limit > 0; got beta "
-                             f"{self.beta}, learning_rate {self.learning_rate}, logvar_limit "
-                             f"{self.logvar_limit}")
-
-    def replace(self, **changes) -> LearnerConfig:
-        return dataclasses.replace(self, **changes)
-
-    @property
-    def conv_dtype(self):
-        """compute_dtype as a JAX dtype, for the conv encoder and decoder."""
-        return COMPUTE_DTYPES[self.compute_dtype]
-
-    @property
-    def actions_seen(self) -> int:
-        """How many of a sequence's first actions the encoder reads (`current_action`)."""
-        hist = self.hist
-        return hist if self.current_action == "observed" else hist - 1
-
-    @property
-    def z_step(self) -> int:
-        """Per-step latent size."""
-        return self.latent_dim or 2 * self.ld_dim
-
-    # Overridden per family.
-    @property
-    def seq_len(self) -> int:
-        """T: frames per batch sequence."""
-        raise NotImplementedError
-
-    @property
-    def latent_steps(self) -> int:
-        """S: latent steps, one decoded frame each (the last S frames of the sequence)."""
-        raise NotImplementedError
-
-    @property
-    def static_size(self) -> int:
-        """F: latent entries shared by all steps (PRED's static part; 0 for most learners)."""
-        return 0
-
-    @property
-    def penalty_dim(self) -> int:
-        """P: per-step size of the sampled latent handed to a latent penalty."""
-        return self.static_size + self.z_step
-
-    @property
-    def latent_size(self) -> int:
-        """Z: size of `encode`'s flattened posterior mean."""
-        return self.static_size + self.latent_steps * self.z_step
-
-    @property
-    def penalty_slots(self) -> dict[str, tuple[int, ...]]:
-        """Which entries of the per-step penalty latent (P) are static (one value per
-        sequence) and which dynamic (one per step): what `relations.LatentLayout.place` puts a
-        relation set's coordinates on."""
-        return {"static": tuple(range(self.static_size)),
-                "dynamic": tuple(range(self.static_size, self.penalty_dim))}
-
-
-@dataclasses.dataclass(frozen=True)
-class SingleFrameConfig(LearnerConfig):
-    """Learners that see one frame and decode it (VAE, SPAIR): hist = T = S = 1."""
-
-    @property
-    def hist(self) -> int:
-        return 1
-
-    @property
-    def seq_len(self) -> int:
-        return 1
-
-    @property
-    def latent_steps(self) -> int:
-        return 1
-
-
-@dataclasses.dataclass(frozen=True)
-class RecurrentConfig(LearnerConfig):
-    """Learners that encode all `hist` frames with an RNN and keep one latent per frame.
-
-    min_hist: the fewest frames the model can work with (a class constant, not a field).
-    """
-
-    hist: int = 24
-    rnn_hidden: int = 512
-    min_hist: typing.ClassVar[int] = 1
-
-    def __post_init__(self):
-        super().__post_init__()
-        if self.hist < self.min_hist:
-            raise ValueError(f"{type(self).__name__} needs hist ≥ {self.min_hist}, got {self.hist}")
-
-    @property
-    def seq_len(self) -> int:
-        return self.hist
-
-    @property
-    def latent_steps(self) -> int:
-        return self.hist
+# compute_dtype → the JAX dtype of the conv stacks (`LearnerConfig.conv_dtype`).
+COMPUTE_DTYPES = {name: getattr(jnp, name) for name in COMPUTE_DTYPE_NAMES}
 
 
 @struct.dataclass

@@ -5,19 +5,13 @@ Shapes: B batch, T time, Z per-step latent.
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax.numpy as jnp
 
 from jaml.learners import elbo
-from jaml.learners.learner import FRAME_SHAPE, Learner, RecurrentConfig
+from jaml.learners.config import SVAEConfig
+from jaml.learners.learner import FRAME_SHAPE, Learner
 from jaml.learners.networks import ConvDecoder, ConvEncoder, GaussianHead, RNNEncoder
 from jaml.learners.vae import StepwiseGaussianVAE
-
-
-@dataclasses.dataclass(frozen=True)
-class SVAEConfig(RecurrentConfig):
-    """SVAE_SEQ24 by default (hist = past = 24, pred 0); SEQ16 / SEQ8 / PARAMS_SVAE: 16 / 8 / 32."""
 
 
 class SequenceVAE(StepwiseGaussianVAE):

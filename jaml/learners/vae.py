@@ -7,7 +7,6 @@ decoded steps, Z per-step latent.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import flax.linen as nn
@@ -15,19 +14,9 @@ import jax
 import jax.numpy as jnp
 
 from jaml.learners import elbo
-from jaml.learners.learner import FRAME_SHAPE, Learner, Outputs, SingleFrameConfig
+from jaml.learners.config import VAEConfig
+from jaml.learners.learner import FRAME_SHAPE, Learner, Outputs
 from jaml.learners.networks import MLP, ConvDecoder, ConvEncoder, GaussianHead
-
-
-@dataclasses.dataclass(frozen=True)
-class VAEConfig(SingleFrameConfig):
-    """VAE on single frames (PARAMS_VAE: hist 1, past 1, pred 0; latent 2·D).
-
-    VAE_v0 and VAE_rpl differ in the stream's replay alone (`StreamConfig.keep_fraction`: 0
-    and 0.5); β-VAE defaults to β = 5, the best of the paper's {100, 20, 10, 5, 0.5}.
-    """
-
-    mlp_widths: tuple[int, ...] = (1024, 512)
 
 
 class StepwiseGaussianVAE(nn.Module):

@@ -1,9 +1,6 @@
 """The evaluation suite's domains: MJCF models stepped in MJX, with LD state and pixels."""
 
-from envs_mjx import brax_compat
-from envs_mjx.base import Env, EnvConfig, State
-from envs_mjx.compile import compiler_options
-from envs_mjx.registry import ALL_ENVS, default_config, load, make
+from envs_mjx.config import ALL_ENVS, EnvConfig, default_config
 
 __all__ = [
     "ALL_ENVS",
@@ -17,16 +14,29 @@ __all__ = [
     "to_gymnasium",
 ]
 
-# Brax's trainers (`ppo.train(environment=envs_mjx.make(...))`) call a function JAX 0.10
-# removed: restored where missing, nothing else changed (envs_mjx/brax_compat.py).
-brax_compat.install()
+# The rest, imported from their modules on first use (PEP 562): the configs above (and so
+# `jaml envs show --env ENV --help`) stay free of JAX and MuJoCo, which the domains import.
+# Gymnasium is imported on first use of `to_gymnasium` only: the domains, the learning loop and
+# the benchmarks do not need it (and a GPU image without it still runs them).
+_EXPORTS = {
+    "Env": "base",
+    "State": "base",
+    "compiler_options": "compile",
+    "load": "registry",
+    "make": "registry",
+    "to_gymnasium": "gym",
+}
 
 
 def __getattr__(name: str):
-    # Gymnasium is imported on first use of `to_gymnasium` only: the domains, the learning loop
-    # and the benchmarks do not need it (and a GPU image without it still runs them).
-    if name == "to_gymnasium":
-        from envs_mjx.gym import to_gymnasium
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'envs_mjx' has no attribute {name!r}")
+    import importlib
 
-        return to_gymnasium
-    raise AttributeError(f"module 'envs_mjx' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"envs_mjx.{_EXPORTS[name]}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))

@@ -24,9 +24,7 @@ and `metrics["nonfinite_physics"]` 1, so a solver blow-up in one env never reach
 from __future__ import annotations
 
 import copy
-import dataclasses
 import importlib.util
-import math
 import warnings
 from collections.abc import Callable
 from typing import Any
@@ -38,6 +36,14 @@ import numpy as np
 from brax.envs import base as brax_base
 from flax import struct
 from mujoco import mjx
+
+from envs_mjx import brax_compat
+from envs_mjx.config import EnvConfig
+
+# Brax's trainers (`ppo.train(environment=envs_mjx.make(...))`) call a function JAX 0.10
+# removed: restored where missing, nothing else changed (envs_mjx/brax_compat.py). Every env
+# imports this module.
+brax_compat.install()
 
 PixelsFn = Callable[[mjx.Data, dict[str, Any]], jax.Array]
 
@@ -54,50 +60,6 @@ class State(brax_base.State):
 
     pixels: jax.Array | None = None
     ld_state: jax.Array | None = None
-
-
-@dataclasses.dataclass(frozen=True)
-class EnvConfig:
-    """Settings every domain shares; domains subclass this with their own fields.
-
-    episode_length: steps after which `done` is set with `info["truncation"] = 1`; None leaves
-      time limits to a wrapper (e.g. Brax's EpisodeWrapper).
-    reward_scale: multiplies the reward; None means 1 / episode_length (1 without a time limit).
-      The paper-era Aux wrappers divided the benchmark envs' reward by the episode length, so
-      those domains default to None and follow an overridden episode_length.
-    n_frames: physics substeps per action.
-    pixels: "auto" uses `envs_mjx.render` when importable and otherwise a zero placeholder with a
-      warning; "required" raises if the renderer is missing; "off" is the placeholder, silently.
-    image_size: side of the square image, in pixels.
-    """
-
-    episode_length: int | None = 1000
-    reward_scale: float | None = 1.0
-    n_frames: int = 1
-    pixels: str = "auto"
-    image_size: int = 64
-
-    def __post_init__(self):
-        problems = []
-        if self.episode_length is not None and self.episode_length < 1:
-            problems.append(f"episode_length must be ≥ 1 or None, got {self.episode_length}")
-        if self.reward_scale is not None and not math.isfinite(self.reward_scale):
-            problems.append(f"reward_scale must be finite or None, got {self.reward_scale}")
-        if self.n_frames < 1:
-            problems.append(f"n_frames must be ≥ 1, got {self.n_frames}")
-        if self.pixels not in ("auto", "required", "off"):
-            problems.append(f"pixels must be 'auto', 'required' or 'off', got {self.pixels!r}")
-        if self.image_size < 1:
-            problems.append(f"image_size must be ≥ 1, got {self.image_size}")
-        if problems:
-            raise ValueError(f"{type(self).__name__}: " + "; ".join(problems))
-
-    @property
-    def reward_multiplier(self) -> float:
-        """The factor applied to the reward: reward_scale, or 1 / episode_length for None."""
-        if self.reward_scale is not None:
-            return float(self.reward_scale)
-        return 1.0 if self.episode_length is None else 1.0 / self.episode_length
 
 
 class PixelsUnavailableWarning(UserWarning):

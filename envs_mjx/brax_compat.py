@@ -2,9 +2,9 @@
 
 `brax.training.agents.{ppo,sac}.train` call `jax.device_put_replicated(state, devices)` once to
 copy their training state to every local device for `jax.pmap`; JAX 0.10 raises
-AttributeError ("deprecated; use jax.device_put"). `install()` (run by `import envs_mjx`) adds
-the function JAX's migration guide gives as the drop-in, only where JAX lacks one: nothing else
-in JAX changes, and a JAX that still has it keeps its own.
+AttributeError ("deprecated; use jax.device_put"). `install()` (run by `envs_mjx.base`, which
+every env imports) adds the function JAX's migration guide gives as the drop-in, only where JAX
+lacks one: nothing else in JAX changes, and a JAX that still has it keeps its own.
 """
 
 from __future__ import annotations

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
 
 from envs_mjx.base import Env, EnvConfig, PixelsFn
+from envs_mjx.config import ALL_ENVS, default_config
 from envs_mjx.domains import (
     ant,
     cartpole,
@@ -16,24 +16,18 @@ from envs_mjx.domains import (
     rearrange,
 )
 
-# name -> (env class, default_config)
-_REGISTRY: dict[str, tuple[type[Env], Callable[[], EnvConfig]]] = {
-    "CartPole": (cartpole.CartPole, cartpole.default_config),
-    "InvertedPendulum": (inverted_pendulum.InvertedPendulum, inverted_pendulum.default_config),
-    "HalfCheetah": (half_cheetah.HalfCheetah, half_cheetah.default_config),
-    "Ant": (ant.Ant, ant.default_config),
-    "GeomOnIncline": (incline.GeomOnIncline, incline.default_config),
-    "MeshOnIncline": (mesh_incline.MeshOnIncline, mesh_incline.default_config),
-    # arm="reacher" (default) | "franka"; version=0..11 or a batch of versions (i mod 4).
-    "RearrangeGeom": (rearrange.RearrangeGeom, rearrange.default_config),
-    "RearrangeYCB": (rearrange.RearrangeYCB, rearrange.default_config),
+# name -> env class; the configs, `ALL_ENVS` and `default_config`: `envs_mjx.config`.
+_CLASSES: dict[str, type[Env]] = {
+    "CartPole": cartpole.CartPole,
+    "InvertedPendulum": inverted_pendulum.InvertedPendulum,
+    "HalfCheetah": half_cheetah.HalfCheetah,
+    "Ant": ant.Ant,
+    "GeomOnIncline": incline.GeomOnIncline,
+    "MeshOnIncline": mesh_incline.MeshOnIncline,
+    "RearrangeGeom": rearrange.RearrangeGeom,
+    "RearrangeYCB": rearrange.RearrangeYCB,
 }
-ALL_ENVS: tuple[str, ...] = tuple(_REGISTRY)
-
-
-def default_config(name: str) -> EnvConfig:
-    """The named domain's default config (reproduces the reference settings)."""
-    return _lookup(name)[1]()
+assert tuple(_CLASSES) == ALL_ENVS
 
 
 def make(name: str, pixels_fn: PixelsFn | None = None, **overrides) -> Env:
@@ -44,8 +38,8 @@ def make(name: str, pixels_fn: PixelsFn | None = None, **overrides) -> Env:
     A list value becomes a tuple (overrides read back from a run's JSON config arrive as lists;
     configs stay hashable and compare equal to the ones they were written from).
     """
-    cls, config_fn = _lookup(name)
-    config = config_fn()
+    config = default_config(name)
+    cls = _CLASSES[name]
     valid = {f.name for f in dataclasses.fields(config)}
     unknown = sorted(set(overrides) - valid)
     if unknown:
@@ -65,10 +59,3 @@ def load(name: str, config: EnvConfig | None = None, config_overrides: dict | No
     changed = {f.name: getattr(config, f.name) for f in dataclasses.fields(config)
                if getattr(config, f.name) != getattr(base, f.name)}
     return make(name, pixels_fn=pixels_fn, **changed, **(config_overrides or {}))
-
-
-def _lookup(name: str):
-    try:
-        return _REGISTRY[name]
-    except KeyError:
-        raise ValueError(f"unknown env {name!r}; valid names: {list(ALL_ENVS)}") from None

@@ -1,4 +1,5 @@
-"""The suite's domains: one module per domain, each with its config and `default_config()`."""
+"""The suite's domains: one module per domain, each with its `default_config()` (the configs
+themselves live in `envs_mjx.config`, which imports neither JAX nor MuJoCo)."""
 
 from envs_mjx.domains.ant import Ant
 from envs_mjx.domains.cartpole import CartPole

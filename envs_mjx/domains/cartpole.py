@@ -11,28 +11,13 @@ Multicolor: cart = scheme's base colour, pole = its pole colour; otherwise yello
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import mujoco
 
-from envs_mjx.base import BASE, POLE, Env, EnvConfig, geom_ids, random_colour_scheme
+from envs_mjx.base import BASE, POLE, Env, geom_ids, random_colour_scheme
+from envs_mjx.config import CartPoleConfig
 from envs_mjx.domains._assets import asset
-
-
-@dataclasses.dataclass(frozen=True)
-class CartPoleConfig(EnvConfig):
-    episode_length: int | None = 200
-    reward_scale: float | None = None  # 1 / episode_length
-    n_frames: int = 1
-    # The suite's (and the paper's Fig. 2) multicolor version: one of 4 colour schemes drawn per
-    # reset, so a learner cannot key on a fixed colour. False: the plain, fixed-colour version.
-    multicolor: bool = True
-    action_mode: str = "sign"
-    reset_noise: float = 0.05
-    x_threshold: float = 0.4
-    theta_threshold: float = 12.0 * 3.141592653589793 / 180.0
 
 
 def default_config() -> CartPoleConfig:

@@ -43,14 +43,13 @@ Deviations from the reference (recorded here on purpose):
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from envs_mjx.base import Env, EnvConfig, geom_ids
+from envs_mjx.base import Env, geom_ids
+from envs_mjx.config import InclineConfig
 from envs_mjx.domains._assets import asset
 
 # Plank colours per texture id (reference INCLINE_COLORS).
@@ -95,22 +94,6 @@ PLANK_ORIGIN = np.array([0.0, 0.0, 0.55], np.float32)
 # whatever the slide and pushes reach (up to ~3 m/s under uniform actions before x = 1).
 POSITION_SCALE = 1.27
 VELOCITY_SCALE = 3.1
-
-
-@dataclasses.dataclass(frozen=True)
-class InclineConfig(EnvConfig):
-    episode_length: int | None = 50
-    reward_scale: float = 1.0
-    n_frames: int = 8
-    object_id: int = 0
-    theta_range: tuple[float, float] = (0.25, 0.50)
-    mass_range: tuple[float, float] = (0.05, 0.5)
-    friction_range: tuple[float, float] = (0.10, 0.50)
-    start_range: tuple[float, float] = (0.05, 0.15)
-    force_scale: float = 2.0
-    ground: str = "paired"
-    ld_friction: bool = False
-    normalize_ld: bool = True
 
 
 def default_config() -> InclineConfig:

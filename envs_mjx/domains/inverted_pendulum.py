@@ -7,26 +7,13 @@ theta ~U(+-0.1), everything else 0. Multicolor: cart = base colour, pole = pole 
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import mujoco
 
-from envs_mjx.base import BASE, POLE, Env, EnvConfig, geom_ids, random_colour_scheme
+from envs_mjx.base import BASE, POLE, Env, geom_ids, random_colour_scheme
+from envs_mjx.config import InvertedPendulumConfig
 from envs_mjx.domains._assets import asset
-
-
-@dataclasses.dataclass(frozen=True)
-class InvertedPendulumConfig(EnvConfig):
-    episode_length: int | None = 1000
-    reward_scale: float | None = None  # 1 / episode_length
-    n_frames: int = 1
-    # The suite's (and the paper's Fig. 2) multicolor version: one of 4 colour schemes drawn per
-    # reset, so a learner cannot key on a fixed colour. False: the plain, fixed-colour version.
-    multicolor: bool = True
-    reset_noise: float = 0.1
-    theta_threshold: float = 0.2
 
 
 def default_config() -> InvertedPendulumConfig:

@@ -19,8 +19,6 @@ was below 0.1 ("stalled"); that rule is not implemented.
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -28,30 +26,13 @@ import numpy as np
 
 from envs_mjx.base import (
     Env,
-    EnvConfig,
     body_geom_ids,
     contact_flags,
     geom_ids,
     random_colour_scheme,
 )
+from envs_mjx.config import LocomotionConfig
 from envs_mjx.domains._assets import asset
-
-
-@dataclasses.dataclass(frozen=True)
-class LocomotionConfig(EnvConfig):
-    episode_length: int | None = 1000
-    reward_scale: float | None = None  # 1 / episode_length
-    n_frames: int = 4
-    # The suite's (and the paper's Fig. 2) multicolor version: one of 4 colour schemes drawn per
-    # reset, so a learner cannot key on a fixed colour. False: the plain, fixed-colour version.
-    multicolor: bool = True
-    reset_noise: float = 0.1
-    target_x: float = 1000.0
-    target_y: float = 0.0
-    ld_clip: float = 5.0
-    electricity_cost: float = -2.0
-    stall_torque_cost: float = -0.1
-    joints_at_limit_cost: float = -0.1
 
 
 class Locomotion(Env):

@@ -58,16 +58,15 @@ import mujoco
 import numpy as np
 
 from envs_mjx.base import geom_ids
+from envs_mjx.config import MESH_OBJECTS, MeshInclineConfig
 from envs_mjx.domains._assets import ASSETS
 from envs_mjx.domains.incline import (
     INCLINE_COLOURS,
     GeomOnIncline,
-    InclineConfig,
     _normal,
 )
 from envs_mjx.domains.mesh_object import load_object
 
-MESH_OBJECTS = ("duck", "domino", "cereal", "can", "bread", "lemon")
 # Longest side (m) at the incline's scale: the reference's YCB objects at 2.5x measured
 # 0.26-0.38 m (sugar box 0.38, chef can 0.33, soup can 0.31; suite_reference.md §6).
 OBJECT_SIZES = {
@@ -99,24 +98,6 @@ assert len(SURFACE_PAIRS) == len(INCLINE_COLOURS)  # texture_id ~U{0..5} indexes
 GROUND_TILES = 15  # texture repeats along each side of the 30 m ground: 2 m tiles
 PLANK_TILE = 0.5  # m, side of the square texture tiles on the plank's top
 PLANK_TOP_GAP = 1e-3  # m: the plank box sits this far below its textured top plane
-
-
-@dataclasses.dataclass(frozen=True)
-class MeshInclineConfig(InclineConfig):
-    """objects: names in MESH_OBJECTS; env slot i of a batch holds objects[i mod N].
-    object: one name in MESH_OBJECTS for every env instead (the single-object option).
-    object_dir: a YCB-layout folder, one object for every env (overrides both).
-    object_size: longest side (m); None: OBJECT_SIZES per object, FOLDER_SIZE for a folder.
-    (The inherited object_id is unused: the LD object id is the object's index in
-    MESH_OBJECTS.)"""
-
-    objects: tuple[str, ...] = MESH_OBJECTS
-    object: str | None = None
-    object_dir: str | None = None
-    object_size: float | None = None
-    object_mass: float = 0.05
-    max_faces: int = 300
-    max_hull_vertices: int = 32
 
 
 def default_config() -> MeshInclineConfig:

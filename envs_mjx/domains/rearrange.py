@@ -64,14 +64,13 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from envs_mjx.base import Env, EnvConfig, drawn_rgba, physics_step
+from envs_mjx.base import Env, drawn_rgba, physics_step
 from envs_mjx.c_physics import CPhysics
+from envs_mjx.config import ARMS, PHYSICS, RearrangeConfig
 from envs_mjx.domains._assets import ASSETS, asset
 from envs_mjx.domains.mesh_incline import _add_texture, _pad, _texture
 from envs_mjx.domains.mesh_object import load_object
 
-ARMS = ("reacher", "franka")
-PHYSICS = ("mjx", "c")
 # What physics="c" brings back after an env step besides qpos / qvel: what the LD state, reward
 # (the Franka's end-effector site) and renderer (geom and camera poses) read.
 C_POSES = ("geom_xpos", "geom_xmat", "site_xpos", "cam_xpos", "cam_xmat")
@@ -173,60 +172,6 @@ FRANKA_TORQUE = (87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0)
 FRANKA_REST = (-0.0412, 0.5043, 0.0048, -2.6232, -0.1651, 3.1273, 0.9135)
 FRANKA_CHAIN = ("link1", "link2", "link3", "link4", "link5", "link6", "link7", "hand")
 BULLET_SUBSTEPS = 2  # MJX substeps (5 ms) per Bullet step (10 ms)
-
-
-@dataclasses.dataclass(frozen=True)
-class RearrangeConfig(EnvConfig):
-    """The Rearrange domains' options (suite_reference.md §1-2).
-
-    arm: "reacher" (the reference's 2-link arm, 2 torques) or "franka" (a Franka Panda, 7
-      torques with gravity compensation).
-    version: one version (0-11) for every env; None: env slot i of a batch uses
-      versions[i mod len(versions)].
-    versions: the versions a batch cycles through (the reference trained on 0-3).
-    n_frames: derived, repeats x BULLET_SUBSTEPS MJX substeps per action (a value given here is
-      replaced).
-    repeats: physics steps of the reference's Bullet (10 ms) per action (4).
-    settle_steps: zero-torque physics steps after placing the objects at reset.
-    random_torque_steps: random-torque physics steps after settling, so an episode does not
-      start from rest.
-    reacher_init_range: the reacher's joint angles at reset are uniform in ± this (radians).
-    ik_iterations: damped least-squares iterations that place the Franka's gripper at its random
-      reset target.
-    max_faces: the object meshes' face budget after decimation (the renderer's cost per mesh).
-    max_joint_velocity: the arm's joint speeds are clipped to this (rad/s) after every Bullet
-      step, as Bullet's multibodies cap their joint velocities (`btMultiBody`'s
-      maxCoordinateVelocity, 100 by default, which the reference's loadMJCF arm kept). Without
-      it nothing bounds the undamped reacher's speed under random torques and its physics turns
-      NaN (docs/notes/rearrange.md). None: no cap.
-    max_contacts: MJX keeps this many contacts per step, the deepest (its `max_contact_points`
-      numeric; C MuJoCo ignores it), instead of a slot for every contact the scene's geom pairs
-      could make (97 with the reacher, 127 with the Franka), touching or not; 32 leaves room
-      above the most contacts seen at once, and cuts the constraint solve's cost
-      (docs/notes/rearrange.md). None: every slot.
-    physics: "mjx" (MJX's JAX physics: any device, differentiable) or "c" (C MuJoCo's substeps
-      through `envs_mjx.c_physics`, a callback into `mujoco.rollout`'s thread pool: the fast
-      path on a CPU; each 2-substep Bullet step starts the solver cold; `max_contacts` does not
-      apply, C MuJoCo keeps every contact). Either way the env's step is one jittable function;
-      with "c" the pipeline state holds qpos, qvel and the geom, site and camera poses (of the
-      final state), not the contacts, constraint forces or body poses.
-    """
-
-    episode_length: int | None = 50
-    reward_scale: float | None = None  # 1 / episode_length
-    n_frames: int = 8
-    arm: str = "reacher"
-    version: int | None = None
-    versions: tuple[int, ...] = (0, 1, 2, 3)
-    repeats: int = 4
-    settle_steps: int = 20
-    random_torque_steps: int = 10
-    reacher_init_range: float = 0.75 * np.pi
-    ik_iterations: int = 40
-    max_faces: int = 200
-    max_joint_velocity: float | None = 100.0
-    max_contacts: int | None = 32
-    physics: str = "mjx"
 
 
 def default_config() -> RearrangeConfig:

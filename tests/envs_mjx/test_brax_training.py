@@ -5,7 +5,7 @@ import numpy as np
 from brax.training.agents.ppo import train as ppo
 
 import envs_mjx
-from envs_mjx import brax_compat
+from envs_mjx import base, brax_compat  # noqa: F401  (base installs the compat)
 
 
 def test_device_put_replicated_copies_each_leaf_to_every_device():
@@ -16,7 +16,7 @@ def test_device_put_replicated_copies_each_leaf_to_every_device():
     for shard in out["a"].addressable_shards:
         np.testing.assert_array_equal(np.asarray(shard.data)[0], tree["a"])
     assert {s.device for s in out["a"].addressable_shards} == set(devices)
-    assert not brax_compat.install()  # installed by `import envs_mjx`: not twice
+    assert not brax_compat.install()  # installed by `envs_mjx.base`: not twice
     if jax.__version_info__[:2] == (0, 10):  # the pinned JAX has none of its own
         assert jax.device_put_replicated is brax_compat.device_put_replicated
 

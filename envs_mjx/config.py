@@ -1,0 +1,217 @@
+"""The domains' configs, their names and defaults (`ALL_ENVS`, `default_config`): what
+`jaml envs show --env ENV --help` and `jaml suite --env ENV --help` list. Importing this module
+imports neither JAX nor MuJoCo; the domains that read these configs live in
+`envs_mjx.domains`, and `envs_mjx.registry` builds them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvConfig:
+    """Settings every domain shares; domains subclass this with their own fields.
+
+    episode_length: steps after which `done` is set with `info["truncation"] = 1`; None leaves
+      time limits to a wrapper (e.g. Brax's EpisodeWrapper).
+    reward_scale: multiplies the reward; None means 1 / episode_length (1 without a time limit).
+      The paper-era Aux wrappers divided the benchmark envs' reward by the episode length, so
+      those domains default to None and follow an overridden episode_length.
+    n_frames: physics substeps per action.
+    pixels: "auto" uses `envs_mjx.render` when importable and otherwise a zero placeholder with a
+      warning; "required" raises if the renderer is missing; "off" is the placeholder, silently.
+    image_size: side of the square image, in pixels.
+    """
+
+    episode_length: int | None = 1000
+    reward_scale: float | None = 1.0
+    n_frames: int = 1
+    pixels: str = "auto"
+    image_size: int = 64
+
+    def __post_init__(self):
+        problems = []
+        if self.episode_length is not None and self.episode_length < 1:
+            problems.append(f"episode_length must be ≥ 1 or None, got {self.episode_length}")
+        if self.reward_scale is not None and not math.isfinite(self.reward_scale):
+            problems.append(f"reward_scale must be finite or None, got {self.reward_scale}")
+        if self.n_frames < 1:
+            problems.append(f"n_frames must be ≥ 1, got {self.n_frames}")
+        if self.pixels not in ("auto", "required", "off"):
+            problems.append(f"pixels must be 'auto', 'required' or 'off', got {self.pixels!r}")
+        if self.image_size < 1:
+            problems.append(f"image_size must be ≥ 1, got {self.image_size}")
+        if problems:
+            raise ValueError(f"{type(self).__name__}: " + "; ".join(problems))
+
+    @property
+    def reward_multiplier(self) -> float:
+        """The factor applied to the reward: reward_scale, or 1 / episode_length for None."""
+        if self.reward_scale is not None:
+            return float(self.reward_scale)
+        return 1.0 if self.episode_length is None else 1.0 / self.episode_length
+
+
+@dataclasses.dataclass(frozen=True)
+class CartPoleConfig(EnvConfig):
+    episode_length: int | None = 200
+    reward_scale: float | None = None  # 1 / episode_length
+    n_frames: int = 1
+    # The suite's (and the paper's Fig. 2) multicolor version: one of 4 colour schemes drawn per
+    # reset, so a learner cannot key on a fixed colour. False: the plain, fixed-colour version.
+    multicolor: bool = True
+    action_mode: str = "sign"
+    reset_noise: float = 0.05
+    x_threshold: float = 0.4
+    theta_threshold: float = 12.0 * 3.141592653589793 / 180.0
+
+
+@dataclasses.dataclass(frozen=True)
+class InvertedPendulumConfig(EnvConfig):
+    episode_length: int | None = 1000
+    reward_scale: float | None = None  # 1 / episode_length
+    n_frames: int = 1
+    # The suite's (and the paper's Fig. 2) multicolor version: one of 4 colour schemes drawn per
+    # reset, so a learner cannot key on a fixed colour. False: the plain, fixed-colour version.
+    multicolor: bool = True
+    reset_noise: float = 0.1
+    theta_threshold: float = 0.2
+
+
+@dataclasses.dataclass(frozen=True)
+class LocomotionConfig(EnvConfig):
+    episode_length: int | None = 1000
+    reward_scale: float | None = None  # 1 / episode_length
+    n_frames: int = 4
+    # The suite's (and the paper's Fig. 2) multicolor version: one of 4 colour schemes drawn per
+    # reset, so a learner cannot key on a fixed colour. False: the plain, fixed-colour version.
+    multicolor: bool = True
+    reset_noise: float = 0.1
+    target_x: float = 1000.0
+    target_y: float = 0.0
+    ld_clip: float = 5.0
+    electricity_cost: float = -2.0
+    stall_torque_cost: float = -0.1
+    joints_at_limit_cost: float = -0.1
+
+
+@dataclasses.dataclass(frozen=True)
+class InclineConfig(EnvConfig):
+    episode_length: int | None = 50
+    reward_scale: float = 1.0
+    n_frames: int = 8
+    object_id: int = 0
+    theta_range: tuple[float, float] = (0.25, 0.50)
+    mass_range: tuple[float, float] = (0.05, 0.5)
+    friction_range: tuple[float, float] = (0.10, 0.50)
+    start_range: tuple[float, float] = (0.05, 0.15)
+    force_scale: float = 2.0
+    ground: str = "paired"
+    ld_friction: bool = False
+    normalize_ld: bool = True
+
+
+# The mesh incline's objects (`envs_mjx.domains.mesh_incline`).
+MESH_OBJECTS = ("duck", "domino", "cereal", "can", "bread", "lemon")
+
+
+@dataclasses.dataclass(frozen=True)
+class MeshInclineConfig(InclineConfig):
+    """objects: names in MESH_OBJECTS; env slot i of a batch holds objects[i mod N].
+    object: one name in MESH_OBJECTS for every env instead (the single-object option).
+    object_dir: a YCB-layout folder, one object for every env (overrides both).
+    object_size: longest side (m); None: OBJECT_SIZES per object, FOLDER_SIZE for a folder.
+    (The inherited object_id is unused: the LD object id is the object's index in
+    MESH_OBJECTS.)"""
+
+    objects: tuple[str, ...] = MESH_OBJECTS
+    object: str | None = None
+    object_dir: str | None = None
+    object_size: float | None = None
+    object_mass: float = 0.05
+    max_faces: int = 300
+    max_hull_vertices: int = 32
+
+
+# The Rearrange domains' arms and physics (`envs_mjx.domains.rearrange`).
+ARMS = ("reacher", "franka")
+PHYSICS = ("mjx", "c")
+
+
+@dataclasses.dataclass(frozen=True)
+class RearrangeConfig(EnvConfig):
+    """The Rearrange domains' options (suite_reference.md §1-2).
+
+    arm: "reacher" (the reference's 2-link arm, 2 torques) or "franka" (a Franka Panda, 7
+      torques with gravity compensation).
+    version: one version (0-11) for every env; None: env slot i of a batch uses
+      versions[i mod len(versions)].
+    versions: the versions a batch cycles through (the reference trained on 0-3).
+    n_frames: derived, repeats x BULLET_SUBSTEPS MJX substeps per action (a value given here is
+      replaced).
+    repeats: physics steps of the reference's Bullet (10 ms) per action (4).
+    settle_steps: zero-torque physics steps after placing the objects at reset.
+    random_torque_steps: random-torque physics steps after settling, so an episode does not
+      start from rest.
+    reacher_init_range: the reacher's joint angles at reset are uniform in ± this (radians).
+    ik_iterations: damped least-squares iterations that place the Franka's gripper at its random
+      reset target.
+    max_faces: the object meshes' face budget after decimation (the renderer's cost per mesh).
+    max_joint_velocity: the arm's joint speeds are clipped to this (rad/s) after every Bullet
+      step, as Bullet's multibodies cap their joint velocities (`btMultiBody`'s
+      maxCoordinateVelocity, 100 by default, which the reference's loadMJCF arm kept). Without
+      it nothing bounds the undamped reacher's speed under random torques and its physics turns
+      NaN (docs/notes/rearrange.md). None: no cap.
+    max_contacts: MJX keeps this many contacts per step, the deepest (its `max_contact_points`
+      numeric; C MuJoCo ignores it), instead of a slot for every contact the scene's geom pairs
+      could make (97 with the reacher, 127 with the Franka), touching or not; 32 leaves room
+      above the most contacts seen at once, and cuts the constraint solve's cost
+      (docs/notes/rearrange.md). None: every slot.
+    physics: "mjx" (MJX's JAX physics: any device, differentiable) or "c" (C MuJoCo's substeps
+      through `envs_mjx.c_physics`, a callback into `mujoco.rollout`'s thread pool: the fast
+      path on a CPU; each 2-substep Bullet step starts the solver cold; `max_contacts` does not
+      apply, C MuJoCo keeps every contact). Either way the env's step is one jittable function;
+      with "c" the pipeline state holds qpos, qvel and the geom, site and camera poses (of the
+      final state), not the contacts, constraint forces or body poses.
+    """
+
+    episode_length: int | None = 50
+    reward_scale: float | None = None  # 1 / episode_length
+    n_frames: int = 8
+    arm: str = "reacher"
+    version: int | None = None
+    versions: tuple[int, ...] = (0, 1, 2, 3)
+    repeats: int = 4
+    settle_steps: int = 20
+    random_torque_steps: int = 10
+    reacher_init_range: float = 0.75 * math.pi
+    ik_iterations: int = 40
+    max_faces: int = 200
+    max_joint_velocity: float | None = 100.0
+    max_contacts: int | None = 32
+    physics: str = "mjx"
+
+
+# name → its config class; the env classes: `envs_mjx.registry`.
+CONFIGS: dict[str, type[EnvConfig]] = {
+    "CartPole": CartPoleConfig,
+    "InvertedPendulum": InvertedPendulumConfig,
+    "HalfCheetah": LocomotionConfig,
+    "Ant": LocomotionConfig,
+    "GeomOnIncline": InclineConfig,
+    "MeshOnIncline": MeshInclineConfig,
+    # arm="reacher" (default) | "franka"; version=0..11 or a batch of versions (i mod 4).
+    "RearrangeGeom": RearrangeConfig,
+    "RearrangeYCB": RearrangeConfig,
+}
+ALL_ENVS: tuple[str, ...] = tuple(CONFIGS)
+
+
+def default_config(name: str) -> EnvConfig:
+    """The named domain's default config (reproduces the reference settings)."""
+    try:
+        return CONFIGS[name]()
+    except KeyError:
+        raise ValueError(f"unknown env {name!r}; valid names: {list(ALL_ENVS)}") from None

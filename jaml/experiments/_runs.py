@@ -10,7 +10,10 @@ import sys
 import time
 from pathlib import Path
 
-from jaml.evaluation import intervals
+from jaml import _command
+
+# jaml.evaluation (JAX, SciPy, Matplotlib) is imported by `cell`: the figure commands' --help
+# imports none of them (tests/test_launch.py).
 
 # When the command started (this module is imported as its flags are parsed): the origin of
 # --time-limit.
@@ -86,11 +89,7 @@ class CallOptions:
 
 def main(command: str, args: type, argv=None) -> int:
     """`python -m jaml.experiments.COMMAND ARGS` is `jaml COMMAND ARGS`: `args` (the driver's
-    `Args`) parsed and run by the command line's mechanism (`jaml._command`), the only command.
-    Imported here, not above: it captures what importing mujoco.mjx prints, which only an entry
-    point may do."""
-    from jaml import _command
-
+    `Args`) parsed and run by the command line's mechanism (`jaml._command`), the only command."""
     return _command.main([command, *(sys.argv[1:] if argv is None else argv)],
                          lambda _: {command: args}, command)
 
@@ -183,6 +182,8 @@ def last_common_step(histories: list[list[dict]]) -> int:
 
 def cell(values, digits: int = 3) -> str:
     """'0.123' for one run, '0.123 ± 0.045' (90 % confidence half-width) for several."""
+    from jaml.evaluation import intervals
+
     mean, low, high = intervals.mean_interval(values)
     if len(values) < 2:
         return f"{mean:.{digits}f}"

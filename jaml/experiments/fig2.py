@@ -50,8 +50,7 @@ import tyro
 
 from jaml._options import key_values
 from jaml._rundir import write_text
-from jaml.evaluation import intervals, plots
-from jaml.experiments import _runs, fig2_claims
+from jaml.experiments import _runs
 from jaml.experiments._runs import cell
 from jaml.experiments.fig2_grid import (
     ENVS,
@@ -62,6 +61,9 @@ from jaml.experiments.fig2_grid import (
     group_value,
     ld_groups,
 )
+
+# jaml.evaluation (JAX, SciPy, Matplotlib) is imported by the functions that report: the
+# command's --help imports none of them (tests/test_launch.py).
 
 # label → (learner, learner config overrides). β = 5 was the paper's best β; β = 20 one of the
 # values it found "significantly worse" (it tried 100, 20, 10, 5, 0.5).
@@ -230,6 +232,9 @@ def group_records(env: str, histories: dict[str, list[list[dict]]]) -> list[dict
 
 def report(out: Path, envs, variants) -> str:
     """fig2.md and the figures from every run under OUT; returns the markdown."""
+    from jaml.evaluation import plots
+    from jaml.experiments import fig2_claims
+
     lines = ["# Fig. 2: alignment error (lower is better)", "",
              "Pendulums in training-std units; HalfCheetah and Ant's figures as fractions of "
              "each run's constant predictor's error (their first tables raw, their second as "
@@ -325,6 +330,8 @@ def compare(out: Path, other: Path, envs, variants, relative: bool = False) -> s
     common analyses that interval excludes 0 (a difference the seeds resolve). `relative`: each
     group mean as a fraction of its run's constant predictor's (`group_value`), where the two
     grids' runs have different streams and so different units."""
+    from jaml.evaluation import intervals
+
     units = ("as a fraction of each run's constant predictor's error" if relative
              else "training-std units")
     lines = [f"## {out.name} − {other.name}, cell by cell ({units})", "",

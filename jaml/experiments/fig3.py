@@ -64,9 +64,11 @@ import tyro
 
 from jaml._options import KeyValues, key_values
 from jaml._rundir import write_text
-from jaml.evaluation import intervals, plots, rotation
 from jaml.experiments import _runs
 from jaml.experiments._runs import cell
+
+# jaml.evaluation (JAX, SciPy, Matplotlib) is imported by the functions that report: the
+# command's --help imports none of them (tests/test_launch.py).
 
 # The paper's Fig. 3 domain, and the realistic-object one it reports as too hard for these
 # learners (§2); both with the reacher arm by default.
@@ -170,6 +172,8 @@ def _domain(env: str, env_opt: tuple):
 
 @functools.cache
 def _layout(env: str, env_opt: tuple) -> Layout:
+    from jaml.evaluation import rotation
+
     domain = _domain(env, env_opt)
     joints: dict[str, list[str]] = {}
     positions: dict[str, list[str]] = {}
@@ -350,6 +354,8 @@ def _signed(text: str) -> str:
 def _welch(a: list[float], b: list[float]) -> str:
     if not a or not b:
         return "–"
+    from jaml.evaluation import intervals
+
     diff, low, high = intervals.welch_interval(a, b)
     if np.isnan(low):
         return f"{diff:+.3f}"
@@ -436,6 +442,8 @@ def _recon_image(out: Path, variant: str, stopped=()) -> tuple[Path, str] | None
 
 def plot(runs: dict[str, list[list[dict]]], panels: dict[str, list[str]], path: Path) -> None:
     """fig3.png: mean and 90 % band over seeds per variant, π_curr top row, π_rand bottom."""
+    from jaml.evaluation import plots
+
     records = sorted((r for hs in runs.values() for h in hs for r in h),
                      key=lambda r: r["test_set"] != "pi_curr")
     fig = plots.plot_alignment(records, path, groups=panels)

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from jaml.evaluation import history_records
+from jaml.evaluation import history_records, plots
 from jaml.experiments import fig2
 
 NAMES = ["theta", "theta_dot", "x", "x_dot"]
@@ -153,13 +153,13 @@ def test_the_report_draws_locomotion_on_the_constants_scale_and_names_what_it_le
     _locomotion_cell(tmp_path, "PRED")
     _locomotion_cell(tmp_path, "VAE_rpl", with_baselines=False)
     drawn = {}
-    real = fig2.plots.plot_alignment
+    real = plots.plot_alignment
 
     def plot_alignment(records, path, groups=None, ylabels=None):
         drawn[path.name] = ({r["learner"] for r in records}, ylabels)
         return real(records, path, groups=groups, ylabels=ylabels)
 
-    monkeypatch.setattr(fig2.plots, "plot_alignment", plot_alignment)
+    monkeypatch.setattr(plots, "plot_alignment", plot_alignment)
     text = fig2.report(tmp_path, ["CartPole", "HalfCheetah"], ["PRED", "VAE_rpl"])
     assert drawn["HalfCheetah_alignment.png"] == (
         {"PRED"}, dict.fromkeys(fig2.ld_groups("HalfCheetah"), fig2.OF_CONSTANT))

@@ -30,18 +30,15 @@ def _import_mjx_quietly() -> list[str]:
     and, when absent, `print`s "Failed to import warp: …" and "Failed to import mujoco_warp: …"
     to stdout on every import: a print, not a logging call or warning, so no logger level or
     warnings filter silences it. Only jaml's entry point captures it (libraries leave stdout
-    alone); `jaml -v` logs the captured lines."""
+    alone); `jaml -v` logs the captured lines. Called once the arguments are parsed: the help and
+    the parse itself import neither MuJoCo nor JAX (the configs they read are plain
+    dataclasses)."""
     if "mujoco.mjx" in sys.modules:
         return []
     buffer = io.StringIO()
     with contextlib.redirect_stdout(buffer), contextlib.suppress(ImportError):
         import mujoco.mjx  # noqa: F401
     return buffer.getvalue().splitlines()
-
-
-# Before anything imports envs_mjx (`jaml.cli`'s command classes read its registry): `jaml.cli`
-# imports this module first.
-_MJX_PRINTS = _import_mjx_quietly()
 
 # ---------------------------------------------------------------------------------------------
 # The mechanism: help from docstrings, choices, hidden fields, one-line errors.
@@ -74,14 +71,19 @@ def field_docs(cls: type) -> dict[str, str]:
 
 def _choices() -> dict[tuple[str, str], tuple[str, ...]]:
     """(class name, field) → its valid values, for `str` fields whose set is fixed elsewhere
-    (registries, validation in __post_init__)."""
-    from envs_mjx.domains.rearrange import ARMS
-    from jaml.stream import POLICIES
+    (registries, validation in __post_init__). Their modules import neither JAX nor MuJoCo."""
+    from envs_mjx.config import ARMS, PHYSICS
+    from jaml.learners.config import COMPUTE_DTYPE_NAMES, CURRENT_ACTIONS, KL_FORMS
+    from jaml.stream.config import POLICIES
 
     return {
         ("StreamConfig", "policy"): POLICIES,
         ("RearrangeConfig", "arm"): ARMS,
+        ("RearrangeConfig", "physics"): PHYSICS,
         ("LearnerConfig", "frame_nll"): ("sum", "mean"),
+        ("LearnerConfig", "compute_dtype"): COMPUTE_DTYPE_NAMES,
+        ("LearnerConfig", "current_action"): CURRENT_ACTIONS,
+        ("LearnerConfig", "kl_form"): KL_FORMS,
         ("EnvConfig", "pixels"): ("auto", "required", "off"),
     }
 
@@ -250,9 +252,9 @@ def main(argv, commands: Callable[[list[str]], dict[str, type]], description: st
     """Parses `argv` (sys.argv[1:] when None) over `commands(argv)` (name → dataclass with a
     `run()` returning the exit status) and runs the command: every failure one line on stderr
     (status 2), an interrupt status 130."""
-    captured = [*_MJX_PRINTS, *_import_mjx_quietly()]
     argv = sys.argv[1:] if argv is None else list(argv)
     args = parse(argv, commands, description)
+    captured = _import_mjx_quietly()
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING,
         format="%(asctime)s %(name)s %(message)s",

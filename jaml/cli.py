@@ -85,21 +85,21 @@ class Relations:
 
 
 def _suite_config():
-    from jaml.stream import StreamConfig
+    from jaml.stream.config import StreamConfig
 
     return StreamConfig
 
 
 def _envs() -> tuple[str, ...]:
-    import envs_mjx
+    from envs_mjx.config import ALL_ENVS
 
-    return envs_mjx.ALL_ENVS
+    return ALL_ENVS
 
 
 def _learners() -> tuple[str, ...]:
-    from jaml import learners
+    from jaml.learners.config import ALL_LEARNERS
 
-    return learners.ALL_LEARNERS
+    return ALL_LEARNERS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -166,16 +166,16 @@ class Suite:
 
 
 def _learner_default(name: str):
-    from jaml import learners
+    from jaml.learners.config import default_config
 
     # ld_dim comes from the env when the stream builds the learner; 1 stands in for help.
-    return learners.default_config(name, ld_dim=1)
+    return default_config(name, ld_dim=1)
 
 
 def _env_default(name: str):
-    import envs_mjx
+    from envs_mjx.config import default_config
 
-    return envs_mjx.default_config(name)
+    return default_config(name)
 
 
 def _changed(config, default, keep=(), skip=()) -> dict:
@@ -197,7 +197,7 @@ def _suite_for(argv: list[str]) -> type:
             namespace={"__doc__": Suite.__doc__, "__module__": __name__})
     if env not in _envs() or learner not in _learners():
         return Suite
-    from jaml.stream import for_env
+    from jaml.stream.config import for_env
 
     base = for_env(env, learner)
     learner_config = _learner_default(learner).replace(**base.learner_overrides)

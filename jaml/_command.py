@@ -128,10 +128,12 @@ def _registry() -> tyro.constructors.ConstructorRegistry:
                 kind = tyro.conf.Suppress[kind]
             helptext = f.helptext() if callable(f.helptext) else f.helptext
             helptext = " ".join((helptext or docs.get(f.name) or "").split())  # unwrapped
-            if kind is bool and f.default is True and helptext:
+            if kind is bool and f.default is True:
                 # FlagCreatePairsOff: a True default makes the flag `--no-NAME`, which turns off
-                # what the field's doc describes; say so.
-                helptext = f"turn off (default on): {helptext}"
+                # what the field's doc describes: say so, and give the default as "on" rather
+                # than tyro's "(default: True)", which beside `--no-NAME` reads as the opposite.
+                helptext = f"turn off: {helptext}" if helptext else f"turn off {f.name}"
+                kind = Annotated[bool, tyro.conf.arg(help_behavior_hint="(default: on)")]
             fields.append(dataclasses.replace(f, type=kind, helptext=helptext or None))
         return dataclasses.replace(spec, fields=tuple(fields))
 

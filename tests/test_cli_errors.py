@@ -39,9 +39,10 @@ def test_boolean_flags_help_says_what_the_flag_does(capsys):
     with pytest.raises(SystemExit):
         main(["suite", "--env", "CartPole", "--learner", "PRED", "--help"])
     text = " ".join(capsys.readouterr().out.replace("│", " ").split())
-    for flag in ("--ppo.no-lr-decay", "--no-regressor-normalize"):
-        after = text.split(flag, 1)[1][:40]
-        assert after.lstrip().startswith("turn off (default on):"), (flag, after)
+    for flag in ("--ppo.no-lr-decay", "--no-regressor-normalize", "--no-final-checkpoint"):
+        after = text.split(flag, 1)[1].split(" --", 1)[0]
+        assert after.lstrip().startswith("turn off: "), (flag, after)
+        assert after.rstrip().endswith("(default: on)") and "True" not in after, (flag, after)
 
 
 def test_a_negative_beta_is_refused_before_any_work(tmp_path, capsys):

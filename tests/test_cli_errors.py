@@ -40,9 +40,9 @@ def test_boolean_flags_help_says_what_the_flag_does(capsys):
         main(["suite", "--env", "CartPole", "--learner", "PRED", "--help"])
     text = " ".join(capsys.readouterr().out.replace("│", " ").split())
     for flag in ("--ppo.no-lr-decay", "--no-regressor-normalize", "--no-final-checkpoint"):
-        after = text.split(flag, 1)[1].split(" --", 1)[0]
-        assert after.lstrip().startswith("turn off: "), (flag, after)
-        assert after.rstrip().endswith("(default: on)") and "True" not in after, (flag, after)
+        after = text.split(flag, 1)[1]
+        assert after.lstrip().startswith("turn off: "), (flag, after[:100])
+        assert after.split("(default: ", 1)[1].startswith("on)"), (flag, after[:300])
 
 
 def test_a_negative_beta_is_refused_before_any_work(tmp_path, capsys):

@@ -9,6 +9,9 @@ from __future__ import annotations
 import dataclasses
 import math
 
+# Where an env's pixels come from (`EnvConfig.pixels`).
+PIXELS = ("auto", "required", "off")
+
 
 @dataclasses.dataclass(frozen=True)
 class EnvConfig:
@@ -39,7 +42,7 @@ class EnvConfig:
             problems.append(f"reward_scale must be finite or None, got {self.reward_scale}")
         if self.n_frames < 1:
             problems.append(f"n_frames must be ≥ 1, got {self.n_frames}")
-        if self.pixels not in ("auto", "required", "off"):
+        if self.pixels not in PIXELS:
             problems.append(f"pixels must be 'auto', 'required' or 'off', got {self.pixels!r}")
         if self.image_size < 1:
             problems.append(f"image_size must be ≥ 1, got {self.image_size}")

@@ -72,19 +72,19 @@ def field_docs(cls: type) -> dict[str, str]:
 def _choices() -> dict[tuple[str, str], tuple[str, ...]]:
     """(class name, field) → its valid values, for `str` fields whose set is fixed elsewhere
     (registries, validation in __post_init__). Their modules import neither JAX nor MuJoCo."""
-    from envs_mjx.config import ARMS, PHYSICS
-    from jaml.learners.config import COMPUTE_DTYPE_NAMES, CURRENT_ACTIONS, KL_FORMS
+    from envs_mjx.config import ARMS, PHYSICS, PIXELS
+    from jaml.learners.config import COMPUTE_DTYPE_NAMES, CURRENT_ACTIONS, FRAME_NLLS, KL_FORMS
     from jaml.stream.config import POLICIES
 
     return {
         ("StreamConfig", "policy"): POLICIES,
         ("RearrangeConfig", "arm"): ARMS,
         ("RearrangeConfig", "physics"): PHYSICS,
-        ("LearnerConfig", "frame_nll"): ("sum", "mean"),
+        ("LearnerConfig", "frame_nll"): FRAME_NLLS,
         ("LearnerConfig", "compute_dtype"): COMPUTE_DTYPE_NAMES,
         ("LearnerConfig", "current_action"): CURRENT_ACTIONS,
         ("LearnerConfig", "kl_form"): KL_FORMS,
-        ("EnvConfig", "pixels"): ("auto", "required", "off"),
+        ("EnvConfig", "pixels"): PIXELS,
     }
 
 

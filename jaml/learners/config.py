@@ -16,6 +16,8 @@ if typing.TYPE_CHECKING:
 CURRENT_ACTIONS = ("observed", "hidden")
 # The KL term's forms (`elbo.kl_to_standard_normal`).
 KL_FORMS = ("standard", "reference")
+# How the decoded frames' log-likelihoods combine (`LearnerConfig.frame_nll`).
+FRAME_NLLS = ("sum", "mean")
 # The conv stacks' dtypes (`jaml.learners.learner.COMPUTE_DTYPES` maps them to JAX's).
 COMPUTE_DTYPE_NAMES = ("float32", "bfloat16")
 
@@ -69,7 +71,7 @@ class LearnerConfig:
         if self.compute_dtype not in COMPUTE_DTYPE_NAMES:
             raise ValueError(f"compute_dtype must be one of {list(COMPUTE_DTYPE_NAMES)}, got "
                              f"{self.compute_dtype!r}")
-        if self.frame_nll not in ("sum", "mean"):
+        if self.frame_nll not in FRAME_NLLS:
             raise ValueError(f"frame_nll must be 'sum' or 'mean', got "
                              f"{self.frame_nll!r}")
         if int(self.ld_dim) < 1:

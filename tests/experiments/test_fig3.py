@@ -369,8 +369,8 @@ def test_the_command_trains_each_variant_then_reports(tmp_path, monkeypatch, cap
     calls = []
 
     def fake_run_many(configs, outs, *, progress, stop_after, checkpoint_every, final_checkpoint,
-                      latent_penalty, keep_pi_rand):
-        assert keep_pi_rand  # the default: π_rand sets kept
+                      latent_penalty, keep_pi_rand, deadline):
+        assert keep_pi_rand and deadline is None  # the defaults: π_rand sets kept, no limit
         calls.append(([c.seed for c in configs], [str(o) for o in outs], stop_after,
                       configs[0]))
         assert checkpoint_every == 100

@@ -33,10 +33,6 @@ class Driver:
         """Writes the figure's markdown and images from the runs found; returns the markdown."""
         raise NotImplementedError
 
-    def fields(self, names) -> dict:
-        """{name: this command's value} for the named flags (e.g. a driver's SCALE keys)."""
-        return {k: getattr(self, k) for k in names}
-
     def run(self) -> int:
         if not getattr(self, "report_only", False):
             started = time.perf_counter()
@@ -45,6 +41,35 @@ class Driver:
             print(f"training: {time.perf_counter() - started:.0f}s in this call", flush=True)
         print(self.report())
         return 0
+
+
+def _stream_default(name: str):
+    from jaml.stream.config import StreamConfig
+
+    return next(f.default for f in dataclasses.fields(StreamConfig) if f.name == name)
+
+
+@dataclasses.dataclass(frozen=True)
+class Sizes:
+    """A figure's per-epoch and analysis sizes, as its command's flags (`sizes:
+    Annotated[Sizes, tyro.conf.arg(name="")]`: --num-envs, …); defaults are `StreamConfig`'s,
+    the paper's and the reference's."""
+
+    num_envs: int = _stream_default("num_envs")
+    """envs stepped in parallel (the paper's 64)"""
+    replay_slots: int | None = _stream_default("replay_slots")
+    """replay columns; None: the reference's 5000, rounded down to a multiple of num_envs"""
+    eval_train: int = _stream_default("eval_train")
+    """sequences in the alignment regressor's training set"""
+    eval_rand: int = _stream_default("eval_rand")
+    """sequences in the π_rand test set"""
+    eval_curr: int = _stream_default("eval_curr")
+    """sequences in the π_curr test set"""
+    regressor_iterations: int = _stream_default("regressor_iterations")
+    """alignment regressor steps"""
+
+
+SIZES = tuple(f.name for f in dataclasses.fields(Sizes))  # their names, as config.json has them
 
 
 @dataclasses.dataclass(frozen=True)

@@ -76,9 +76,6 @@ VARIANTS = {
     "PRED": ("PRED", {}),
     "DSA": ("DSA", {}),
 }
-# Per epoch the paper's sizes; the regressor and test sets the reference's (§5).
-SCALE = dict(num_envs=64, replay_slots=5000 // 64 * 64, eval_train=10_000, eval_rand=10_048,
-             eval_curr=2_500, regressor_iterations=10_000)
 # (epochs, eval_every) per family.
 SCHEDULE = {"pendulum": (1000, 100), "locomotion": (300, 50)}
 
@@ -250,8 +247,8 @@ def report(out: Path, envs, variants) -> str:
         names = list(next(iter(runs.values()))[0][0]["errors"])
         config_path = next((out / env / next(iter(runs))).glob("seed_*/config.json"))
         config = json.loads(config_path.read_text())
-        settings = {k: config.get(k) for k in (*SCALE, "epochs", "eval_every", "learner_steps",
-                                               "frames_per_batch")}
+        settings = {k: config.get(k) for k in (*_runs.SIZES, "epochs", "eval_every",
+                                               "learner_steps", "frames_per_batch")}
         groups = ld_groups(env)
         show = names if len(names) <= 8 else []  # locomotion: group means only
         lines += [f"## {env}", "", f"Settings: {json.dumps(settings)}", "",
@@ -383,18 +380,8 @@ class Args(_runs.Driver):
                            tyro.conf.arg(metavar="KEY=VALUE")] = ()
     """a learner config field for every run (repeatable), e.g. frame_nll=mean (the reference
     code's likelihood)"""
-    num_envs: int = SCALE["num_envs"]
-    """envs stepped in parallel (the paper's 64)"""
-    replay_slots: int = SCALE["replay_slots"]
-    """replay columns (the paper's 5000, rounded to a multiple of num_envs)"""
-    eval_train: int = SCALE["eval_train"]
-    """sequences in the alignment regressor's training set"""
-    eval_rand: int = SCALE["eval_rand"]
-    """sequences in the π_rand test set"""
-    eval_curr: int = SCALE["eval_curr"]
-    """sequences in the π_curr test set"""
-    regressor_iterations: int = SCALE["regressor_iterations"]
-    """alignment regressor steps"""
+    sizes: Annotated[_runs.Sizes, tyro.conf.arg(name="")] = dataclasses.field(
+        default_factory=_runs.Sizes)
     pendulum_epochs: int = SCHEDULE["pendulum"][0]
     """epochs of CartPole and InvertedPendulum runs"""
     pendulum_eval_every: int = SCHEDULE["pendulum"][1]
@@ -415,7 +402,7 @@ class Args(_runs.Driver):
     the same cell there (OUT − OTHER, Welch's 90 % interval), also written to OUT/compare.md"""
 
     def train(self) -> None:
-        scale = self.fields(SCALE)
+        scale = dataclasses.asdict(self.sizes)
         schedule = {f: (getattr(self, f"{f}_epochs"), getattr(self, f"{f}_eval_every"))
                     for f in SCHEDULE}
         for env in self.envs:

@@ -29,7 +29,7 @@ training (bounding boxes not tight)."
     python -m jaml.experiments.fig3 --out runs/fig3 --variants SPAIR_4x4 --stop-after 100
     python -m jaml.experiments.fig3 --out runs/fig3 --report-only       # report from the runs
 
-Settings are the reference's for Rearrange (suite_reference §3–5; `REARRANGE`, `SCALE`,
+Settings are the reference's for Rearrange (suite_reference §3–5; `REARRANGE`, `_runs.Sizes`,
 `FRAMES_PER_BATCH` below, listed in docs/results/fig3.md). The paper does not give Fig. 3's
 training length; the default is 300 epochs (222 of them training), analysed every 50.
 
@@ -90,8 +90,6 @@ FRAMES_PER_BATCH = {"VAE_rpl": 1024, "SPAIR": 64}
 # rollout it forces to 10 steps, and LD targets used as is ([−1, 1]); 50 learner steps per epoch
 # and PPO's MLP 256 with 50 × 4 minibatches are for_env's defaults for it.
 REARRANGE = dict(rollout_len=10, learner_steps=50, regressor_normalize=False)
-SCALE = dict(num_envs=64, replay_slots=5000 // 64 * 64, eval_train=10_000, eval_rand=10_048,
-             eval_curr=2_500, regressor_iterations=10_000)
 SCHEDULE = (300, 50)  # epochs, eval_every
 
 ARM, MAIN_JOINT, POSITIONS, LARGEST, ORIENTATION = (
@@ -239,8 +237,9 @@ def config_for(variant: str, seed: int, scale: dict, schedule: tuple[int, int],
                learner_opt: dict | None = None, env_opt: dict | None = None, env: str = ENV,
                preset: str = "paper"):
     """The StreamConfig of one run on `env` (one of ENVS). `scale` holds StreamConfig fields
-    (SCALE's, or any others: the tests shrink everything); `learner_opt` learner config fields
-    for this variant; `preset` "smoke" replaces sizes and schedule (`jaml.suite.SCALES`)."""
+    (`_runs.Sizes`' fields, or any others: the tests shrink everything); `learner_opt` learner
+    config fields for this variant; `preset` "smoke" replaces sizes and schedule
+    (`jaml.suite.SCALES`)."""
     from jaml.stream import for_env
     from jaml.suite import scaled
 
@@ -498,8 +497,8 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
         write_text(out / "fig3.md", text)
         return text
     lines += ["## Settings", ""]
-    keys = (*SCALE, "epochs", "eval_every", "rollout_len", "learner_steps", "frames_per_batch",
-            "learner_overrides", "env_overrides")
+    keys = (*_runs.SIZES, "epochs", "eval_every", "rollout_len", "learner_steps",
+            "frames_per_batch", "learner_overrides", "env_overrides")
     for variant, config in configs.items():
         lines.append(f"- {variant}: `{json.dumps({k: config.get(k) for k in keys})}`")
     columns = list(panels)
@@ -579,18 +578,8 @@ class Args(_runs.Driver):
     LEARNER.KEY=VALUE for some, e.g. SPAIR.beta=0.2"""
     env_opt: KeyValues = ()
     """an env config field for every run, e.g. versions=[0,1]"""
-    num_envs: int = SCALE["num_envs"]
-    """envs stepped in parallel (the paper's 64)"""
-    replay_slots: int = SCALE["replay_slots"]
-    """replay columns (the paper's 5000, rounded to a multiple of num_envs)"""
-    eval_train: int = SCALE["eval_train"]
-    """sequences in the alignment regressor's training set"""
-    eval_rand: int = SCALE["eval_rand"]
-    """sequences in the π_rand test set"""
-    eval_curr: int = SCALE["eval_curr"]
-    """sequences in the π_curr test set"""
-    regressor_iterations: int = SCALE["regressor_iterations"]
-    """alignment regressor steps"""
+    sizes: Annotated[_runs.Sizes, tyro.conf.arg(name="")] = dataclasses.field(
+        default_factory=_runs.Sizes)
     epochs: int = SCHEDULE[0]
     """epochs of every run (the first replay_slots / num_envs fill the replay)"""
     eval_every: int = SCHEDULE[1]
@@ -607,7 +596,7 @@ class Args(_runs.Driver):
         options = learner_options(self.learner_opt, self.variants)
         env_opt = key_values(self.env_opt)
         for variant in self.variants:
-            run_cell(self.out, variant, self.seeds, self.fields(SCALE),
+            run_cell(self.out, variant, self.seeds, dataclasses.asdict(self.sizes),
                      (self.epochs, self.eval_every), options[variant], env_opt, self.env,
                      self.scale, **self.call.run_options())
 

@@ -343,9 +343,10 @@ class Args(_runs.Driver):
 
     def _scale(self) -> dict:
         scale = dict(RECIPES[self.recipe].scale)
-        if self.scale == "smoke":
-            scale |= dict(num_envs=8, replay_slots=16, epochs=4, eval_every=2, eval_train=64,
-                          eval_rand=64, eval_curr=16, regressor_iterations=20)
+        if self.scale == "smoke":  # the suite's smoke sizes, batches and learner steps too
+            from jaml.suite import SCALES
+
+            scale |= SCALES["smoke"]
         return scale | {k: v for k, v in (("epochs", self.epochs),
                                           ("eval_every", self.eval_every)) if v is not None}
 

@@ -1,5 +1,6 @@
 """The Fig. 2 report: per-seed histories → mean ± 90 % confidence half-width per dimension."""
 
+import dataclasses
 import json
 import math
 
@@ -7,9 +8,11 @@ import numpy as np
 import pytest
 
 from jaml.evaluation import history_records, plots
-from jaml.experiments import fig2
+from jaml.experiments import _runs, fig2
 
 NAMES = ["theta", "theta_dot", "x", "x_dot"]
+
+PAPER_SIZES = dataclasses.asdict(_runs.Sizes())
 
 
 def _write_run(path, learner, seed, errors_at_end, finished=True, learner_overrides=None,
@@ -17,7 +20,7 @@ def _write_run(path, learner, seed, errors_at_end, finished=True, learner_overri
     """Analyses at epochs 10 (errors 0.9) and, when finished, 20 of the 20 scheduled; with a
     constant predictor's errors `baseline` (one list, every analysis), as stream.run records."""
     path.mkdir(parents=True)
-    config = {k: 1 for k in fig2.SCALE} | {"epochs": 20, "seed": seed,
+    config = {k: 1 for k in _runs.SIZES} | {"epochs": 20, "seed": seed,
                                           "learner_overrides": learner_overrides or {}}
     (path / "config.json").write_text(json.dumps(config))
     records = history_records(10, learner, {"pi_rand": [0.9] * 4}, NAMES, run=seed)
@@ -114,7 +117,7 @@ def _locomotion_cell(out, variant, with_baselines=True):
     baseline = {d: raw[g][1] for g, dims in groups.items() for d in dims}
     run = out / "HalfCheetah" / variant / "seed_0"
     run.mkdir(parents=True)
-    (run / "config.json").write_text(json.dumps({k: 1 for k in fig2.SCALE}
+    (run / "config.json").write_text(json.dumps({k: 1 for k in _runs.SIZES}
                                                 | {"seed": 0, "epochs": 20}))
     names = list(errors)
     lines = [r | ({"baseline": baseline} if with_baselines else {})
@@ -173,10 +176,10 @@ def test_the_report_draws_locomotion_on_the_constants_scale_and_names_what_it_le
 
 
 def test_grid_configs_follow_the_paper_per_family():
-    cart = fig2.config_for("CartPole", "beta-VAE_20", 3, fig2.SCALE, fig2.SCHEDULE)
-    ant = fig2.config_for("Ant", "PRED", 0, fig2.SCALE, fig2.SCHEDULE)
+    cart = fig2.config_for("CartPole", "beta-VAE_20", 3, PAPER_SIZES, fig2.SCHEDULE)
+    ant = fig2.config_for("Ant", "PRED", 0, PAPER_SIZES, fig2.SCHEDULE)
     assert (cart.learner, cart.learner_overrides["beta"], cart.seed) == ("beta-VAE", 20.0, 3)
-    assert (cart.epochs, cart.learner_steps, cart.replay_slots) == (1000, 10, 4992)
+    assert (cart.epochs, cart.learner_steps, cart.resolved().replay_slots) == (1000, 10, 4992)
     assert (ant.epochs, ant.learner_steps, ant.rollout_len) == (300, 50, 64)
     assert cart.frames_per_batch == ant.frames_per_batch == 1024
 

@@ -3,6 +3,7 @@ per-seed histories (means and 90 % intervals by hand), the command's wiring (tra
 and its errors; the real tiny end-to-end run compiles RearrangeGeom's stream on CPU (minutes per
 learner) and is marked slow."""
 
+import dataclasses
 import json
 import math
 
@@ -13,10 +14,12 @@ from matplotlib.image import imsave
 
 from jaml import cli
 from jaml.evaluation import history_records
-from jaml.experiments import fig3
+from jaml.experiments import _runs, fig3
 
 T_90_2DOF = 2.9199856  # t(0.95, 2 dof): the 90 % half-width of 3 seeds is this · s / √3
 T_90_1DOF = 6.3137515  # t(0.95, 1 dof), for 2 seeds
+
+PAPER_SIZES = dataclasses.asdict(_runs.Sizes())
 
 
 def test_groups_come_from_the_envs_metadata_and_names():
@@ -68,11 +71,11 @@ def test_an_entry_outside_the_layout_is_an_error(monkeypatch):
 
 
 def test_configs_follow_the_reference_for_rearrange():
-    vae = fig3.config_for("VAE_rpl", 2, fig3.SCALE, fig3.SCHEDULE)
-    spair = fig3.config_for("SPAIR_6x6", 0, fig3.SCALE, fig3.SCHEDULE, {"beta": 0.2},
+    vae = fig3.config_for("VAE_rpl", 2, PAPER_SIZES, fig3.SCHEDULE)
+    spair = fig3.config_for("SPAIR_6x6", 0, PAPER_SIZES, fig3.SCHEDULE, {"beta": 0.2},
                             {"versions": (0, 1)})
     assert (vae.env, vae.learner, vae.seed) == ("RearrangeGeom", "VAE_rpl", 2)
-    assert (vae.rollout_len, vae.learner_steps, vae.replay_slots) == (10, 50, 4992)
+    assert (vae.rollout_len, vae.learner_steps, vae.resolved().replay_slots) == (10, 50, 4992)
     assert (vae.frames_per_batch, spair.frames_per_batch) == (1024, 64)
     assert not vae.regressor_normalize and not spair.regressor_normalize
     assert (vae.epochs, vae.eval_every, vae.eval_train, vae.eval_rand, vae.eval_curr) == (
@@ -82,14 +85,14 @@ def test_configs_follow_the_reference_for_rearrange():
     assert vae.learner_overrides == {"latent_dim": 53, "mu_nl": False, "logvar_limit": 20.0}
     assert spair.learner_overrides == {"grid_size": 6, "beta": 0.2}
     assert spair.env_overrides == {"versions": (0, 1)}
-    assert fig3.config_for("SPAIR_4x4", 0, fig3.SCALE, fig3.SCHEDULE).learner_overrides == {
+    assert fig3.config_for("SPAIR_4x4", 0, PAPER_SIZES, fig3.SCHEDULE).learner_overrides == {
         "grid_size": 4}
-    ycb = fig3.config_for("VAE_rpl", 0, fig3.SCALE, fig3.SCHEDULE, env="RearrangeYCB")
+    ycb = fig3.config_for("VAE_rpl", 0, PAPER_SIZES, fig3.SCHEDULE, env="RearrangeYCB")
     assert (ycb.env, ycb.learner_overrides["latent_dim"], ycb.rollout_len) == (
         "RearrangeYCB", 53, 10)
     with pytest.raises(ValueError, match=r"unknown env 'RearrangeToys' for Fig\. 3; valid: "
                                          r"RearrangeGeom, RearrangeYCB"):
-        fig3.config_for("VAE_rpl", 0, fig3.SCALE, fig3.SCHEDULE, env="RearrangeToys")
+        fig3.config_for("VAE_rpl", 0, PAPER_SIZES, fig3.SCHEDULE, env="RearrangeToys")
 
 
 def test_learner_options_go_to_every_variant_or_the_named_ones():
@@ -118,7 +121,7 @@ def test_bad_input_is_one_clear_line(tmp_path, capsys, argv, message):
     err = capsys.readouterr().err
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
     with pytest.raises(ValueError, match="unknown variant 'VAE'; valid: VAE_rpl, SPAIR_4x4"):
-        fig3.config_for("VAE", 0, fig3.SCALE, fig3.SCHEDULE)
+        fig3.config_for("VAE", 0, PAPER_SIZES, fig3.SCHEDULE)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -164,7 +167,7 @@ def _write_run(path, variant, seed, by_step, fill=2, baseline=None, env=fig3.ENV
     value), a recon image per step."""
     learner = fig3.VARIANTS[variant][0]
     path.mkdir(parents=True)
-    config = {**fig3.SCALE, "num_envs": 4, "replay_slots": 4 * fill, "epochs": 6,
+    config = {**PAPER_SIZES, "num_envs": 4, "replay_slots": 4 * fill, "epochs": 6,
               "eval_every": 2, "learner": learner, "seed": seed, "env": env}
     (path / "config.json").write_text(json.dumps(config))
     records = []

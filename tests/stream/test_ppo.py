@@ -1,5 +1,7 @@
 """PPO (Brax pieces) learns CartPole from its LD state on CPU; the random policy is uniform."""
 
+import functools
+
 import jax
 import numpy as np
 import pytest
@@ -87,13 +89,28 @@ def test_lambda_one_gives_discounted_returns_bootstrapped_at_the_rollouts_end():
     np.testing.assert_allclose(vs, expected, rtol=1e-5, atol=1e-5)
 
 
-def _rollout(agent, ppo_state, num_envs=4, length=6):
+@functools.cache
+def _rollout_program(obs_size, action_size, hidden, normalize, num_envs=4, length=6):
+    """One jitted CartPole reset + rollout per policy network: a policy is a function of the
+    PPO state's (normaliser, parameters) and of its networks' sizes alone, so the two update
+    tests (agents that differ in their optimiser settings) share one compiled program."""
     env = envs_mjx.make("CartPole", pixels="off")
-    key = jax.random.PRNGKey(3)
-    _, transitions, _, _ = jax.jit(
-        lambda s, k: collect.rollout(env, s, agent.policy(ppo_state), k, length)
-    )(collect.reset(env, key, num_envs), key)
-    return transitions
+    networks = ppo_lib.make(obs_size, action_size, ppo_lib.PPOConfig(
+        hidden=hidden, normalize_observations=normalize))
+
+    def run(normalizer, params, key):
+        state = ppo_lib.PPOState(params=params, normalizer=normalizer, opt_state=None)
+        start = collect.reset(env, key, num_envs)
+        return collect.rollout(env, start, networks.policy(state), key, length)[1]
+
+    return jax.jit(run)
+
+
+def _rollout(agent, ppo_state):
+    cfg = agent.config
+    program = _rollout_program(agent.obs_size, agent.action_size, cfg.hidden,
+                               cfg.normalize_observations)
+    return program(ppo_state.normalizer, ppo_state.params, jax.random.PRNGKey(3))
 
 
 def test_one_update_is_a_clipped_adam_step_on_brax_s_loss_after_the_normaliser_update():
@@ -112,11 +129,15 @@ def test_one_update_is_a_clipped_adam_step_on_brax_s_loss_after_the_normaliser_u
 
     obs = np.asarray(data.observation).reshape(-1, 4)
     np.testing.assert_allclose(new.normalizer.mean, obs.mean(0), rtol=1e-5, atol=1e-6)
-    grads, _ = jax.grad(ppo_losses.compute_ppo_loss, has_aux=True)(
-        state.params, new.normalizer, data, jax.random.PRNGKey(2), ppo_network=agent.networks,
-        entropy_cost=0.0, discounting=config.discounting, reward_scaling=1.0,
-        gae_lambda=config.gae_lambda, clipping_epsilon=config.clipping_epsilon,
-        normalize_advantage=True, vf_coefficient=config.vf_coefficient)
+    # Brax's loss gradient, jitted (run eagerly, each of its ops compiled apart, it was most of
+    # this test's time); the Adam step below is written out in NumPy.
+    loss = functools.partial(
+        ppo_losses.compute_ppo_loss, ppo_network=agent.networks, entropy_cost=0.0,
+        discounting=config.discounting, reward_scaling=1.0, gae_lambda=config.gae_lambda,
+        clipping_epsilon=config.clipping_epsilon, normalize_advantage=True,
+        vf_coefficient=config.vf_coefficient)
+    grads, _ = jax.jit(jax.grad(loss, has_aux=True))(
+        state.params, new.normalizer, data, jax.random.PRNGKey(2))
     leaves = [np.asarray(g, np.float64) for g in jax.tree.leaves(grads)]
     norm = np.sqrt(sum((g ** 2).sum() for g in leaves))
     assert norm > config.max_grad_norm  # the clip is exercised

@@ -1,5 +1,8 @@
 """jaml.suite: the runs' test sets and analysis for an encoder of one's own."""
 
+import json
+import time
+
 import jax
 import numpy as np
 import pytest
@@ -36,6 +39,32 @@ def test_the_apis_numbers_equal_the_streams_own_analysis(run):
     np.testing.assert_allclose(api["distortion"], own["distortion"], rtol=1e-5)
     assert api["irregularity"] == pytest.approx(own["irregularity"], rel=1e-5)
     assert api["error_names"] == list(s.env.ld_state_names)
+
+
+# ~130 s on two cores even with the fixture's programs (the whole run path: checkpoints,
+# figures, the resumed loop): out of the default suite, which is over its time bound.
+@pytest.mark.slow
+def test_a_deadline_stops_between_analyses_with_a_checkpoint_and_the_run_resumes(
+        run, tmp_path, monkeypatch):
+    """`run_many(deadline=)` on the fixture's config (its programs compiled once): one-epoch
+    blocks and a clock that passes the deadline after the first block's check."""
+    from jaml.stream import run as run_lib
+
+    config = run[0]
+    monkeypatch.setattr(run_lib, "DEADLINE_BLOCK", 1)
+    readings = iter([0.0])
+    monkeypatch.setattr(run_lib, "_clock", lambda: next(readings, 100.0))
+    stopped = run_lib.run(config, tmp_path, progress=False, deadline=10.0)
+    assert stopped["status"] == "interrupted" and stopped["epoch"] == 1
+    assert stopped["checkpoint_epoch"] == 1  # saved where it stopped, with no analysis there
+    # A far deadline changes nothing: the run resumes from epoch 1 and finishes.
+    monkeypatch.setattr(run_lib, "_clock", time.monotonic)
+    resumed = run_lib.run(config, tmp_path, progress=False, deadline=time.monotonic() + 3600)
+    assert resumed["status"] == "finished" and resumed["resumed_from"] == 1
+    lines = (tmp_path / "metrics.jsonl").read_text().splitlines()
+    assert [json.loads(x)["epoch"] for x in lines] == list(range(1, config.epochs + 1))
+    steps = [json.loads(x)["step"] for x in (tmp_path / "history.jsonl").read_text().splitlines()]
+    assert sorted(set(steps)) == [2, 4]
 
 
 def test_test_sets_are_the_sequences_and_targets_a_run_builds(run):

@@ -1,5 +1,6 @@
 """`--scale smoke`: the figure drivers and `jaml suite` at minutes-on-a-CPU sizes, resumable."""
 
+import dataclasses
 import json
 
 import pytest
@@ -38,13 +39,15 @@ def test_fig2_smoke_trains_resumes_with_a_word_and_reports(tmp_path, capsys):
 
 def test_fig3_smoke_configs_take_the_smoke_sizes():
     from jaml.cli import parse
-    from jaml.experiments import fig3
+    from jaml.experiments import _runs, fig3
+
+    paper_sizes = dataclasses.asdict(_runs.Sizes())
 
     args = parse(["fig3", "--scale", "smoke", "--out", "unused"]).command
     assert args.scale == "smoke"
-    config = fig3.config_for("SPAIR_4x4", 0, fig3.SCALE, fig3.SCHEDULE, preset=args.scale)
+    config = fig3.config_for("SPAIR_4x4", 0, paper_sizes, fig3.SCHEDULE, preset=args.scale)
     assert (config.num_envs, config.epochs, config.eval_rand, config.regressor_iterations) == (
         8, 4, 64, 200)
     assert config.learner_overrides["grid_size"] == 4 and not config.regressor_normalize
-    paper = fig3.config_for("SPAIR_4x4", 0, fig3.SCALE, fig3.SCHEDULE)
+    paper = fig3.config_for("SPAIR_4x4", 0, paper_sizes, fig3.SCHEDULE)
     assert paper.num_envs == 64 and paper.epochs == fig3.SCHEDULE[0]

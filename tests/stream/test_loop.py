@@ -8,7 +8,6 @@ import dataclasses
 import json
 import math
 import shutil
-import time
 from pathlib import Path
 
 import jax
@@ -223,25 +222,6 @@ def _learner_params(out, config):
     params = checkpoint.restore(mgr, jax.eval_shape(s.init, jax.random.PRNGKey(config.seed)))
     mgr.close()
     return params.learner.params
-
-
-def test_a_deadline_stops_between_analyses_with_a_checkpoint_and_the_run_resumes(
-        tmp_path, monkeypatch):
-    config = tiny()
-    # One-epoch blocks, and a clock that passes the deadline after the first block's check.
-    monkeypatch.setattr(run_lib, "DEADLINE_BLOCK", 1)
-    readings = iter([0.0])
-    monkeypatch.setattr(run_lib, "_clock", lambda: next(readings, 100.0))
-    stopped = run_lib.run(config, tmp_path, progress=False, deadline=10.0)
-    assert stopped["status"] == "interrupted" and stopped["epoch"] == 1
-    assert stopped["checkpoint_epoch"] == 1  # saved where it stopped, with no analysis there
-    assert not (tmp_path / "history.jsonl").exists() or not _records(tmp_path / "history.jsonl")
-    # A far deadline changes nothing: the run resumes from epoch 1 and finishes.
-    monkeypatch.setattr(run_lib, "_clock", time.monotonic)
-    resumed = run_lib.run(config, tmp_path, progress=False, deadline=time.monotonic() + 3600)
-    assert resumed["status"] == "finished" and resumed["resumed_from"] == 1
-    assert [r["epoch"] for r in _records(tmp_path / "metrics.jsonl")] == list(range(1, 7))
-    assert [r["step"] for r in _records(tmp_path / "history.jsonl")] == [2, 2, 4, 4, 6, 6]
 
 
 @pytest.mark.slow

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import typing
 
+from jaml import _lazy
 from jaml.learners.config import (
     ALL_LEARNERS,
     DSAConfig,
@@ -76,18 +77,7 @@ _EXPORTS = {
 }
 
 
-def __getattr__(name: str):
-    if name not in _EXPORTS:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-
-    value = getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = _lazy.exports(__name__, _EXPORTS)
 
 
 __all__ = [

@@ -18,7 +18,7 @@ CURRENT_ACTIONS = ("observed", "hidden")
 KL_FORMS = ("standard", "reference")
 # How the decoded frames' log-likelihoods combine (`LearnerConfig.frame_nll`).
 FRAME_NLLS = ("sum", "mean")
-# The conv stacks' dtypes (`jaml.learners.learner.COMPUTE_DTYPES` maps them to JAX's).
+# The conv stacks' dtypes, by their JAX names (`LearnerConfig.conv_dtype`).
 COMPUTE_DTYPE_NAMES = ("float32", "bfloat16")
 
 
@@ -89,9 +89,9 @@ class LearnerConfig:
     @property
     def conv_dtype(self):
         """compute_dtype as a JAX dtype, for the conv encoder and decoder."""
-        from jaml.learners.learner import COMPUTE_DTYPES
+        import jax.numpy as jnp  # here: the configs import no JAX
 
-        return COMPUTE_DTYPES[self.compute_dtype]
+        return getattr(jnp, self.compute_dtype)
 
     @property
     def actions_seen(self) -> int:

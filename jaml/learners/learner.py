@@ -43,10 +43,6 @@ class PenaltyTerms:
     ok_weight: float = struct.field(pytree_node=False, default=0.0)
 
 
-# compute_dtype → the JAX dtype of the conv stacks (`LearnerConfig.conv_dtype`).
-COMPUTE_DTYPES = {name: getattr(jnp, name) for name in COMPUTE_DTYPE_NAMES}
-
-
 @struct.dataclass
 class Outputs:
     """What a learner's model returns for a batch in training mode.

@@ -13,6 +13,8 @@ pen = relations.latent_penalty(rs, relations.LatentLayout(static={"theta": 2},
                               # (z [B, S, 5], a [B, S, 1]) -> [B], for a learner's loss (eq. 4)
 """
 
+from jaml import _lazy
+
 # Public names, imported from their modules on first use (PEP 562): `jaml.relations.config` (and
 # so `jaml relations --help`) stays free of JAX, which every other module here imports.
 _EXPORTS = {
@@ -34,18 +36,7 @@ _EXPORTS = {
 }
 
 
-def __getattr__(name: str):
-    if name not in _EXPORTS:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-
-    value = getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = _lazy.exports(__name__, _EXPORTS)
 
 
 __all__ = [

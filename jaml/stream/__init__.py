@@ -19,6 +19,8 @@ releases them when it ends (`jaml.stream.programs`).
 `jaml.stream.run.run_many` trains several seeds together, each in its own directory.
 """
 
+from jaml import _lazy
+
 # Public names, imported from their modules on first use (PEP 562): `jaml.stream.config` (and
 # so `jaml suite --help`) stays free of JAX, which every other module here imports.
 _EXPORTS = {
@@ -46,19 +48,7 @@ _EXPORTS = {
 }
 
 
-def __getattr__(name: str):
-    if name not in _EXPORTS:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-
-    module, _, attr = _EXPORTS[name].partition(":")
-    value = getattr(importlib.import_module(f"{__name__}.{module}"), attr or name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = _lazy.exports(__name__, _EXPORTS)
 
 
 __all__ = [

@@ -5,6 +5,7 @@ cell's seeds together, reading run histories, and table cells (their intervals:
 from __future__ import annotations
 
 import dataclasses
+import gzip
 import json
 import sys
 import time
@@ -149,11 +150,16 @@ def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,
     return summaries
 
 
-def read_history(path: Path) -> list[dict]:
-    """The analysis records of a run's history.jsonl ([] when it has none yet). A last line
-    without its newline is a record still being appended by the process training the run (a
-    report written beside it, see fig2's "Several GPUs") and is left for the next read."""
-    text = path.read_text() if path.exists() else ""
+def read_jsonl(path: Path) -> list[dict]:
+    """The records of a run's JSON-lines file (history.jsonl, metrics.jsonl), read from its
+    gzip copy `path.gz` where a committed record keeps it so; [] when it has none yet. A last
+    line without its newline is a record still being appended by the process training the run
+    (a report written beside it, see fig2's "Several GPUs") and is left for the next read."""
+    packed = path.with_name(path.name + ".gz")
+    if path.exists():
+        text = path.read_text()
+    else:
+        text = gzip.decompress(packed.read_bytes()).decode() if packed.exists() else ""
     complete = text[:text.rfind("\n") + 1]
     return [json.loads(x) for x in complete.splitlines() if x.strip()]
 
@@ -176,7 +182,7 @@ def seed_histories(directory: Path) -> list[list[dict]]:
     their last analysis would hold every table at the epoch they stopped before, and a report
     names them instead."""
     stopped = stopped_runs(directory)
-    histories = (read_history(d / "history.jsonl") for d in sorted(directory.glob("seed_*"))
+    histories = (read_jsonl(d / "history.jsonl") for d in sorted(directory.glob("seed_*"))
                  if d.name not in stopped)
     return [h for h in histories if h]
 

@@ -33,7 +33,7 @@ from typing import Annotated, Literal
 import tyro
 
 from jaml.experiments import _runs
-from jaml.experiments._runs import read_history
+from jaml.experiments._runs import read_jsonl
 
 SOURCE, TARGET = "geom-on-incline", "MeshOnIncline"
 # The objects' mass and friction, in the source's rows and in the target's envs alike.
@@ -289,7 +289,7 @@ def choose_weight(out: Path, weights, pilot_seed: int, form: str, recipe: Recipe
         directory = out / "pilot" / f"w{w:g}"
         run_method(out, PILOT, [pilot_seed], dataclasses.replace(base, weight=w),
                    recipe, run_dir=directory, dynamics=dynamics, scale=scale)
-        history = read_history(directory / f"seed_{pilot_seed}" / "history.jsonl")
+        history = read_jsonl(directory / f"seed_{pilot_seed}" / "history.jsonl")
         last = max(r["step"] for r in history)
         scores[w] = next(r["validation"]["position"] for r in history if r["step"] == last)
     best = min(scores, key=scores.get)

@@ -18,7 +18,7 @@ import numpy as np
 from jaml._rundir import write_text
 from jaml.evaluation import plots
 from jaml.evaluation.intervals import mean_interval, paired_interval, welch_interval
-from jaml.experiments._runs import read_history, stopped_runs
+from jaml.experiments._runs import read_jsonl, stopped_runs
 
 BASE = "PRED"
 # name → (label, value of a π_rand analysis record or None)
@@ -51,7 +51,7 @@ def collect(out: Path, methods) -> dict[str, dict[int, list[dict]]]:
         for d in sorted(directory.glob("seed_*")):
             if d.name in stopped:
                 continue
-            records = [r for r in read_history(d / "history.jsonl") if r["test_set"] == "pi_rand"]
+            records = [r for r in read_jsonl(d / "history.jsonl") if r["test_set"] == "pi_rand"]
             if records:
                 seeds[int(d.name.removeprefix("seed_"))] = records
         if seeds:
@@ -170,12 +170,13 @@ def stream_check(out: Path, methods) -> list[str]:
             continue
         same, differ, missing = [], [], []
         for d in sorted((out / method).glob("seed_*")):
-            mine, base = d / "metrics.jsonl", out / BASE / d.name / "metrics.jsonl"
-            if not (mine.exists() and base.exists()):
+            mine = read_jsonl(d / "metrics.jsonl")
+            base = read_jsonl(out / BASE / d.name / "metrics.jsonl")
+            if not (mine and base):
                 missing.append(d.name)
                 continue
-            a = {r["epoch"]: json.dumps([r.get(k) for k in keys]) for r in _jsonl(mine)}
-            b = {r["epoch"]: json.dumps([r.get(k) for k in keys]) for r in _jsonl(base)}
+            a = {r["epoch"]: json.dumps([r.get(k) for k in keys]) for r in mine}
+            b = {r["epoch"]: json.dumps([r.get(k) for k in keys]) for r in base}
             common = sorted(a.keys() & b.keys())
             first = next((e for e in common if a[e] != b[e]), None)
             if common and first is None:
@@ -189,11 +190,6 @@ def stream_check(out: Path, methods) -> list[str]:
             parts.append(f"no metrics: {', '.join(missing)}")
         lines.append(f"- {method} vs {BASE}: " + "; ".join(parts))
     return lines
-
-
-def _jsonl(path: Path) -> list[dict]:
-    text = path.read_text()
-    return [json.loads(x) for x in text[:text.rfind("\n") + 1].splitlines() if x.strip()]
 
 
 def plot(runs, path: Path):

@@ -290,7 +290,7 @@ def test_a_report_beside_a_run_still_writing_reads_whole_records_and_leaves_no_t
     whole = (run / "history.jsonl").read_text()
     torn = json.dumps(history_records(30, "PRED", {"pi_rand": [0.3] * 4}, NAMES, run=0)[0])
     (run / "history.jsonl").write_text(whole + torn[:len(torn) // 2])
-    assert fig2._runs.read_history(run / "history.jsonl") == [
+    assert fig2._runs.read_jsonl(run / "history.jsonl") == [
         json.loads(line) for line in whole.splitlines()]
     text = fig2.report(tmp_path, ["CartPole"], ["PRED"])
     assert "| PRED | pi_rand | 0.100 |" in text  # epoch 20's record, the torn one skipped

@@ -1,6 +1,7 @@
 """Fig. 9: the recipes' configs, the report (paired and Welch intervals, the stream check, the
 primary comparison, the figure) and the driver's steps."""
 
+import gzip
 import json
 import math
 
@@ -57,6 +58,23 @@ def test_report_leads_with_the_primary_comparison_and_tables_paired_differences(
     assert "irreg_std, π_rand" in text and "VAE_rpl" not in text
     assert (tmp_path / "fig9.md").read_text() == text
     assert (tmp_path / "fig9.png").stat().st_size > 0
+
+
+def test_the_stream_check_reads_committed_gzip_metrics(tmp_path):
+    """A committed record keeps metrics.jsonl as metrics.jsonl.gz: the same verdict either way,
+    a run with neither is named as missing."""
+    for method, returns in (("PRED", [1.0, 2.0, 3.0]), ("PRED+AML_trnsv", [1.0, 2.0, 3.5])):
+        (tmp_path / method / "seed_0").mkdir(parents=True)
+        _write_metrics(tmp_path / method / "seed_0", returns)
+    (tmp_path / "PRED+AML_trnsv" / "seed_1").mkdir()
+    plain = fig9_report.stream_check(tmp_path, ["PRED", "PRED+AML_trnsv"])
+    assert plain == ["- PRED+AML_trnsv vs PRED: 0 seeds identical; differ: seed_0 from epoch 3; "
+                     "no metrics: seed_1"]
+    for method in ("PRED", "PRED+AML_trnsv"):
+        path = tmp_path / method / "seed_0" / "metrics.jsonl"
+        path.with_name("metrics.jsonl.gz").write_bytes(gzip.compress(path.read_bytes()))
+        path.unlink()
+    assert fig9_report.stream_check(tmp_path, ["PRED", "PRED+AML_trnsv"]) == plain
 
 
 def test_the_penalty_is_contrasted_with_its_controls_seed_by_seed(tmp_path):

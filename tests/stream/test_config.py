@@ -5,11 +5,39 @@ from pathlib import Path
 
 import pytest
 
+from envs_mjx.config import ALL_ENVS
 from jaml import stream
+from jaml.learners.config import ALL_LEARNERS
 from jaml.stream import run as run_lib
 from tests.stream.test_loop import tiny
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
+# "ENV/LEARNER" → the fields of `for_env(ENV, LEARNER)` that differ from
+# `StreamConfig(env=ENV, learner=LEARNER)`, as `_settings` writes them.
+FOR_ENV = json.loads((Path(__file__).parent / "for_env_expected.json").read_text())
+
+
+def _settings(config: stream.StreamConfig) -> dict:
+    base = stream.StreamConfig(env=config.env, learner=config.learner).to_dict()
+    return {k: v for k, v in config.to_dict().items() if v != base[k]}
+
+
+@pytest.mark.parametrize("env", ALL_ENVS)
+def test_each_domain_and_learner_gets_the_settings_for_env_always_gave(env):
+    """for_env_expected.json was written by `_settings(for_env(env, learner))` from the
+    pre-change `for_env` (commit 1e0c628: an if/elif over the domain families), for every
+    registered env and learner; the declared per-family table must give the same configs."""
+    assert set(FOR_ENV) == {f"{e}/{x}" for e in ALL_ENVS for x in ALL_LEARNERS}
+    for learner in ALL_LEARNERS:
+        assert _settings(stream.for_env(env, learner)) == FOR_ENV[f"{env}/{learner}"], learner
+
+
+def test_for_env_overrides_win_over_the_domains_and_keep_the_rest():
+    config = stream.for_env("GeomOnIncline", "PRED", rollout_len=12, learner_overrides={
+        "hist": 2, "beta": 3.0})
+    expected = FOR_ENV["GeomOnIncline/PRED"]
+    assert config.rollout_len == 12 and config.ppo.num_updates == expected["ppo"]["num_updates"]
+    assert config.learner_overrides == {**expected["learner_overrides"], "hist": 2, "beta": 3.0}
 
 
 def test_the_replays_kept_share_is_the_streams_the_learners_default_unless_set():

@@ -2,8 +2,8 @@
 
 Defaults follow the reference suite (suite_reference.md §3, §5) where they are not sizes; the
 sizes of the paper (5000 replay columns, 10 000-row regressor sets, 100 000 epochs) are fields,
-and `for_env` fills the per-domain ones (rollout length, learner steps per epoch, PPO network,
-sequence-learner window).
+and `for_env` fills the per-domain ones from the domain family's `DomainDefaults` (rollout
+length, learner steps per epoch, PPO network, sequence-learner window).
 """
 
 from __future__ import annotations
@@ -12,6 +12,8 @@ import dataclasses
 import json
 from typing import Any
 
+from envs_mjx import config as envs_config
+
 POLICIES = ("ppo", "random")
 # The reference's replay size in columns (suite_reference.md §3).
 REFERENCE_REPLAY_COLUMNS = 5000
@@ -19,9 +21,6 @@ REFERENCE_REPLAY_COLUMNS = 5000
 # replay keeps half for every learner but VAE_v0, whose only difference from VAE_rpl it is.
 REPLAY_KEEP_FRACTION = {"VAE_v0": 0.0}
 DEFAULT_REPLAY_KEEP_FRACTION = 0.5
-_PENDULUMS = ("CartPole", "InvertedPendulum")
-_INCLINES = ("GeomOnIncline", "MeshOnIncline")
-_REARRANGES = ("RearrangeGeom", "RearrangeYCB")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -209,45 +208,66 @@ class StreamConfig:
         return cls(ppo=ppo, **d)
 
 
-def for_env(env: str, learner: str = "VAE_rpl", **overrides) -> StreamConfig:
-    """The reference's per-domain settings for `env`, then `overrides`.
+@dataclasses.dataclass(frozen=True)
+class DomainDefaults:
+    """One domain family's settings: StreamConfig fields (the rest keep StreamConfig's
+    defaults), and by learner name the learner config fields it sets (`learners`)."""
 
-    Pendulums: rollout 32, 10 learner steps per epoch, PPO MLP 64 with 3 × 8 minibatches,
-    sequence learners on 24-frame windows (the learners' defaults). Incline domains: rollout 10
-    (the reference forces it), SVAE/DSA 8-frame windows, and the reference's small-block
-    presets: PRED sees 1 frame and predicts 1 with a static part of 3 and 2 dynamic entries per
-    step (PARAMS_PRED_BLK_SM), the VAEs a 5-entry latent (PARAMS_VAE_BLK_SM), both without the
-    output sigmoid and with log-variances clipped at ±20; alignment in the LD state's own units
-    and the distortion on position and velocity.
-    Locomotion: rollout 64, 50 learner steps, PPO MLP 256 with 50 passes × 4 minibatches, 16-frame
-    windows (SEQ16: PRED 4 in, 12 predicted). Rearrange: those, with the LD targets used as is
-    (its positions are normalised, its rotation blocks scored by the principal-axis error).
-    """
-    learner_defaults: dict[str, Any] = {}
-    if env in _PENDULUMS:
-        base = dict(rollout_len=32, learner_steps=10, ppo=PPOConfig())
-    elif env in _INCLINES:
-        base = dict(rollout_len=10, learner_steps=10, ppo=PPOConfig(hidden=(256, 256),
-                                                                    num_updates=10,
-                                                                    num_minibatches=4))
-        small_block = {"mu_nl": False, "logvar_limit": 20.0}
-        learner_defaults = {
-            "PRED": {"hist": 1, "pred": 1, "static_dim": 3, "latent_dim": 2, **small_block},
-            "VAE_v0": {"latent_dim": 5, **small_block},
-            "VAE_rpl": {"latent_dim": 5, **small_block},
-            "beta-VAE": {"latent_dim": 5, **small_block},
+    rollout_len: int
+    learner_steps: int
+    ppo: PPOConfig = PPOConfig()
+    regressor_normalize: bool = True
+    distortion_dims: tuple[str, ...] = ()
+    learners: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+
+    def stream_fields(self) -> dict[str, Any]:
+        """The StreamConfig fields this family sets."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                if f.name != "learners"}
+
+
+# The reference's small-block presets' numerics (PARAMS_PRED_BLK_SM, PARAMS_VAE_BLK_SM): no
+# output sigmoid, log-variances clipped at ±20.
+_SMALL_BLOCK = {"mu_nl": False, "logvar_limit": 20.0}
+_LOCOMOTION = DomainDefaults(
+    rollout_len=64, learner_steps=50,
+    ppo=PPOConfig(hidden=(256, 256), num_updates=50, num_minibatches=4),
+    learners={"PRED": {"hist": 4, "pred": 12}, "SVAE": {"hist": 16}, "DSA": {"hist": 16}})
+# family (`envs_mjx.config.FAMILIES`, each domain's `EnvConfig.family`) → its settings.
+DOMAINS: dict[str, DomainDefaults] = {
+    # Rollout 32, 10 learner steps per epoch, PPO MLP 64 with 3 × 8 minibatches, sequence
+    # learners on 24-frame windows (the learners' defaults).
+    "pendulum": DomainDefaults(rollout_len=32, learner_steps=10),
+    # Rollout 64, 50 learner steps, PPO MLP 256 with 50 passes × 4 minibatches, 16-frame
+    # windows (SEQ16: PRED 4 in, 12 predicted).
+    "locomotion": _LOCOMOTION,
+    # Rollout 10 (the reference forces it), SVAE/DSA 8-frame windows, and the small-block
+    # presets: PRED sees 1 frame and predicts 1 with a static part of 3 and 2 dynamic entries
+    # per step, the VAEs a 5-entry latent; alignment in the LD state's own units and the
+    # distortion on position and velocity.
+    "incline": DomainDefaults(
+        rollout_len=10, learner_steps=10,
+        ppo=PPOConfig(hidden=(256, 256), num_updates=10, num_minibatches=4),
+        regressor_normalize=False, distortion_dims=("position", "velocity"),
+        learners={
+            "PRED": {"hist": 1, "pred": 1, "static_dim": 3, "latent_dim": 2, **_SMALL_BLOCK},
+            "VAE_v0": {"latent_dim": 5, **_SMALL_BLOCK},
+            "VAE_rpl": {"latent_dim": 5, **_SMALL_BLOCK},
+            "beta-VAE": {"latent_dim": 5, **_SMALL_BLOCK},
             "SVAE": {"hist": 8},
             "DSA": {"hist": 8},
-        }.get(learner, {})
-        base |= dict(regressor_normalize=False, distortion_dims=("position", "velocity"))
-    else:
-        base = dict(rollout_len=64, learner_steps=50, ppo=PPOConfig(hidden=(256, 256),
-                                                                    num_updates=50,
-                                                                    num_minibatches=4))
-        learner_defaults = {"PRED": {"hist": 4, "pred": 12}, "SVAE": {"hist": 16},
-                            "DSA": {"hist": 16}}.get(learner, {})
-        if env in _REARRANGES:
-            base |= dict(regressor_normalize=False)
-    learner_overrides = {**learner_defaults, **overrides.pop("learner_overrides", {})}
-    return StreamConfig(env=env, learner=learner, **{**base, **overrides},
+        }),
+    # Locomotion's, with the LD targets used as is (its positions are normalised, its rotation
+    # blocks scored by the principal-axis error).
+    "rearrange": dataclasses.replace(_LOCOMOTION, regressor_normalize=False),
+}
+
+
+def for_env(env: str, learner: str = "VAE_rpl", **overrides) -> StreamConfig:
+    """The reference's settings for `env`'s family (`DOMAINS`), then `overrides`; a
+    `learner_overrides` among them is laid over the family's for `learner`."""
+    domain = DOMAINS[envs_config.family(env)]
+    learner_overrides = {**domain.learners.get(learner, {}),
+                         **overrides.pop("learner_overrides", {})}
+    return StreamConfig(env=env, learner=learner, **{**domain.stream_fields(), **overrides},
                         learner_overrides=learner_overrides)

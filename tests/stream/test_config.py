@@ -5,10 +5,11 @@ from pathlib import Path
 
 import pytest
 
-from envs_mjx.config import ALL_ENVS
+from envs_mjx.config import ALL_ENVS, FAMILIES, family
 from jaml import stream
 from jaml.learners.config import ALL_LEARNERS
 from jaml.stream import run as run_lib
+from jaml.stream.config import DOMAINS
 from tests.stream.test_loop import tiny
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
@@ -30,6 +31,13 @@ def test_each_domain_and_learner_gets_the_settings_for_env_always_gave(env):
     assert set(FOR_ENV) == {f"{e}/{x}" for e in ALL_ENVS for x in ALL_LEARNERS}
     for learner in ALL_LEARNERS:
         assert _settings(stream.for_env(env, learner)) == FOR_ENV[f"{env}/{learner}"], learner
+
+
+def test_every_domain_names_a_family_and_every_family_has_settings():
+    assert sorted(DOMAINS) == sorted(FAMILIES)
+    assert {family(env) for env in ALL_ENVS} == set(FAMILIES)
+    with pytest.raises(ValueError, match="unknown env 'Pendulum'"):
+        stream.for_env("Pendulum")
 
 
 def test_for_env_overrides_win_over_the_domains_and_keep_the_rest():

@@ -228,6 +228,20 @@ def default_config(name: str) -> EnvConfig:
     return _config_class(name)()
 
 
+def configured(name: str, **overrides) -> EnvConfig:
+    """The named domain's default config with `overrides` (its fields) replaced. Unknown keys
+    raise ValueError; a list value becomes a tuple (overrides read back from a run's JSON config
+    arrive as lists; configs stay hashable and compare equal to the ones they were written
+    from)."""
+    config = default_config(name)
+    valid = {f.name for f in dataclasses.fields(config)}
+    unknown = sorted(set(overrides) - valid)
+    if unknown:
+        raise ValueError(f"{name}: unknown config overrides {unknown}; valid: {sorted(valid)}")
+    overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in overrides.items()}
+    return dataclasses.replace(config, **overrides)
+
+
 def family(name: str) -> str:
     """The named domain's family (one of FAMILIES)."""
     return _config_class(name).family

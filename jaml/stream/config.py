@@ -13,6 +13,7 @@ import json
 from typing import Any
 
 from envs_mjx import config as envs_config
+from jaml.learners import config as learners_config
 
 POLICIES = ("ppo", "random")
 # The reference's replay size in columns (suite_reference.md §3).
@@ -21,6 +22,8 @@ REFERENCE_REPLAY_COLUMNS = 5000
 # replay keeps half for every learner but VAE_v0, whose only difference from VAE_rpl it is.
 REPLAY_KEEP_FRACTION = {"VAE_v0": 0.0}
 DEFAULT_REPLAY_KEEP_FRACTION = 0.5
+# The key of a run record's learner and env configs (`StreamConfig.record`).
+RESOLVED = "resolved"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,8 +107,8 @@ class StreamConfig:
     distortion_dims: LD-state names whose values are τ^true in the distortion ρ (paper eq. 5;
       the incline's dynamic state, position and velocity); empty means all of them.
     ppo: PPO's hyper-parameters (`for_env` sets the network and passes per domain).
-    learner_overrides: learner config fields (e.g. beta, hist).
-    env_overrides: env config fields (e.g. multicolor).
+    learner_overrides: learner config fields (e.g. beta, hist); `learner_config` applies them.
+    env_overrides: env config fields (e.g. multicolor); `env_config` applies them.
     """
 
     env: str = "CartPole"
@@ -187,6 +190,25 @@ class StreamConfig:
         return self.replace(replay_slots=self.replay_columns,
                             replay_keep_fraction=self.keep_fraction)
 
+    def learner_config(self, ld_dim: int) -> learners_config.LearnerConfig:
+        """The learner's config: its defaults, then `learner_overrides` (a registry learner;
+        `ld_dim` is the env's LD-state size, which the stream reads from the env)."""
+        return learners_config.default_config(self.learner, ld_dim=ld_dim,
+                                              **self.learner_overrides)
+
+    def env_config(self) -> envs_config.EnvConfig:
+        """The env's config: its defaults, then `env_overrides`."""
+        return envs_config.configured(self.env, **self.env_overrides)
+
+    def record(self, learner=None, env=None) -> dict[str, Any]:
+        """A run's config.json: the resolved config's fields and, under "resolved", the configs
+        of the learner and the env the run built (`learner`, `env`: dataclasses; what is not
+        one, say your own learner's config, is left out), whole."""
+        parts = {name: json.loads(json.dumps(dataclasses.asdict(c)))
+                 for name, c in (("learner", learner), ("env", env))
+                 if dataclasses.is_dataclass(c) and not isinstance(c, type)}
+        return self.resolved().to_dict() | ({RESOLVED: parts} if parts else {})
+
     def program_key(self) -> str:
         """The resolved config without its seed, as canonical JSON: what the compiled loop
         depends on (the seed only picks the run's keys)."""
@@ -198,14 +220,25 @@ class StreamConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> StreamConfig:
-        """The config a `to_dict` (a run's config.json, resolved or as older runs wrote it)
-        describes."""
+        """The config a `to_dict` or `record` (a run's config.json, resolved or as older runs
+        wrote it) describes."""
         d = dict(d)
+        d.pop(RESOLVED, None)
         ppo = d.pop("ppo", {})
         ppo = PPOConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in ppo.items()})
         if "distortion_dims" in d:
             d["distortion_dims"] = tuple(d["distortion_dims"])
         return cls(ppo=ppo, **d)
+
+
+def recorded_env_options(record: dict[str, Any]) -> dict[str, Any]:
+    """The env config fields a run's config.json gives: its resolved env config (the fields the
+    env's config still has), or an older record's env_overrides."""
+    resolved = record.get(RESOLVED, {}).get("env")
+    if resolved is None:
+        return dict(record.get("env_overrides", {}))
+    valid = {f.name for f in dataclasses.fields(envs_config.default_config(record["env"]))}
+    return {k: v for k, v in resolved.items() if k in valid}
 
 
 @dataclasses.dataclass(frozen=True)

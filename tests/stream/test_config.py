@@ -1,7 +1,9 @@
 """A run's config: resolved whole into config.json, read back by resume, older files still read."""
 
+import dataclasses
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -9,7 +11,7 @@ from envs_mjx.config import ALL_ENVS, FAMILIES, family
 from jaml import stream
 from jaml.learners.config import ALL_LEARNERS
 from jaml.stream import run as run_lib
-from jaml.stream.config import DOMAINS
+from jaml.stream.config import DOMAINS, recorded_env_options
 from tests.stream.test_loop import tiny
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
@@ -81,6 +83,58 @@ def test_a_run_records_its_resolved_config_and_resumes_from_an_older_record(tmp_
     assert not run_lib.claim_run(tmp_path / "new", config)
 
 
+def _fields(config) -> dict:
+    return json.loads(json.dumps(dataclasses.asdict(config)))
+
+
+def test_a_run_records_its_learner_and_env_configs_whole_and_resume_checks_them(tmp_path):
+    config = tiny("PRED", learner_overrides={"hist": 2, "pred": 2})
+    built = stream.build(config)
+    ld_dim = len(built.env.ld_state_names)
+    assert not run_lib.claim_run(tmp_path, config, built)
+    recorded = json.loads((tmp_path / "config.json").read_text())
+    assert recorded["resolved"] == {"learner": _fields(config.learner_config(ld_dim)),
+                                    "env": _fields(config.env_config())}
+    assert recorded["resolved"]["learner"]["hist"] == 2
+    assert recorded["resolved"]["learner"]["ld_dim"] == ld_dim
+    assert stream.StreamConfig.from_dict(recorded) == config.resolved()
+    assert run_lib.claim_run(tmp_path, config, built)  # a resume
+    # A learner default changed since the run started: another run, though the overrides agree.
+    changed = json.loads(json.dumps(recorded))
+    changed["resolved"]["learner"]["beta"] = 2.0
+    (tmp_path / "config.json").write_text(json.dumps(changed))
+    with pytest.raises(ValueError, match="different configuration"):
+        run_lib.claim_run(tmp_path, config, built)
+    # A field new in the code is missing from the record: still the same run.
+    del changed["resolved"]["learner"]["beta"], changed["resolved"]["env"]["multicolor"]
+    (tmp_path / "config.json").write_text(json.dumps(changed))
+    assert run_lib.claim_run(tmp_path, config, built)
+    assert json.loads((tmp_path / "config.json").read_text()) == recorded  # written whole again
+
+
+def test_a_committed_run_record_without_the_resolved_configs_resumes(tmp_path):
+    recorded = json.loads((RESULTS / "fig3_ycb" / "VAE_rpl" / "seed_0" / "config.json")
+                          .read_text())
+    assert "resolved" not in recorded
+    (tmp_path / "config.json").write_text(json.dumps(recorded))
+    config = stream.StreamConfig.from_dict(recorded)
+    built = SimpleNamespace(learner=SimpleNamespace(config=config.learner_config(ld_dim=53)),
+                            env=SimpleNamespace(config=config.env_config()))
+    assert run_lib.claim_run(tmp_path, config, built)
+    assert json.loads((tmp_path / "config.json").read_text())["resolved"]["learner"][
+        "latent_dim"] == 53
+
+
+def test_a_records_env_options_are_its_resolved_env_config_else_its_overrides():
+    old = {"env": "RearrangeGeom", "env_overrides": {"versions": [5]}}
+    assert recorded_env_options(old) == {"versions": [5]}
+    assert recorded_env_options({"env": "CartPole"}) == {}
+    env = _fields(stream.StreamConfig(env="RearrangeGeom", env_overrides={"versions": (5,)})
+                  .env_config())
+    new = {**old, "env_overrides": {}, "resolved": {"env": {**env, "gone": 1}}}
+    assert recorded_env_options(new) == env and env["versions"] == [5]
+
+
 def test_every_committed_stream_run_config_reads_back():
     paths = [p for p in RESULTS.rglob("seed_*/config.json")]
     assert len(paths) > 100
@@ -88,4 +142,9 @@ def test_every_committed_stream_run_config_reads_back():
         recorded = json.loads(path.read_text())
         config = stream.StreamConfig.from_dict(recorded)
         assert config.resolved().replay_columns == config.replay_columns, path
-        assert config.to_dict() == json.loads(json.dumps(recorded)), path
+        assert config.to_dict() == {k: v for k, v in recorded.items() if k != "resolved"}, path
+        # The typed configs its overrides give, every override applied.
+        learner, env = config.learner_config(ld_dim=5), config.env_config()
+        for typed, overrides in ((learner, config.learner_overrides),
+                                 (env, config.env_overrides)):
+            assert _fields(typed) == _fields(typed) | overrides, path

@@ -228,12 +228,12 @@ def default_config(name: str) -> EnvConfig:
     return _config_class(name)()
 
 
-def configured(name: str, **overrides) -> EnvConfig:
-    """The named domain's default config with `overrides` (its fields) replaced. Unknown keys
-    raise ValueError; a list value becomes a tuple (overrides read back from a run's JSON config
-    arrive as lists; configs stay hashable and compare equal to the ones they were written
-    from)."""
-    config = default_config(name)
+def configured(name: str, config: EnvConfig | None = None, **overrides) -> EnvConfig:
+    """`config` (default: the named domain's default config) with `overrides` (its fields)
+    replaced. Unknown keys raise ValueError; a list value becomes a tuple (overrides read back
+    from a run's JSON config arrive as lists; configs stay hashable and compare equal to the
+    ones they were written from)."""
+    config = default_config(name) if config is None else config
     valid = {f.name for f in dataclasses.fields(config)}
     unknown = sorted(set(overrides) - valid)
     if unknown:

@@ -200,6 +200,22 @@ class StreamConfig:
         """The env's config: its defaults, then `env_overrides`."""
         return envs_config.configured(self.env, **self.env_overrides)
 
+    def with_configs(self, learner: learners_config.LearnerConfig | None = None,
+                     env: envs_config.EnvConfig | None = None) -> StreamConfig:
+        """This config with the options typed learner and env configs hold (the command line's
+        --learner-config.* / --env-config.*): their fields that differ from the defaults, and
+        those this config's overrides name, become learner_overrides / env_overrides (the
+        learner's ld_dim is the env's, not an option). None leaves that part's overrides."""
+        changes = {}
+        if learner is not None:
+            default = learners_config.default_config(self.learner, ld_dim=learner.ld_dim)
+            changes["learner_overrides"] = changed_fields(
+                learner, default, keep=self.learner_overrides, skip=("ld_dim",))
+        if env is not None:
+            changes["env_overrides"] = changed_fields(
+                env, envs_config.default_config(self.env), keep=self.env_overrides)
+        return self.replace(**changes)
+
     def record(self, learner=None, env=None) -> dict[str, Any]:
         """A run's config.json: the resolved config's fields and, under "resolved", the configs
         of the learner and the env the run built (`learner`, `env`: dataclasses; what is not
@@ -229,6 +245,14 @@ class StreamConfig:
         if "distortion_dims" in d:
             d["distortion_dims"] = tuple(d["distortion_dims"])
         return cls(ppo=ppo, **d)
+
+
+def changed_fields(config, default, *, keep=(), skip=()) -> dict[str, Any]:
+    """What turns the dataclass `default` into `config`: the fields that differ, and those named
+    in `keep`, less those in `skip` (the inverse of `dataclasses.replace`)."""
+    return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)
+            if f.name not in skip and (f.name in keep or getattr(config, f.name)
+                                       != getattr(default, f.name))}
 
 
 def recorded_env_options(record: dict[str, Any]) -> dict[str, Any]:

@@ -11,7 +11,7 @@ from envs_mjx.config import ALL_ENVS, FAMILIES, family
 from jaml import stream
 from jaml.learners.config import ALL_LEARNERS
 from jaml.stream import run as run_lib
-from jaml.stream.config import DOMAINS, recorded_env_options
+from jaml.stream.config import DOMAINS, changed_fields, recorded_env_options
 from tests.stream.test_loop import tiny
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
@@ -87,6 +87,23 @@ def _fields(config) -> dict:
     return json.loads(json.dumps(dataclasses.asdict(config)))
 
 
+def test_typed_learner_and_env_configs_become_the_overrides_that_give_them_back():
+    base = stream.for_env("GeomOnIncline", "PRED")
+    learner = base.learner_config(ld_dim=5).replace(beta=2.0)
+    env = dataclasses.replace(base.env_config(), force_scale=3.0)
+    config = base.with_configs(learner, env)
+    assert config.learner_overrides == {**base.learner_overrides, "beta": 2.0}
+    assert config.env_overrides == {"force_scale": 3.0}
+    assert (config.learner_config(ld_dim=5), config.env_config()) == (learner, env)
+    # A domain's setting put back to the learner's own default stays an override.
+    back = base.with_configs(base.learner_config(ld_dim=5).replace(latent_dim=None))
+    assert back.learner_overrides["latent_dim"] is None
+    assert back.learner_config(ld_dim=5).latent_dim is None
+    assert base.with_configs() == base
+    assert changed_fields(env, base.env_config()) == {"force_scale": 3.0}
+    assert changed_fields(env, env, keep=("ground",), skip=("force_scale",)) == {"ground": "paired"}
+
+
 def test_a_run_records_its_learner_and_env_configs_whole_and_resume_checks_them(tmp_path):
     config = tiny("PRED", learner_overrides={"hist": 2, "pred": 2})
     built = stream.build(config)
@@ -145,6 +162,5 @@ def test_every_committed_stream_run_config_reads_back():
         assert config.to_dict() == {k: v for k, v in recorded.items() if k != "resolved"}, path
         # The typed configs its overrides give, every override applied.
         learner, env = config.learner_config(ld_dim=5), config.env_config()
-        for typed, overrides in ((learner, config.learner_overrides),
-                                 (env, config.env_overrides)):
-            assert _fields(typed) == _fields(typed) | overrides, path
+        for typed, given in ((learner, config.learner_overrides), (env, config.env_overrides)):
+            assert _fields(typed) == _fields(typed) | given, path

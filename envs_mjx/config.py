@@ -8,9 +8,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import typing
 
 # Where an env's pixels come from (`EnvConfig.pixels`).
 PIXELS = ("auto", "required", "off")
+# The domain families (`EnvConfig.family`): the domains of one family share the learning
+# suite's per-domain settings.
+FAMILIES = ("pendulum", "locomotion", "incline", "rearrange")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -26,8 +30,10 @@ class EnvConfig:
     pixels: "auto" uses `envs_mjx.render` when importable and otherwise a zero placeholder with a
       warning; "required" raises if the renderer is missing; "off" is the placeholder, silently.
     image_size: side of the square image, in pixels.
+    family (a class constant, one of FAMILIES): the domain's family.
     """
 
+    family: typing.ClassVar[str]
     episode_length: int | None = 1000
     reward_scale: float | None = 1.0
     n_frames: int = 1
@@ -59,6 +65,7 @@ class EnvConfig:
 
 @dataclasses.dataclass(frozen=True)
 class CartPoleConfig(EnvConfig):
+    family: typing.ClassVar[str] = "pendulum"
     episode_length: int | None = 200
     reward_scale: float | None = None  # 1 / episode_length
     n_frames: int = 1
@@ -73,6 +80,7 @@ class CartPoleConfig(EnvConfig):
 
 @dataclasses.dataclass(frozen=True)
 class InvertedPendulumConfig(EnvConfig):
+    family: typing.ClassVar[str] = "pendulum"
     episode_length: int | None = 1000
     reward_scale: float | None = None  # 1 / episode_length
     n_frames: int = 1
@@ -85,6 +93,7 @@ class InvertedPendulumConfig(EnvConfig):
 
 @dataclasses.dataclass(frozen=True)
 class LocomotionConfig(EnvConfig):
+    family: typing.ClassVar[str] = "locomotion"
     episode_length: int | None = 1000
     reward_scale: float | None = None  # 1 / episode_length
     n_frames: int = 4
@@ -102,6 +111,7 @@ class LocomotionConfig(EnvConfig):
 
 @dataclasses.dataclass(frozen=True)
 class InclineConfig(EnvConfig):
+    family: typing.ClassVar[str] = "incline"
     episode_length: int | None = 50
     reward_scale: float = 1.0
     n_frames: int = 8
@@ -180,6 +190,7 @@ class RearrangeConfig(EnvConfig):
       final state), not the contacts, constraint forces or body poses.
     """
 
+    family: typing.ClassVar[str] = "rearrange"
     episode_length: int | None = 50
     reward_scale: float | None = None  # 1 / episode_length
     n_frames: int = 8
@@ -214,7 +225,30 @@ ALL_ENVS: tuple[str, ...] = tuple(CONFIGS)
 
 def default_config(name: str) -> EnvConfig:
     """The named domain's default config (reproduces the reference settings)."""
+    return _config_class(name)()
+
+
+def configured(name: str, config: EnvConfig | None = None, **overrides) -> EnvConfig:
+    """`config` (default: the named domain's default config) with `overrides` (its fields)
+    replaced. Unknown keys raise ValueError; a list value becomes a tuple (overrides read back
+    from a run's JSON config arrive as lists; configs stay hashable and compare equal to the
+    ones they were written from)."""
+    config = default_config(name) if config is None else config
+    valid = {f.name for f in dataclasses.fields(config)}
+    unknown = sorted(set(overrides) - valid)
+    if unknown:
+        raise ValueError(f"{name}: unknown config overrides {unknown}; valid: {sorted(valid)}")
+    overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in overrides.items()}
+    return dataclasses.replace(config, **overrides)
+
+
+def family(name: str) -> str:
+    """The named domain's family (one of FAMILIES)."""
+    return _config_class(name).family
+
+
+def _config_class(name: str) -> type[EnvConfig]:
     try:
-        return CONFIGS[name]()
+        return CONFIGS[name]
     except KeyError:
         raise ValueError(f"unknown env {name!r}; valid names: {list(ALL_ENVS)}") from None

@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 from envs_mjx.base import Env, EnvConfig, PixelsFn
-from envs_mjx.config import ALL_ENVS, default_config
+from envs_mjx.config import ALL_ENVS, configured, default_config
 from envs_mjx.domains import (
     ant,
     cartpole,
@@ -34,28 +32,19 @@ def make(name: str, pixels_fn: PixelsFn | None = None, **overrides) -> Env:
     """Builds the named env; keyword overrides replace fields of its default config.
 
     `pixels_fn(data, info) -> uint8 [H, W, 3]` replaces the default pixel source (the
-    `envs_mjx.render` renderer when importable). Unknown names or override keys raise ValueError.
-    A list value becomes a tuple (overrides read back from a run's JSON config arrive as lists;
-    configs stay hashable and compare equal to the ones they were written from).
+    `envs_mjx.render` renderer when importable). Unknown names or override keys raise ValueError
+    (`envs_mjx.config.configured`, which also reads JSON lists as tuples).
     """
-    config = default_config(name)
-    cls = _CLASSES[name]
-    valid = {f.name for f in dataclasses.fields(config)}
-    unknown = sorted(set(overrides) - valid)
-    if unknown:
-        raise ValueError(f"{name}: unknown config overrides {unknown}; valid: {sorted(valid)}")
-    overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in overrides.items()}
-    return cls(dataclasses.replace(config, **overrides), pixels_fn=pixels_fn)
+    config = configured(name, **overrides)
+    return _CLASSES[name](config, pixels_fn=pixels_fn)
 
 
 def load(name: str, config: EnvConfig | None = None, config_overrides: dict | None = None,
          pixels_fn: PixelsFn | None = None) -> Env:
     """MuJoCo Playground's `registry.load`: the env from `config` (default: `default_config(name)`)
     with `config_overrides` applied."""
-    config = default_config(name) if config is None else config
     base = default_config(name)
-    if type(config) is not type(base):
+    if config is not None and type(config) is not type(base):
         raise ValueError(f"{name} needs a {type(base).__name__}, got {type(config).__name__}")
-    changed = {f.name: getattr(config, f.name) for f in dataclasses.fields(config)
-               if getattr(config, f.name) != getattr(base, f.name)}
-    return make(name, pixels_fn=pixels_fn, **changed, **(config_overrides or {}))
+    config = configured(name, config, **(config_overrides or {}))
+    return _CLASSES[name](config, pixels_fn=pixels_fn)

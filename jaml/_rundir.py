@@ -1,7 +1,8 @@
 """The run directory shared by `jaml relations` and `jaml suite` (and the experiment drivers
 built on them): its config check, atomic JSON, and the append-only logs cut back on resume.
 
-    OUT/config.json     the resolved configuration; a different one in the same OUT is refused
+    OUT/config.json     the resolved configuration (a stream run's: its learner's and env's
+                        configs too); a different one in the same OUT is refused
     OUT/.lock           held (flock) by the process training the run; a second one is refused
     OUT/metrics.jsonl   one JSON record per logged step, cut back to the checkpoint on resume
     OUT/tensorboard/    the same scalars for TensorBoard

@@ -129,24 +129,15 @@ class Suite:
         default_factory=_suite_config())
 
     def stream_config(self):
-        """The run's StreamConfig: `for_env`'s per-domain settings, then what the flags changed
-        (learner and env options: the fields that differ from their defaults)."""
-        from jaml.stream import for_env
-
-        base = for_env(self.env, self.learner)
-        changed = _changed(self.config, base, skip=_SUITE_FIXED)
-        learner_opt, env_opt = dict(base.learner_overrides), {}
-        learner_config = getattr(self, "learner_config", None)
-        if learner_config is not None:
-            learner_opt |= _changed(learner_config, _learner_default(self.learner),
-                                    keep=base.learner_overrides, skip=("ld_dim",))
-        env_config = getattr(self, "env_config", None)
-        if env_config is not None:
-            env_opt = _changed(env_config, _env_default(self.env))
+        """The run's StreamConfig: `for_env`'s per-domain settings, scaled, then what the flags
+        changed (the learner's and env's options too: `StreamConfig.with_configs`)."""
+        from jaml.stream.config import changed_fields, for_env
         from jaml.suite import scaled
 
-        return scaled(base, self.scale).replace(**changed, learner_overrides=learner_opt,
-                                                env_overrides=env_opt)
+        base = for_env(self.env, self.learner)
+        changed = changed_fields(self.config, base, skip=_SUITE_FIXED)
+        return scaled(base, self.scale).replace(**changed).with_configs(
+            getattr(self, "learner_config", None), getattr(self, "env_config", None))
 
     def run(self) -> int:
         from jaml.stream.run import run
@@ -165,24 +156,10 @@ class Suite:
         return 0
 
 
-def _learner_default(name: str):
-    from jaml.learners.config import default_config
-
-    # ld_dim comes from the env when the stream builds the learner; 1 stands in for help.
-    return default_config(name, ld_dim=1)
-
-
 def _env_default(name: str):
     from envs_mjx.config import default_config
 
     return default_config(name)
-
-
-def _changed(config, default, keep=(), skip=()) -> dict:
-    """The fields of `config` that differ from `default`, or are in `keep`, less `skip`."""
-    return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)
-            if f.name not in skip and (f.name in keep or getattr(config, f.name)
-                                       != getattr(default, f.name))}
 
 
 def _suite_for(argv: list[str]) -> type:
@@ -200,8 +177,9 @@ def _suite_for(argv: list[str]) -> type:
     from jaml.stream.config import for_env
 
     base = for_env(env, learner)
-    learner_config = _learner_default(learner).replace(**base.learner_overrides)
-    env_config = _env_default(env)
+    # ld_dim comes from the env when the stream builds the learner; 1 stands in for help.
+    learner_config = base.learner_config(ld_dim=1)
+    env_config = base.env_config()
     return dataclasses.make_dataclass(
         "Suite",
         [
@@ -270,14 +248,16 @@ class EnvsShow:
 
     def run(self) -> int:
         from envs_mjx.show import show
+        from jaml.stream.config import changed_fields
 
         out = self.out or Path(f"{self.env}.png")
         env_config = getattr(self, "env_config", None)
-        overrides = {} if env_config is None else _changed(env_config, _env_default(self.env))
+        options = ({} if env_config is None
+                   else changed_fields(env_config, _env_default(self.env)))
         path = show(self.env, out, resets=self.resets, steps=self.steps, seed=self.seed,
-                    **overrides)
-        options = "".join(f", {k}={v}" for k, v in overrides.items())
-        print(f"{self.env}{options}: {self.resets} resets x {self.steps} frames -> {path}")
+                    **options)
+        shown = "".join(f", {k}={v}" for k, v in options.items())
+        print(f"{self.env}{shown}: {self.resets} resets x {self.steps} frames -> {path}")
         return 0
 
 

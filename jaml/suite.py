@@ -63,7 +63,7 @@ def _seq_len(config: StreamConfig) -> int:
 
     if config.learner not in learners.ALL_LEARNERS:
         return 1
-    return learners.default_config(config.learner, ld_dim=1, **config.learner_overrides).seq_len
+    return config.learner_config(ld_dim=1).seq_len
 
 
 @dataclasses.dataclass(frozen=True)

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from jaml import _command
+from jaml.stream.config import RESOLVED
 
 # jaml.evaluation (JAX, SciPy, Matplotlib) is imported by `cell`: the figure commands' --help
 # imports none of them (tests/test_launch.py).
@@ -188,13 +189,16 @@ def seed_histories(directory: Path) -> list[list[dict]]:
 
 
 def cell_config(directory: Path) -> dict:
-    """The settings every seed_N run under `directory` shares: its config.json without the seed.
+    """The settings every seed_N run under `directory` shares: its config.json without the seed
+    (and without the learner's and env's resolved configs where a seed's older record lacks them).
     Seeds that disagree (say one call trained in bfloat16, another in float32) are not one cell:
     pooling them would mix two experiments, so this raises, naming the runs and the settings."""
     configs = [(d.name, json.loads((d / "config.json").read_text()))
                for d in sorted(directory.glob("seed_*")) if (d / "config.json").exists()]
     if not configs:
         raise FileNotFoundError(f"no seed_*/config.json under {directory}")
+    if not all(RESOLVED in c for _, c in configs):  # some older record holds no resolved configs
+        configs = [(n, {k: v for k, v in c.items() if k != RESOLVED}) for n, c in configs]
     (first, shared), *others = [(n, {k: v for k, v in c.items() if k != "seed"})
                                 for n, c in configs]
     for name, config in others:

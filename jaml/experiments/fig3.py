@@ -66,6 +66,7 @@ from jaml._options import KeyValues, key_values
 from jaml._rundir import write_text
 from jaml.experiments import _runs
 from jaml.experiments._runs import cell
+from jaml.stream.config import recorded_env_options
 
 # jaml.evaluation (JAX, SciPy, Matplotlib) is imported by the functions that report: the
 # command's --help imports none of them (tests/test_launch.py).
@@ -472,7 +473,7 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
         raise ValueError(f"{out} holds runs of several envs ({', '.join(sorted(envs))}); give "
                          "each env its own --out")
     env = envs.pop()
-    shape = layout(env, next(iter(configs.values()), {}).get("env_overrides"))
+    shape = layout(env, recorded_env_options({"env": env, **next(iter(configs.values()), {})}))
     panels = shape.panels()
     lines = [f"# Fig. 3: {env} (reacher), alignment of VAE_rpl and SPAIR with the true "
              "state", "",

@@ -183,10 +183,9 @@ def penalty_for(out: Path, relation_set: str, penalty: Penalty, recipe: Recipe,
                 dynamics: str = "drawn"):
     """(the latent penalty of a relation set for the incline PRED, the 0-based indices of the
     relations it imposes: all, or the converged ones, as the recipe says)."""
-    from jaml import learners, relations
+    from jaml import relations
 
-    config = _config("PRED", 0, recipe, dynamics)
-    learner = learners.default_config("PRED", ld_dim=5, **config.learner_overrides)
+    learner = _config("PRED", 0, recipe, dynamics).learner_config(ld_dim=5)
     rs = relations.load(out / "relations" / relation_set / "checkpoint")
     used = list(range(rs.num_relations)) if recipe.all_relations else converged(out, relation_set)
     return relations.latent_penalty(

@@ -2,8 +2,8 @@
 
 Defaults follow the reference suite (suite_reference.md §3, §5) where they are not sizes; the
 sizes of the paper (5000 replay columns, 10 000-row regressor sets, 100 000 epochs) are fields,
-and `for_env` fills the per-domain ones (rollout length, learner steps per epoch, PPO network,
-sequence-learner window).
+and `for_env` fills the per-domain ones from the domain family's `DomainDefaults` (rollout
+length, learner steps per epoch, PPO network, sequence-learner window).
 """
 
 from __future__ import annotations
@@ -12,6 +12,9 @@ import dataclasses
 import json
 from typing import Any
 
+from envs_mjx import config as envs_config
+from jaml.learners import config as learners_config
+
 POLICIES = ("ppo", "random")
 # The reference's replay size in columns (suite_reference.md §3).
 REFERENCE_REPLAY_COLUMNS = 5000
@@ -19,9 +22,8 @@ REFERENCE_REPLAY_COLUMNS = 5000
 # replay keeps half for every learner but VAE_v0, whose only difference from VAE_rpl it is.
 REPLAY_KEEP_FRACTION = {"VAE_v0": 0.0}
 DEFAULT_REPLAY_KEEP_FRACTION = 0.5
-_PENDULUMS = ("CartPole", "InvertedPendulum")
-_INCLINES = ("GeomOnIncline", "MeshOnIncline")
-_REARRANGES = ("RearrangeGeom", "RearrangeYCB")
+# The key of a run record's learner and env configs (`StreamConfig.record`).
+RESOLVED = "resolved"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,8 +107,8 @@ class StreamConfig:
     distortion_dims: LD-state names whose values are τ^true in the distortion ρ (paper eq. 5;
       the incline's dynamic state, position and velocity); empty means all of them.
     ppo: PPO's hyper-parameters (`for_env` sets the network and passes per domain).
-    learner_overrides: learner config fields (e.g. beta, hist).
-    env_overrides: env config fields (e.g. multicolor).
+    learner_overrides: learner config fields (e.g. beta, hist); `learner_config` applies them.
+    env_overrides: env config fields (e.g. multicolor); `env_config` applies them.
     """
 
     env: str = "CartPole"
@@ -188,6 +190,41 @@ class StreamConfig:
         return self.replace(replay_slots=self.replay_columns,
                             replay_keep_fraction=self.keep_fraction)
 
+    def learner_config(self, ld_dim: int) -> learners_config.LearnerConfig:
+        """The learner's config: its defaults, then `learner_overrides` (a registry learner;
+        `ld_dim` is the env's LD-state size, which the stream reads from the env)."""
+        return learners_config.default_config(self.learner, ld_dim=ld_dim,
+                                              **self.learner_overrides)
+
+    def env_config(self) -> envs_config.EnvConfig:
+        """The env's config: its defaults, then `env_overrides`."""
+        return envs_config.configured(self.env, **self.env_overrides)
+
+    def with_configs(self, learner: learners_config.LearnerConfig | None = None,
+                     env: envs_config.EnvConfig | None = None) -> StreamConfig:
+        """This config with the options typed learner and env configs hold (the command line's
+        --learner-config.* / --env-config.*): their fields that differ from the defaults, and
+        those this config's overrides name, become learner_overrides / env_overrides (the
+        learner's ld_dim is the env's, not an option). None leaves that part's overrides."""
+        changes = {}
+        if learner is not None:
+            default = learners_config.default_config(self.learner, ld_dim=learner.ld_dim)
+            changes["learner_overrides"] = changed_fields(
+                learner, default, keep=self.learner_overrides, skip=("ld_dim",))
+        if env is not None:
+            changes["env_overrides"] = changed_fields(
+                env, envs_config.default_config(self.env), keep=self.env_overrides)
+        return self.replace(**changes)
+
+    def record(self, learner=None, env=None) -> dict[str, Any]:
+        """A run's config.json: the resolved config's fields and, under "resolved", the configs
+        of the learner and the env the run built (`learner`, `env`: dataclasses; what is not
+        one, say your own learner's config, is left out), whole."""
+        parts = {name: json.loads(json.dumps(dataclasses.asdict(c)))
+                 for name, c in (("learner", learner), ("env", env))
+                 if dataclasses.is_dataclass(c) and not isinstance(c, type)}
+        return self.resolved().to_dict() | ({RESOLVED: parts} if parts else {})
+
     def program_key(self) -> str:
         """The resolved config without its seed, as canonical JSON: what the compiled loop
         depends on (the seed only picks the run's keys)."""
@@ -199,9 +236,10 @@ class StreamConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> StreamConfig:
-        """The config a `to_dict` (a run's config.json, resolved or as older runs wrote it)
-        describes."""
+        """The config a `to_dict` or `record` (a run's config.json, resolved or as older runs
+        wrote it) describes."""
         d = dict(d)
+        d.pop(RESOLVED, None)
         ppo = d.pop("ppo", {})
         ppo = PPOConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in ppo.items()})
         if "distortion_dims" in d:
@@ -209,45 +247,84 @@ class StreamConfig:
         return cls(ppo=ppo, **d)
 
 
-def for_env(env: str, learner: str = "VAE_rpl", **overrides) -> StreamConfig:
-    """The reference's per-domain settings for `env`, then `overrides`.
+def changed_fields(config, default, *, keep=(), skip=()) -> dict[str, Any]:
+    """What turns the dataclass `default` into `config`: the fields that differ, and those named
+    in `keep`, less those in `skip` (the inverse of `dataclasses.replace`)."""
+    return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)
+            if f.name not in skip and (f.name in keep or getattr(config, f.name)
+                                       != getattr(default, f.name))}
 
-    Pendulums: rollout 32, 10 learner steps per epoch, PPO MLP 64 with 3 × 8 minibatches,
-    sequence learners on 24-frame windows (the learners' defaults). Incline domains: rollout 10
-    (the reference forces it), SVAE/DSA 8-frame windows, and the reference's small-block
-    presets: PRED sees 1 frame and predicts 1 with a static part of 3 and 2 dynamic entries per
-    step (PARAMS_PRED_BLK_SM), the VAEs a 5-entry latent (PARAMS_VAE_BLK_SM), both without the
-    output sigmoid and with log-variances clipped at ±20; alignment in the LD state's own units
-    and the distortion on position and velocity.
-    Locomotion: rollout 64, 50 learner steps, PPO MLP 256 with 50 passes × 4 minibatches, 16-frame
-    windows (SEQ16: PRED 4 in, 12 predicted). Rearrange: those, with the LD targets used as is
-    (its positions are normalised, its rotation blocks scored by the principal-axis error).
-    """
-    learner_defaults: dict[str, Any] = {}
-    if env in _PENDULUMS:
-        base = dict(rollout_len=32, learner_steps=10, ppo=PPOConfig())
-    elif env in _INCLINES:
-        base = dict(rollout_len=10, learner_steps=10, ppo=PPOConfig(hidden=(256, 256),
-                                                                    num_updates=10,
-                                                                    num_minibatches=4))
-        small_block = {"mu_nl": False, "logvar_limit": 20.0}
-        learner_defaults = {
-            "PRED": {"hist": 1, "pred": 1, "static_dim": 3, "latent_dim": 2, **small_block},
-            "VAE_v0": {"latent_dim": 5, **small_block},
-            "VAE_rpl": {"latent_dim": 5, **small_block},
-            "beta-VAE": {"latent_dim": 5, **small_block},
+
+def recorded_env_options(record: dict[str, Any]) -> dict[str, Any]:
+    """The env config fields a run's config.json gives: its resolved env config (the fields the
+    env's config still has), or an older record's env_overrides."""
+    resolved = record.get(RESOLVED, {}).get("env")
+    if resolved is None:
+        return dict(record.get("env_overrides", {}))
+    valid = {f.name for f in dataclasses.fields(envs_config.default_config(record["env"]))}
+    return {k: v for k, v in resolved.items() if k in valid}
+
+
+@dataclasses.dataclass(frozen=True)
+class DomainDefaults:
+    """One domain family's settings: StreamConfig fields (the rest keep StreamConfig's
+    defaults), and by learner name the learner config fields it sets (`learners`)."""
+
+    rollout_len: int
+    learner_steps: int
+    ppo: PPOConfig = PPOConfig()
+    regressor_normalize: bool = True
+    distortion_dims: tuple[str, ...] = ()
+    learners: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+
+    def stream_fields(self) -> dict[str, Any]:
+        """The StreamConfig fields this family sets."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                if f.name != "learners"}
+
+
+# The reference's small-block presets' numerics (PARAMS_PRED_BLK_SM, PARAMS_VAE_BLK_SM): no
+# output sigmoid, log-variances clipped at ±20.
+_SMALL_BLOCK = {"mu_nl": False, "logvar_limit": 20.0}
+_LOCOMOTION = DomainDefaults(
+    rollout_len=64, learner_steps=50,
+    ppo=PPOConfig(hidden=(256, 256), num_updates=50, num_minibatches=4),
+    learners={"PRED": {"hist": 4, "pred": 12}, "SVAE": {"hist": 16}, "DSA": {"hist": 16}})
+# family (`envs_mjx.config.FAMILIES`, each domain's `EnvConfig.family`) → its settings.
+DOMAINS: dict[str, DomainDefaults] = {
+    # Rollout 32, 10 learner steps per epoch, PPO MLP 64 with 3 × 8 minibatches, sequence
+    # learners on 24-frame windows (the learners' defaults).
+    "pendulum": DomainDefaults(rollout_len=32, learner_steps=10),
+    # Rollout 64, 50 learner steps, PPO MLP 256 with 50 passes × 4 minibatches, 16-frame
+    # windows (SEQ16: PRED 4 in, 12 predicted).
+    "locomotion": _LOCOMOTION,
+    # Rollout 10 (the reference forces it), SVAE/DSA 8-frame windows, and the small-block
+    # presets: PRED sees 1 frame and predicts 1 with a static part of 3 and 2 dynamic entries
+    # per step, the VAEs a 5-entry latent; alignment in the LD state's own units and the
+    # distortion on position and velocity.
+    "incline": DomainDefaults(
+        rollout_len=10, learner_steps=10,
+        ppo=PPOConfig(hidden=(256, 256), num_updates=10, num_minibatches=4),
+        regressor_normalize=False, distortion_dims=("position", "velocity"),
+        learners={
+            "PRED": {"hist": 1, "pred": 1, "static_dim": 3, "latent_dim": 2, **_SMALL_BLOCK},
+            "VAE_v0": {"latent_dim": 5, **_SMALL_BLOCK},
+            "VAE_rpl": {"latent_dim": 5, **_SMALL_BLOCK},
+            "beta-VAE": {"latent_dim": 5, **_SMALL_BLOCK},
             "SVAE": {"hist": 8},
             "DSA": {"hist": 8},
-        }.get(learner, {})
-        base |= dict(regressor_normalize=False, distortion_dims=("position", "velocity"))
-    else:
-        base = dict(rollout_len=64, learner_steps=50, ppo=PPOConfig(hidden=(256, 256),
-                                                                    num_updates=50,
-                                                                    num_minibatches=4))
-        learner_defaults = {"PRED": {"hist": 4, "pred": 12}, "SVAE": {"hist": 16},
-                            "DSA": {"hist": 16}}.get(learner, {})
-        if env in _REARRANGES:
-            base |= dict(regressor_normalize=False)
-    learner_overrides = {**learner_defaults, **overrides.pop("learner_overrides", {})}
-    return StreamConfig(env=env, learner=learner, **{**base, **overrides},
+        }),
+    # Locomotion's, with the LD targets used as is (its positions are normalised, its rotation
+    # blocks scored by the principal-axis error).
+    "rearrange": dataclasses.replace(_LOCOMOTION, regressor_normalize=False),
+}
+
+
+def for_env(env: str, learner: str = "VAE_rpl", **overrides) -> StreamConfig:
+    """The reference's settings for `env`'s family (`DOMAINS`), then `overrides`; a
+    `learner_overrides` among them is laid over the family's for `learner`."""
+    domain = DOMAINS[envs_config.family(env)]
+    learner_overrides = {**domain.learners.get(learner, {}),
+                         **overrides.pop("learner_overrides", {})}
+    return StreamConfig(env=env, learner=learner, **{**domain.stream_fields(), **overrides},
                         learner_overrides=learner_overrides)

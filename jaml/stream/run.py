@@ -20,7 +20,7 @@ from tqdm.auto import tqdm
 from jaml._rundir import RunLog, claim, lock, truncate_jsonl, write_json
 from jaml.evaluation import plots
 from jaml.stream import analysis, checkpoint
-from jaml.stream.config import StreamConfig
+from jaml.stream.config import RESOLVED, StreamConfig
 from jaml.stream.executor import (
     BLOCK,
     build,
@@ -40,15 +40,23 @@ class NonFiniteLoss(RuntimeError):
     """The learner's loss became NaN/inf; the run stopped at its last good checkpoint."""
 
 
-def claim_run(out: Path, config: StreamConfig) -> bool:
-    """`_rundir.claim` for a stream run: config.json holds the resolved config; a recorded one
-    (older runs left derived fields to defaults) is the same run when it resolves to it."""
+def claim_run(out: Path, config: StreamConfig, stream: Stream | None = None) -> bool:
+    """`_rundir.claim` for a stream run: config.json holds the resolved config and, given the
+    run's `stream`, its learner's and env's configs whole (`StreamConfig.record`). A recorded
+    run is this one when its config resolves to this one (older runs left derived fields to
+    defaults) and its learner and env configs agree on every field both records have (older
+    runs recorded none; a field new in the code is missing from older records)."""
+    parts = () if stream is None else (getattr(stream.learner, "config", None), stream.env.config)
+    record = config.record(*parts)
     resolved = config.resolved().to_dict()
 
     def same(recorded: dict) -> bool:
-        return StreamConfig.from_dict(recorded).resolved().to_dict() == resolved
+        before, now = recorded.get(RESOLVED, {}), record.get(RESOLVED, {})
+        return (StreamConfig.from_dict(recorded).resolved().to_dict() == resolved
+                and all(before[part].get(k, v) == v for part in before.keys() & now.keys()
+                        for k, v in now[part].items()))
 
-    return claim(out, resolved, same)
+    return claim(out, record, same)
 
 
 def analysis_epochs(config: StreamConfig) -> list[int]:
@@ -137,7 +145,7 @@ class _RunDir:
             raise
 
     def _open(self, stream: Stream, config: StreamConfig, out: Path) -> None:
-        claim_run(out, config)
+        claim_run(out, config, stream)
         (out / "recon").mkdir(exist_ok=True)
         k_init, self.k_eval, self.pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
         self.manager = checkpoint.manager(out)

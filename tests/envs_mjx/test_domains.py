@@ -92,6 +92,13 @@ def test_registry_names_and_overrides():
     from_json = envs_mjx.make("GeomOnIncline", mass_range=[0.2, 0.2], pixels="off").config
     assert from_json.mass_range == (0.2, 0.2) and hash(from_json) == hash(
         envs_mjx.make("GeomOnIncline", mass_range=(0.2, 0.2), pixels="off").config)
+    # Playground's load: a config, then overrides over it (an override wins over the config).
+    config = envs_mjx.default_config("CartPole").__class__(episode_length=9, pixels="off")
+    loaded = envs_mjx.load("CartPole", config, {"episode_length": 5, "reset_noise": 0.2})
+    assert (loaded.config.episode_length, loaded.config.reset_noise, loaded.config.pixels) == (
+        5, 0.2, "off")
+    with pytest.raises(ValueError, match="CartPole needs a CartPoleConfig"):
+        envs_mjx.load("CartPole", envs_mjx.default_config("Ant"))
 
 
 def test_pixels_placeholder_is_marked(monkeypatch):

@@ -1,4 +1,7 @@
-"""The flags every cell-training driver shares (`_runs.CallOptions`) reach `run_many` as given."""
+"""What the figure drivers share (`_runs`): the call flags reach `run_many` as given; a cell's
+seeds share their settings."""
+
+import json
 
 import pytest
 
@@ -32,3 +35,24 @@ def test_the_call_flags_reach_the_runs(tmp_path, monkeypatch, driver, flags, exp
     assert module.main(["--out", str(tmp_path), *args, "--seeds", "0", "1", *flags]) == 0
     assert len(calls) == 1
     assert {k: calls[0][k] for k in expected} == expected
+
+
+def _seed(directory, seed, **config):
+    (directory / f"seed_{seed}").mkdir(parents=True)
+    (directory / f"seed_{seed}" / "config.json").write_text(json.dumps({"seed": seed, **config}))
+
+
+def test_a_cell_compares_its_seeds_resolved_configs_and_reads_older_records_beside_newer(
+        tmp_path):
+    from jaml.experiments import _runs
+
+    resolved = {"learner": {"beta": 1.0}, "env": {"multicolor": True}}
+    _seed(tmp_path / "new", 0, epochs=20, resolved=resolved)
+    _seed(tmp_path / "new", 1, epochs=20, resolved=resolved)
+    assert _runs.cell_config(tmp_path / "new") == {"epochs": 20, "resolved": resolved}
+    _seed(tmp_path / "new", 2, epochs=20, resolved={**resolved, "learner": {"beta": 2.0}})
+    with pytest.raises(ValueError, match="seed_0 and seed_2 differ in resolved"):
+        _runs.cell_config(tmp_path / "new")
+    _seed(tmp_path / "mixed", 0, epochs=20)  # an older record: no resolved configs
+    _seed(tmp_path / "mixed", 1, epochs=20, resolved=resolved)
+    assert _runs.cell_config(tmp_path / "mixed") == {"epochs": 20}

@@ -268,9 +268,10 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
 
     `deadline`: a `time.monotonic()` instant (a job's wall-clock limit). Epochs then run in
     blocks of at most `DEADLINE_BLOCK`, and a block that would end past the deadline (at the
-    last block's pace, plus the last analysis's time if it ends at one) is not started: every
-    run still going checkpoints where it is and stops ("interrupted"). Leave a margin for
-    those checkpoints."""
+    last block's pace, plus the last analysis's time if it ends at one, each without the time
+    JAX spent compiling in it: a call's first block and first analysis compile their programs)
+    is not started: every run still going checkpoints where it is and stops ("interrupted").
+    Leave a margin for those checkpoints."""
     if len(configs) != len(outs) or not configs:
         raise ValueError(f"run_many needs one out directory per config, got {len(configs)} "
                          f"configs and {len(outs)} directories")
@@ -337,11 +338,11 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                 members = group
                 for r in group:
                     r.state = None
-            tic = time.perf_counter()
-            states, metrics = run_stacked_epochs(stream, states, n, mesh=mesh)
-            metrics = jax.tree.map(np.asarray, metrics)
-            pace = (time.perf_counter() - tic) / n
-            share = pace * n / len(group)
+            with _Stopwatch() as block:
+                states, metrics = run_stacked_epochs(stream, states, n, mesh=mesh)
+                metrics = jax.tree.map(np.asarray, metrics)
+            pace = block.steady / n
+            share = block.wall / len(group)
             bar.update(n * len(group))
             due = []  # (index, run) of the runs at an analysis epoch, analysed together
             for i, r in enumerate(group):
@@ -362,10 +363,10 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                 if r.epoch == target:
                     r.targets.pop(0)
                     due.append((i, r))
-            tic = time.perf_counter()
-            _analyse_together(stream, states, due, checkpoint_every)
+            with _Stopwatch() as analysing:
+                _analyse_together(stream, states, due, checkpoint_every)
             if due:
-                analysis_seconds = time.perf_counter() - tic
+                analysis_seconds = analysing.steady
             # A run stopped by `stop_after` between analyses keeps its epochs: checkpointed
             # here (no analysis), so the next call resumes where this one stopped.
             for i, r in enumerate(group):
@@ -422,6 +423,37 @@ def checkpoint_due(epoch: int, last_checkpoint: int | None, every: int | None, *
     if every is None or last:
         return True
     return epoch - (last_checkpoint or 0) >= every
+
+
+# What JAX reports of each compilation (`jax.monitoring`): tracing, lowering, XLA's compile.
+_COMPILE_EVENTS = frozenset({"/jax/core/compile/jaxpr_trace_duration",
+                             "/jax/core/compile/jaxpr_to_mlir_module_duration",
+                             "/jax/core/compile/backend_compile_duration"})
+_compile_seconds = [0.0]  # this process's compilation time so far
+_listening = [False]
+
+
+def _count_compile(event: str, seconds: float, **_) -> None:
+    if event in _COMPILE_EVENTS:
+        _compile_seconds[0] += seconds
+
+
+class _Stopwatch:
+    """The wall time of a `with` block and its steady part: the wall time less what JAX spent
+    compiling inside it (never below zero: threads compiling together count their sum)."""
+
+    wall = steady = 0.0
+
+    def __enter__(self) -> _Stopwatch:
+        if not _listening[0]:
+            jax.monitoring.register_event_duration_secs_listener(_count_compile)
+            _listening[0] = True
+        self._tic, self._compiled = time.perf_counter(), _compile_seconds[0]
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.wall = time.perf_counter() - self._tic
+        self.steady = max(self.wall - (_compile_seconds[0] - self._compiled), 0.0)
 
 
 @contextlib.contextmanager

@@ -4,10 +4,12 @@
 # epochs. The lane layout is the same in every call (three seeds stacked per process, one
 # process per GPU), so a seed's PPO stream is bit-identical in both methods from the first epoch
 # to the last: the stream's bits depend on how many runs are stacked with it (fig9.md). Each
-# process stops by its --time-limit with a checkpoint; the next call resumes.
-#   bash docs/results/fig9_runs/reference_2078/job.sh LIMIT HARD_LIMIT [OUT]
+# process stops by its --time-limit with a checkpoint; the next call resumes. Other methods
+# (the controls, AML_syz) run in the same lanes get the same streams, bit for bit, so they pair
+# with the committed PRED records (the report's stream check says whether they did).
+#   bash docs/results/fig9_runs/reference_2078/job.sh LIMIT HARD_LIMIT [OUT [METHOD_A METHOD_B]]
 set -u
-limit=$1; hard=$2; out=${3:-runs/fig9_2078}
+limit=$1; hard=$2; out=${3:-runs/fig9_2078}; a=${4:-PRED}; b=${5:-PRED+AML_trnsv}
 mkdir -p "$out/logs"
 # The relations were fitted once on a CPU (`jaml fig9 --pilot-only`) and travel with the job.
 [ -d "$out/relations" ] || cp -r runs/fig9ref/relations "$out/relations"
@@ -18,8 +20,8 @@ lane() {  # lane GPU METHOD "SEEDS"
     --recipe reference --methods "$2" --seeds $3 --eval-every 400 --checkpoint-every 400 \
     --time-limit "$limit" >>"$out/logs/$2.seeds${3// /}.log" 2>&1
 }
-lane 0 PRED "0 1 2" & lane 1 PRED+AML_trnsv "0 1 2" &
-lane 2 PRED "3 4 5" & lane 3 PRED+AML_trnsv "3 4 5" &
+lane 0 "$a" "0 1 2" & lane 1 "$b" "0 1 2" &
+lane 2 "$a" "3 4 5" & lane 3 "$b" "3 4 5" &
 wait
 for f in "$out"/*/seed_*/summary.json; do
   python -c "import json,sys; s=json.load(open(sys.argv[1])); print(sys.argv[1], s['status'], s['epoch'], s['checkpoint_epoch'], round(s['seconds_this_call']), {k: round(v) for k, v in s['seconds_by_phase'].items()})" "$f"

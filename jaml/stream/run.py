@@ -5,7 +5,6 @@ The directory's files and the resume rules are listed in docs/stream.md, "Run di
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import time
@@ -30,6 +29,7 @@ from jaml.stream.executor import (
     unstack_runs,
 )
 from jaml.stream.loop import Stream, StreamState
+from jaml.stream.timing import Stopwatch, timed
 
 log = logging.getLogger("jaml.stream")
 # What a run resumed from: the command line shows this logger at INFO (`jaml.cli.main`).
@@ -180,7 +180,7 @@ class _RunDir:
         """Records, figures and (see `checkpoint_due`) an atomic checkpoint at the current
         epoch, from this run's `analysis.evaluate_runs` report and its error names (see
         `_analyse_together`)."""
-        with _timed(self.seconds, "analysis"), _timed(self.analysis_parts, "records"):
+        with timed(self.seconds, "analysis"), timed(self.analysis_parts, "records"):
             records = _records(stream, names, self.epoch, report, seed=self.config.seed)
             self.history += records
             with (self.out / "history.jsonl").open("a") as f:
@@ -198,7 +198,7 @@ class _RunDir:
 
     def save(self, state: StreamState) -> None:
         """An atomic checkpoint of `state` at the current epoch."""
-        with _timed(self.seconds, "checkpoint"):
+        with timed(self.seconds, "checkpoint"):
             checkpoint.save(self.manager, self.epoch, state)
 
     def summary(self) -> dict:
@@ -338,7 +338,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                 members = group
                 for r in group:
                     r.state = None
-            with _Stopwatch() as block:
+            with Stopwatch() as block:
                 states, metrics = run_stacked_epochs(stream, states, n, mesh=mesh)
                 metrics = jax.tree.map(np.asarray, metrics)
             pace = block.steady / n
@@ -363,7 +363,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                 if r.epoch == target:
                     r.targets.pop(0)
                     due.append((i, r))
-            with _Stopwatch() as analysing:
+            with Stopwatch() as analysing:
                 _analyse_together(stream, states, due, checkpoint_every)
             if due:
                 analysis_seconds = analysing.steady
@@ -425,47 +425,6 @@ def checkpoint_due(epoch: int, last_checkpoint: int | None, every: int | None, *
     return epoch - (last_checkpoint or 0) >= every
 
 
-# What JAX reports of each compilation (`jax.monitoring`): tracing, lowering, XLA's compile.
-_COMPILE_EVENTS = frozenset({"/jax/core/compile/jaxpr_trace_duration",
-                             "/jax/core/compile/jaxpr_to_mlir_module_duration",
-                             "/jax/core/compile/backend_compile_duration"})
-_compile_seconds = [0.0]  # this process's compilation time so far
-_listening = [False]
-
-
-def _count_compile(event: str, seconds: float, **_) -> None:
-    if event in _COMPILE_EVENTS:
-        _compile_seconds[0] += seconds
-
-
-class _Stopwatch:
-    """The wall time of a `with` block and its steady part: the wall time less what JAX spent
-    compiling inside it (never below zero: threads compiling together count their sum)."""
-
-    wall = steady = 0.0
-
-    def __enter__(self) -> _Stopwatch:
-        if not _listening[0]:
-            jax.monitoring.register_event_duration_secs_listener(_count_compile)
-            _listening[0] = True
-        self._tic, self._compiled = time.perf_counter(), _compile_seconds[0]
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.wall = time.perf_counter() - self._tic
-        self.steady = max(self.wall - (_compile_seconds[0] - self._compiled), 0.0)
-
-
-@contextlib.contextmanager
-def _timed(seconds: dict[str, float], phase: str):
-    """Adds the wall time of the block to seconds[phase]."""
-    tic = time.perf_counter()
-    try:
-        yield
-    finally:
-        seconds[phase] = seconds.get(phase, 0.0) + time.perf_counter() - tic
-
-
 def _last_finite(values: np.ndarray) -> float:
     finite = values[np.isfinite(values)]
     return float(finite[-1]) if finite.size else float("nan")
@@ -516,7 +475,7 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
     names = analysis.error_names(stream)
     for i, r in due:
         state = jax.tree.map(lambda x, i=i: x[i], states)
-        with _timed(r.seconds, "analysis"), _timed(r.analysis_parts, "reconstructions"):
+        with timed(r.seconds, "analysis"), timed(r.analysis_parts, "reconstructions"):
             frames = analysis.reconstructions(stream, state, jax.random.fold_in(r.eval_key(), 7))
             _save_png(r.out / "recon" / f"epoch_{r.epoch:06d}.png", list(frames))
         r.analyse(stream, state, reports[i], names, checkpoint_every)

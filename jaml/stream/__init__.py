@@ -15,8 +15,9 @@ What is compiled for a Stream belongs to the current programs scope: a process t
 configs one after another opens one per config (`with stream.programs_scope(): ...`), which
 releases them when it ends (`jaml.stream.programs`).
 
-`jaml suite` (jaml.stream.run) wraps this with a run directory and resumable checkpoints;
-`jaml.stream.run.run_many` trains several seeds together, each in its own directory.
+`jaml suite` (jaml.stream.run) drives this over run directories with resumable checkpoints
+(jaml.stream.rundir); `jaml.stream.run.run_many` trains several seeds together, each in its own
+directory.
 """
 
 from jaml import _lazy

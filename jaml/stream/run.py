@@ -1,15 +1,11 @@
-"""A `jaml suite` run directory: the learning loop with logs, figures and resumable checkpoints.
-
-The directory's files and the resume rules are listed in docs/stream.md, "Run directory".
+"""`jaml suite`'s driver: trains runs of one program together, each in its own run directory
+(`jaml.stream.rundir`), to their analyses, a deadline or a stop, and analyses them together.
 """
 
 from __future__ import annotations
 
-import contextlib
-import json
 import logging
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import jax
@@ -17,10 +13,8 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-from jaml._rundir import RunLog, claim, lock, truncate_jsonl, write_json
-from jaml.evaluation import plots
-from jaml.stream import analysis, checkpoint
-from jaml.stream.config import RESOLVED, StreamConfig
+from jaml.stream import analysis
+from jaml.stream.config import StreamConfig
 from jaml.stream.executor import (
     BLOCK,
     build,
@@ -30,199 +24,17 @@ from jaml.stream.executor import (
     unstack_runs,
 )
 from jaml.stream.loop import Stream, StreamState
+from jaml.stream.rundir import FigureWriter, RunDir, analysis_epochs, checkpoint_due, claim_run
+from jaml.stream.timing import Stopwatch, timed
+
+__all__ = ["DEADLINE_BLOCK", "NonFiniteLoss", "analysis_epochs", "checkpoint_due", "claim_run",
+           "run", "run_many"]
 
 log = logging.getLogger("jaml.stream")
-# What a run resumed from: the command line shows this logger at INFO (`jaml.cli.main`).
-resume_log = logging.getLogger("jaml.resume")
 
 
 class NonFiniteLoss(RuntimeError):
     """The learner's loss became NaN/inf; the run stopped at its last good checkpoint."""
-
-
-def claim_run(out: Path, config: StreamConfig, stream: Stream | None = None) -> bool:
-    """`_rundir.claim` for a stream run: config.json holds the resolved config and, given the
-    run's `stream`, its learner's and env's configs whole (`StreamConfig.record`). A recorded
-    run is this one when its config resolves to this one (older runs left derived fields to
-    defaults) and its learner and env configs agree on every field both records have (older
-    runs recorded none; a field new in the code is missing from older records)."""
-    parts = () if stream is None else (getattr(stream.learner, "config", None), stream.env.config)
-    record = config.record(*parts)
-    resolved = config.resolved().to_dict()
-
-    def same(recorded: dict) -> bool:
-        before, now = recorded.get(RESOLVED, {}), record.get(RESOLVED, {})
-        return (StreamConfig.from_dict(recorded).resolved().to_dict() == resolved
-                and all(before[part].get(k, v) == v for part in before.keys() & now.keys()
-                        for k, v in now[part].items()))
-
-    return claim(out, record, same)
-
-
-def analysis_epochs(config: StreamConfig) -> list[int]:
-    """Epochs after which the run analyses and checkpoints: when the replay is full (the learner
-    has just started), every `eval_every` epochs after that, and at the end."""
-    first = config.fill_epochs
-    epochs = list(range(first, config.epochs + 1, config.eval_every))
-    if not epochs or epochs[-1] != config.epochs:
-        epochs.append(config.epochs)
-    return epochs
-
-
-def _save_png(path: Path, rows: list[np.ndarray]) -> None:
-    """Rows of uint8 [N, H, W, 3] images, tiled N across, with a 2-pixel gap."""
-    from matplotlib.image import imsave
-
-    tiles = [np.concatenate([np.pad(im, ((2, 2), (2, 2), (0, 0)), constant_values=255)
-                             for im in row], axis=1) for row in rows]
-    imsave(path, np.concatenate(tiles, axis=0))
-
-
-class _Logs(RunLog):
-    """metrics.jsonl (one line per epoch) + TensorBoard scalars, alignment errors included."""
-
-    def epochs(self, first_epoch: int, metrics: dict[str, np.ndarray]) -> None:
-        n = len(next(iter(metrics.values())))
-        for i in range(n):
-            epoch = first_epoch + i + 1  # epochs completed, like an analysis's step
-            row = {k: float(v[i]) for k, v in metrics.items()}
-            self.record({"epoch": epoch, **row})
-            self.scalars(row, epoch)
-        self.flush()
-
-    def analysis(self, epoch: int, records: list[dict]) -> None:
-        for r in records:
-            self.scalars(r["errors"], epoch, prefix=f"alignment/{r['test_set']}/")
-        if records and records[0].get("distortion") is not None:
-            self.scalars({"alignment/distortion": records[0]["distortion"]}, epoch)
-        self.flush()
-
-
-class _FigureWriter:
-    """Draws the runs' figures (alignment.png, distortion.png) on one background thread, so the
-    loop's next epochs run while matplotlib draws (drawn in line, they held up every analysis
-    of every run; docs/notes/stream.md). A run's figures are drawn from its newest history
-    only: a request still queued when a newer one for the same run arrives is skipped. `wait`
-    drains the queue; `check` raises the first drawing error."""
-
-    def __init__(self):
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaml-figures")
-        self._newest: dict[Path, object] = {}
-        self._futures: list[Future] = []
-
-    def submit(self, out: Path, history: list[dict]) -> None:
-        token = self._newest[out] = object()
-
-        def draw():
-            if self._newest.get(out) is token:
-                _figures(history, out)
-
-        self._futures.append(self._pool.submit(draw))
-
-    def wait(self) -> None:
-        self._pool.shutdown(wait=True)
-
-    def check(self) -> None:
-        for future in self._futures:
-            future.result()
-
-
-class _RunDir:
-    """One run's directory: its config check, keys, state (restored or fresh), logs, analyses,
-    checkpoints and summary. Its figures go to `figures`, drawn in the background."""
-
-    def __init__(self, stream: Stream, config: StreamConfig, out: Path, figures: _FigureWriter,
-                 final_checkpoint: bool = True, keep_pi_rand: bool = True):
-        self.config, self.out, self.figures = config, out, figures
-        self.final_checkpoint = final_checkpoint
-        # The run's π_rand sequences, kept on the host after its first analysis in this call.
-        self.pi_rand_set = analysis.PiRandSet() if keep_pi_rand else None
-        self.lock = lock(out)  # released by `close` (or when the process ends)
-        try:
-            self._open(stream, config, out)
-        except BaseException:  # a refused config or unreadable checkpoint: let the directory go
-            self.lock.close()
-            raise
-
-    def _open(self, stream: Stream, config: StreamConfig, out: Path) -> None:
-        claim_run(out, config, stream)
-        (out / "recon").mkdir(exist_ok=True)
-        k_init, self.k_eval, self.pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
-        self.manager = checkpoint.manager(out)
-        self.resumed_from: int | None = None
-        if self.manager.latest_step() is not None:
-            self.state = checkpoint.restore(self.manager, jax.eval_shape(stream.init, k_init))
-            self.resumed_from = int(self.state.epoch)
-            resume_log.info("%s: resumed from its checkpoint at epoch %d of %d", out,
-                            self.resumed_from, config.epochs)
-        else:
-            self.state = stream.init(k_init)
-        self.epoch = int(self.state.epoch)
-        self.history = truncate_jsonl(out / "history.jsonl", lambda r: r["step"] <= self.epoch)
-        self.logs = _Logs(out, keep=lambda r: r["epoch"] <= self.epoch)
-        self.status = "running"
-        self.error: str | None = None  # why a "nonfinite" run stopped
-        self.targets = [t for t in analysis_epochs(config) if t > self.epoch]
-        self.started = time.perf_counter()
-        # Wall seconds of this call by phase (first calls include compilation); the epochs of
-        # runs trained together are shared among them.
-        self.seconds = {"epochs": 0.0, "analysis": 0.0, "checkpoint": 0.0}
-        # The analysis phase by part (`analysis.evaluate`'s, then this run's records and
-        # reconstructions; figures are drawn in the background): where its time goes.
-        self.analysis_parts: dict[str, float] = {}
-
-    def eval_key(self) -> jax.Array:
-        """The analysis key of the current epoch."""
-        return jax.random.fold_in(self.k_eval, self.epoch)
-
-    def analyse(self, stream: Stream, state: StreamState, report: dict, names: list[str],
-                checkpoint_every: int | None = None) -> None:
-        """Records, figures and (see `checkpoint_due`) an atomic checkpoint at the current
-        epoch, from this run's `analysis.evaluate_runs` report and its error names (see
-        `_analyse_together`)."""
-        with _timed(self.seconds, "analysis"), _timed(self.analysis_parts, "records"):
-            records = _records(stream, names, self.epoch, report, seed=self.config.seed)
-            self.history += records
-            with (self.out / "history.jsonl").open("a") as f:
-                # One write per analysis, so a report read beside it (`_runs.read_history`
-                # skips an unterminated line) almost never sees part of an epoch's records.
-                f.write("".join(json.dumps(r) + "\n" for r in records))
-            self.logs.analysis(self.epoch, records)
-            self.figures.submit(self.out, list(self.history))
-        if checkpoint_due(self.epoch, self.manager.latest_step(), checkpoint_every,
-                          last=not self.targets and self.final_checkpoint):
-            self.save(state)
-        # A progress summary (status "running"): a process that dies without reaching `close`
-        # (a machine taken back, SIGKILL) still leaves its epoch, phase times and last records.
-        write_json(self.out / "summary.json", self.summary())
-
-    def save(self, state: StreamState) -> None:
-        """An atomic checkpoint of `state` at the current epoch."""
-        with _timed(self.seconds, "checkpoint"):
-            checkpoint.save(self.manager, self.epoch, state)
-
-    def summary(self) -> dict:
-        """summary.json's record of this call so far."""
-        last = max((h["step"] for h in self.history), default=-1)
-        return {
-            "status": self.status,
-            "epoch": self.epoch,
-            "seconds_this_call": time.perf_counter() - self.started,
-            "seconds_by_phase": self.seconds,
-            "seconds_in_analysis": self.analysis_parts,
-            "checkpoint_epoch": self.manager.latest_step(),
-            "resumed_from": self.resumed_from,
-            "final": [r for r in self.history if r["step"] == last],
-            **({"error": self.error} if self.error is not None else {}),
-        }
-
-    def close(self) -> dict:
-        self.logs.close()
-        self.manager.close()
-        summary = self.summary()
-        write_json(self.out / "summary.json", summary)
-        self.lock.close()
-        return summary
 
 
 def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | None = None,
@@ -286,11 +98,11 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     if len(set(outs)) < len(outs):
         raise ValueError(f"two runs share an out directory: {[str(o) for o in outs]}")
     stream = build(configs[0], latent_penalty)  # every config problem surfaces before any file
-    figures = _FigureWriter()
-    runs: list[_RunDir] = []
+    figures = FigureWriter()
+    runs: list[RunDir] = []
     try:
         for c, o in zip(configs, outs, strict=True):
-            runs.append(_RunDir(stream, c, o, figures, final_checkpoint, keep_pi_rand))
+            runs.append(RunDir(stream, c, o, figures, final_checkpoint, keep_pi_rand))
     except BaseException:  # one directory refused: the ones opened before it are let go too
         for r in runs:
             r.lock.close()
@@ -301,7 +113,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     budget = {id(r): stop_after for r in runs}
     # The runs being trained and their stacked states, kept stacked from one analysis to the
     # next while the group stays the same (the common case: all runs at one epoch).
-    members: list[_RunDir] = []
+    members: list[RunDir] = []
     states = None
     pace = None  # seconds per epoch of the last block, and of the last analysis (deadline)
     analysis_seconds = 0.0
@@ -338,7 +150,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                 members = group
                 for r in group:
                     r.state = None
-            with _Stopwatch() as block:
+            with Stopwatch() as block:
                 states, metrics = run_stacked_epochs(stream, states, n, mesh=mesh)
                 metrics = jax.tree.map(np.asarray, metrics)
             pace = block.steady / n
@@ -363,7 +175,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                 if r.epoch == target:
                     r.targets.pop(0)
                     due.append((i, r))
-            with _Stopwatch() as analysing:
+            with Stopwatch() as analysing:
                 _analyse_together(stream, states, due, checkpoint_every)
             if due:
                 analysis_seconds = analysing.steady
@@ -401,7 +213,7 @@ DEADLINE_BLOCK = BLOCK
 _clock = time.monotonic  # what deadlines are read against
 
 
-def _stop_in_time(active: list[_RunDir], members: list[_RunDir], states) -> None:
+def _stop_in_time(active: list[RunDir], members: list[RunDir], states) -> None:
     """The deadline's stop: each active run checkpoints at its epoch (unless its last
     checkpoint is there) and is marked interrupted. `members` are the runs whose states are
     stacked in `states`; the others hold theirs in `run.state`."""
@@ -413,57 +225,6 @@ def _stop_in_time(active: list[_RunDir], members: list[_RunDir], states) -> None
             else:
                 r.save(r.state)
         r.status = "interrupted"
-
-
-def checkpoint_due(epoch: int, last_checkpoint: int | None, every: int | None, *,
-                   last: bool) -> bool:
-    """Whether the analysis at `epoch` also checkpoints: always with `every` None; otherwise
-    once `every` epochs have passed since the last checkpoint (a fresh run's epoch 0 counting
-    as one), and at the run's `last` analysis."""
-    if every is None or last:
-        return True
-    return epoch - (last_checkpoint or 0) >= every
-
-
-# What JAX reports of each compilation (`jax.monitoring`): tracing, lowering, XLA's compile.
-_COMPILE_EVENTS = frozenset({"/jax/core/compile/jaxpr_trace_duration",
-                             "/jax/core/compile/jaxpr_to_mlir_module_duration",
-                             "/jax/core/compile/backend_compile_duration"})
-_compile_seconds = [0.0]  # this process's compilation time so far
-_listening = [False]
-
-
-def _count_compile(event: str, seconds: float, **_) -> None:
-    if event in _COMPILE_EVENTS:
-        _compile_seconds[0] += seconds
-
-
-class _Stopwatch:
-    """The wall time of a `with` block and its steady part: the wall time less what JAX spent
-    compiling inside it (never below zero: threads compiling together count their sum)."""
-
-    wall = steady = 0.0
-
-    def __enter__(self) -> _Stopwatch:
-        if not _listening[0]:
-            jax.monitoring.register_event_duration_secs_listener(_count_compile)
-            _listening[0] = True
-        self._tic, self._compiled = time.perf_counter(), _compile_seconds[0]
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.wall = time.perf_counter() - self._tic
-        self.steady = max(self.wall - (_compile_seconds[0] - self._compiled), 0.0)
-
-
-@contextlib.contextmanager
-def _timed(seconds: dict[str, float], phase: str):
-    """Adds the wall time of the block to seconds[phase]."""
-    tic = time.perf_counter()
-    try:
-        yield
-    finally:
-        seconds[phase] = seconds.get(phase, 0.0) + time.perf_counter() - tic
 
 
 def _last_finite(values: np.ndarray) -> float:
@@ -516,30 +277,7 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
     names = analysis.error_names(stream)
     for i, r in due:
         state = jax.tree.map(lambda x, i=i: x[i], states)
-        with _timed(r.seconds, "analysis"), _timed(r.analysis_parts, "reconstructions"):
+        with timed(r.seconds, "analysis"), timed(r.analysis_parts, "reconstructions"):
             frames = analysis.reconstructions(stream, state, jax.random.fold_in(r.eval_key(), 7))
-            _save_png(r.out / "recon" / f"epoch_{r.epoch:06d}.png", list(frames))
+            r.save_reconstructions(frames)
         r.analyse(stream, state, reports[i], names, checkpoint_every)
-
-
-def _records(stream: Stream, names: list[str], epoch: int, report: dict, *,
-             seed: int) -> list[dict]:
-    """One run's history records from its report."""
-    # `seed` is the run's own: runs trained together share one Stream, whose config carries
-    # the first run's seed.
-    errors = {k: v for k, v in report["errors"].items() if k != "validation"}
-    records = plots.history_records(epoch, stream.config.learner, errors, names,
-                                    report["distortion"], run=seed)
-    # The held-out replay rows' error, for choices made without the test sets, and what a latent
-    # with no information scores on each test set's rows (`evaluation.constant_errors`).
-    validation = dict(zip(names, report["errors"]["validation"], strict=True))
-    records = [r | {"validation": validation,
-                    "baseline": dict(zip(names, report["baseline"][r["test_set"]], strict=True)),
-                    "irregularity": report.get("irregularity")}
-               for r in records]
-    return records
-
-
-def _figures(history: list[dict], out: Path) -> None:
-    plots.plot_alignment(history, out / "alignment.png")
-    plots.plot_distortion(history, out / "distortion.png")

@@ -8,7 +8,6 @@ import dataclasses
 import json
 import math
 import shutil
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -16,7 +15,7 @@ import numpy as np
 import pytest
 
 from jaml import stream
-from jaml.stream import checkpoint, programs
+from jaml.stream import checkpoint, programs, rundir
 from jaml.stream import run as run_lib
 
 
@@ -235,7 +234,7 @@ def test_a_killed_run_resumes_to_the_result_of_an_uninterrupted_one(tmp_path, mo
         return run_dir.summary()
 
     with monkeypatch.context() as patch:
-        patch.setattr(run_lib._RunDir, "close", died)
+        patch.setattr(rundir.RunDir, "close", died)
         run_lib.run(config, tmp_path / "died", progress=False, stop_after=3)
     progress = json.loads((tmp_path / "died" / "summary.json").read_text())
     assert progress["status"] == "running" and progress["epoch"] == 2
@@ -313,36 +312,3 @@ def test_suite_cli_has_help_and_reports_bad_input(tmp_path, capsys):
     assert "Unrecognized options: --learner-config.gamma" in capsys.readouterr().err
     assert cli.key_value("beta=20") == ("beta", 20)
     assert cli.key_value("object=duck") == ("object", "duck")
-
-
-def test_figures_are_drawn_in_the_background_from_each_runs_newest_history(monkeypatch):
-    """A request still queued behind a slow drawing is skipped for a newer one of the same run;
-    every run's newest history is drawn; a drawing error surfaces at `check`."""
-    import threading
-
-    drawn, started, release = [], threading.Event(), threading.Event()
-
-    def figures(history, out):
-        if not drawn:
-            started.set()
-            release.wait(5)  # the first drawing is slow: the next requests queue behind it
-        drawn.append((out, len(history)))
-
-    monkeypatch.setattr(run_lib, "_figures", figures)
-    writer = run_lib._FigureWriter()
-    writer.submit(Path("a"), [{}])
-    assert started.wait(5)
-    for n in (2, 3):
-        writer.submit(Path("a"), [{}] * n)
-    writer.submit(Path("b"), [{}])
-    release.set()
-    writer.wait()
-    writer.check()
-    assert drawn == [(Path("a"), 1), (Path("a"), 3), (Path("b"), 1)]
-
-    monkeypatch.setattr(run_lib, "_figures", lambda history, out: 1 / 0)
-    failing = run_lib._FigureWriter()
-    failing.submit(Path("a"), [])
-    failing.wait()
-    with pytest.raises(ZeroDivisionError):
-        failing.check()

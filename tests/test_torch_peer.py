@@ -86,9 +86,10 @@ def _step_losses(tl, peer, steps, seed=0):
     actions = rng.normal(size=(2, t, ACTION_DIM)).astype(np.float32)
     batch = peer.batch(frames, actions)
     losses = []
-    for i in range(steps):
-        torch.manual_seed(100 + i)  # the same noise for both peers, step by step
-        losses.append(float(peer.step(*batch)))
+    with peer.host_context():
+        for i in range(steps):
+            torch.manual_seed(100 + i)  # the same noise for both peers, step by step
+            losses.append(float(peer.step(*batch)))
     return losses
 
 

@@ -255,6 +255,13 @@ class Peer:
             return torch.autocast(self.device.type, dtype=torch.bfloat16)
         return contextlib.nullcontext()
 
+    def host_context(self):
+        """Around the steps: a bfloat16 DSA on a CPU runs its LSTMs on ATen's own kernels
+        (oneDNN's bf16 LSTM wants AVX-512 BF16 and fails to build on hosts without it)."""
+        if self.device.type == "cpu" and self.variant.dtype == "bfloat16" and self.name == "DSA":
+            return torch.backends.mkldnn.flags(enabled=False)
+        return contextlib.nullcontext()
+
     def _step(self, frames, actions):
         self.opt.zero_grad(set_to_none=True)
         with self.autocast():
@@ -326,8 +333,9 @@ def _flop_counter() -> FlopCounterMode:
 
 def useful_flops(name: str, batch: int = 2, backward: bool = True, ld_dim: int = 4,
                  action_dim: int = 1) -> dict[str, int]:
-    """{aten op: FLOPs} of the peer's loss (and its gradient, `backward`) for `batch` sequences:
-    convolutions counted by real taps, matmuls 2·M·N·K, nothing else.
+    """{aten op: FLOPs} of the peer's loss (and its gradient, `backward`) for `batch` ≥ 2
+    sequences (BatchNorm trains on batch statistics): convolutions counted by real taps,
+    matmuls 2·M·N·K, nothing else.
 
     Run on the meta device (shapes only, nothing computed), where the LSTMs decompose into the
     matmuls they execute (cuDNN's fused RNN kernels are not counted by FlopCounterMode)."""

@@ -22,8 +22,8 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from jaml.learners.config import DSAConfig, LearnerConfig, default_config
 
+# BatchNorm2d's defaults (momentum 0.1, eps 1e-5) are the reference's; jaml's _BN restates them.
 LEARNERS = ("VAE_rpl", "PRED", "DSA")
-# The reference's BatchNorm2d is PyTorch's: momentum 0.1, eps 1e-5 (jaml's _BN restates it).
 
 
 def _check_supported(config: LearnerConfig) -> None:

@@ -1,7 +1,8 @@
-"""Training throughput (frames/s) of a learner's train step, jaml vs a PyTorch port of the VAE.
+"""Training throughput (frames/s) of a learner's train step, jaml vs its PyTorch peer.
 
     python benchmarks/learner_throughput.py [--learners VAE_rpl PRED DSA] [--batches 64 256 1024]
-        [--reps 5] [--steps 3] [--dtypes float32 bfloat16]
+        [--reps 5] [--steps 3] [--dtypes float32 bfloat16] [--torch eager compiled]
+        [--torch-compile-modes max-autotune-no-cudagraphs reduce-overhead]
 
 jaml's rows carry the step's useful FLOPs per frame (`benchmarks/flops.py`: the convolutions and
 matmuls the model asks for, counted from its jaxpr; XLA's own `cost_analysis` counts no cuDNN
@@ -10,21 +11,29 @@ ceiling measured in the same run (a large matmul in the same dtype) and, on a de
 peak is known, of that quoted peak. A frame is one frame a step reads (batch × T for a sequence
 learner). Compile time is reported apart; steady state is the median over `reps` blocked
 repetitions of `steps` train steps each. jaml's step is compiled with `learners.compiler_options()`
-(on the CPU: convolutions on XLA's Eigen path, not YNNPACK; elsewhere XLA's defaults). If torch
-imports, the reference's network (suite_reference.md §4), written here in PyTorch, is timed the
-same way in the same run, on the same device, and the ratio recorded. The peer gets what a careful
-PyTorch user would switch on: cuDNN autotuning and TF32 matmuls (XLA already uses TF32 for float32
-convolutions and matmuls on this class of GPU; PyTorch's convolutions use it by default, its
-matmuls only when asked). With bfloat16, jaml's convolutions compute in bfloat16 (`compute_dtype`;
-parameters, batch norms, heads, loss and Adam float32) and the peer runs its forward pass under
+(on the CPU: convolutions on XLA's Eigen path, not YNNPACK; elsewhere XLA's defaults).
+
+If torch imports, the same network in PyTorch (`benchmarks/peers/torch_learners.py`: the three
+learners, jaml's parameter counts and FLOPs) is timed the same way in the same run on the same
+device: eager, and its whole train step (zero_grad, forward, backward, Adam) under
+`torch.compile` in each `--torch-compile-modes` mode with channels_last activations. Its rows
+carry TFLOP/s and MFU from jaml's count for the same learner (so the rates compare as the
+frames/s do) and the peer's own count (`peer_gflop_per_frame`: FlopCounterMode, convolutions by
+their real taps, whatever formulation a backend runs). The peer gets what a careful PyTorch user
+switches on: cuDNN autotuning, TF32 matmuls (`torch.set_float32_matmul_precision("high")`; XLA
+and cuDNN already use TF32 for float32 convolutions on this class of GPU), fused Adam when eager
+on a GPU. With bfloat16, jaml's convolutions compute in bfloat16 (`compute_dtype`; parameters,
+batch norms, heads, loss and Adam float32) and the peer runs its forward pass under
 `torch.autocast(dtype=torch.bfloat16)`, the mixed precision a PyTorch user would reach for (it also
-casts the MLP and heads).
+casts the MLP, heads and RNNs). On a GPU the peer is measured first, every case, while JAX holds
+no memory (XLA_PYTHON_CLIENT_PREALLOCATE=false, set here unless already set), and releases its
+cache after each; a case that runs out of memory is reported, not fatal.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
+import os
 import platform
 import statistics
 import sys
@@ -114,107 +123,121 @@ def bench_jax(b: int, reps: int, steps: int, dtype: str = "float32",
             "seq_len": seq_len}
 
 
-def bench_torch(b: int, reps: int, steps: int, dtype: str = "float32") -> dict | None:
+# Until the GPU run says otherwise: Inductor's autotuned kernels without CUDA graphs
+# (reduce-overhead's graphs pay off where launches bound a step; to be compared on the GPU).
+DEFAULT_COMPILE_MODES = ("max-autotune-no-cudagraphs",)
+
+
+def torch_peer():
+    """benchmarks.peers.torch_learners, or None where torch does not import."""
     try:
-        import torch
-        from torch import nn
+        from benchmarks.peers import torch_learners
     except ImportError:
         return None
+    return torch_learners
 
-    def enc_block(i, o, k, s, p):
-        return [nn.Conv2d(i, o, k, s, p, bias=False), nn.BatchNorm2d(o), nn.ELU()]
 
-    class VAE(nn.Module):
-        """The reference VAE: ConvStack → EncoderDynamic (MLP 1024, 512) → heads → ConvDecoder."""
+def setup_torch() -> None:
+    """What a careful PyTorch user switches on (process-wide, so here, not in the peer)."""
+    import torch
 
-        def __init__(self, z: int, a: int):
-            super().__init__()
-            self.conv = nn.Sequential(*enc_block(3, 64, 4, 2, 1), *enc_block(64, 128, 4, 2, 1),
-                                      *enc_block(128, 128, 4, 2, 1),
-                                      *enc_block(128, 256, 4, 2, 1),
-                                      *enc_block(256, 128, 4, 1, 0))
-            self.mlp = nn.Sequential(nn.Linear(128 + a, 1024), nn.ELU(), nn.Linear(1024, 512),
-                                     nn.ELU())
-            self.mu, self.logvar = nn.Linear(512, z), nn.Linear(512, z)
-            self.dec = nn.Sequential(
-                nn.ConvTranspose2d(z, 256, 4, 1, 0), nn.ELU(), nn.BatchNorm2d(256),
-                nn.ConvTranspose2d(256, 128, 4, 2, 1), nn.ELU(), nn.BatchNorm2d(128),
-                nn.ConvTranspose2d(128, 128, 4, 2, 1), nn.ELU(), nn.BatchNorm2d(128),
-                nn.ConvTranspose2d(128, 64, 4, 2, 1), nn.ELU(),
-                nn.ConvTranspose2d(64, 3, 4, 2, 1), nn.Sigmoid())
+    torch.backends.cudnn.benchmark = True
+    torch.set_float32_matmul_precision("high")  # TF32 matmuls (convolutions: cuDNN's default)
 
-        def loss(self, frames, actions):
-            x = frames.float() / 255.0
-            h = self.mlp(torch.cat([self.conv(x).flatten(1), actions], dim=1))
-            mu = nn.functional.elu(self.mu(h))
-            logvar = torch.clamp(self.logvar(h), -6.0, 6.0)
-            z = mu + torch.randn_like(mu) * torch.exp(0.5 * logvar)
-            recon = self.dec(torch.sigmoid(z)[:, :, None, None])
-            nll = 0.5 * (x - recon).square().sum(dim=(1, 2, 3))
-            kl = 0.5 * (logvar.exp() + mu.square() - 1.0 - logvar).sum(dim=1)
-            return (nll + kl).mean()
 
+def bench_torch(name: str, b: int, reps: int, steps: int, dtype: str = "float32",
+                compile_mode: str | None = None, warmup: int = 3) -> dict:
+    """The peer's train step: frames/s (median over reps of `steps` synchronised steps) after
+    its first step (timed apart: compilation, cuDNN autotuning) and `warmup` more (CUDA graph
+    recording under reduce-overhead). {"error": ...} when it runs out of memory."""
+    import torch
+
+    tl = torch_peer()
     # The peer runs where jaml runs: on the GPU when there is one.
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    torch.backends.cudnn.benchmark = True
-    torch.backends.cuda.matmul.allow_tf32 = True
-    torch.manual_seed(0)
-    model = VAE(2 * LD_DIM, ACTION_DIM).to(device)
-    opt = torch.optim.Adam(model.parameters(), lr=1e-4)
-    frames, actions = _batch(b)
-    frames = torch.from_numpy(frames[:, 0]).permute(0, 3, 1, 2).contiguous().to(device)  # NCHW
-    actions = torch.from_numpy(actions[:, 0]).to(device)
+    variant = tl.Variant(compile_mode, channels_last=compile_mode is not None, dtype=dtype)
+    info = {"label": variant.label, "version": torch.__version__, "device": str(device),
+            "threads": torch.get_num_threads()}
+    torch._dynamo.reset()  # a fresh compile per case, free of earlier cases' guards
+    peer = None
+    try:
+        peer = tl.Peer(name, variant, ld_dim=LD_DIM, action_dim=ACTION_DIM, device=device)
+        batch = peer.batch(*_batch(b, tl.seq_len(name, LD_DIM)))
 
-    autocast = (torch.autocast(device.type, dtype=torch.bfloat16) if dtype == "bfloat16"
-                else contextlib.nullcontext())
+        def run_steps(n):
+            for _ in range(n):
+                peer.step(*batch)
+            if device.type == "cuda":
+                torch.cuda.synchronize()  # time the work, not the launches
 
-    def run_steps(n):
-        for _ in range(n):
-            opt.zero_grad(set_to_none=True)
-            with autocast:
-                loss = model.loss(frames, actions)
-            loss.backward()
-            opt.step()
+        with peer.host_context():
+            t0 = time.perf_counter()
+            run_steps(1)
+            first_s = time.perf_counter() - t0
+            run_steps(warmup)
+            fps = _median_rate(run_steps, b * tl.seq_len(name, LD_DIM), reps, steps)
+        return {**info, "first_step_s": first_s, "fps": fps}
+    except torch.OutOfMemoryError as e:
+        return {**info, "error": f"out of memory: {str(e).splitlines()[0][:120]}"}
+    finally:
+        peer = None  # the model, its optimizer state and compiled graphs, released
+        torch._dynamo.reset()
         if device.type == "cuda":
-            torch.cuda.synchronize()  # time the work, not the launches
-
-    t0 = time.perf_counter()
-    run_steps(1)  # warm-up (eager: no compilation, first-call allocation only)
-    first_s = time.perf_counter() - t0
-    return {"first_step_s": first_s, "fps": _median_rate(run_steps, b, reps, steps),
-            "version": torch.__version__, "threads": torch.get_num_threads(),
-            "device": str(device)}
+            torch.cuda.empty_cache()
 
 
-def _compare(learner_name: str, b: int, dtype: str, reps: int, steps: int,
-             ceiling: float) -> list[dict]:
-    """jaml and (VAE_rpl, if torch imports) the PyTorch peer at one batch size and dtype."""
+def _rates(gflop_per_frame: float, fps: float, ceiling: float, peak: float | None) -> dict:
+    useful = gflop_per_frame * fps / 1e3
+    return {"useful_gflop_per_frame": gflop_per_frame, "useful_tflop_per_s": useful,
+            "matmul_ceiling_tflop_per_s": ceiling, "mfu_of_ceiling": useful / ceiling,
+            **({"mfu_of_quoted_peak": useful / peak} if peak else {})}
+
+
+def _mfu_text(rates: dict) -> str:
+    return (f"{rates['useful_tflop_per_s']:.2f} TFLOP/s, "
+            f"{100 * rates['mfu_of_ceiling']:.1f} % of the matmul ceiling"
+            + (f", {100 * rates['mfu_of_quoted_peak']:.1f} % of the quoted peak"
+               if "mfu_of_quoted_peak" in rates else ""))
+
+
+def _compare(learner_name: str, b: int, dtype: str, reps: int, steps: int, ceiling: float,
+             peers: list[dict], peer_gflop: float | None) -> list[dict]:
+    """jaml at one batch size and dtype, beside the peer's rows measured for the same case."""
     j = bench_jax(b, reps, steps, dtype, learner_name)
     case = (f"{learner_name} train step, batch {b}" + (f" × {j['seq_len']} frames"
             if j["seq_len"] > 1 else "") + ("" if dtype == "float32" else f", {dtype}"))
-    useful = j["gflop_per_frame"] * j["fps"] / 1e3
     peak = quoted_peak(dtype)
+    rates = _rates(j["gflop_per_frame"], j["fps"], ceiling, peak)
     rows = [{"case": case, "impl": "jaml", "learner": learner_name, "batch": b, "dtype": dtype,
-             "compile_s": j["compile_s"], "frames_per_s": j["fps"],
-             "useful_gflop_per_frame": j["gflop_per_frame"], "useful_tflop_per_s": useful,
-             "xla_gflop_per_frame": j["xla_gflop_per_frame"],
-             "matmul_ceiling_tflop_per_s": ceiling, "mfu_of_ceiling": useful / ceiling,
-             **({"mfu_of_quoted_peak": useful / peak} if peak else {})}]
-    line = (f"{case}: jaml {j['fps']:9.1f} frames/s (compile {j['compile_s']:.1f} s; "
-            f"{j['gflop_per_frame']:.3f} useful GFLOP/frame, {useful:.2f} TFLOP/s, "
-            f"{100 * useful / ceiling:.1f} % of the matmul ceiling"
-            + (f", {100 * useful / peak:.1f} % of the quoted peak" if peak else "") + ")")
-    t = bench_torch(b, reps, steps, dtype) if learner_name == "VAE_rpl" else None
-    if t is not None:
-        rows[0]["speedup_vs_pytorch"] = j["fps"] / t["fps"]
-        rows.append({"case": case, "impl": f"pytorch {t['version']} eager ({t['device']})",
-                     "learner": learner_name, "batch": b, "dtype": dtype,
-                     "frames_per_s": t["fps"], "first_step_s": t["first_step_s"],
-                     "torch_threads": t["threads"]})
-        line += (f" | torch {t['version']} on {t['device']} ({t['threads']} threads) "
-                 f"{t['fps']:8.1f} frames/s (first step {t['first_step_s']:.2f} s) | "
-                 f"jaml/torch {j['fps'] / t['fps']:.2f}×")
-    print(line, flush=True)
+             "compile_s": j["compile_s"], "frames_per_s": j["fps"], **rates,
+             "xla_gflop_per_frame": j["xla_gflop_per_frame"]}]
+    lines = [f"{case}: jaml {j['fps']:9.1f} frames/s (compile {j['compile_s']:.1f} s; "
+             f"{j['gflop_per_frame']:.3f} useful GFLOP/frame, {_mfu_text(rates)})"]
+    compiled = []
+    for t in peers:
+        impl = f"pytorch {t['version']} {t['label']} ({t['device']})"
+        row = {"case": case, "impl": impl, "learner": learner_name, "batch": b, "dtype": dtype,
+               "torch_threads": t["threads"], "peer_gflop_per_frame": peer_gflop}
+        if "error" in t:
+            rows.append({**row, "note": t["error"]})
+            lines.append(f"    {impl}: {t['error']}")
+            continue
+        eager = t["label"].startswith("eager")
+        row.update({"first_step_s" if eager else "compile_s": t["first_step_s"],
+                    "frames_per_s": t["fps"],
+                    **_rates(j["gflop_per_frame"], t["fps"], ceiling, peak)})
+        rows.append(row)
+        if eager:
+            rows[0]["speedup_vs_pytorch"] = j["fps"] / t["fps"]
+        else:
+            compiled.append(t["fps"])
+        lines.append(f"    {impl} ({t['threads']} threads): {t['fps']:9.1f} frames/s "
+                     f"({'first step' if eager else 'compile + first step'} "
+                     f"{t['first_step_s']:.1f} s; {_mfu_text(row)}) | jaml/torch "
+                     f"{j['fps'] / t['fps']:.2f}×")
+    if compiled:
+        rows[0]["speedup_vs_pytorch_compiled"] = j["fps"] / max(compiled)
+    print("\n".join(lines), flush=True)
     return rows
 
 
@@ -230,27 +253,66 @@ def main(argv=None) -> int:
     parser.add_argument("--dtypes", nargs="+", default=["float32"],
                         choices=["float32", "bfloat16"],
                         help="convolution compute dtypes, each measured for both sides")
+    parser.add_argument("--torch", nargs="*", default=["eager", "compiled"],
+                        choices=["eager", "compiled"],
+                        help="the PyTorch peer's rows (none: jaml alone; skipped without torch)")
+    parser.add_argument("--torch-compile-modes", nargs="+", default=list(DEFAULT_COMPILE_MODES),
+                        metavar="MODE", help="torch.compile modes, a row each (default, "
+                        "reduce-overhead, max-autotune, max-autotune-no-cudagraphs)")
     parser.add_argument("--no-record", action="store_true", help="print only")
     args = parser.parse_args(argv)
+    tl = torch_peer() if args.torch else None
+    modes = ([None] if "eager" in args.torch else []) + (
+        list(args.torch_compile_modes) if "compiled" in args.torch else [])
+    peers: dict[tuple, list[dict]] = {}
+    peer_gflop: dict[str, float] = {}
+    if tl is not None:
+        import torch
+
+        if torch.cuda.is_available():
+            # JAX takes memory as it needs it, after the peer has released its own.
+            os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+        setup_torch()
+        print(f"torch {torch.__version__}: the peer first, {len(modes)} variant(s) per case",
+              flush=True)
+        for name in args.learners:
+            t = tl.seq_len(name, LD_DIM)
+            peer_gflop[name] = sum(tl.useful_flops(name, 2, ld_dim=LD_DIM,
+                                                   action_dim=ACTION_DIM).values()) / 2 / t / 1e9
+            for dtype in args.dtypes:
+                for b in args.batches:
+                    for mode in modes:
+                        r = bench_torch(name, b, args.reps, args.steps, dtype, mode)
+                        peers.setdefault((name, b, dtype), []).append(r)
+                        print(f"  {name} batch {b} {dtype} {r['label']}: "
+                              + (r["error"] if "error" in r else f"{r['fps']:.1f} frames/s"),
+                              flush=True)
+    elif args.torch:
+        print("torch does not import: jaml's rows only")
     print(f"device: {jax.devices()[0].device_kind} ({jax.default_backend()}), "
           f"jax {jax.__version__}, python {platform.python_version()}, {platform.processor()}")
     print(f"train steps (ld_dim {LD_DIM}, Adam), median of {args.reps} reps × {args.steps} steps")
     rows = []
     for dtype in args.dtypes:
         ceiling = matmul_ceiling(dtype, args.matmul_size)
-        print(f"{dtype}: {args.matmul_size}³ matmul ceiling {ceiling:.1f} TFLOP/s", flush=True)
+        print(f"{dtype}: {args.matmul_size}³ matmul ceiling {ceiling:.3g} TFLOP/s", flush=True)
         for name in args.learners:
+            if name in peer_gflop:
+                print(f"{name}: the peer's own count {peer_gflop[name]:.3f} GFLOP/frame "
+                      "(FlopCounterMode, convolutions by real taps)")
             for b in args.batches:
-                rows += _compare(name, b, dtype, args.reps, args.steps, ceiling)
+                rows += _compare(name, b, dtype, args.reps, args.steps, ceiling,
+                                 peers.get((name, b, dtype), []), peer_gflop.get(name))
     if not args.no_record:
         harness.record("learner_throughput", rows,
                        notes="Frames/s of one training step (forward, backward, Adam) on "
                              "random 64×64 frames; useful FLOPs counted from the jaxpr "
                              "(benchmarks/flops.py), MFU against a matmul measured in the "
-                             "same run and the quoted dense peak; the PyTorch peer (VAE_rpl) "
-                             "is the same network in the same run on the same device "
-                             "(cuDNN autotune, TF32); "
-                             "jaml's step compiled with learners.compiler_options(); "
+                             "same run and the quoted dense peak; the PyTorch peer "
+                             "(benchmarks/peers/torch_learners.py) is the same network in the "
+                             "same run on the same device (cuDNN autotune, TF32), eager and "
+                             "torch.compile'd (channels_last), its rates from jaml's FLOP "
+                             "count; jaml's step compiled with learners.compiler_options(); "
                              "bfloat16 rows: jaml's convolutions in bfloat16, the peer under "
                              "torch.autocast(bfloat16).")
     return 0

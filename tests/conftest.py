@@ -13,6 +13,11 @@ loops are marked `xla_optimized` and compile at XLA's full level: at level 0 the
 learning tests took 185 s against 118 s. `JAML_TEST_XLA=optimized|fast` forces one setting for
 every module (to compare). The persistent cache is shared by the xdist workers of one run
 (keyed by xdist's run id), so a program one worker compiled is read, not rebuilt, by the other.
+The cheap setting also compiles with XLA:CPU's older (elemental) fusion emitters, the option
+jaml already gives its env programs (`envs_mjx/compile.py`): the same HLO, emitted by the older
+code generator, which compiles the stream's rendering rollouts and learner steps faster (on two
+cores test_suite_api took 163 s of CPU against 227 s). A module whose checks compare two code
+paths' floats at the default emitters' rounding is marked `xla_fusion_emitters` and keeps them.
 Modules marked `first` are collected first: xdist's loadfile hands out whole modules in
 collection order, and the two-device stacked test (~3 min alone) ended the run on one worker
 while the other sat idle when it came last.
@@ -27,6 +32,7 @@ _TWO_DEVICES = "--xla_force_host_platform_device_count=2"
 os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_TWO_DEVICES}".strip()
 
 import jax  # noqa: E402
+from jax._src import compiler as _compiler  # noqa: E402
 
 _run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
 _cache = (
@@ -46,14 +52,33 @@ if _FORCED not in (None, "optimized", "fast"):
     raise ValueError(f"JAML_TEST_XLA must be 'optimized' or 'fast', got {_FORCED!r}")
 
 
+_OLDER_EMITTERS = [False]  # the current module's setting, read at each compile
+_get_compile_options = _compiler.get_compile_options
+
+
+def _compile_options(*args, env_options_overrides=None, **kwargs):
+    """JAX's compile options, with the older fusion emitters while `_OLDER_EMITTERS` holds (a
+    program's own `compiler_options` still win)."""
+    if _OLDER_EMITTERS[0]:
+        env_options_overrides = {"xla_cpu_use_fusion_emitters": False,
+                                 **(env_options_overrides or {})}
+    return _get_compile_options(*args, env_options_overrides=env_options_overrides, **kwargs)
+
+
+_compiler.get_compile_options = _compile_options
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _xla_optimization(request):
-    """Full XLA optimisation for modules marked `xla_optimized`, most of it off for the rest
-    (read at each compile, so it holds for what the module's fixtures and tests compile)."""
+    """Full XLA optimisation for modules marked `xla_optimized`, most of it off (and the older
+    fusion emitters, unless marked `xla_fusion_emitters`) for the rest (read at each compile, so
+    it holds for what the module's fixtures and tests compile)."""
     optimized = request.node.get_closest_marker("xla_optimized") is not None
     if _FORCED:
         optimized = _FORCED == "optimized"
     jax.config.update("jax_disable_most_optimizations", not optimized)
+    _OLDER_EMITTERS[0] = not optimized and (
+        request.node.get_closest_marker("xla_fusion_emitters") is None)
     yield
 
 

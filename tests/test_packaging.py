@@ -49,7 +49,20 @@ print(jaml.__file__, envs_mjx.__file__, ASSETS, pixels.shape == (64, 64, 3), pix
 def test_wheel_installs_offline_and_renders_from_outside_the_checkout(tmp_path):
     """Build the wheel (no network, this venv's setuptools), install it into a fresh venv with
     `--no-index`, and from a folder outside the checkout make CartPole and render its first
-    frame: the same frame as the checkout's."""
+    frame: the same frame as the checkout's.
+
+    The checkout's process starts first, beside the build, and writes its programs to a
+    compilation cache the installed one then reads: one compile of the frame's program, not
+    two racing on the CI's two cores (the cache key leaves out source paths; a program that
+    differed, e.g. from other assets, would miss it and compile)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "XLA_FLAGS")}
+    env |= {"JAX_COMPILATION_CACHE_DIR": str(tmp_path / "xla-cache"),
+            "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+            "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "0"}
+    # The same script from the checkout (in its own process, so both compile alike).
+    clone_proc = subprocess.Popen([sys.executable, "-c", _OUTSIDE], cwd=ROOT,
+                                  env=env | {"PYTHONPATH": str(ROOT)}, text=True,
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     src = tmp_path / "src"
     for name in _SOURCES:
         copy = shutil.copytree if (ROOT / name).is_dir() else shutil.copy
@@ -65,19 +78,16 @@ def test_wheel_installs_offline_and_renders_from_outside_the_checkout(tmp_path):
     # The dependencies: this interpreter's site-packages, after the fresh venv's own.
     site = subprocess.run([python, "-c", "import site; print(site.getsitepackages()[0])"],
                           capture_output=True, text=True, check=True).stdout.strip()
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "XLA_FLAGS")}
     subprocess.run([sys.executable, "-m", "pip", "--python", python, "install", "--quiet",
                     "--no-index", "--no-deps", wheel], check=True, env=env)
     # Written after the install, so that pip does not see this venv's own jaml as installed.
     deps = {sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]}
     Path(site, "jaml_test_deps.pth").write_text("\n".join(sorted(deps)) + "\n")
-    # The same script from the checkout (in its own process, so both compile alike).
-    procs = [subprocess.Popen([python, "-c", _OUTSIDE], cwd=tmp_path, env=env, text=True,
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE),
-             subprocess.Popen([sys.executable, "-c", _OUTSIDE], cwd=ROOT,
-                              env=env | {"PYTHONPATH": str(ROOT)}, text=True,
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)]
-    outs = [p.communicate() for p in procs]
+    clone_out = clone_proc.communicate()  # its programs cached before the installed one runs
+    installed_proc = subprocess.Popen([python, "-c", _OUTSIDE], cwd=tmp_path, env=env, text=True,
+                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    procs = [installed_proc, clone_proc]
+    outs = [installed_proc.communicate(), clone_out]
     for p, (_, err) in zip(procs, outs, strict=True):
         assert p.returncode == 0, err[-2000:]
     installed, clone = (out.strip().splitlines()[-1].split("|") for out, _ in outs)

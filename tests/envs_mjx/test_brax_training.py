@@ -2,6 +2,7 @@
 
 import jax
 import numpy as np
+import pytest
 from brax.training.agents.ppo import train as ppo
 
 import envs_mjx
@@ -21,6 +22,10 @@ def test_device_put_replicated_copies_each_leaf_to_every_device():
         assert jax.device_put_replicated is brax_compat.device_put_replicated
 
 
+# ~75 s of the default suite on two cores (Brax compiles its pmapped training and evaluation
+# programs): slow-marked. The default suite keeps the compat shim's test above and Brax's
+# training wrappers driving an env (test_domains::test_brax_training_wrappers_drive_the_env).
+@pytest.mark.slow
 def test_brax_ppo_train_runs_on_an_envs_mjx_env():
     """A few PPO steps of Brax's trainer, all local devices (pmap), evaluation included."""
     env = envs_mjx.make("CartPole", pixels="off", episode_length=8)

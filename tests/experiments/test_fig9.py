@@ -130,6 +130,16 @@ def test_the_layout_reads_every_relation_coordinate_from_the_incline_pred():
     assert [p[:3] for p in plan] == [expected[n] for n in names]
 
 
+def _reset_draws(env, resets=3):
+    """The episode fields three resets draw, as NumPy: `env.reset` is `_reset_from` of
+    `_sample_reset`'s draw, and only the draw sets mass and friction (envs_mjx/domains/incline.py),
+    so the draw is jitted alone: three eager resets compiled the settle physics op by op (~60 s
+    of the default suite on two cores)."""
+    keys = jax.random.split(jax.random.key(0), resets)
+    info = jax.jit(jax.vmap(lambda k: env._sample_reset(k)[2]))(keys)
+    return {k: np.asarray(info[k], np.float64) for k in ("mass", "friction")}
+
+
 def test_fixed_dynamics_fix_the_targets_mass_and_friction_at_every_reset():
     """`--dynamics fixed` reaches the target's envs and the source's rows: every reset draws
     the one mass and friction; an unknown name is refused."""
@@ -137,15 +147,14 @@ def test_fixed_dynamics_fix_the_targets_mass_and_friction_at_every_reset():
     config = fig9._config("PRED", 0, ours, "fixed")
     assert config.env == fig9.TARGET and config.env_overrides == fig9._dynamics("fixed")
     env = envs_mjx.make(fig9.TARGET, **config.env_overrides, pixels="off")
-    infos = [env.reset(jax.random.key(k)).info for k in range(3)]
-    assert {round(float(i["mass"]), 6) for i in infos} == {0.2}  # float32
-    assert {round(float(i["friction"]), 6) for i in infos} == {0.3}
+    draws = _reset_draws(env)
+    assert set(np.round(draws["mass"], 6)) == {0.2}  # float32
+    assert set(np.round(draws["friction"], 6)) == {0.3}
     from jaml import sources  # the relations' rows: the source's env, as `learn_relations` makes it
 
-    source_env = sources.make(fig9.SOURCE, **fig9._dynamics("fixed")).env
-    infos = [source_env.reset(jax.random.key(k)).info for k in range(3)]
-    assert {round(float(i["mass"]), 6) for i in infos} == {0.2}
-    assert {round(float(i["friction"]), 6) for i in infos} == {0.3}
+    draws = _reset_draws(sources.make(fig9.SOURCE, **fig9._dynamics("fixed")).env)
+    assert set(np.round(draws["mass"], 6)) == {0.2}
+    assert set(np.round(draws["friction"], 6)) == {0.3}
     assert fig9._config("PRED", 0, ours).env_overrides == {}  # "drawn": the domains' own
     with pytest.raises(ValueError, match=r"dynamics must be one of \['drawn', 'fixed'\]"):
         fig9._config("PRED", 0, ours, "frozen")

@@ -9,6 +9,10 @@ import pytest
 from jaml.cli import main
 from jaml.learners.learner import Learner, Outputs, SingleFrameConfig
 
+# A whole suite run (~100 s on two cores): scheduled early, so that it does not end the run on
+# one worker (tests/conftest.py).
+pytestmark = pytest.mark.first
+
 
 class TinyAE(nn.Module):
     """A deterministic autoencoder on 8×8-pooled frames: the protocol's smallest member."""

@@ -64,14 +64,25 @@ class EnvConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class CartPoleConfig(EnvConfig):
+class BenchmarkConfig(EnvConfig):
+    """The benchmark domains' shared options (pendulums, locomotion).
+
+    reward_scale: None, 1 / episode_length (the paper-era Aux wrappers' division).
+    multicolor: the suite's (and the paper's Fig. 2) version: one of 4 colour schemes drawn per
+      reset, so a learner cannot key on a fixed colour; False: the plain, fixed-colour version.
+    reset_noise: scale of the random perturbation of the initial state.
+    """
+
+    reward_scale: float | None = None
+    multicolor: bool = True
+    reset_noise: float = 0.1
+
+
+@dataclasses.dataclass(frozen=True)
+class CartPoleConfig(BenchmarkConfig):
     family: typing.ClassVar[str] = "pendulum"
     episode_length: int | None = 200
-    reward_scale: float | None = None  # 1 / episode_length
     n_frames: int = 1
-    # The suite's (and the paper's Fig. 2) multicolor version: one of 4 colour schemes drawn per
-    # reset, so a learner cannot key on a fixed colour. False: the plain, fixed-colour version.
-    multicolor: bool = True
     action_mode: str = "sign"
     reset_noise: float = 0.05
     x_threshold: float = 0.4
@@ -79,28 +90,18 @@ class CartPoleConfig(EnvConfig):
 
 
 @dataclasses.dataclass(frozen=True)
-class InvertedPendulumConfig(EnvConfig):
+class InvertedPendulumConfig(BenchmarkConfig):
     family: typing.ClassVar[str] = "pendulum"
     episode_length: int | None = 1000
-    reward_scale: float | None = None  # 1 / episode_length
     n_frames: int = 1
-    # The suite's (and the paper's Fig. 2) multicolor version: one of 4 colour schemes drawn per
-    # reset, so a learner cannot key on a fixed colour. False: the plain, fixed-colour version.
-    multicolor: bool = True
-    reset_noise: float = 0.1
     theta_threshold: float = 0.2
 
 
 @dataclasses.dataclass(frozen=True)
-class LocomotionConfig(EnvConfig):
+class LocomotionConfig(BenchmarkConfig):
     family: typing.ClassVar[str] = "locomotion"
     episode_length: int | None = 1000
-    reward_scale: float | None = None  # 1 / episode_length
     n_frames: int = 4
-    # The suite's (and the paper's Fig. 2) multicolor version: one of 4 colour schemes drawn per
-    # reset, so a learner cannot key on a fixed colour. False: the plain, fixed-colour version.
-    multicolor: bool = True
-    reset_noise: float = 0.1
     target_x: float = 1000.0
     target_y: float = 0.0
     ld_clip: float = 5.0

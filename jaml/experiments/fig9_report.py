@@ -164,19 +164,24 @@ def stream_check(out: Path, methods) -> list[str]:
     and PPO losses (metrics.jsonl) compared with PRED's, bit for bit; a seed that differs is
     named with the first epoch where it does."""
     keys = ("episode_return", "ppo/total_loss")
+
+    def stream(run: Path) -> dict[int, str]:
+        return {r["epoch"]: json.dumps([r.get(k) for k in keys])
+                for r in read_jsonl(run / "metrics.jsonl")}
+
+    base_streams: dict[str, dict[int, str]] = {}  # PRED's, read once for every method
     lines = []
     for method in methods:
         if method == BASE:
             continue
         same, differ, missing = [], [], []
         for d in sorted((out / method).glob("seed_*")):
-            mine = read_jsonl(d / "metrics.jsonl")
-            base = read_jsonl(out / BASE / d.name / "metrics.jsonl")
-            if not (mine and base):
+            if d.name not in base_streams:
+                base_streams[d.name] = stream(out / BASE / d.name)
+            a, b = stream(d), base_streams[d.name]
+            if not (a and b):
                 missing.append(d.name)
                 continue
-            a = {r["epoch"]: json.dumps([r.get(k) for k in keys]) for r in mine}
-            b = {r["epoch"]: json.dumps([r.get(k) for k in keys]) for r in base}
             common = sorted(a.keys() & b.keys())
             first = next((e for e in common if a[e] != b[e]), None)
             if common and first is None:

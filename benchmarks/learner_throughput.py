@@ -2,7 +2,8 @@
 
     python benchmarks/learner_throughput.py [--learners VAE_rpl PRED DSA] [--batches 64 256 1024]
         [--reps 5] [--steps 3] [--dtypes float32 bfloat16] [--torch eager compiled]
-        [--torch-compile-modes max-autotune-no-cudagraphs reduce-overhead]
+        [--torch-compile-modes max-autotune-no-cudagraphs default]
+        [--torch-memory-formats channels_last contiguous]
 
 jaml's rows carry the step's useful FLOPs per frame (`benchmarks/flops.py`: the convolutions and
 matmuls the model asks for, counted from its jaxpr; XLA's own `cost_analysis` counts no cuDNN
@@ -16,7 +17,8 @@ repetitions of `steps` train steps each. jaml's step is compiled with `learners.
 If torch imports, the same network in PyTorch (`benchmarks/peers/torch_learners.py`: the three
 learners, jaml's parameter counts and FLOPs) is timed the same way in the same run on the same
 device: eager, and its whole train step (zero_grad, forward, backward, Adam) under
-`torch.compile` in each `--torch-compile-modes` mode with channels_last activations. Its rows
+`torch.compile` in each `--torch-compile-modes` mode, each in every `--torch-memory-formats`
+layout of activations and conv weights (channels_last by default). Its rows
 carry TFLOP/s and MFU from jaml's count for the same learner (so the rates compare as the
 frames/s do) and the peer's own count (`peer_gflop_per_frame`: FlopCounterMode, convolutions by
 their real taps, whatever formulation a backend runs). The peer gets what a careful PyTorch user
@@ -25,9 +27,11 @@ and cuDNN already use TF32 for float32 convolutions on this class of GPU), fused
 on a GPU. With bfloat16, jaml's convolutions compute in bfloat16 (`compute_dtype`; parameters,
 batch norms, heads, loss and Adam float32) and the peer runs its forward pass under
 `torch.autocast(dtype=torch.bfloat16)`, the mixed precision a PyTorch user would reach for (it also
-casts the MLP, heads and RNNs). On a GPU the peer is measured first, every case, while JAX holds
-no memory (XLA_PYTHON_CLIENT_PREALLOCATE=false, set here unless already set), and releases its
-cache after each; a case that runs out of memory is reported, not fatal.
+casts the MLP, heads and RNNs). Case by case (learner, dtype, batch), the peer's variants run
+first and release their memory, then jaml's step (XLA_PYTHON_CLIENT_PREALLOCATE=false, set here
+unless already set), and the case's rows are recorded at once, so a run cut short keeps the
+cases it finished. A peer variant that fails (out of memory, a compiler error) is a row with the
+error's first line, not fatal.
 """
 
 from __future__ import annotations
@@ -123,9 +127,18 @@ def bench_jax(b: int, reps: int, steps: int, dtype: str = "float32",
             "seq_len": seq_len}
 
 
-# Until the GPU run says otherwise: Inductor's autotuned kernels without CUDA graphs
-# (reduce-overhead's graphs pay off where launches bound a step; to be compared on the GPU).
+# Inductor's autotuned kernels without CUDA graphs (its autotuning takes minutes a case on an
+# H100: a GPU job runs one learner and mode per process).
+NOTES = ("Frames/s of one training step (forward, backward, Adam) on random 64×64 frames; "
+         "useful FLOPs counted from the jaxpr (benchmarks/flops.py), MFU against a matmul "
+         "measured in the same run and the quoted dense peak; the PyTorch peer "
+         "(benchmarks/peers/torch_learners.py) is the same network in the same run on the same "
+         "device (cuDNN autotune, TF32), eager and torch.compile'd, in the layout its label "
+         "names, its rates from jaml's FLOP count; jaml's step compiled with "
+         "learners.compiler_options(); bfloat16 rows: jaml's convolutions in bfloat16, the peer "
+         "under torch.autocast(bfloat16).")
 DEFAULT_COMPILE_MODES = ("max-autotune-no-cudagraphs",)
+MEMORY_FORMATS = ("channels_last", "contiguous")
 
 
 def torch_peer():
@@ -146,16 +159,19 @@ def setup_torch() -> None:
 
 
 def bench_torch(name: str, b: int, reps: int, steps: int, dtype: str = "float32",
-                compile_mode: str | None = None, warmup: int = 3) -> dict:
+                compile_mode: str | None = None, warmup: int = 3,
+                memory_format: str = "channels_last") -> dict:
     """The peer's train step: frames/s (median over reps of `steps` synchronised steps) after
     its first step (timed apart: compilation, cuDNN autotuning) and `warmup` more (CUDA graph
-    recording under reduce-overhead). {"error": ...} when it runs out of memory."""
+    recording under reduce-overhead). {"error": ...} when it fails: out of memory, or a
+    compiler error (its first line)."""
     import torch
 
     tl = torch_peer()
     # The peer runs where jaml runs: on the GPU when there is one.
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    variant = tl.Variant(compile_mode, channels_last=compile_mode is not None, dtype=dtype)
+    variant = tl.Variant(compile_mode, channels_last=memory_format == "channels_last",
+                         dtype=dtype)
     info = {"label": variant.label, "version": torch.__version__, "device": str(device),
             "threads": torch.get_num_threads()}
     torch._dynamo.reset()  # a fresh compile per case, free of earlier cases' guards
@@ -179,6 +195,9 @@ def bench_torch(name: str, b: int, reps: int, steps: int, dtype: str = "float32"
         return {**info, "first_step_s": first_s, "fps": fps}
     except torch.OutOfMemoryError as e:
         return {**info, "error": f"out of memory: {str(e).splitlines()[0][:120]}"}
+    except Exception as e:
+        lines = [ln for ln in str(e).splitlines() if ln.strip()] or [""]
+        return {**info, "error": f"{type(e).__name__}: {lines[0][:160]}"}
     finally:
         peer = None  # the model, its optimizer state and compiled graphs, released
         torch._dynamo.reset()
@@ -213,7 +232,7 @@ def _compare(learner_name: str, b: int, dtype: str, reps: int, steps: int, ceili
              "xla_gflop_per_frame": j["xla_gflop_per_frame"]}]
     lines = [f"{case}: jaml {j['fps']:9.1f} frames/s (compile {j['compile_s']:.1f} s; "
              f"{j['gflop_per_frame']:.3f} useful GFLOP/frame, {_mfu_text(rates)})"]
-    compiled = []
+    fastest = {"eager": [], "compiled": []}
     for t in peers:
         impl = f"pytorch {t['version']} {t['label']} ({t['device']})"
         row = {"case": case, "impl": impl, "learner": learner_name, "batch": b, "dtype": dtype,
@@ -227,16 +246,14 @@ def _compare(learner_name: str, b: int, dtype: str, reps: int, steps: int, ceili
                     "frames_per_s": t["fps"],
                     **_rates(j["gflop_per_frame"], t["fps"], ceiling, peak)})
         rows.append(row)
-        if eager:
-            rows[0]["speedup_vs_pytorch"] = j["fps"] / t["fps"]
-        else:
-            compiled.append(t["fps"])
+        fastest["eager" if eager else "compiled"].append(t["fps"])
         lines.append(f"    {impl} ({t['threads']} threads): {t['fps']:9.1f} frames/s "
                      f"({'first step' if eager else 'compile + first step'} "
                      f"{t['first_step_s']:.1f} s; {_mfu_text(row)}) | jaml/torch "
                      f"{j['fps'] / t['fps']:.2f}×")
-    if compiled:
-        rows[0]["speedup_vs_pytorch_compiled"] = j["fps"] / max(compiled)
+    for run, key in (("eager", "speedup_vs_pytorch"), ("compiled", "speedup_vs_pytorch_compiled")):
+        if fastest[run]:  # against the peer's fastest variant of that kind
+            rows[0][key] = j["fps"] / max(fastest[run])
     print("\n".join(lines), flush=True)
     return rows
 
@@ -259,13 +276,15 @@ def main(argv=None) -> int:
     parser.add_argument("--torch-compile-modes", nargs="+", default=list(DEFAULT_COMPILE_MODES),
                         metavar="MODE", help="torch.compile modes, a row each (default, "
                         "reduce-overhead, max-autotune, max-autotune-no-cudagraphs)")
+    parser.add_argument("--torch-memory-formats", nargs="+", default=["channels_last"],
+                        choices=MEMORY_FORMATS, help="the peer's activation and conv-weight "
+                        "layouts, a row each per mode (eager included)")
     parser.add_argument("--no-record", action="store_true", help="print only")
     args = parser.parse_args(argv)
     tl = torch_peer() if args.torch else None
     modes = ([None] if "eager" in args.torch else []) + (
         list(args.torch_compile_modes) if "compiled" in args.torch else [])
-    peers: dict[tuple, list[dict]] = {}
-    peer_gflop: dict[str, float] = {}
+    variants = [(mode, fmt) for mode in modes for fmt in args.torch_memory_formats]
     if tl is not None:
         import torch
 
@@ -273,50 +292,39 @@ def main(argv=None) -> int:
             # JAX takes memory as it needs it, after the peer has released its own.
             os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
         setup_torch()
-        print(f"torch {torch.__version__}: the peer first, {len(modes)} variant(s) per case",
-              flush=True)
-        for name in args.learners:
-            t = tl.seq_len(name, LD_DIM)
-            peer_gflop[name] = sum(tl.useful_flops(name, 2, ld_dim=LD_DIM,
-                                                   action_dim=ACTION_DIM).values()) / 2 / t / 1e9
-            for dtype in args.dtypes:
-                for b in args.batches:
-                    for mode in modes:
-                        r = bench_torch(name, b, args.reps, args.steps, dtype, mode)
-                        peers.setdefault((name, b, dtype), []).append(r)
-                        print(f"  {name} batch {b} {dtype} {r['label']}: "
-                              + (r["error"] if "error" in r else f"{r['fps']:.1f} frames/s"),
-                              flush=True)
+        print(f"torch {torch.__version__}: {len(variants)} peer variant(s) per case, each "
+              "before jaml's step", flush=True)
     elif args.torch:
         print("torch does not import: jaml's rows only")
+        variants = []
     print(f"device: {jax.devices()[0].device_kind} ({jax.default_backend()}), "
           f"jax {jax.__version__}, python {platform.python_version()}, {platform.processor()}")
     print(f"train steps (ld_dim {LD_DIM}, Adam), median of {args.reps} reps × {args.steps} steps")
-    rows = []
     for dtype in args.dtypes:
         ceiling = matmul_ceiling(dtype, args.matmul_size)
         print(f"{dtype}: {args.matmul_size}³ matmul ceiling {ceiling:.3g} TFLOP/s", flush=True)
         for name in args.learners:
-            if name in peer_gflop:
-                print(f"{name}: the peer's own count {peer_gflop[name]:.3f} GFLOP/frame "
+            peer_gflop = None
+            if variants:
+                t = tl.seq_len(name, LD_DIM)
+                peer_gflop = sum(tl.useful_flops(name, 2, ld_dim=LD_DIM,
+                                                 action_dim=ACTION_DIM).values()) / 2 / t / 1e9
+                print(f"{name}: the peer's own count {peer_gflop:.3f} GFLOP/frame "
                       "(FlopCounterMode, convolutions by real taps)")
             for b in args.batches:
-                rows += _compare(name, b, dtype, args.reps, args.steps, ceiling,
-                                 peers.get((name, b, dtype), []), peer_gflop.get(name))
-    if not args.no_record:
-        harness.record("learner_throughput", rows,
-                       notes="Frames/s of one training step (forward, backward, Adam) on "
-                             "random 64×64 frames; useful FLOPs counted from the jaxpr "
-                             "(benchmarks/flops.py), MFU against a matmul measured in the "
-                             "same run and the quoted dense peak; the PyTorch peer "
-                             "(benchmarks/peers/torch_learners.py) is the same network in the "
-                             "same run on the same device (cuDNN autotune, TF32), eager and "
-                             "torch.compile'd (channels_last), its rates from jaml's FLOP "
-                             "count; jaml's step compiled with learners.compiler_options(); "
-                             "bfloat16 rows: jaml's convolutions in bfloat16, the peer under "
-                             "torch.autocast(bfloat16).")
+                peers = []
+                for mode, fmt in variants:
+                    r = bench_torch(name, b, args.reps, args.steps, dtype, mode,
+                                    memory_format=fmt)
+                    peers.append(r)
+                    print(f"  {name} batch {b} {dtype} {r['label']}: "
+                          + (r["error"] if "error" in r else f"{r['fps']:.1f} frames/s"),
+                          flush=True)
+                rows = _compare(name, b, dtype, args.reps, args.steps, ceiling, peers,
+                                peer_gflop)
+                if not args.no_record:
+                    harness.record("learner_throughput", rows, notes=NOTES)
     return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())

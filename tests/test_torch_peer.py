@@ -124,3 +124,28 @@ def test_bfloat16_autocast_step_runs_and_is_near_the_float32_loss(name):
     want, got = _step_losses(tl, f32, 1), _step_losses(tl, bf16, 1)
     assert np.isfinite(got).all()
     np.testing.assert_allclose(got, want, rtol=2e-2)
+
+
+def test_a_failing_peer_variant_is_an_error_row_and_the_case_goes_on(monkeypatch):
+    """A compiler error in one variant (as Inductor's stride assertion on PyTorch 2.11's GPU
+    backward) is reported in that variant's row, and the case's other rows are still measured."""
+    tl = _peer()
+    from benchmarks import learner_throughput as lt
+
+    real = tl.Peer
+
+    def peer(name, variant, **kwargs):
+        if variant.compile_mode is not None:
+            raise AssertionError("expected size 8==8, stride 16==1 at dim=1\nmore detail")
+        return real(name, variant, **kwargs)
+
+    monkeypatch.setattr(tl, "Peer", peer)
+    bad = lt.bench_torch("VAE_rpl", 2, 1, 1, compile_mode="default")
+    assert bad["error"] == "AssertionError: expected size 8==8, stride 16==1 at dim=1"
+    assert bad["label"] == "compiled default, channels_last"
+    good = lt.bench_torch("VAE_rpl", 2, 1, 1, memory_format="contiguous")
+    assert good["label"] == "eager" and good["fps"] > 0
+    rows = lt._compare("VAE_rpl", 2, "float32", 1, 1, 1.0, [bad, good], None)
+    assert [r.get("note") for r in rows[1:]] == [bad["error"], None]
+    assert rows[0]["speedup_vs_pytorch"] == rows[0]["frames_per_s"] / good["fps"]
+    assert "speedup_vs_pytorch_compiled" not in rows[0]

@@ -58,7 +58,13 @@ METHODS = {
     "PRED+random_rows": ("PRED", "trnsv", "random"),
     "PRED+random_rows_5pct": ("PRED", "trnsv", "random@0.05"),
     "VAE_rpl": ("VAE_rpl", None, None),
+    "PRED+beta_1of11": ("PRED", None, None),
 }
+# Learner options a method sets over the recipe's. PRED+beta_1of11 tests what the random-row
+# control does: over random rows, the released 10 × NLL term adds 10 × the batch's mean NLL in
+# expectation, so the control's loss is about 11 · NLL + KL, which Adam (invariant to the loss's
+# scale) follows as NLL + KL / 11.
+METHOD_OPTIONS = {"PRED+beta_1of11": {"beta": 1 / 11}}
 PILOT = "PRED+AML_trnsv"  # the method whose pilot runs choose the weight ("ours")
 # Where the relations' coordinates sit in PRED's per-step latent, placed on the slots the learner
 # declares (`LearnerConfig.penalty_slots`): θ on the last static entry (the reference's θ̃), s and
@@ -205,12 +211,13 @@ def _dynamics(dynamics: str) -> dict:
 
 
 def _config(learner: str, seed: int, recipe: Recipe, dynamics: str = "drawn",
-            scale: dict | None = None):
+            scale: dict | None = None, method: str | None = None):
     from jaml.stream import for_env
 
     options = dict(recipe.learner_overrides)
     if learner == "PRED":
         options |= recipe.pred_overrides
+    options |= METHOD_OPTIONS.get(method, {})
     return for_env(TARGET, learner, seed=seed, env_overrides=_dynamics(dynamics),
                    learner_overrides=options, **(scale or recipe.scale))
 
@@ -268,7 +275,7 @@ def run_method(out: Path, method: str, seeds, penalty: Penalty, recipe: Recipe, 
             raise ValueError(f"{directory} was run with {recorded.read_text()}, not {record}; "
                              "use the same options or a new --out")
         _write_json(recorded, record)
-    configs = [_config(learner, seed, recipe, dynamics, scale) for seed in seeds]
+    configs = [_config(learner, seed, recipe, dynamics, scale, method) for seed in seeds]
     _runs.train_seeds(method, configs, directories, latent_penalty=latent_penalty,
                       **call_options)
 

@@ -1,6 +1,7 @@
 """Fig. 9: the recipes' configs, the report (paired and Welch intervals, the stream check, the
 primary comparison, the figure) and the driver's steps."""
 
+import dataclasses
 import gzip
 import json
 import math
@@ -158,6 +159,19 @@ def test_fixed_dynamics_fix_the_targets_mass_and_friction_at_every_reset():
     assert fig9._config("PRED", 0, ours).env_overrides == {}  # "drawn": the domains' own
     with pytest.raises(ValueError, match=r"dynamics must be one of \['drawn', 'fixed'\]"):
         fig9._config("PRED", 0, ours, "frozen")
+
+
+def test_the_beta_control_weighs_the_kl_as_the_random_row_controls_loss_does_in_expectation():
+    """PRED+beta_1of11: β = 1/11 over the recipe's PRED, which the other methods keep at 1."""
+    reference = fig9.RECIPES["reference"]
+    ld = 5
+
+    def learner(method):
+        return fig9._config("PRED", 0, reference, method=method).learner_config(ld_dim=ld)
+
+    control, pred = learner("PRED+beta_1of11"), learner("PRED")
+    assert control.beta == pytest.approx(1 / 11) and pred.beta == 1.0
+    assert dataclasses.replace(control, beta=1.0) == pred  # nothing else differs
 
 
 def test_a_method_without_relations_neither_fits_them_nor_runs_the_pilot(tmp_path, monkeypatch):

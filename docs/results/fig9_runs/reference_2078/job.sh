@@ -7,17 +7,20 @@
 # process stops by its --time-limit with a checkpoint; the next call resumes. Other methods
 # (the controls, AML_syz) run in the same lanes get the same streams, bit for bit, so they pair
 # with the committed PRED records (the report's stream check says whether they did).
-#   bash docs/results/fig9_runs/reference_2078/job.sh LIMIT HARD_LIMIT [OUT [METHOD_A METHOD_B]]
+#   bash docs/results/fig9_runs/reference_2078/job.sh LIMIT HARD_LIMIT [OUT [METHOD_A METHOD_B [DYNAMICS]]]
+# DYNAMICS: drawn (default, the runs committed here) or fixed, with relations fitted on the CPU
+# by `jaml fig9 --recipe reference --dynamics fixed --pilot-only --out runs/fig9ref_fixed`.
 set -u
-limit=$1; hard=$2; out=${3:-runs/fig9_2078}; a=${4:-PRED}; b=${5:-PRED+AML_trnsv}
+limit=$1; hard=$2; out=${3:-runs/fig9_2078}; a=${4:-PRED}; b=${5:-PRED+AML_trnsv}; dyn=${6:-drawn}
 mkdir -p "$out/logs"
 # The relations were fitted once on a CPU (`jaml fig9 --pilot-only`) and travel with the job.
-[ -d "$out/relations" ] || cp -r runs/fig9ref/relations "$out/relations"
+rel=runs/fig9ref/relations; [ "$dyn" = drawn ] || rel=runs/fig9ref_$dyn/relations
+[ -d "$out/relations" ] || cp -r "$rel" "$out/relations"
 export XLA_FLAGS="--xla_gpu_deterministic_ops=true" PYTHONUNBUFFERED=1
 export JAX_COMPILATION_CACHE_DIR=$PWD/runs/jax_cache XLA_PYTHON_CLIENT_MEM_FRACTION=0.9
 lane() {  # lane GPU METHOD "SEEDS"
   CUDA_VISIBLE_DEVICES=$1 timeout "$hard" python -m jaml.experiments.fig9 --out "$out" \
-    --recipe reference --methods "$2" --seeds $3 --eval-every 400 --checkpoint-every 400 \
+    --recipe reference --dynamics "$dyn" --methods "$2" --seeds $3 --eval-every 400 --checkpoint-every 400 \
     --time-limit "$limit" >>"$out/logs/$2.seeds${3// /}.log" 2>&1
 }
 lane 0 "$a" "0 1 2" & lane 1 "$b" "0 1 2" &

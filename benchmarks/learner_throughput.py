@@ -3,7 +3,7 @@
     python benchmarks/learner_throughput.py [--learners VAE_rpl PRED DSA] [--batches 64 256 1024]
         [--reps 5] [--steps 3] [--dtypes float32 bfloat16] [--torch eager compiled]
         [--torch-compile-modes max-autotune-no-cudagraphs default]
-        [--torch-memory-formats channels_last contiguous]
+        [--torch-memory-formats channels_last contiguous] [--upsample-forms auto dilated phase]
 
 jaml's rows carry the step's useful FLOPs per frame (`benchmarks/flops.py`: the convolutions and
 matmuls the model asks for, counted from its jaxpr; XLA's own `cost_analysis` counts no cuDNN
@@ -12,7 +12,10 @@ ceiling measured in the same run (a large matmul in the same dtype) and, on a de
 peak is known, of that quoted peak. A frame is one frame a step reads (batch × T for a sequence
 learner). Compile time is reported apart; steady state is the median over `reps` blocked
 repetitions of `steps` train steps each. jaml's step is compiled with `learners.compiler_options()`
-(on the CPU: convolutions on XLA's Eigen path, not YNNPACK; elsewhere XLA's defaults).
+(on the CPU: convolutions on XLA's Eigen path, not YNNPACK; elsewhere XLA's defaults). Its
+decoder's transposed convolutions run in each `--upsample-forms` formulation, a row each: "auto"
+(the learner's default: the phase pair on the CPU, sub-pixel elsewhere), "subpixel", "phase",
+"dilated" (XLA's input-dilated convolution); the useful FLOPs are the same for all.
 
 If torch imports, the same network in PyTorch (`benchmarks/peers/torch_learners.py`: the three
 learners, jaml's parameter counts and FLOPs) is timed the same way in the same run on the same
@@ -51,6 +54,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import flops, harness
 from jaml import learners
+from jaml.learners.config import UPSAMPLE_FORMS
 
 LD_DIM, ACTION_DIM = 4, 1  # CartPole: D = 4, latent 2·D = 8
 # Quoted dense peaks (TFLOP/s; NVIDIA's H100 SXM / H200 datasheets, without sparsity): float32
@@ -96,14 +100,21 @@ def _median_rate(run_steps, frames_per_step: int, reps: int, steps: int) -> floa
 
 
 def bench_jax(b: int, reps: int, steps: int, dtype: str = "float32",
-              learner_name: str = "VAE_rpl") -> dict:
-    learner = learners.make(learner_name, ld_dim=LD_DIM, compute_dtype=dtype)
+              learner_name: str = "VAE_rpl", upsample_form: str = "auto") -> dict:
+    learner = learners.make(learner_name, ld_dim=LD_DIM, compute_dtype=dtype,
+                            upsample_form=upsample_form)
     opt = learners.default_optimizer(learner)
     seq_len = learner.config.seq_len
     batch = tuple(jax.device_put(x) for x in _batch(b, seq_len))
     state = learners.init_train_state(learner, opt, jax.random.key(0), batch)
     train_step = learners.make_train_step(learner, opt)
-    useful = flops.flops(train_step, state, batch, jax.random.key(0))
+    # Useful work is the model's, whatever formulation runs: counted on the plain (input-dilated)
+    # transposed convolutions, whose inserted zeros flops.py does not count (the sub-pixel form
+    # executes 36 taps an output phase where 16 meet real input).
+    plain = learners.make(learner_name, ld_dim=LD_DIM, compute_dtype=dtype,
+                          upsample_form="dilated")
+    useful = flops.flops(learners.make_train_step(plain, learners.default_optimizer(plain)),
+                         state, batch, jax.random.key(0))
     t0 = time.perf_counter()
     step = jax.jit(train_step, donate_argnums=0,
                    compiler_options=learners.compiler_options()).lower(
@@ -220,18 +231,25 @@ def _mfu_text(rates: dict) -> str:
 
 
 def _compare(learner_name: str, b: int, dtype: str, reps: int, steps: int, ceiling: float,
-             peers: list[dict], peer_gflop: float | None) -> list[dict]:
-    """jaml at one batch size and dtype, beside the peer's rows measured for the same case."""
-    j = bench_jax(b, reps, steps, dtype, learner_name)
-    case = (f"{learner_name} train step, batch {b}" + (f" × {j['seq_len']} frames"
-            if j["seq_len"] > 1 else "") + ("" if dtype == "float32" else f", {dtype}"))
+             peers: list[dict], peer_gflop: float | None,
+             upsample_forms=("auto",)) -> list[dict]:
+    """jaml at one batch size and dtype, a row per decoder formulation (`upsample_forms`),
+    beside the peer's rows measured for the same case."""
     peak = quoted_peak(dtype)
-    rates = _rates(j["gflop_per_frame"], j["fps"], ceiling, peak)
-    rows = [{"case": case, "impl": "jaml", "learner": learner_name, "batch": b, "dtype": dtype,
-             "compile_s": j["compile_s"], "frames_per_s": j["fps"], **rates,
-             "xla_gflop_per_frame": j["xla_gflop_per_frame"]}]
-    lines = [f"{case}: jaml {j['fps']:9.1f} frames/s (compile {j['compile_s']:.1f} s; "
-             f"{j['gflop_per_frame']:.3f} useful GFLOP/frame, {_mfu_text(rates)})"]
+    jaml_rows, lines, j = [], [], None
+    for form in upsample_forms:
+        j = bench_jax(b, reps, steps, dtype, learner_name, form)
+        case = (f"{learner_name} train step, batch {b}" + (f" × {j['seq_len']} frames"
+                if j["seq_len"] > 1 else "") + ("" if dtype == "float32" else f", {dtype}"))
+        impl = "jaml" if form == "auto" else f"jaml, upsample {form}"
+        rates = _rates(j["gflop_per_frame"], j["fps"], ceiling, peak)
+        jaml_rows.append({"case": case, "impl": impl, "learner": learner_name, "batch": b,
+                          "dtype": dtype, "compile_s": j["compile_s"], "frames_per_s": j["fps"],
+                          **rates, "xla_gflop_per_frame": j["xla_gflop_per_frame"]})
+        lines.append(f"{case}: {impl} {j['fps']:9.1f} frames/s (compile {j['compile_s']:.1f} s; "
+                     f"{j['gflop_per_frame']:.3f} useful GFLOP/frame, {_mfu_text(rates)})")
+    fps = jaml_rows[0]["frames_per_s"]  # the ratios are the first form's (auto by default)
+    rows = list(jaml_rows)
     fastest = {"eager": [], "compiled": []}
     for t in peers:
         impl = f"pytorch {t['version']} {t['label']} ({t['device']})"
@@ -250,10 +268,11 @@ def _compare(learner_name: str, b: int, dtype: str, reps: int, steps: int, ceili
         lines.append(f"    {impl} ({t['threads']} threads): {t['fps']:9.1f} frames/s "
                      f"({'first step' if eager else 'compile + first step'} "
                      f"{t['first_step_s']:.1f} s; {_mfu_text(row)}) | jaml/torch "
-                     f"{j['fps'] / t['fps']:.2f}×")
+                     f"{fps / t['fps']:.2f}×")
     for run, key in (("eager", "speedup_vs_pytorch"), ("compiled", "speedup_vs_pytorch_compiled")):
-        if fastest[run]:  # against the peer's fastest variant of that kind
-            rows[0][key] = j["fps"] / max(fastest[run])
+        if fastest[run]:  # each jaml row against the peer's fastest variant of that kind
+            for r in jaml_rows:
+                r[key] = r["frames_per_s"] / max(fastest[run])
     print("\n".join(lines), flush=True)
     return rows
 
@@ -279,6 +298,9 @@ def main(argv=None) -> int:
     parser.add_argument("--torch-memory-formats", nargs="+", default=["channels_last"],
                         choices=MEMORY_FORMATS, help="the peer's activation and conv-weight "
                         "layouts, a row each per mode (eager included)")
+    parser.add_argument("--upsample-forms", nargs="+", default=["auto"],
+                        choices=list(UPSAMPLE_FORMS), help="jaml's decoder formulations "
+                        "(LearnerConfig.upsample_form), a row each; ratios are the first's")
     parser.add_argument("--no-record", action="store_true", help="print only")
     args = parser.parse_args(argv)
     tl = torch_peer() if args.torch else None
@@ -321,7 +343,7 @@ def main(argv=None) -> int:
                           + (r["error"] if "error" in r else f"{r['fps']:.1f} frames/s"),
                           flush=True)
                 rows = _compare(name, b, dtype, args.reps, args.steps, ceiling, peers,
-                                peer_gflop)
+                                peer_gflop, args.upsample_forms)
                 if not args.no_record:
                     harness.record("learner_throughput", rows, notes=NOTES)
     return 0

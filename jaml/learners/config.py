@@ -14,6 +14,9 @@ if typing.TYPE_CHECKING:
 
 # The encoder's view of the last input frame's action (`elbo.encoder_actions`).
 CURRENT_ACTIONS = ("observed", "hidden")
+# How the decoder's k4 s2 p1 transposed convolutions are computed (`networks.upsample2x`):
+# "auto" by backend ("phase" on the CPU, "subpixel" elsewhere), or one formulation, all equal.
+UPSAMPLE_FORMS = ("auto", "subpixel", "phase", "dilated")
 # The KL term's forms (`elbo.kl_to_standard_normal`).
 KL_FORMS = ("standard", "reference")
 # How the decoded frames' log-likelihoods combine (`LearnerConfig.frame_nll`).
@@ -45,6 +48,8 @@ class LearnerConfig:
       action is zeroed (`elbo.encoder_actions`).
     kl_form: "standard" KL to N(0, I), or the reference code's form (`elbo.kl_to_standard_normal`;
       learners with a standard-normal prior: VAEs, PRED, SVAE).
+    upsample_form: how the conv decoder computes its transposed convolutions (`UPSAMPLE_FORMS`;
+      the same function each way, a speed choice per device).
     """
 
     ld_dim: int
@@ -60,8 +65,12 @@ class LearnerConfig:
     compute_dtype: str = "float32"
     current_action: str = "observed"
     kl_form: str = "standard"
+    upsample_form: str = "auto"
 
     def __post_init__(self):
+        if self.upsample_form not in UPSAMPLE_FORMS:
+            raise ValueError(f"upsample_form must be one of {list(UPSAMPLE_FORMS)}, got "
+                             f"{self.upsample_form!r}")
         if self.current_action not in CURRENT_ACTIONS:
             raise ValueError(f"current_action must be one of {list(CURRENT_ACTIONS)}, got "
                              f"{self.current_action!r}")

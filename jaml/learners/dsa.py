@@ -46,7 +46,8 @@ class DisentangledSequentialAE(nn.Module):
         self.prior_rnn = lstm(c.prior_hidden)
         self.prior_fc = nn.Dense(c.prior_hidden)
         self.prior_head = GaussianHead(c.z_step, "sigmoid", c.logvar_limit)
-        self.decoder = ConvDecoder(c.deconv_filters, compute_dtype=c.conv_dtype)
+        self.decoder = ConvDecoder(c.deconv_filters, compute_dtype=c.conv_dtype,
+                                   upsample_form=c.upsample_form)
 
     def features(self, x, train: bool):
         b, t = x.shape[:2]

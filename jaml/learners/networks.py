@@ -5,6 +5,7 @@ Shapes: N frames (B·T flattened), B batch, T time, F conv feature, Z latent.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 
@@ -13,6 +14,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
+
+from jaml.learners.config import UPSAMPLE_FORMS
 
 # PyTorch BatchNorm2d defaults (momentum 0.1 on the new statistic, eps 1e-5), as in the reference.
 _BN = {"momentum": 0.9, "epsilon": 1e-5}
@@ -218,7 +221,7 @@ class ConvEncoder(nn.Module):
 
 
 def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,
-               cpu_kernels: bool | None = None) -> jax.Array:
+               cpu_kernels: bool | None = None, form: str = "auto") -> jax.Array:
     """[N, H, W, I] → [N, 2H, 2W, O]: PyTorch's ConvTranspose2d(k=4, s=2, p=1), kernel [4, 4, I, O].
 
     out[s·i − p + k] += x[i]·w[k] per axis, without input dilation: XLA's CPU backend runs
@@ -228,11 +231,21 @@ def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,
     then depth-to-space. On the CPU `_doubling`: a 2×2 convolution of the padded input onto the
     four phases (`_phase_conv`), whose input gradient is the k4 s2 p1 convolution's forward pass.
     compute_dtype (e.g. bfloat16) is the convolution's input and kernel dtype; None keeps x's.
+    form ("auto": by `cpu_kernels` as above) picks one formulation on any backend: "subpixel"
+    (the 3×3 convolution, 36 taps an output phase against 16 useful), "phase" (`_doubling`, 16),
+    or "dilated": `lax.conv_transpose`, XLA's input-dilated convolution and its autodiff.
     """
+    if form not in UPSAMPLE_FORMS:
+        raise ValueError(f"upsample form must be one of {list(UPSAMPLE_FORMS)}, got {form!r}")
     if compute_dtype is not None:
         x, kernel = x.astype(compute_dtype), kernel.astype(compute_dtype)
-    if _use_cpu_kernels(cpu_kernels):
+    if form == "auto":
+        form = "phase" if _use_cpu_kernels(cpu_kernels) else "subpixel"
+    if form == "phase":
         return _doubling(x, kernel)
+    if form == "dilated":  # the flipped kernel over x dilated by 2, padded by k − 1 − p = 2
+        return lax.conv_transpose(x, kernel[::-1, ::-1], (2, 2), ((2, 2), (2, 2)),
+                                  dimension_numbers=_NHWC)
     n, h, w, i = x.shape
     o = kernel.shape[-1]
     padded = jnp.pad(kernel, ((0, 1), (0, 1), (0, 0), (0, 0)))  # tap index 4 reads zeros
@@ -250,13 +263,14 @@ class Upsample2x(nn.Module):
     features: int
     compute_dtype: jnp.dtype = jnp.float32
     cpu_kernels: bool | None = None
+    form: str = "auto"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         kernel = self.param("kernel", nn.initializers.lecun_normal(),
                             (4, 4, x.shape[-1], self.features))
         bias = self.param("bias", nn.initializers.zeros, (self.features,))
-        return upsample2x(x, kernel, self.compute_dtype, self.cpu_kernels) + bias
+        return upsample2x(x, kernel, self.compute_dtype, self.cpu_kernels, self.form) + bias
 
 
 class ConvDecoder(nn.Module):
@@ -272,6 +286,8 @@ class ConvDecoder(nn.Module):
     compute_dtype: jnp.dtype = jnp.float32
     # As ConvEncoder's: the CPU formulation (`upsample2x`); None: when tracing for the CPU.
     cpu_kernels: bool | None = None
+    # The transposed convolutions' formulation (`upsample2x`'s form; "auto": by backend).
+    upsample_form: str = "auto"
 
     @nn.compact
     def __call__(self, z: jax.Array, train: bool) -> jax.Array:
@@ -281,12 +297,13 @@ class ConvDecoder(nn.Module):
         x = nn.ConvTranspose(first, (4, 4), padding="VALID", dtype=dt, name="deconv0")(
             z.reshape(z.shape[0], 1, 1, z.shape[-1]))
         x = self._norm("bn0", train)(elu(x, self.cpu_kernels))
+        up = functools.partial(Upsample2x, compute_dtype=dt, cpu_kernels=self.cpu_kernels,
+                               form=self.upsample_form)
         for i, f in enumerate(middle, start=1):
-            x = elu(Upsample2x(f, dt, self.cpu_kernels, name=f"deconv{i}")(x), self.cpu_kernels)
+            x = elu(up(f, name=f"deconv{i}")(x), self.cpu_kernels)
             x = self._norm(f"bn{i}", train)(x)
-        x = Upsample2x(last, dt, self.cpu_kernels, name=f"deconv{len(middle) + 1}")(x)
-        x = elu(x, self.cpu_kernels)
-        out = Upsample2x(self.channels, dt, self.cpu_kernels, name="deconv_out")(x)
+        x = elu(up(last, name=f"deconv{len(middle) + 1}")(x), self.cpu_kernels)
+        out = up(self.channels, name="deconv_out")(x)
         return nn.sigmoid(out.astype(jnp.float32))
 
     def _norm(self, name: str, train: bool) -> nn.BatchNorm:

@@ -24,7 +24,8 @@ class SequenceVAE(StepwiseGaussianVAE):
         self.conv = ConvEncoder(c.conv_filters, c.conv_features, c.conv_dtype)
         self.rnn = RNNEncoder(c.rnn_hidden)
         self.head = GaussianHead(c.z_step, "elu" if c.mu_nl else "none", c.logvar_limit)
-        self.decoder = ConvDecoder(c.deconv_filters, compute_dtype=c.conv_dtype)
+        self.decoder = ConvDecoder(c.deconv_filters, compute_dtype=c.conv_dtype,
+                                   upsample_form=c.upsample_form)
 
     def posterior(self, x, a, train: bool):
         """x [B, T, H, W, C], a [B, T, A] → μ, logvar [B, T, Z]."""

@@ -92,7 +92,8 @@ class FeedForwardVAE(StepwiseGaussianVAE):
             "elu" if c.mu_nl else "none",
             c.logvar_limit,
         )
-        self.decoder = ConvDecoder(c.deconv_filters, compute_dtype=c.conv_dtype)
+        self.decoder = ConvDecoder(c.deconv_filters, compute_dtype=c.conv_dtype,
+                                   upsample_form=c.upsample_form)
 
     def posterior(self, x, a, train: bool):
         """x [B, T, H, W, C], a [B, T, A] → μ, logvar [B, S, F + Z] from the first `hist`

@@ -14,8 +14,9 @@ from jaml import learners
 from jaml.learners.networks import Conv, ConvDecoder, ConvEncoder, conv2d, elu, upsample2x
 
 
-@pytest.mark.parametrize("cpu_kernels", [False, True])
-def test_upsample2x_is_pytorch_conv_transpose_k4_s2_p1(cpu_kernels):
+@pytest.mark.parametrize("cpu_kernels, form", [(False, "auto"), (True, "auto"), (None, "subpixel"),
+                                               (None, "phase"), (None, "dilated")])
+def test_upsample2x_is_pytorch_conv_transpose_k4_s2_p1(cpu_kernels, form):
     rng = np.random.default_rng(0)
     x, w = rng.normal(size=(2, 3, 4, 5)), rng.normal(size=(4, 4, 5, 6))
     # ConvTranspose2d: out[s·i − p + k] += x[i]·w[k] per axis, s = 2, p = 1.
@@ -26,7 +27,7 @@ def test_upsample2x_is_pytorch_conv_transpose_k4_s2_p1(cpu_kernels):
                 for kw in range(4):
                     full[:, 2 * i + kh, 2 * j + kw] += x[:, i, j] @ w[kh, kw]
     got = upsample2x(jnp.asarray(x, jnp.float32), jnp.asarray(w, jnp.float32),
-                     cpu_kernels=cpu_kernels)
+                     cpu_kernels=cpu_kernels, form=form)
     assert got.shape == (2, 6, 8, 6)
     np.testing.assert_allclose(got, full[:, 1:-1, 1:-1], atol=1e-5)
 
@@ -124,6 +125,55 @@ def test_upsample2x_cpu_matches_lax_conv_transpose_and_the_gpu_formulation(shape
                               strict=True):
             assert g.shape == r.shape and g.dtype == r.dtype, what
             np.testing.assert_allclose(g, r, rtol=1e-5, atol=1e-4, err_msg=what)
+
+
+def test_an_unknown_upsample_form_is_refused_by_name():
+    with pytest.raises(ValueError, match=r"upsample form must be one of \['auto', 'subpixel', "
+                                         r"'phase', 'dilated'\], got 'fft'"):
+        upsample2x(jnp.zeros((1, 2, 2, 1)), jnp.zeros((4, 4, 1, 1)), form="fft")
+    with pytest.raises(ValueError, match="upsample_form must be one of"):
+        learners.make("VAE_rpl", ld_dim=2, upsample_form="fft")
+
+
+def test_the_decoder_gives_one_output_and_gradient_in_every_upsample_form():
+    """The form is a speed choice: one set of parameters, one output and parameter gradient."""
+    z = jnp.asarray(np.random.default_rng(0).normal(size=(2, 5)), jnp.float32)
+    variables = ConvDecoder((8, 6, 6, 4)).init(jax.random.key(0), z, True)
+
+    def value_and_grad(form):
+        decoder = ConvDecoder((8, 6, 6, 4), upsample_form=form)
+
+        def f(params):
+            out, _ = decoder.apply({**variables, "params": params}, z, True,
+                                   mutable=["batch_stats"])
+            return jnp.sum(jnp.sin(3.0 * out)), out
+        return jax.jit(jax.value_and_grad(f, has_aux=True))(variables["params"])
+
+    (_, want), want_grad = value_and_grad("dilated")
+    for form in ("auto", "subpixel", "phase"):
+        (_, out), grad = value_and_grad(form)
+        np.testing.assert_allclose(out, want, rtol=1e-5, atol=1e-6, err_msg=form)
+        for g, r in zip(jax.tree.leaves(grad), jax.tree.leaves(want_grad), strict=True):
+            np.testing.assert_allclose(g, r, rtol=1e-4, atol=1e-5 * float(jnp.max(jnp.abs(r))),
+                                       err_msg=form)
+
+
+@pytest.mark.parametrize("name", ["VAE_rpl", "PRED", "DSA", "SVAE"])
+def test_a_learners_upsample_form_reaches_every_transposed_convolution(name, monkeypatch):
+    from jaml.learners import networks
+
+    seen, real = [], networks.upsample2x
+
+    def recording(*args, **kwargs):
+        seen.append(args[4] if len(args) > 4 else kwargs.get("form"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(networks, "upsample2x", recording)
+    learner = learners.make(name, ld_dim=2, upsample_form="dilated")
+    t = learner.config.seq_len
+    jax.eval_shape(lambda: learner.module_init(
+        jax.random.key(0), jnp.zeros((1, t, 64, 64, 3)), jnp.zeros((1, t, 1))))
+    assert seen and set(seen) == {"dilated"}
 
 
 def test_cpu_formulation_second_derivatives_match_xla():

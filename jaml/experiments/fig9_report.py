@@ -8,6 +8,7 @@ The primary comparison is fixed before the runs (`PRIMARY`); everything else is 
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from collections import defaultdict
@@ -197,6 +198,49 @@ def stream_check(out: Path, methods) -> list[str]:
     return lines
 
 
+# The learner's per-epoch losses the report summarises between analyses (metrics.jsonl).
+LOSSES = {"learner/nll": "NLL", "learner/kl": "KL", "learner/penalty": "penalty",
+          "learner/ok_fraction": "ok share"}
+
+
+def losses_table(out: Path, runs) -> list[str]:
+    """Each method's learner losses per frame sequence, averaged over the epochs between
+    consecutive analyses and then over seeds: what the penalty and the ok-row term do to the
+    likelihood, the KL and the share of ok rows."""
+    steps = sorted({int(r["step"]) for seeds in runs.values() for records in seeds.values()
+                    for r in records})
+    blocks = list(itertools.pairwise(steps))
+    if not blocks:
+        return []
+    lines = ["**Learner losses** (metrics.jsonl): mean over the epochs after one analysis up to "
+             "the next, then over seeds; NLL and KL per sequence; ok share the batch's share of "
+             "rows that get the ok-row term.", "",
+             "| method | " + " | ".join(LOSSES.values()) + " |",
+             "|---|" + "---|" * len(LOSSES)]
+    for method, seeds in runs.items():
+        means = {key: [] for key in LOSSES}  # key → [block → seed means]
+        per_seed = [read_jsonl(out / method / f"seed_{seed}" / "metrics.jsonl")
+                    for seed in seeds]
+        for key in LOSSES:
+            for lo, hi in blocks:
+                values = [np.mean(v) for v in ([r[key] for r in records
+                                                 if lo < r["epoch"] <= hi and key in r]
+                                                for records in per_seed) if v]
+                means[key].append(float(np.mean(values)) if values else None)
+        cells = []
+        for key in LOSSES:
+            vals = means[key]
+            if all(v is None for v in vals):
+                cells.append("—")
+                continue
+            fmt = "{:.1%}" if key == "learner/ok_fraction" else "{:.1f}"
+            cells.append(" → ".join("—" if v is None else fmt.format(v) for v in vals))
+        lines.append(f"| {method} | " + " | ".join(cells) + " |")
+    lines.append("")
+    lines.append("Blocks: epochs " + ", ".join(f"{lo + 1}–{hi}" for lo, hi in blocks) + ".")
+    return lines
+
+
 def plot(runs, path: Path):
     """Position error, Var(ρ) and irreg_std on π_rand over epochs: each method's seed mean with
     its 90 % band; and the paired difference from PRED of the position error."""
@@ -251,6 +295,9 @@ def report(out: Path, methods) -> str:
     contrasts = contrast_table(runs)
     if contrasts:
         lines += [*contrasts, ""]
+    losses = losses_table(out, runs)
+    if losses:
+        lines += [*losses, ""]
     for metric in METRICS:
         if any(values_at(seeds, metric) for seeds in runs.values()):
             lines += [*metric_table(runs, metric), ""]

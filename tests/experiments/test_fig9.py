@@ -78,6 +78,31 @@ def test_the_stream_check_reads_committed_gzip_metrics(tmp_path):
     assert fig9_report.stream_check(tmp_path, ["PRED", "PRED+AML_trnsv"]) == plain
 
 
+def test_learner_losses_are_averaged_between_analyses_then_over_seeds(tmp_path):
+    """Analyses at 78, 678, 1078: blocks 79–678 and 679–1078; epoch 78 (the fill) is left out,
+    a metric a method never logs is a dash, one a block lacks is a dash in that block."""
+    for seed in (0, 1):
+        for method in ("PRED", "PRED+AML_trnsv"):
+            path = tmp_path / method / f"seed_{seed}"
+            _write_run(path, seed, (0.3, 0.2, 0.1))
+            rows = []
+            for epoch in (78, 100, 600, 700, 1078):
+                row = {"epoch": epoch, "learner/nll": epoch / 100 + seed, "learner/kl": 2.0,
+                       "learner/penalty": 0.0}
+                if method != "PRED":
+                    row["learner/penalty"] = 1.0
+                    if epoch > 678:
+                        row["learner/ok_fraction"] = 0.25 * (seed + 1)
+                rows.append(row)
+            (path / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    runs = fig9_report.collect(tmp_path, ["PRED", "PRED+AML_trnsv"])
+    lines = fig9_report.losses_table(tmp_path, runs)
+    # NLL: block 1 epochs 100, 600 → seed means 3.5, 4.5 → 4.0; block 2: 700, 1078 → 8.89, 9.89
+    assert "| PRED | 4.0 → 9.4 | 2.0 → 2.0 | 0.0 → 0.0 | — |" in lines
+    assert "| PRED+AML_trnsv | 4.0 → 9.4 | 2.0 → 2.0 | 1.0 → 1.0 | — → 37.5% |" in lines
+    assert lines[-1] == "Blocks: epochs 79–678, 679–1078."
+
+
 def test_the_penalty_is_contrasted_with_its_controls_seed_by_seed(tmp_path):
     """AML − ok_rows at the last common analysis: the control is AML + (0.01, 0.02, 0.03)."""
     for seed in range(3):

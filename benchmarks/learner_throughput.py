@@ -348,5 +348,6 @@ def main(argv=None) -> int:
                     harness.record("learner_throughput", rows, notes=NOTES)
     return 0
 
+
 if __name__ == "__main__":
     sys.exit(main())

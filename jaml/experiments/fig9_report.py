@@ -276,8 +276,9 @@ def plot(runs, path: Path):
     for ax, title in zip(axes, titles, strict=True):
         ax.set_title(title)
         ax.set_xlabel("epoch")
-    axes[0].legend(fontsize=8)
-    axes[3].legend(fontsize=8)
+    for ax in (axes[0], axes[3]):
+        if ax.lines and any(not line.get_label().startswith("_") for line in ax.lines):
+            ax.legend(fontsize=8)
     plots.save_figure(fig, path)
     return fig
 

@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 from benchmarks import harness
-from jaml.experiments import fig9
+from jaml.experiments import _runs, fig9
 
 
 def _finished(paths) -> list[dict]:
@@ -67,7 +67,7 @@ def main(argv=None) -> int:
     measured = rows(args.out, args.concurrent)
     for row in measured:
         print(row)
-    config = json.loads(next(args.out.glob("*/seed_*/config.json")).read_text())
+    config = _runs.settings(json.loads(next(args.out.glob("*/seed_*/config.json")).read_text()))
     scale = json.dumps({k: config[k] for k in ("num_envs", "replay_slots", "epochs")})
     harness.record("fig9_experiment", measured,
                    notes=f"Wall seconds of `python -m jaml.experiments.fig9` (compilation "

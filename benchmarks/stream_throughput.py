@@ -21,7 +21,6 @@ PyTorch stack here; its anchors are in `reference/perf_anchors.md`.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 from pathlib import Path
 
@@ -45,14 +44,12 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
           replay_slots: int, repeats: int, devices: int | None,
           compute_dtype: str = "float32") -> list[dict]:
     defaults = for_env(env, learner)
-    defaults = defaults.replace(
-        learner_overrides={**defaults.learner_overrides, "compute_dtype": compute_dtype})
     minibatches = defaults.ppo.num_minibatches
     minibatches = minibatches if num_envs % minibatches == 0 else 1
-    config = defaults.replace(num_envs=num_envs, replay_slots=replay_slots,
-                              frames_per_batch=frames_per_batch,
-                              epochs=max(1000, replay_slots // num_envs),
-                              ppo=dataclasses.replace(defaults.ppo, num_minibatches=minibatches))
+    config = defaults.with_overrides({
+        "learner_config.compute_dtype": compute_dtype, "num_envs": num_envs,
+        "replay.slots": replay_slots, "frames_per_batch": frames_per_batch,
+        "epochs": max(1000, replay_slots // num_envs), "ppo.num_minibatches": minibatches})
     stream = build(config)
     mesh = runs_mesh(runs, jax.local_devices()[:devices])
     host_loop = jax.default_backend() == "cpu"

@@ -89,8 +89,9 @@ def _choices() -> dict[tuple[str, str], tuple[str, ...]]:
 
 
 # (class name, field) of fields that are not flags: the suite sets them from --env/--learner
-# (the learner's ld_dim is the env's LD-state size) and from the typed learner/env configs.
-_SUITE_FIXED = ("env", "learner", "learner_overrides", "env_overrides")
+# (the learner's ld_dim is the env's LD-state size) and from the typed learner/env configs,
+# which it holds with their concrete types (`jaml.cli._suite_for`).
+_SUITE_FIXED = ("env", "learner", "env_config", "learner_config")
 _HIDDEN = {("StreamConfig", name) for name in _SUITE_FIXED} | {("LearnerConfig", "ld_dim")}
 _in_rule = threading.local()
 

@@ -130,14 +130,16 @@ class Suite:
 
     def stream_config(self):
         """The run's StreamConfig: `for_env`'s per-domain settings, scaled, then what the flags
-        changed (the learner's and env's options too: `StreamConfig.with_configs`)."""
+        changed, the learner's and env's configs included (`StreamConfig.with_overrides`)."""
         from jaml.stream.config import changed_fields, for_env
         from jaml.suite import scaled
 
         base = for_env(self.env, self.learner)
-        changed = changed_fields(self.config, base, skip=_SUITE_FIXED)
-        return scaled(base, self.scale).replace(**changed).with_configs(
-            getattr(self, "learner_config", None), getattr(self, "env_config", None))
+        given = self.config.replace(env=self.env, learner=self.learner, **{
+            name: getattr(self, name, getattr(base, name))
+            for name in ("learner_config", "env_config")})
+        return scaled(base, self.scale).with_overrides(
+            changed_fields(given, base, skip=("env", "learner")))
 
     def run(self) -> int:
         from jaml.stream.run import run
@@ -177,9 +179,9 @@ def _suite_for(argv: list[str]) -> type:
     from jaml.stream.config import for_env
 
     base = for_env(env, learner)
-    # ld_dim comes from the env when the stream builds the learner; 1 stands in for help.
-    learner_config = base.learner_config(ld_dim=1)
-    env_config = base.env_config()
+    # The typed configs with their concrete types, so that their fields are flags; the
+    # learner's ld_dim comes from the env when the stream builds the learner.
+    learner_config, env_config = base.learner_config, base.env_config
     return dataclasses.make_dataclass(
         "Suite",
         [

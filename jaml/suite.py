@@ -1,7 +1,7 @@
 """Score your own encoder on the suite's protocol: the runs' test sets and their analysis.
 
     from jaml import suite, stream
-    config = stream.for_env("CartPole", "VAE_rpl", **suite.SCALES["smoke"])
+    config = stream.for_env("CartPole", "VAE_rpl", suite.SCALES["smoke"])
     sets = suite.test_sets(config)               # {"train", "pi_rand", "pi_curr"}: TestSet
     report = suite.evaluate(my_encode, config)   # encode(frames, actions) -> latents [E, Z]
 
@@ -31,11 +31,13 @@ from jaml.stream.executor import build, run_epochs
 from jaml.stream.loop import Stream, StreamState
 
 # Sizes for a run that finishes in minutes on two CPU cores (`jaml suite --scale smoke`), and
-# the paper's (the StreamConfig defaults, `for_env`'s per-domain settings).
+# the paper's (the StreamConfig defaults, `for_env`'s per-domain settings), as overrides
+# (`StreamConfig.with_overrides`).
 SCALES: dict[str, dict] = {
-    "smoke": dict(num_envs=8, rollout_len=4, replay_slots=16, frames_per_batch=8,
-                  learner_steps=2, epochs=4, eval_every=2, eval_train=64, eval_rand=64,
-                  eval_curr=32, eval_transient=3, regressor_iterations=200),
+    "smoke": {"num_envs": 8, "rollout_len": 4, "replay.slots": 16, "frames_per_batch": 8,
+              "learner_steps": 2, "epochs": 4, "eval.every": 2, "eval.train": 64,
+              "eval.rand": 64, "eval.curr": 32, "eval.transient": 3,
+              "eval.regressor_iterations": 200},
     "paper": {},
 }
 
@@ -50,11 +52,11 @@ def scaled(config: StreamConfig, scale: str) -> StreamConfig:
     if not changes:
         return config
     if changes["num_envs"] % config.ppo.num_minibatches:
-        changes["ppo"] = dataclasses.replace(config.ppo, num_minibatches=4)
+        changes["ppo.num_minibatches"] = 4
     seq_len = _seq_len(config)
     changes["rollout_len"] = max(changes["rollout_len"], seq_len - 1)
     changes["frames_per_batch"] = max(changes["frames_per_batch"], seq_len)
-    return config.replace(**changes)
+    return config.with_overrides(changes)
 
 
 def _seq_len(config: StreamConfig) -> int:
@@ -63,7 +65,7 @@ def _seq_len(config: StreamConfig) -> int:
 
     if config.learner not in learners.ALL_LEARNERS:
         return 1
-    return config.learner_config(ld_dim=1).seq_len
+    return config.learner_config.seq_len
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,12 +98,12 @@ def _chunks(stream: Stream, state: StreamState, key, pi_rand_key) -> dict[str, l
     k_train, k_curr, _ = jax.random.split(key, 3)
     states = jax.tree.map(lambda x: x[None], state)
     out = {"train": [], "pi_rand": []}
-    analysis.encoded_replay(stream, states, k_train[None], cfg.eval_train, store=out["train"])
-    analysis.encoded_rollouts(stream, states, pi_rand_key[None], cfg.eval_rand, random=True,
+    analysis.encoded_replay(stream, states, k_train[None], cfg.eval.train, store=out["train"])
+    analysis.encoded_rollouts(stream, states, pi_rand_key[None], cfg.eval.rand, random=True,
                               store=out["pi_rand"])
-    if cfg.policy == "ppo" and cfg.eval_curr > 0:
+    if cfg.policy == "ppo" and cfg.eval.curr > 0:
         out["pi_curr"] = []
-        analysis.encoded_rollouts(stream, states, k_curr[None], cfg.eval_curr, random=False,
+        analysis.encoded_rollouts(stream, states, k_curr[None], cfg.eval.curr, random=False,
                                   store=out["pi_curr"])
     return {k: [jax.tree.map(lambda x: x[0], c) for c in chunks] for k, chunks in out.items()}
 
@@ -160,7 +162,7 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
                          "pi_rand": analysis.irregularity(stream, latents["pi_rand"],
                                                           rand.states)},
         "linear": linear_probe(latents["train"], sets["train"].states, tests,
-                               normalize=stream.config.regressor_normalize),
+                               normalize=stream.config.eval.regressor_normalize),
         "error_names": analysis.error_names(stream),
     }
 

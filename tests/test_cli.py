@@ -1,5 +1,6 @@
 """`jaml info`, and the CLI's stdout free of mujoco.mjx's MuJoCo Warp probe prints."""
 
+import dataclasses
 import importlib.metadata
 import json
 import os
@@ -13,6 +14,7 @@ import pytest
 from jaml import cli
 from jaml.cli import _INFO_PACKAGES, main
 from jaml.experiments import _runs
+from jaml.stream.config import for_env
 
 
 def test_info_names_the_cpu_device_versions_and_mjx_imports(capsys):
@@ -119,17 +121,26 @@ def test_suite_help_shows_the_pairs_defaults_and_typed_learner_and_env_options(c
     assert "--learner-config.hist INT" in out and "--learner-config.frame-nll {sum,mean}" in out
     assert "--env-config.pixels {auto,required,off}" in out
     assert "--learner-config.ld-dim" not in out and "--learner-overrides" not in out
+    assert "--eval.every INT epochs between alignment analyses" in out
+    assert "--replay.slots {None}|INT replay columns" in out
 
 
 def test_suite_flags_become_the_runs_config():
     args = cli.parse(["suite", "--env", "Ant", "--learner", "PRED", "--out", "x",
                       "--learner-config.beta", "2", "--env-config.episode-length", "500",
-                      "--ppo.num-updates", "7", "--epochs", "3"])
+                      "--ppo.num-updates", "7", "--epochs", "3", "--eval.every", "2",
+                      "--replay.slots", "128"])
     config = args.command.stream_config()
-    assert config.learner_overrides == {"hist": 4, "pred": 12, "beta": 2.0}
-    assert config.env_overrides == {"episode_length": 500}
+    base = for_env("Ant", "PRED")
+    assert config.learner_config == base.learner_config.replace(beta=2.0)  # hist 4, pred 12
+    assert config.env_config == dataclasses.replace(base.env_config, episode_length=500)
     assert config.ppo.num_updates == 7 and config.ppo.hidden == (256, 256)  # Ant's, kept
     assert config.epochs == 3 and config.rollout_len == 64
+    assert (config.eval.every, config.eval.train, config.replay.slots) == (2, 10_000, 128)
+    # --scale smoke sets the sizes; a flag given beside it wins, field by field.
+    smoke = cli.parse(["suite", "--env", "Ant", "--learner", "PRED", "--out", "x", "--scale",
+                       "smoke", "--eval.every", "3"]).command.stream_config()
+    assert (smoke.eval.every, smoke.eval.train, smoke.replay.slots) == (3, 64, 16)
 
 
 def test_suite_call_flags_reach_the_run(monkeypatch, tmp_path):

@@ -39,7 +39,7 @@ def test_boolean_flags_help_says_what_the_flag_does(capsys):
     with pytest.raises(SystemExit):
         main(["suite", "--env", "CartPole", "--learner", "PRED", "--help"])
     text = " ".join(capsys.readouterr().out.replace("│", " ").split())
-    for flag in ("--ppo.no-lr-decay", "--no-regressor-normalize", "--no-final-checkpoint"):
+    for flag in ("--ppo.no-lr-decay", "--eval.no-regressor-normalize", "--no-final-checkpoint"):
         after = text.split(flag, 1)[1]
         assert after.lstrip().startswith("turn off: "), (flag, after[:100])
         assert after.split("(default: ", 1)[1].startswith("on)"), (flag, after[:300])

@@ -77,7 +77,7 @@ def test_test_sets_are_the_sequences_and_targets_a_run_builds(run):
     sets = suite.test_sets(config, state)
     assert set(sets) == {"train", "pi_rand", "pi_curr"}
     rand = sets["pi_rand"]
-    assert rand.frames.shape == (config.eval_rand, s.seq_len, 64, 64, 3)
+    assert rand.frames.shape == (config.eval.rand, s.seq_len, 64, 64, 3)
     assert rand.frames.dtype == np.uint8 and rand.frames.std() > 0
     np.testing.assert_array_equal(rand.states, rand.ld[:, s.hist - 1])
     assert rand.names == tuple(s.env.ld_state_names)

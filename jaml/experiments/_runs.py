@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from jaml import _command
-from jaml.stream.config import RESOLVED
+from jaml.stream.config import FLAT_FIELDS, RESOLVED, StreamConfig, changed_fields
 
 # jaml.evaluation (JAX, SciPy, Matplotlib) is imported by `cell`: the figure commands' --help
 # imports none of them (tests/test_launch.py).
@@ -46,9 +46,10 @@ class Driver:
 
 
 def _stream_default(name: str):
-    from jaml.stream.config import StreamConfig
-
-    return next(f.default for f in dataclasses.fields(StreamConfig) if f.name == name)
+    value = StreamConfig()
+    for part in FLAT_FIELDS.get(name, name).split("."):
+        value = getattr(value, part)
+    return value
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,7 +72,39 @@ class Sizes:
     """alignment regressor steps"""
 
 
-SIZES = tuple(f.name for f in dataclasses.fields(Sizes))  # their names, as config.json has them
+    def overrides(self) -> dict:
+        """These sizes as `StreamConfig.with_overrides` paths ("eval.train", …)."""
+        return {FLAT_FIELDS.get(k, k): v for k, v in dataclasses.asdict(self).items()}
+
+
+SIZES = tuple(f.name for f in dataclasses.fields(Sizes))  # their names in `settings`
+
+
+def options(part: str, fields: dict) -> dict:
+    """`fields` of the tree's `part` ("learner_config", "env_config") as override paths."""
+    return {f"{part}.{k}": v for k, v in fields.items()}
+
+
+def settings(record: dict) -> dict:
+    """A run's config.json as the reports show it, flat: the run's fields, its sizes by the
+    names of records written before the config tree (`SIZES`, "eval_every", …: `FLAT_FIELDS`),
+    and its learner's and env's fields that differ from their defaults as "learner_overrides"
+    and "env_overrides" (the learner's ld_dim, the env's, left out). Such an older record is
+    shown as written (less its "resolved" configs)."""
+    if "replay" not in record:  # written before the tree
+        return {k: v for k, v in record.items() if k != RESOLVED}
+    config = StreamConfig.from_dict(record)
+    flat = {k: v for k, v in record.items()
+            if k not in ("replay", "eval", "learner_config", "env_config")}
+    for name, path in FLAT_FIELDS.items():
+        part, field = path.split(".")
+        flat[name] = record[part][field]
+    default = StreamConfig(env=config.env, learner=config.learner)
+    for part in ("learner", "env"):
+        mine, theirs = getattr(config, f"{part}_config"), getattr(default, f"{part}_config")
+        changed = {} if mine is None else changed_fields(mine, theirs, skip=("ld_dim",))
+        flat[f"{part}_overrides"] = json.loads(json.dumps(changed))
+    return flat
 
 
 @dataclasses.dataclass(frozen=True)
@@ -189,8 +222,9 @@ def seed_histories(directory: Path) -> list[list[dict]]:
 
 
 def cell_config(directory: Path) -> dict:
-    """The settings every seed_N run under `directory` shares: its config.json without the seed
-    (and without the learner's and env's resolved configs where a seed's older record lacks them).
+    """The settings every seed_N run under `directory` shares, flat (`settings`): its config.json
+    without the seed (and without the learner's and env's resolved configs where a seed's older
+    record lacks them).
     Seeds that disagree (say one call trained in bfloat16, another in float32) are not one cell:
     pooling them would mix two experiments, so this raises, naming the runs and the settings."""
     configs = [(d.name, json.loads((d / "config.json").read_text()))
@@ -207,7 +241,7 @@ def cell_config(directory: Path) -> dict:
                           if shared.get(k) != config.get(k))
             raise ValueError(f"{directory}: {first} and {name} differ in {', '.join(keys)}; "
                              "one cell's seeds must share their settings (move one set apart)")
-    return shared
+    return settings(shared)
 
 
 def last_common_step(histories: list[list[dict]]) -> int:

@@ -93,8 +93,9 @@ def config_for(env: str, variant: str, seed: int, scale: dict, schedule: dict,
 
     learner, overrides = VARIANTS[variant]
     epochs, eval_every = schedule[family(env)]
-    return scaled(for_env(env, learner, seed=seed, epochs=epochs, eval_every=eval_every, **scale,
-                          learner_overrides={**overrides, **(learner_opt or {})}), preset)
+    return scaled(for_env(env, learner, {
+        "seed": seed, "epochs": epochs, "eval.every": eval_every, **scale,
+        **_runs.options("learner_config", {**overrides, **(learner_opt or {})})}), preset)
 
 
 def run_cell(out: Path, env: str, variant: str, seeds, scale: dict, schedule: dict,
@@ -246,7 +247,7 @@ def report(out: Path, envs, variants) -> str:
             continue
         names = list(next(iter(runs.values()))[0][0]["errors"])
         config_path = next((out / env / next(iter(runs))).glob("seed_*/config.json"))
-        config = json.loads(config_path.read_text())
+        config = _runs.settings(json.loads(config_path.read_text()))
         settings = {k: config.get(k) for k in (*_runs.SIZES, "epochs", "eval_every",
                                                "learner_steps", "frames_per_batch")}
         groups = ld_groups(env)
@@ -402,7 +403,7 @@ class Args(_runs.Driver):
     the same cell there (OUT − OTHER, Welch's 90 % interval), also written to OUT/compare.md"""
 
     def train(self) -> None:
-        scale = dataclasses.asdict(self.sizes)
+        scale = self.sizes.overrides()
         schedule = {f: (getattr(self, f"{f}_epochs"), getattr(self, f"{f}_eval_every"))
                     for f in SCHEDULE}
         for env in self.envs:

@@ -66,7 +66,6 @@ from jaml._options import KeyValues, key_values
 from jaml._rundir import write_text
 from jaml.experiments import _runs
 from jaml.experiments._runs import cell
-from jaml.stream.config import recorded_env_options
 
 # jaml.evaluation (JAX, SciPy, Matplotlib) is imported by the functions that report: the
 # command's --help imports none of them (tests/test_launch.py).
@@ -90,7 +89,7 @@ FRAMES_PER_BATCH = {"VAE_rpl": 1024, "SPAIR": 64}
 # The reference's Rearrange settings that `stream.for_env` does not set for this domain: the
 # rollout it forces to 10 steps, and LD targets used as is ([−1, 1]); 50 learner steps per epoch
 # and PPO's MLP 256 with 50 × 4 minibatches are for_env's defaults for it.
-REARRANGE = dict(rollout_len=10, learner_steps=50, regressor_normalize=False)
+REARRANGE = {"rollout_len": 10, "learner_steps": 50, "eval.regressor_normalize": False}
 SCHEDULE = (300, 50)  # epochs, eval_every
 
 ARM, MAIN_JOINT, POSITIONS, LARGEST, ORIENTATION = (
@@ -237,8 +236,8 @@ def _object_shapes(domain, slots: list[str]) -> tuple[dict[str, str], str | None
 def config_for(variant: str, seed: int, scale: dict, schedule: tuple[int, int],
                learner_opt: dict | None = None, env_opt: dict | None = None, env: str = ENV,
                preset: str = "paper"):
-    """The StreamConfig of one run on `env` (one of ENVS). `scale` holds StreamConfig fields
-    (`_runs.Sizes`' fields, or any others: the tests shrink everything); `learner_opt` learner
+    """The StreamConfig of one run on `env` (one of ENVS). `scale` holds StreamConfig overrides
+    (`_runs.Sizes.overrides()`, or any others: the tests shrink everything); `learner_opt` learner
     config fields for this variant; `preset` "smoke" replaces sizes and schedule
     (`jaml.suite.SCALES`)."""
     from jaml.stream import for_env
@@ -254,9 +253,10 @@ def config_for(variant: str, seed: int, scale: dict, schedule: tuple[int, int],
                      **overrides}
     epochs, eval_every = schedule
     settings = {**REARRANGE, "frames_per_batch": FRAMES_PER_BATCH[learner], **scale}
-    return scaled(for_env(env, learner, seed=seed, epochs=epochs, eval_every=eval_every,
-                          **settings, learner_overrides={**overrides, **(learner_opt or {})},
-                          env_overrides=dict(env_opt or {})), preset)
+    return scaled(for_env(env, learner, {
+        "seed": seed, "epochs": epochs, "eval.every": eval_every, **settings,
+        **_runs.options("learner_config", {**overrides, **(learner_opt or {})}),
+        **_runs.options("env_config", env_opt or {})}), preset)
 
 
 def learner_options(items, variants) -> dict[str, dict]:
@@ -326,7 +326,7 @@ def _test_sets(histories) -> list[str]:
 
 def _config(out: Path, variant: str) -> dict:
     path = next((out / variant).glob("seed_*/config.json"))
-    return json.loads(path.read_text())
+    return _runs.settings(json.loads(path.read_text()))
 
 
 def _common_steps(histories) -> list[int]:
@@ -473,7 +473,7 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
         raise ValueError(f"{out} holds runs of several envs ({', '.join(sorted(envs))}); give "
                          "each env its own --out")
     env = envs.pop()
-    shape = layout(env, recorded_env_options({"env": env, **next(iter(configs.values()), {})}))
+    shape = layout(env, next(iter(configs.values()), {}).get("env_overrides"))
     panels = shape.panels()
     lines = [f"# Fig. 3: {env} (reacher), alignment of VAE_rpl and SPAIR with the true "
              "state", "",
@@ -597,7 +597,7 @@ class Args(_runs.Driver):
         options = learner_options(self.learner_opt, self.variants)
         env_opt = key_values(self.env_opt)
         for variant in self.variants:
-            run_cell(self.out, variant, self.seeds, dataclasses.asdict(self.sizes),
+            run_cell(self.out, variant, self.seeds, self.sizes.overrides(),
                      (self.epochs, self.eval_every), options[variant], env_opt, self.env,
                      self.scale, **self.call.run_options())
 

@@ -89,14 +89,14 @@ _STEPS = 2  # PRED on the incline decodes hist + pred = 2 frames
 class Recipe:
     """How the runs impose relations, and their learners and scale (docs/transfer.md).
 
-    learner_overrides: for every learner; pred_overrides: PRED's own on top.
+    learner_options: learner config fields for every learner; pred_options: PRED's own on top.
     weights: the penalty weight, or the pilot's candidates. ok_weight: the extra NLL term on
     ok rows. all_relations: impose every relation, or only those that met the stopping rule.
     """
 
     name: str
-    learner_overrides: dict
-    pred_overrides: dict
+    learner_options: dict
+    pred_options: dict
     weights: tuple[float, ...]
     ok_weight: float
     all_relations: bool
@@ -110,8 +110,9 @@ class Recipe:
 RECIPES = {
     "ours": Recipe(
         "ours", {"current_action": "hidden"}, {}, (100.0, 1000.0, 10_000.0), 0.0, False,
-        dict(num_envs=64, replay_slots=1024, epochs=316, eval_every=150, eval_train=4096,
-             eval_rand=4096, eval_curr=1024, regressor_iterations=4000)),
+        {"num_envs": 64, "replay.slots": 1024, "epochs": 316, "eval.every": 150,
+         "eval.train": 4096, "eval.rand": 4096, "eval.curr": 1024,
+         "eval.regressor_iterations": 4000}),
     "reference": Recipe(
         "reference",
         {"current_action": "observed", "kl_form": "reference",
@@ -119,10 +120,10 @@ RECIPES = {
         {"static_per_step": True}, (1e3 * _STEPS,), 10.0, True,
         # The reference's replay (5,000 → 4,992 columns at 64 envs) and regressor sizes (§6);
         # 2,000 learner epochs after the 78 that fill the replay.
-        dict(num_envs=64, replay_slots=None, epochs=2078, eval_every=200, eval_train=10_000,
-             eval_rand=10_048, eval_curr=1024, regressor_iterations=10_000)),
+        {"num_envs": 64, "replay.slots": None, "epochs": 2078, "eval.every": 200,
+         "eval.train": 10_000, "eval.rand": 10_048, "eval.curr": 1024,
+         "eval.regressor_iterations": 10_000}),
 }
-SCALE_FIELDS = tuple(RECIPES["ours"].scale)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -191,7 +192,7 @@ def penalty_for(out: Path, relation_set: str, penalty: Penalty, recipe: Recipe,
     relations it imposes: all, or the converged ones, as the recipe says)."""
     from jaml import relations
 
-    learner = _config("PRED", 0, recipe, dynamics).learner_config(ld_dim=5)
+    learner = _config("PRED", 0, recipe, dynamics).resolved(ld_dim=5).learner_config
     rs = relations.load(out / "relations" / relation_set / "checkpoint")
     used = list(range(rs.num_relations)) if recipe.all_relations else converged(out, relation_set)
     return relations.latent_penalty(
@@ -214,12 +215,13 @@ def _config(learner: str, seed: int, recipe: Recipe, dynamics: str = "drawn",
             scale: dict | None = None, method: str | None = None):
     from jaml.stream import for_env
 
-    options = dict(recipe.learner_overrides)
+    options = dict(recipe.learner_options)
     if learner == "PRED":
-        options |= recipe.pred_overrides
+        options |= recipe.pred_options
     options |= METHOD_OPTIONS.get(method, {})
-    return for_env(TARGET, learner, seed=seed, env_overrides=_dynamics(dynamics),
-                   learner_overrides=options, **(scale or recipe.scale))
+    return for_env(TARGET, learner, {
+        "seed": seed, **_runs.options("env_config", _dynamics(dynamics)),
+        **_runs.options("learner_config", options), **(scale or recipe.scale)})
 
 
 def _write_json(path: Path, value) -> None:
@@ -354,7 +356,7 @@ class Args(_runs.Driver):
 
             scale |= SCALES["smoke"]
         return scale | {k: v for k, v in (("epochs", self.epochs),
-                                          ("eval_every", self.eval_every)) if v is not None}
+                                          ("eval.every", self.eval_every)) if v is not None}
 
     def train(self) -> bool:
         recipe = RECIPES[self.recipe]

@@ -57,6 +57,9 @@ def make(name: str, config: LearnerConfig | None = None, **overrides) -> Learner
                          f"{type(config).__name__}")
     elif overrides:
         config = config.replace(**overrides)
+    if config.ld_dim is None:
+        raise ValueError(f"{name}: ld_dim is None; give the true LD-state size (a stream run sets "
+                         "its env's: `StreamConfig.resolved(ld_dim)`)")
     module, function = _BUILDERS[name].split(":")
     return getattr(importlib.import_module(f"{__name__}.{module}"), function)(name, config)
 

@@ -29,7 +29,8 @@ COMPUTE_DTYPE_NAMES = ("float32", "bfloat16")
 class LearnerConfig:
     """What every learner shares; defaults reproduce the reference (suite_reference.md §4).
 
-    ld_dim: size D of the true low-dimensional state; the per-step latent defaults to 2·D.
+    ld_dim: size D of the true low-dimensional state; the per-step latent defaults to 2·D. None
+      in a run's config until it is resolved: the stream sets it to its env's LD-state size.
     latent_dim: per-step latent size; None means 2·ld_dim (DSA: the dynamic part, None → D).
     beta: weight of the KL term (β-VAE; DSA weighs only the dynamic KL with it).
     mu_nl: the reference's `mu_nl=Sigmoid`: ELU on the posterior mean and a sigmoid on the
@@ -52,7 +53,7 @@ class LearnerConfig:
       the same function each way, a speed choice per device).
     """
 
-    ld_dim: int
+    ld_dim: int | None
     latent_dim: int | None = None
     beta: float = 1.0
     learning_rate: float = 1e-4
@@ -83,7 +84,7 @@ class LearnerConfig:
         if self.frame_nll not in FRAME_NLLS:
             raise ValueError(f"frame_nll must be 'sum' or 'mean', got "
                              f"{self.frame_nll!r}")
-        if int(self.ld_dim) < 1:
+        if self.ld_dim is not None and int(self.ld_dim) < 1:
             raise ValueError(f"ld_dim must be ≥ 1, got {self.ld_dim}")
         if self.latent_dim is not None and int(self.latent_dim) < 1:
             raise ValueError(f"latent_dim must be ≥ 1 or None, got {self.latent_dim}")
@@ -194,7 +195,7 @@ class RecurrentConfig(LearnerConfig):
 class VAEConfig(SingleFrameConfig):
     """VAE on single frames (PARAMS_VAE: hist 1, past 1, pred 0; latent 2·D).
 
-    VAE_v0 and VAE_rpl differ in the stream's replay alone (`StreamConfig.keep_fraction`: 0
+    VAE_v0 and VAE_rpl differ in the stream's replay alone (`ReplayConfig.resolved`: 0
     and 0.5); β-VAE defaults to β = 5, the best of the paper's {100, 20, 10, 5, 0.5}.
     """
 
@@ -430,7 +431,7 @@ class SPAIRConfig(SingleFrameConfig):
 
 # name → (config class, defaults that differ from the class's); the builders:
 # `jaml.learners.make`. VAE_rpl differs from VAE_v0 only in the stream's replay
-# (`StreamConfig.keep_fraction`).
+# (`jaml.stream.config.ReplayConfig.resolved`).
 LEARNERS: dict[str, tuple[type[LearnerConfig], dict]] = {
     "VAE_v0": (VAEConfig, {}),
     "VAE_rpl": (VAEConfig, {}),
@@ -445,7 +446,8 @@ ALL_LEARNERS = tuple(LEARNERS)
 
 
 def default_config(name: str, **overrides) -> LearnerConfig:
-    """The named learner's config: reference defaults, then `overrides` (ld_dim is required)."""
+    """The named learner's config: reference defaults, then `overrides` (ld_dim is required; None
+    leaves it to the stream, which sets the env's)."""
     if name not in LEARNERS:
         raise ValueError(f"unknown learner {name!r}; valid names: {', '.join(ALL_LEARNERS)}")
     cls, defaults = LEARNERS[name]

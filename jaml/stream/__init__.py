@@ -1,7 +1,7 @@
 """The suite's learning loop (paper §2.1): PPO frame stream, replay, learner updates, alignment.
 
     from jaml import stream
-    cfg = stream.for_env("CartPole", "VAE_rpl", epochs=200, replay_slots=1024)
+    cfg = stream.for_env("CartPole", "VAE_rpl", {"epochs": 200, "replay.slots": 1024})
     s = stream.build(cfg)
     state = s.init(jax.random.PRNGKey(0))
     state, metrics = stream.run_epochs(s, state, 10)   # 10 epochs, metrics stacked [10]
@@ -30,6 +30,8 @@ _EXPORTS = {
     "rollout": "collect",
     "POLICIES": "config",
     "PPOConfig": "config",
+    "ReplayConfig": "config",
+    "EvalConfig": "config",
     "StreamConfig": "config",
     "for_env": "config",
     "build": "executor",

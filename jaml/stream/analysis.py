@@ -39,7 +39,7 @@ def encoded_rollouts(stream: Stream, states: StreamState, keys: jax.Array, num: 
                      random: bool, fingerprints: bool = False,
                      kept: list[PiRandSet] | None = None, store: list | None = None):
     """(latents, LD targets) [R, N, ...] of sequences cut from fresh rollouts of R stacked runs
-    (keys [R]): reset, `eval_transient` steps, then consecutive L-step rollouts per env
+    (keys [R]): reset, `eval.transient` steps, then consecutive L-step rollouts per env
     (reference §5, start t = 0); with `fingerprints`, also each sequence's
     `input_fingerprints` [R, N, 2] (for the distortion). `kept` (π_rand only, one `PiRandSet`
     per run): the sequences are read from them when every one holds its run's key, else rolled
@@ -80,8 +80,8 @@ class PiRandSet:
     out again. The set is a function of the env, the run's π_rand key and its size alone (the
     policy is uniform: `Stream.test_policy` discards PPO's actions), so the reports do not
     change; only the time does (rolling out 10 048 sequences of 16 frames is 157 sequential
-    16-step rollouts of 64 envs). Host memory: eval_rand × L × 12 KiB of 64×64 frames per run,
-    ≈ 2 GB at the paper's eval_rand and L = 16."""
+    16-step rollouts of 64 envs). Host memory: eval.rand × L × 12 KiB of 64×64 frames per run,
+    ≈ 2 GB at the paper's eval.rand and L = 16."""
 
     tag: tuple | None = None  # what the chunks were rolled out for (`_tag`)
     chunks: list | None = None
@@ -92,8 +92,8 @@ class PiRandSet:
         if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
             key = jax.random.key_data(key)
         cfg = stream.config
-        return (np.asarray(key).tobytes(), num, cfg.env, repr(cfg.env_overrides), cfg.num_envs,
-                cfg.eval_transient, stream.seq_len)
+        return (np.asarray(key).tobytes(), num, cfg.env, repr(cfg.env_config), cfg.num_envs,
+                cfg.eval.transient, stream.seq_len)
 
     def holds(self, stream: Stream, key: jax.Array, num: int) -> bool:
         return self.chunks is not None and self.tag == self._tag(stream, key, num)
@@ -117,9 +117,9 @@ def error_names(stream: Stream) -> list[str]:
 
 def _regressor_options(stream: Stream) -> dict:
     cfg = stream.config
-    starts = rotation_blocks(stream)[0]  # with regressor_normalize False (checked by `build`)
-    return dict(seq_len=stream.seq_len, num_iterations=cfg.regressor_iterations,
-                normalize=cfg.regressor_normalize, rotation_starts=starts)
+    starts = rotation_blocks(stream)[0]  # with eval.regressor_normalize False (checked by `build`)
+    return dict(seq_len=stream.seq_len, num_iterations=cfg.eval.regressor_iterations,
+                normalize=cfg.eval.regressor_normalize, rotation_starts=starts)
 
 
 def _part(seconds: dict | None, name: str, fn, *args, **kwargs):
@@ -157,13 +157,13 @@ def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
     cfg = stream.config
     split = jax.vmap(lambda k: jax.random.split(k, 3))(keys)
     k_train, k_curr, k_reg = split[:, 0], split[:, 1], split[:, 2]
-    train = _part(seconds, "train_set", encoded_replay, stream, states, k_train, cfg.eval_train)
+    train = _part(seconds, "train_set", encoded_replay, stream, states, k_train, cfg.eval.train)
     lat, st, inputs = _part(seconds, "pi_rand", encoded_rollouts, stream, states, pi_rand_keys,
-                            cfg.eval_rand, random=True, fingerprints=True, kept=pi_rand_sets)
+                            cfg.eval.rand, random=True, fingerprints=True, kept=pi_rand_sets)
     tests = {"pi_rand": (lat, st)}
-    if cfg.policy == "ppo" and cfg.eval_curr > 0:
+    if cfg.policy == "ppo" and cfg.eval.curr > 0:
         tests["pi_curr"] = _part(seconds, "pi_curr", encoded_rollouts, stream, states, k_curr,
-                                 cfg.eval_curr, random=False)
+                                 cfg.eval.curr, random=False)
     seeds = jax.vmap(lambda k: jax.random.randint(k, (), 0, 2**31 - 1))(k_reg)
     errors = _part(seconds, "regressor", alignment.alignment_errors_runs,
                    *train, tests, seeds=np.asarray(seeds).tolist(), **_regressor_options(stream))
@@ -202,7 +202,7 @@ def _constant_levels(stream: Stream, train_states, test_states: dict) -> dict:
 def distortion_columns(stream: Stream) -> np.ndarray:
     """Indices of the LD state's τ^true entries for the distortion (all by default)."""
     names = list(stream.env.ld_state_names)
-    return np.asarray([names.index(n) for n in stream.config.distortion_dims] or
+    return np.asarray([names.index(n) for n in stream.config.eval.distortion_dims] or
                       range(len(names)))
 
 
@@ -325,15 +325,15 @@ def _rollout_chunk(stream: Stream, states: StreamState, carry, keys):
 @jitted(static_argnums=0)
 def _rollout_start(stream: Stream, states: StreamState, keys: jax.Array,
                    random: jax.Array) -> State:
-    """The R runs' envs reset and past their `eval_transient` steps (keys [R])."""
+    """The R runs' envs reset and past their `eval.transient` steps (keys [R])."""
     return jax.vmap(lambda s, k: _rollout_start_one(stream, s, k, random))(states, keys)
 
 
 def _rollout_start_one(stream: Stream, s: StreamState, key: jax.Array, random) -> State:
     k_reset, k_transient = jax.random.split(key)
     env_state = collect.reset(stream.env, k_reset, stream.config.num_envs)
-    if stream.config.eval_transient:
+    if stream.config.eval.transient:
         # The transient's frames and transitions are unused (dropped from the program).
         env_state = collect.rollout(stream.env, env_state, stream.test_policy(s.ppo, random),
-                                    k_transient, stream.config.eval_transient)[0]
+                                    k_transient, stream.config.eval.transient)[0]
     return env_state

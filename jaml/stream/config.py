@@ -1,15 +1,21 @@
-"""`StreamConfig`: one learning-loop run (env, learner, policy, replay, schedule, evaluation).
+"""`StreamConfig`: one learning-loop run, a frozen tree of typed configs: the run's schedule, its
+replay (`ReplayConfig`), analyses (`EvalConfig`), policy (`PPOConfig`), env (its
+`envs_mjx.config.EnvConfig`) and learner (its `jaml.learners.config.LearnerConfig`).
 
 Defaults follow the reference suite (suite_reference.md §3, §5) where they are not sizes; the
 sizes of the paper (5000 replay columns, 10 000-row regressor sets, 100 000 epochs) are fields,
 and `for_env` fills the per-domain ones from the domain family's `DomainDefaults` (rollout
-length, learner steps per epoch, PPO network, sequence-learner window).
+length, learner steps per epoch, PPO network, sequence-learner window). Options given as text
+(the command line's KEY=VALUE, a driver's sizes) enter the tree once, by path
+(`StreamConfig.with_overrides`); `resolved` fills the derived values; a run's config.json is the
+resolved tree whole (`record`), and `from_dict` reads it back, older flat records included.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Mapping
 from typing import Any
 
 from envs_mjx import config as envs_config
@@ -22,8 +28,15 @@ REFERENCE_REPLAY_COLUMNS = 5000
 # replay keeps half for every learner but VAE_v0, whose only difference from VAE_rpl it is.
 REPLAY_KEEP_FRACTION = {"VAE_v0": 0.0}
 DEFAULT_REPLAY_KEEP_FRACTION = 0.5
-# The key of a run record's learner and env configs (`StreamConfig.record`).
+# The key under which records written before the typed tree held the learner's and env's
+# configs (`from_dict` reads them).
 RESOLVED = "resolved"
+
+
+def _below(config, names, prefix: str, at_least: int = 1) -> list[str]:
+    """One problem per field of `names` under `at_least`, named by its path."""
+    return [f"{prefix}{n} must be ≥ {at_least}, got {getattr(config, n)}"
+            for n in names if getattr(config, n) < at_least]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,27 +91,48 @@ class PPOConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class StreamConfig:
-    """A learning-loop run.
+class ReplayConfig:
+    """The frame replay (reference §3).
 
-    env / learner: registry names (`envs_mjx.ALL_ENVS`, `jaml.learners.ALL_LEARNERS`).
-    policy: "ppo" (PPO on the true LD state) or "random" (uniform actions).
-    seed: PRNG seed of the run (envs, policy, learner, replay sampling, test sets).
-    num_envs: envs stepped in parallel; each epoch adds one replay column per env.
-    rollout_len: steps per env per epoch (a column holds rollout_len + 1 frames).
-    replay_slots: replay columns, a multiple of num_envs; None (default): the reference's 5000
-      rounded down to a multiple of num_envs (4992 at 64 envs), see `replay_columns`.
-    replay_keep_fraction: share of slots kept from the start; None (default): the learner's
-      (`REPLAY_KEEP_FRACTION`: VAE_v0 0, others 0.5), see `keep_fraction`.
-    learner_steps: learner gradient steps per epoch once the replay is full.
-    frames_per_batch: frames per learner step; the batch has frames_per_batch // L sequences.
-    epochs: total epochs of the run.
-    eval_every: epochs between alignment analyses and checkpoints (the first analysis runs when
-      the replay is full and the learner starts).
-    eval_train: sequences in the regressor's training set, sampled from the replay.
-    eval_rand: sequences in the π_rand test set (random policy, the same set at every analysis).
-    eval_curr: sequences in the π_curr test set (current policy; PPO runs only).
-    eval_transient: steps after reset before the test sequences are cut (reference 120).
+    slots: replay columns, a multiple of num_envs; None: the reference's 5000 rounded down to a
+      multiple of num_envs (4992 at 64 envs), filled in by `resolved`.
+    keep_fraction: share of slots kept from the start; None: the learner's
+      (`REPLAY_KEEP_FRACTION`: VAE_v0 0, others 0.5), filled in by `resolved`.
+    """
+
+    slots: int | None = None
+    keep_fraction: float | None = None
+
+    def __post_init__(self):
+        problems = []
+        if self.slots is not None and self.slots < 1:
+            problems.append(f"replay.slots must be ≥ 1 or None, got {self.slots}")
+        if self.keep_fraction is not None and not 0 <= self.keep_fraction < 1:
+            problems.append(f"replay.keep_fraction must be in [0, 1), got {self.keep_fraction}")
+        if problems:
+            raise ValueError("; ".join(problems))
+
+    def resolved(self, num_envs: int, learner: str) -> ReplayConfig:
+        """This replay with its defaults filled in for `num_envs` envs and `learner`."""
+        slots = self.slots
+        if slots is None:
+            slots = max(1, REFERENCE_REPLAY_COLUMNS // num_envs) * num_envs
+        keep = self.keep_fraction
+        if keep is None:
+            keep = REPLAY_KEEP_FRACTION.get(learner, DEFAULT_REPLAY_KEEP_FRACTION)
+        return ReplayConfig(slots=slots, keep_fraction=keep)
+
+
+@dataclasses.dataclass(frozen=True)
+class EvalConfig:
+    """The alignment analyses and their regressor (reference §5).
+
+    every: epochs between alignment analyses and checkpoints (the first analysis runs when the
+      replay is full and the learner starts).
+    train: sequences in the regressor's training set, sampled from the replay.
+    rand: sequences in the π_rand test set (random policy, the same set at every analysis).
+    curr: sequences in the π_curr test set (current policy; PPO runs only).
+    transient: steps after reset before the test sequences are cut (reference 120).
     regressor_iterations: alignment regressor steps (reference 10 000).
     regressor_normalize: z-score the regressor's targets (errors in training-std units, the
       benchmark envs); False for the domains whose LD state is already in a fixed range
@@ -106,9 +140,44 @@ class StreamConfig:
       its rotation blocks are fit and scored by the principal-axis error of R_trueᵀR̂.
     distortion_dims: LD-state names whose values are τ^true in the distortion ρ (paper eq. 5;
       the incline's dynamic state, position and velocity); empty means all of them.
+    """
+
+    every: int = 100
+    train: int = 10_000
+    rand: int = 10_048
+    curr: int = 2_500
+    transient: int = 120
+    regressor_iterations: int = 10_000
+    regressor_normalize: bool = True
+    distortion_dims: tuple[str, ...] = ()
+
+    def __post_init__(self):
+        problems = _below(self, ("every", "train", "rand", "regressor_iterations"), "eval.")
+        problems += _below(self, ("curr", "transient"), "eval.", at_least=0)
+        if problems:
+            raise ValueError("; ".join(problems))
+
+
+@dataclasses.dataclass(frozen=True)
+class StreamConfig:
+    """A learning-loop run.
+
+    env / learner: registry names (`envs_mjx.ALL_ENVS`, `jaml.learners.ALL_LEARNERS`), or your
+      own learner as MODULE:FACTORY (docs/own_learner.md).
+    policy: "ppo" (PPO on the true LD state) or "random" (uniform actions).
+    seed: PRNG seed of the run (envs, policy, learner, replay sampling, test sets).
+    num_envs: envs stepped in parallel; each epoch adds one replay column per env.
+    rollout_len: steps per env per epoch (a column holds rollout_len + 1 frames).
+    learner_steps: learner gradient steps per epoch once the replay is full.
+    frames_per_batch: frames per learner step; the batch has frames_per_batch // L sequences.
+    epochs: total epochs of the run.
+    replay: the replay's size and kept share (`ReplayConfig`).
+    eval: the analyses' schedule, sets and regressor (`EvalConfig`).
     ppo: PPO's hyper-parameters (`for_env` sets the network and passes per domain).
-    learner_overrides: learner config fields (e.g. beta, hist); `learner_config` applies them.
-    env_overrides: env config fields (e.g. multicolor); `env_config` applies them.
+    env_config: the env's config (`envs_mjx.config`); None: the env's defaults.
+    learner_config: the learner's config (`jaml.learners.config`); None: the learner's defaults
+      (your own learner's: none). Its ld_dim is the env's LD-state size: None until `resolved`
+      is given it (the stream reads it from the env it builds).
     """
 
     env: str = "CartPole"
@@ -117,118 +186,103 @@ class StreamConfig:
     seed: int = 0
     num_envs: int = 64
     rollout_len: int = 32
-    replay_slots: int | None = None
-    replay_keep_fraction: float | None = None
     learner_steps: int = 10
     frames_per_batch: int = 1024
     epochs: int = 1000
-    eval_every: int = 100
-    eval_train: int = 10_000
-    eval_rand: int = 10_048
-    eval_curr: int = 2_500
-    eval_transient: int = 120
-    regressor_iterations: int = 10_000
-    regressor_normalize: bool = True
-    distortion_dims: tuple[str, ...] = ()
+    replay: ReplayConfig = dataclasses.field(default_factory=ReplayConfig)
+    eval: EvalConfig = dataclasses.field(default_factory=EvalConfig)
     ppo: PPOConfig = dataclasses.field(default_factory=PPOConfig)
-    learner_overrides: dict[str, Any] = dataclasses.field(default_factory=dict)
-    env_overrides: dict[str, Any] = dataclasses.field(default_factory=dict)
+    env_config: envs_config.EnvConfig | None = None
+    learner_config: learners_config.LearnerConfig | None = None
 
     def __post_init__(self):
         problems = []
         if self.policy not in POLICIES:
             problems.append(f"policy must be one of {POLICIES}, got {self.policy!r}")
-        for name in ("num_envs", "rollout_len", "learner_steps",
-                     "frames_per_batch", "epochs", "eval_every", "eval_train", "eval_rand",
-                     "regressor_iterations"):
-            if getattr(self, name) < 1:
-                problems.append(f"{name} must be ≥ 1, got {getattr(self, name)}")
-        if self.replay_slots is not None and self.replay_slots < 1:
-            problems.append(f"replay_slots must be ≥ 1 or None, got {self.replay_slots}")
-        if self.eval_curr < 0 or self.eval_transient < 0:
-            problems.append("eval_curr and eval_transient must be ≥ 0")
-        if self.num_envs >= 1 and self.replay_slots and self.replay_slots % self.num_envs:
-            problems.append(
-                f"replay_slots ({self.replay_slots}) must be a multiple of num_envs "
-                f"({self.num_envs}): each epoch adds num_envs columns"
-            )
-        if self.replay_keep_fraction is not None and not 0 <= self.replay_keep_fraction < 1:
-            problems.append(f"replay_keep_fraction must be in [0, 1), got "
-                            f"{self.replay_keep_fraction}")
+        problems += _below(self, ("num_envs", "rollout_len", "learner_steps",
+                                  "frames_per_batch", "epochs"), "")
+        slots = self.replay.slots
+        if self.num_envs >= 1 and slots and slots % self.num_envs:
+            problems.append(f"replay.slots ({slots}) must be a multiple of num_envs "
+                            f"({self.num_envs}): each epoch adds num_envs columns")
         if self.policy == "ppo" and self.num_envs % self.ppo.num_minibatches:
             problems.append(f"num_envs ({self.num_envs}) must split into ppo.num_minibatches "
                             f"({self.ppo.num_minibatches})")
         if problems:
             raise ValueError("; ".join(problems))
+        # The typed configs' defaults, and their classes checked against the names: computed
+        # here, so every config holds its env's and (registry) learner's configs.
+        if self.env_config is None:
+            object.__setattr__(self, "env_config", envs_config.default_config(self.env))
+        elif type(self.env_config) is not envs_config.CONFIGS.get(self.env):
+            wanted = envs_config.default_config(self.env)  # an unknown env raises here
+            raise ValueError(f"env_config is a {type(self.env_config).__name__}, but {self.env} "
+                             f"needs a {type(wanted).__name__}: give the env's config or None")
+        if ":" in self.learner:  # your own learner: its factory sets its config
+            if self.learner_config is not None:
+                raise ValueError(f"learner_config must be None for your own learner "
+                                 f"{self.learner}: its factory sets its config")
+            return
+        default = learners_config.default_config(self.learner, ld_dim=None)  # checks the name
+        if self.learner_config is None:
+            object.__setattr__(self, "learner_config", default)
+        elif type(self.learner_config) is not type(default):
+            raise ValueError(
+                f"learner_config is a {type(self.learner_config).__name__}, but {self.learner} "
+                f"needs a {type(default).__name__}: give the learner's config or None")
 
     def replace(self, **changes) -> StreamConfig:
+        """`dataclasses.replace`; a new env or learner name starts from its configs' defaults
+        unless `changes` gives them."""
+        for name in ("env", "learner"):
+            if name in changes and changes[name] != getattr(self, name):
+                changes.setdefault(f"{name}_config", None)
         return dataclasses.replace(self, **changes)
 
-    @property
-    def replay_columns(self) -> int:
-        """The replay's column count: replay_slots, or the reference's 5000 rounded down to a
-        multiple of num_envs (each epoch adds one column per env)."""
-        if self.replay_slots is not None:
-            return self.replay_slots
-        return max(1, REFERENCE_REPLAY_COLUMNS // self.num_envs) * self.num_envs
-
-    @property
-    def keep_fraction(self) -> float:
-        """The replay's kept share: replay_keep_fraction, or the learner's default."""
-        if self.replay_keep_fraction is not None:
-            return self.replay_keep_fraction
-        return REPLAY_KEEP_FRACTION.get(self.learner, DEFAULT_REPLAY_KEEP_FRACTION)
+    def with_overrides(self, overrides: Mapping[str, Any]) -> StreamConfig:
+        """This config with `overrides`: path → value, a path naming a field of the tree as the
+        command line does ("seed", "eval.every", "replay.slots", "ppo.hidden",
+        "learner_config.beta", "env_config.multicolor"); JSON lists become tuples. The one way
+        options given as text enter the tree: a new env or learner first (its configs' defaults,
+        `replace`), then the rest, checked once together; unknown paths raise, naming the valid
+        fields."""
+        overrides = _tuples(dict(overrides))
+        names = {k: overrides.pop(k) for k in ("env", "learner") if k in overrides}
+        config = self.replace(**names)
+        top: dict[str, Any] = {}
+        for path, value in overrides.items():
+            name, *rest = path.split(".")
+            _check(config, name, "")
+            top[name] = (_set(top.get(name, getattr(config, name)), rest, value, f"{name}.")
+                         if rest else value)
+        return config.replace(**top)
 
     @property
     def fill_epochs(self) -> int:
         """Epochs until the replay is full and the learner starts (reference §3)."""
-        return self.replay_columns // self.num_envs
+        return self.resolved().replay.slots // self.num_envs
 
-    def resolved(self) -> StreamConfig:
-        """This config with the defaults that depend on other fields filled in (the replay's
-        columns and kept share): what a run records, so its config.json reads without rules."""
-        return self.replace(replay_slots=self.replay_columns,
-                            replay_keep_fraction=self.keep_fraction)
+    def resolved(self, ld_dim: int | None = None) -> StreamConfig:
+        """This config with its derived values filled in: the replay's columns and kept share,
+        and, given the env's LD-state size, the learner's ld_dim. What a run records, so its
+        config.json reads without rules."""
+        changes = {"replay": self.replay.resolved(self.num_envs, self.learner)}
+        if ld_dim is not None and self.learner_config is not None:
+            changes["learner_config"] = self.learner_config.replace(ld_dim=ld_dim)
+        return dataclasses.replace(self, **changes)
 
-    def learner_config(self, ld_dim: int) -> learners_config.LearnerConfig:
-        """The learner's config: its defaults, then `learner_overrides` (a registry learner;
-        `ld_dim` is the env's LD-state size, which the stream reads from the env)."""
-        return learners_config.default_config(self.learner, ld_dim=ld_dim,
-                                              **self.learner_overrides)
-
-    def env_config(self) -> envs_config.EnvConfig:
-        """The env's config: its defaults, then `env_overrides`."""
-        return envs_config.configured(self.env, **self.env_overrides)
-
-    def with_configs(self, learner: learners_config.LearnerConfig | None = None,
-                     env: envs_config.EnvConfig | None = None) -> StreamConfig:
-        """This config with the options typed learner and env configs hold (the command line's
-        --learner-config.* / --env-config.*): their fields that differ from the defaults, and
-        those this config's overrides name, become learner_overrides / env_overrides (the
-        learner's ld_dim is the env's, not an option). None leaves that part's overrides."""
-        changes = {}
-        if learner is not None:
-            default = learners_config.default_config(self.learner, ld_dim=learner.ld_dim)
-            changes["learner_overrides"] = changed_fields(
-                learner, default, keep=self.learner_overrides, skip=("ld_dim",))
-        if env is not None:
-            changes["env_overrides"] = changed_fields(
-                env, envs_config.default_config(self.env), keep=self.env_overrides)
-        return self.replace(**changes)
-
-    def record(self, learner=None, env=None) -> dict[str, Any]:
-        """A run's config.json: the resolved config's fields and, under "resolved", the configs
-        of the learner and the env the run built (`learner`, `env`: dataclasses; what is not
-        one, say your own learner's config, is left out), whole."""
-        parts = {name: json.loads(json.dumps(dataclasses.asdict(c)))
-                 for name, c in (("learner", learner), ("env", env))
-                 if dataclasses.is_dataclass(c) and not isinstance(c, type)}
-        return self.resolved().to_dict() | ({RESOLVED: parts} if parts else {})
+    def record(self, ld_dim: int | None = None) -> dict[str, Any]:
+        """A run's config.json: the resolved tree (`resolved(ld_dim)`), whole."""
+        return self.resolved(ld_dim).to_dict()
 
     def program_key(self) -> str:
-        """The resolved config without its seed, as canonical JSON: what the compiled loop
-        depends on (the seed only picks the run's keys)."""
-        return json.dumps(self.resolved().replace(seed=0).to_dict(), sort_keys=True)
+        """The resolved config without its seed (and the learner's ld_dim, the env's), as
+        canonical JSON: what the compiled loop depends on (the seed only picks the run's
+        keys)."""
+        key = self.resolved().replace(seed=0)
+        if key.learner_config is not None:
+            key = key.replace(learner_config=key.learner_config.replace(ld_dim=None))
+        return json.dumps(key.to_dict(), sort_keys=True)
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -236,51 +290,123 @@ class StreamConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> StreamConfig:
-        """The config a `to_dict` or `record` (a run's config.json, resolved or as older runs
-        wrote it) describes."""
-        d = dict(d)
-        d.pop(RESOLVED, None)
-        ppo = d.pop("ppo", {})
-        ppo = PPOConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in ppo.items()})
-        if "distortion_dims" in d:
-            d["distortion_dims"] = tuple(d["distortion_dims"])
-        return cls(ppo=ppo, **d)
+        """The config a `to_dict` or `record` describes: a run's config.json, or one written
+        before the tree (flat fields, `learner_overrides` / `env_overrides`, and maybe their
+        configs under "resolved"), read as the run it was. Fields a record lacks (new in the
+        code) take their defaults; fields of the learner's and env's configs that the code no
+        longer has are dropped."""
+        d = _migrated(d)
+        learner_fields = d.pop("learner_config", None)
+        env_fields = d.pop("env_config", None)
+        parts = {name: kind(**_tuples(d.pop(name, {})))
+                 for name, kind in (("replay", ReplayConfig), ("eval", EvalConfig),
+                                    ("ppo", PPOConfig))}
+        config = cls(**d, **parts)
+        env = None if env_fields is None else _known(config.env_config, env_fields)
+        learner = (None if learner_fields is None or config.learner_config is None
+                   else _known(config.learner_config, learner_fields))
+        return config.replace(env_config=env, learner_config=learner)
 
 
-def changed_fields(config, default, *, keep=(), skip=()) -> dict[str, Any]:
-    """What turns the dataclass `default` into `config`: the fields that differ, and those named
-    in `keep`, less those in `skip` (the inverse of `dataclasses.replace`)."""
-    return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)
-            if f.name not in skip and (f.name in keep or getattr(config, f.name)
-                                       != getattr(default, f.name))}
+# The flat fields of records written before the tree → their paths in it.
+FLAT_FIELDS = {
+    "replay_slots": "replay.slots", "replay_keep_fraction": "replay.keep_fraction",
+    "eval_every": "eval.every", "eval_train": "eval.train", "eval_rand": "eval.rand",
+    "eval_curr": "eval.curr", "eval_transient": "eval.transient",
+    "regressor_iterations": "eval.regressor_iterations",
+    "regressor_normalize": "eval.regressor_normalize",
+    "distortion_dims": "eval.distortion_dims",
+}
 
 
-def recorded_env_options(record: dict[str, Any]) -> dict[str, Any]:
-    """The env config fields a run's config.json gives: its resolved env config (the fields the
-    env's config still has), or an older record's env_overrides."""
-    resolved = record.get(RESOLVED, {}).get("env")
-    if resolved is None:
-        return dict(record.get("env_overrides", {}))
-    valid = {f.name for f in dataclasses.fields(envs_config.default_config(record["env"]))}
-    return {k: v for k, v in resolved.items() if k in valid}
+def _migrated(d: dict[str, Any]) -> dict[str, Any]:
+    """A record in the tree's form: one written before the tree has its flat fields moved to
+    their paths, and its learner's and env's configs taken from "resolved" where it has them,
+    else from its overrides on the defaults (which is what they were)."""
+    d = dict(d)
+    resolved = d.pop(RESOLVED, {})
+    learner_overrides = d.pop("learner_overrides", None)
+    env_overrides = d.pop("env_overrides", None)
+    for flat, path in FLAT_FIELDS.items():
+        if flat in d:
+            part, name = path.split(".")
+            d.setdefault(part, {})[name] = d.pop(flat)
+    if learner_overrides is not None or "learner" in resolved:
+        d["learner_config"] = resolved.get("learner", {"ld_dim": None, **learner_overrides})
+    if env_overrides is not None or "env" in resolved:
+        d["env_config"] = resolved.get("env", env_overrides)
+    return d
+
+
+def _known(default, fields: dict[str, Any]):
+    """`default` with the `fields` it has replaced (JSON lists as tuples)."""
+    valid = {f.name for f in dataclasses.fields(default)}
+    return dataclasses.replace(default, **_tuples({k: v for k, v in fields.items()
+                                                   if k in valid}))
+
+
+def _tuple(value):
+    return tuple(value) if isinstance(value, list) else value
+
+
+def _tuples(fields: dict[str, Any]) -> dict[str, Any]:
+    return {k: _tuple(v) for k, v in fields.items()}
+
+
+def _check(node, name: str, at: str) -> None:
+    if not dataclasses.is_dataclass(node):
+        raise ValueError(f"{at.rstrip('.')} is {node!r}, not a config with fields")
+    valid = [f.name for f in dataclasses.fields(node)]
+    if name not in valid:
+        raise ValueError(f"unknown config field {at + name!r}; valid: "
+                         f"{', '.join(at + v for v in valid)}")
+
+
+def _set(node, names: list[str], value, at: str):
+    """`node` (a config below the stream's) with the field at path `names` set to `value`."""
+    name, *rest = names
+    _check(node, name, at)
+    if rest:
+        value = _set(getattr(node, name), rest, value, f"{at}{name}.")
+    return dataclasses.replace(node, **{name: value})
+
+
+def changed_fields(config, default, *, skip=()) -> dict[str, Any]:
+    """What turns the dataclass `default` into `config`: the fields that differ, less those in
+    `skip`, by path: a nested config of the same type by its own fields ("eval.every"), so
+    `default.with_overrides(changed_fields(config, default))` is `config`."""
+    changed = {}
+    for f in dataclasses.fields(config):
+        new, old = getattr(config, f.name), getattr(default, f.name)
+        if f.name in skip or new == old:
+            continue
+        if dataclasses.is_dataclass(new) and type(new) is type(old):
+            changed |= {f"{f.name}.{k}": v for k, v in changed_fields(new, old).items()}
+        else:
+            changed[f.name] = new
+    return changed
 
 
 @dataclasses.dataclass(frozen=True)
 class DomainDefaults:
     """One domain family's settings: StreamConfig fields (the rest keep StreamConfig's
-    defaults), and by learner name the learner config fields it sets (`learners`)."""
+    defaults), and by learner name the learner config fields it sets (`learners`), laid over
+    the learner's defaults once (`config`)."""
 
     rollout_len: int
     learner_steps: int
     ppo: PPOConfig = PPOConfig()
-    regressor_normalize: bool = True
-    distortion_dims: tuple[str, ...] = ()
+    eval: EvalConfig = EvalConfig()
     learners: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
 
-    def stream_fields(self) -> dict[str, Any]:
-        """The StreamConfig fields this family sets."""
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
-                if f.name != "learners"}
+    def config(self, env: str, learner: str) -> StreamConfig:
+        """`env`'s StreamConfig for `learner` with this family's settings."""
+        own = ":" in learner
+        return StreamConfig(
+            env=env, learner=learner, rollout_len=self.rollout_len,
+            learner_steps=self.learner_steps, ppo=self.ppo, eval=self.eval,
+            learner_config=None if own else learners_config.default_config(
+                learner, ld_dim=None, **self.learners.get(learner, {})))
 
 
 # The reference's small-block presets' numerics (PARAMS_PRED_BLK_SM, PARAMS_VAE_BLK_SM): no
@@ -305,7 +431,7 @@ DOMAINS: dict[str, DomainDefaults] = {
     "incline": DomainDefaults(
         rollout_len=10, learner_steps=10,
         ppo=PPOConfig(hidden=(256, 256), num_updates=10, num_minibatches=4),
-        regressor_normalize=False, distortion_dims=("position", "velocity"),
+        eval=EvalConfig(regressor_normalize=False, distortion_dims=("position", "velocity")),
         learners={
             "PRED": {"hist": 1, "pred": 1, "static_dim": 3, "latent_dim": 2, **_SMALL_BLOCK},
             "VAE_v0": {"latent_dim": 5, **_SMALL_BLOCK},
@@ -316,15 +442,14 @@ DOMAINS: dict[str, DomainDefaults] = {
         }),
     # Locomotion's, with the LD targets used as is (its positions are normalised, its rotation
     # blocks scored by the principal-axis error).
-    "rearrange": dataclasses.replace(_LOCOMOTION, regressor_normalize=False),
+    "rearrange": dataclasses.replace(_LOCOMOTION, eval=EvalConfig(regressor_normalize=False)),
 }
 
 
-def for_env(env: str, learner: str = "VAE_rpl", **overrides) -> StreamConfig:
-    """The reference's settings for `env`'s family (`DOMAINS`), then `overrides`; a
-    `learner_overrides` among them is laid over the family's for `learner`."""
+def for_env(env: str, learner: str = "VAE_rpl",
+            overrides: Mapping[str, Any] | None = None) -> StreamConfig:
+    """The reference's settings for `env`'s family (`DOMAINS`) and `learner`, then `overrides`
+    (`StreamConfig.with_overrides`: "eval.every", "learner_config.hist", …), which win over
+    the family's."""
     domain = DOMAINS[envs_config.family(env)]
-    learner_overrides = {**domain.learners.get(learner, {}),
-                         **overrides.pop("learner_overrides", {})}
-    return StreamConfig(env=env, learner=learner, **{**domain.stream_fields(), **overrides},
-                        learner_overrides=learner_overrides)
+    return domain.config(env, learner).with_overrides(overrides or {})

@@ -33,7 +33,7 @@ _BUILT_KEPT = 8
 
 def build(config: StreamConfig, latent_penalty=None) -> Stream:
     """A Stream for `config` (`loop.make`: every size problem is reported here, before anything
-    compiles), kept by the current scope.
+    compiles), kept by the current scope; its config is `config` resolved for its env.
 
     Building a config again in one scope, or one that differs only in its seed, reuses the same
     env, learner and PPO (of the last `_BUILT_KEPT` programs built), so jitted functions
@@ -46,6 +46,7 @@ def build(config: StreamConfig, latent_penalty=None) -> Stream:
             built.popitem(last=False)
     built.move_to_end(cache_key)
     base = built[cache_key]
+    config = config.resolved(len(base.env.ld_state_names))  # as `loop.make` holds it
     return base if base.config == config else dataclasses.replace(base, config=config)
 
 

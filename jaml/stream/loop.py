@@ -115,8 +115,9 @@ class Stream:
             learner=learners.init_train_state(self.learner, self.optimizer, k_learner,
                                               (frames, actions)),
             replay=replay_lib.init(
-                cfg.replay_columns, cfg.rollout_len + 1, learners.learner.FRAME_SHAPE,
-                self.env.action_size, len(self.env.ld_state_names), cfg.keep_fraction,
+                cfg.resolved().replay.slots, cfg.rollout_len + 1, learners.learner.FRAME_SHAPE,
+                self.env.action_size, len(self.env.ld_state_names),
+                cfg.resolved().replay.keep_fraction,
             ),
         )
         # Distinct buffers for every leaf: the executor donates the state, and a buffer shared
@@ -240,18 +241,22 @@ def skipped(stream: Stream, states: StreamState, k_learn: jax.Array):
     return jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype), shapes)
 
 
-def make_learner(name: str, ld_dim: int, overrides: dict) -> learners.Learner:
-    """A registry learner, or your own: "MODULE:FACTORY" names `factory(ld_dim=D, **overrides)`
-    returning a `jaml.learners.Learner` (the protocol: docs/own_learner.md)."""
+def make_learner(name: str, ld_dim: int,
+                 config: learners.LearnerConfig | None = None) -> learners.Learner:
+    """A registry learner from its `config` (its ld_dim set to `ld_dim`), or your own:
+    "MODULE:FACTORY" names `factory(ld_dim=D)` returning a `jaml.learners.Learner` (the
+    protocol: docs/own_learner.md)."""
     if ":" not in name:
-        return learners.make(name, ld_dim=ld_dim, **overrides)
+        if config is None:
+            return learners.make(name, ld_dim=ld_dim)
+        return learners.make(name, config.replace(ld_dim=ld_dim))
     module, _, attr = name.partition(":")
     try:
         factory = getattr(importlib.import_module(module), attr)
     except (ImportError, AttributeError) as error:
         raise ValueError(f"learner {name!r}: cannot import {attr} from {module} ({error}); give "
                          "MODULE:FACTORY with MODULE importable (on PYTHONPATH)") from None
-    learner = factory(ld_dim=ld_dim, **overrides)
+    learner = factory(ld_dim=ld_dim)
     if not isinstance(learner, learners.Learner):
         raise ValueError(f"learner {name!r}: {attr}(ld_dim=...) returned a "
                          f"{type(learner).__name__}, not a jaml.learners.Learner")
@@ -266,18 +271,19 @@ def make(config: StreamConfig, latent_penalty=None) -> Stream:
     if config.learner not in learners.ALL_LEARNERS and ":" not in config.learner:
         raise ValueError(f"unknown learner {config.learner!r}; valid names: "
                          f"{list(learners.ALL_LEARNERS)}, or your own as MODULE:FACTORY")
-    env = envs_mjx.make(config.env, **config.env_overrides)
+    env = envs_mjx.load(config.env, config.env_config)
     ld_dim = len(env.ld_state_names)
-    unknown = sorted(set(config.distortion_dims) - set(env.ld_state_names))
+    config = config.resolved(ld_dim)  # the learner's ld_dim is the env's
+    unknown = sorted(set(config.eval.distortion_dims) - set(env.ld_state_names))
     if unknown:
-        raise ValueError(f"distortion_dims {unknown} are not LD-state names of {config.env}: "
-                         f"{list(env.ld_state_names)}")
-    learner = make_learner(config.learner, ld_dim, config.learner_overrides)
+        raise ValueError(f"eval.distortion_dims {unknown} are not LD-state names of "
+                         f"{config.env}: {list(env.ld_state_names)}")
+    learner = make_learner(config.learner, ld_dim, config.learner_config)
     problems = []
-    if config.regressor_normalize and rotation.ld_blocks(env.ld_state_names,
-                                                         env.ld_state_groups)[0]:
+    if config.eval.regressor_normalize and rotation.ld_blocks(env.ld_state_names,
+                                                              env.ld_state_groups)[0]:
         problems.append(f"{config.env}'s rotation blocks are scored on the LD state as is "
-                        "(reference §5): set regressor_normalize=False")
+                        "(reference §5): set eval.regressor_normalize=False")
     column = config.rollout_len + 1
     if learner.seq_len > column:
         problems.append(
@@ -289,8 +295,7 @@ def make(config: StreamConfig, latent_penalty=None) -> Stream:
             f"frames_per_batch ({config.frames_per_batch}) holds no {learner.seq_len}-frame "
             "sequence"
         )
-    keep = config.keep_fraction
-    columns = config.replay_columns
+    keep, columns = config.replay.keep_fraction, config.replay.slots
     if config.num_envs > columns - int(keep * columns):
         problems.append(
             f"each epoch adds {config.num_envs} columns but only "
@@ -299,7 +304,7 @@ def make(config: StreamConfig, latent_penalty=None) -> Stream:
     if config.epochs < config.fill_epochs:
         problems.append(
             f"epochs ({config.epochs}) end before the replay fills ({config.fill_epochs} epochs "
-            "= replay_slots / num_envs); the learner would never train"
+            "= replay.slots / num_envs); the learner would never train"
         )
     if problems:
         raise ValueError("; ".join(problems))

@@ -74,7 +74,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     `checkpoint_every` says so.
 
     `keep_pi_rand`: each run keeps its π_rand test sequences on the host after its first
-    analysis in this call (`analysis.PiRandSet`; ≈ 2 GB per run at the paper's eval_rand and 16
+    analysis in this call (`analysis.PiRandSet`; ≈ 2 GB per run at the paper's eval.rand and 16
     frames per sequence), so later analyses encode them again instead of rolling them out
     again; the reports are the same. False rolls them out at every analysis.
 

@@ -18,7 +18,7 @@ import numpy as np
 from jaml._rundir import RunLog, claim, lock, truncate_jsonl, write_json
 from jaml.evaluation import plots
 from jaml.stream import analysis, checkpoint
-from jaml.stream.config import RESOLVED, StreamConfig
+from jaml.stream.config import StreamConfig
 from jaml.stream.loop import Stream, StreamState
 from jaml.stream.timing import timed
 
@@ -27,29 +27,32 @@ resume_log = logging.getLogger("jaml.resume")
 
 
 def claim_run(out: Path, config: StreamConfig, stream: Stream | None = None) -> bool:
-    """`_rundir.claim` for a stream run: config.json holds the resolved config and, given the
-    run's `stream`, its learner's and env's configs whole (`StreamConfig.record`). A recorded
-    run is this one when its config resolves to this one (older runs left derived fields to
-    defaults) and its learner and env configs agree on every field both records have (older
-    runs recorded none; a field new in the code is missing from older records)."""
-    parts = () if stream is None else (getattr(stream.learner, "config", None), stream.env.config)
-    record = config.record(*parts)
-    resolved = config.resolved().to_dict()
+    """`_rundir.claim` for a stream run: config.json holds the resolved config tree whole, the
+    learner's ld_dim the `stream`'s env's (`StreamConfig.record`). A recorded run is this one
+    when its tree (`StreamConfig.from_dict`: older records read as the runs they were, fields
+    new in the code at their defaults) resolves to this one; the learner's ld_dim, the env's,
+    is not compared (a record written without the stream lacks it)."""
+    ld_dim = None if stream is None else len(stream.env.ld_state_names)
+    now = _comparable(config)
 
     def same(recorded: dict) -> bool:
-        before, now = recorded.get(RESOLVED, {}), record.get(RESOLVED, {})
-        return (StreamConfig.from_dict(recorded).resolved().to_dict() == resolved
-                and all(before[part].get(k, v) == v for part in before.keys() & now.keys()
-                        for k, v in now[part].items()))
+        return _comparable(StreamConfig.from_dict(recorded)) == now
 
-    return claim(out, record, same)
+    return claim(out, config.record(ld_dim), same)
+
+
+def _comparable(config: StreamConfig) -> StreamConfig:
+    resolved = config.resolved()
+    if resolved.learner_config is None:
+        return resolved
+    return resolved.replace(learner_config=resolved.learner_config.replace(ld_dim=None))
 
 
 def analysis_epochs(config: StreamConfig) -> list[int]:
     """Epochs after which the run analyses and checkpoints: when the replay is full (the learner
-    has just started), every `eval_every` epochs after that, and at the end."""
+    has just started), every `eval.every` epochs after that, and at the end."""
     first = config.fill_epochs
-    epochs = list(range(first, config.epochs + 1, config.eval_every))
+    epochs = list(range(first, config.epochs + 1, config.eval.every))
     if not epochs or epochs[-1] != config.epochs:
         epochs.append(config.epochs)
     return epochs

@@ -1,6 +1,5 @@
 """The Fig. 2 report: per-seed histories → mean ± 90 % confidence half-width per dimension."""
 
-import dataclasses
 import json
 import math
 
@@ -12,7 +11,7 @@ from jaml.experiments import _runs, fig2
 
 NAMES = ["theta", "theta_dot", "x", "x_dot"]
 
-PAPER_SIZES = dataclasses.asdict(_runs.Sizes())
+PAPER_SIZES = _runs.Sizes().overrides()
 
 
 def _write_run(path, learner, seed, errors_at_end, finished=True, learner_overrides=None,
@@ -93,6 +92,22 @@ def test_a_cells_extra_learner_options_are_shown_and_seeds_that_differ_are_refus
                learner_overrides={"compute_dtype": "bfloat16"})
     with pytest.raises(ValueError, match="seed_0 and seed_1 differ in learner_overrides"):
         fig2.report(tmp_path, ["CartPole"], ["PRED"])
+
+
+def test_a_cells_extra_options_read_from_records_of_the_config_tree(tmp_path):
+    """Records written since the config is a tree (#45) give the same settings and extras."""
+    for seed in range(2):
+        config = fig2.config_for("CartPole", "beta-VAE_5", seed, PAPER_SIZES, fig2.SCHEDULE,
+                                 {"compute_dtype": "bfloat16"})
+        path = tmp_path / "CartPole" / "beta-VAE_5" / f"seed_{seed}"
+        _write_run(path, "beta-VAE", seed, [0.1] * 4)
+        (path / "config.json").write_text(json.dumps(config.record(ld_dim=4)))
+    flat = _runs.cell_config(tmp_path / "CartPole" / "beta-VAE_5")
+    # What differs from the learner's defaults (β-VAE's own β is 5).
+    assert flat["learner_overrides"] == {"compute_dtype": "bfloat16"}
+    assert (flat["eval_every"], flat["replay_slots"], flat["env_overrides"]) == (100, 4992, {})
+    text = fig2.report(tmp_path, ["CartPole"], ["beta-VAE_5"])
+    assert "| CartPole | 2 × 20 of 1000 (compute_dtype=bfloat16) |" in text
 
 
 def test_figure_panels_average_the_groups_of_each_domain(tmp_path):
@@ -178,8 +193,8 @@ def test_the_report_draws_locomotion_on_the_constants_scale_and_names_what_it_le
 def test_grid_configs_follow_the_paper_per_family():
     cart = fig2.config_for("CartPole", "beta-VAE_20", 3, PAPER_SIZES, fig2.SCHEDULE)
     ant = fig2.config_for("Ant", "PRED", 0, PAPER_SIZES, fig2.SCHEDULE)
-    assert (cart.learner, cart.learner_overrides["beta"], cart.seed) == ("beta-VAE", 20.0, 3)
-    assert (cart.epochs, cart.learner_steps, cart.resolved().replay_slots) == (1000, 10, 4992)
+    assert (cart.learner, cart.learner_config.beta, cart.seed) == ("beta-VAE", 20.0, 3)
+    assert (cart.epochs, cart.learner_steps, cart.resolved().replay.slots) == (1000, 10, 4992)
     assert (ant.epochs, ant.learner_steps, ant.rollout_len) == (300, 50, 64)
     assert cart.frames_per_batch == ant.frames_per_batch == 1024
 

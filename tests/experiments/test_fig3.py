@@ -19,7 +19,17 @@ from jaml.experiments import _runs, fig3
 T_90_2DOF = 2.9199856  # t(0.95, 2 dof): the 90 % half-width of 3 seeds is this · s / √3
 T_90_1DOF = 6.3137515  # t(0.95, 1 dof), for 2 seeds
 
-PAPER_SIZES = dataclasses.asdict(_runs.Sizes())
+PAPER_SIZES = _runs.Sizes().overrides()
+# The sizes by the flat names of a run record written before the config tree (#45).
+FLAT_SIZES = dataclasses.asdict(_runs.Sizes())
+
+
+def _options(config) -> dict:
+    """The learner config fields a config sets beyond the learner's defaults."""
+    from jaml.learners.config import default_config
+    from jaml.stream.config import changed_fields
+
+    return changed_fields(config.learner_config, default_config(config.learner, ld_dim=None))
 
 
 def test_groups_come_from_the_envs_metadata_and_names():
@@ -75,20 +85,19 @@ def test_configs_follow_the_reference_for_rearrange():
     spair = fig3.config_for("SPAIR_6x6", 0, PAPER_SIZES, fig3.SCHEDULE, {"beta": 0.2},
                             {"versions": (0, 1)})
     assert (vae.env, vae.learner, vae.seed) == ("RearrangeGeom", "VAE_rpl", 2)
-    assert (vae.rollout_len, vae.learner_steps, vae.resolved().replay_slots) == (10, 50, 4992)
+    assert (vae.rollout_len, vae.learner_steps, vae.resolved().replay.slots) == (10, 50, 4992)
     assert (vae.frames_per_batch, spair.frames_per_batch) == (1024, 64)
-    assert not vae.regressor_normalize and not spair.regressor_normalize
-    assert (vae.epochs, vae.eval_every, vae.eval_train, vae.eval_rand, vae.eval_curr) == (
+    assert not vae.eval.regressor_normalize and not spair.eval.regressor_normalize
+    assert (vae.epochs, vae.eval.every, vae.eval.train, vae.eval.rand, vae.eval.curr) == (
         300, 50, 10_000, 10_048, 2_500)
     assert (vae.ppo.hidden, vae.ppo.num_updates, vae.ppo.num_minibatches) == ((256, 256), 50, 4)
     # PARAMS_VAE_REARR: the VAE's latent is as wide as the reacher's LD state.
-    assert vae.learner_overrides == {"latent_dim": 53, "mu_nl": False, "logvar_limit": 20.0}
-    assert spair.learner_overrides == {"grid_size": 6, "beta": 0.2}
-    assert spair.env_overrides == {"versions": (0, 1)}
-    assert fig3.config_for("SPAIR_4x4", 0, PAPER_SIZES, fig3.SCHEDULE).learner_overrides == {
-        "grid_size": 4}
+    assert _options(vae) == {"latent_dim": 53, "mu_nl": False, "logvar_limit": 20.0}
+    assert _options(spair) == {"grid_size": 6, "beta": 0.2}
+    assert spair.env_config.versions == (0, 1)
+    assert fig3.config_for("SPAIR_4x4", 0, PAPER_SIZES, fig3.SCHEDULE).learner_config.grid_size == 4
     ycb = fig3.config_for("VAE_rpl", 0, PAPER_SIZES, fig3.SCHEDULE, env="RearrangeYCB")
-    assert (ycb.env, ycb.learner_overrides["latent_dim"], ycb.rollout_len) == (
+    assert (ycb.env, ycb.learner_config.latent_dim, ycb.rollout_len) == (
         "RearrangeYCB", 53, 10)
     with pytest.raises(ValueError, match=r"unknown env 'RearrangeToys' for Fig\. 3; valid: "
                                          r"RearrangeGeom, RearrangeYCB"):
@@ -167,7 +176,7 @@ def _write_run(path, variant, seed, by_step, fill=2, baseline=None, env=fig3.ENV
     value), a recon image per step."""
     learner = fig3.VARIANTS[variant][0]
     path.mkdir(parents=True)
-    config = {**PAPER_SIZES, "num_envs": 4, "replay_slots": 4 * fill, "epochs": 6,
+    config = {**FLAT_SIZES, "num_envs": 4, "replay_slots": 4 * fill, "epochs": 6,
               "eval_every": 2, "learner": learner, "seed": seed, "env": env}
     (path / "config.json").write_text(json.dumps(config))
     records = []
@@ -395,9 +404,9 @@ def test_the_command_trains_each_variant_then_reports(tmp_path, monkeypatch, cap
          7),
         ([3, 5], [str(tmp_path / "VAE_rpl" / "seed_3"), str(tmp_path / "VAE_rpl" / "seed_5")], 7)]
     spair, vae = calls[0][3], calls[1][3]
-    assert spair.learner_overrides == {"grid_size": 6, "beta": 0.3}
-    assert "beta" not in vae.learner_overrides
-    assert (spair.epochs, spair.eval_every, spair.env_overrides) == (20, 5, {"versions": (0, 1)})
+    assert _options(spair) == {"grid_size": 6, "beta": 0.3}
+    assert "beta" not in _options(vae)
+    assert (spair.epochs, spair.eval.every, spair.env_config.versions) == (20, 5, (0, 1))
     assert spair.env == vae.env == "RearrangeYCB"
     out = capsys.readouterr().out
     assert "SPAIR_6x6 seed 3: interrupted at epoch 2" in out
@@ -410,8 +419,9 @@ def test_the_command_trains_each_variant_then_reports(tmp_path, monkeypatch, cap
 # ---------------------------------------------------------------------------------------------
 # The real thing, tiny.
 
-TINY = dict(num_envs=4, rollout_len=2, replay_slots=8, frames_per_batch=4, learner_steps=1,
-            eval_train=8, eval_rand=8, eval_curr=8, eval_transient=2, regressor_iterations=5)
+TINY = {"num_envs": 4, "rollout_len": 2, "replay.slots": 8, "frames_per_batch": 4,
+        "learner_steps": 1, "eval.train": 8, "eval.rand": 8, "eval.curr": 8, "eval.transient": 2,
+        "eval.regressor_iterations": 5}
 TINY_LEARNERS = {
     "VAE_rpl": {"mlp_widths": (32, 32), "conv_filters": (8, 8, 8, 8), "conv_features": 16,
                 "deconv_filters": (8, 8, 8, 8)},

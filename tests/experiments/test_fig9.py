@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 
 import envs_mjx
+from envs_mjx.config import configured
 from jaml.evaluation import history_records
 from jaml.experiments import fig9, fig9_report
+from jaml.learners.config import default_config
 from jaml.relations.transfer import LatentLayout
 
 NAMES = ["texture_id", "object_id", "theta", "position", "velocity"]
@@ -171,8 +173,9 @@ def test_fixed_dynamics_fix_the_targets_mass_and_friction_at_every_reset():
     the one mass and friction; an unknown name is refused."""
     ours = fig9.RECIPES["ours"]
     config = fig9._config("PRED", 0, ours, "fixed")
-    assert config.env == fig9.TARGET and config.env_overrides == fig9._dynamics("fixed")
-    env = envs_mjx.make(fig9.TARGET, **config.env_overrides, pixels="off")
+    assert config.env == fig9.TARGET and config.env_config == configured(
+        fig9.TARGET, **fig9._dynamics("fixed"))
+    env = envs_mjx.load(fig9.TARGET, dataclasses.replace(config.env_config, pixels="off"))
     draws = _reset_draws(env)
     assert set(np.round(draws["mass"], 6)) == {0.2}  # float32
     assert set(np.round(draws["friction"], 6)) == {0.3}
@@ -181,7 +184,8 @@ def test_fixed_dynamics_fix_the_targets_mass_and_friction_at_every_reset():
     draws = _reset_draws(sources.make(fig9.SOURCE, **fig9._dynamics("fixed")).env)
     assert set(np.round(draws["mass"], 6)) == {0.2}
     assert set(np.round(draws["friction"], 6)) == {0.3}
-    assert fig9._config("PRED", 0, ours).env_overrides == {}  # "drawn": the domains' own
+    # "drawn": the domains' own
+    assert fig9._config("PRED", 0, ours).env_config == envs_mjx.default_config(fig9.TARGET)
     with pytest.raises(ValueError, match=r"dynamics must be one of \['drawn', 'fixed'\]"):
         fig9._config("PRED", 0, ours, "frozen")
 
@@ -192,7 +196,7 @@ def test_the_beta_control_weighs_the_kl_as_the_random_row_controls_loss_does_in_
     ld = 5
 
     def learner(method):
-        return fig9._config("PRED", 0, reference, method=method).learner_config(ld_dim=ld)
+        return fig9._config("PRED", 0, reference, method=method).resolved(ld).learner_config
 
     control, pred = learner("PRED+beta_1of11"), learner("PRED")
     assert control.beta == pytest.approx(1 / 11) and pred.beta == 1.0
@@ -230,16 +234,15 @@ def test_the_reference_recipe_and_its_controls():
     impose no penalty but keep the ok-row term, with the relations' rows or random ones."""
     ref = fig9.RECIPES["reference"]
     pred = fig9._config("PRED", 0, ref)
-    assert pred.learner_overrides | {} == {
-        "hist": 1, "pred": 1, "static_dim": 3, "latent_dim": 2, "mu_nl": False,
-        "logvar_limit": 20.0, "current_action": "observed", "kl_form": "reference",
-        "conv_filters": (32, 64, 64, 128), "deconv_filters": (128, 64, 64, 32),
-        "static_per_step": True}
-    assert (pred.replay_columns, pred.frames_per_batch // 2, pred.learner_steps) == (
+    assert pred.learner_config == default_config(
+        "PRED", ld_dim=None, hist=1, pred=1, static_dim=3, latent_dim=2, mu_nl=False,
+        logvar_limit=20.0, current_action="observed", kl_form="reference",
+        conv_filters=(32, 64, 64, 128), deconv_filters=(128, 64, 64, 32), static_per_step=True)
+    assert (pred.resolved().replay.slots, pred.frames_per_batch // 2, pred.learner_steps) == (
         4992, 512, 10)
-    assert (pred.eval_train, pred.eval_rand, pred.regressor_iterations) == (
+    assert (pred.eval.train, pred.eval.rand, pred.eval.regressor_iterations) == (
         10_000, 10_048, 10_000)
-    assert "static_per_step" not in fig9._config("VAE_rpl", 0, ref).learner_overrides
+    assert not hasattr(fig9._config("VAE_rpl", 0, ref).learner_config, "static_per_step")
     penalty = fig9.Penalty(2000.0, "hinge", 10.0)
     assert fig9.method_penalty("PRED+AML_syz", penalty) == penalty
     assert fig9.method_penalty("PRED+ok_rows", penalty) == fig9.Penalty(0.0, "hinge", 10.0)

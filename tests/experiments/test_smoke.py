@@ -1,6 +1,5 @@
 """`--scale smoke`: the figure drivers and `jaml suite` at minutes-on-a-CPU sizes, resumable."""
 
-import dataclasses
 import json
 
 import pytest
@@ -30,7 +29,7 @@ def test_fig2_smoke_trains_resumes_with_a_word_and_reports(tmp_path, capsys):
         run = tmp_path / "CartPole" / "VAE_rpl" / f"seed_{seed}"
         assert f"{run}: resumed from its checkpoint at epoch 2 of 4" in captured.err
         config = json.loads((run / "config.json").read_text())
-        assert (config["num_envs"], config["epochs"], config["eval_rand"]) == (8, 4, 64)
+        assert (config["num_envs"], config["epochs"], config["eval"]["rand"]) == (8, 4, 64)
         summary = json.loads((run / "summary.json").read_text())
         assert summary["status"] == "finished" and summary["resumed_from"] == 2
     assert (tmp_path / "fig2.md").is_file()
@@ -41,13 +40,13 @@ def test_fig3_smoke_configs_take_the_smoke_sizes():
     from jaml.cli import parse
     from jaml.experiments import _runs, fig3
 
-    paper_sizes = dataclasses.asdict(_runs.Sizes())
+    paper_sizes = _runs.Sizes().overrides()
 
     args = parse(["fig3", "--scale", "smoke", "--out", "unused"]).command
     assert args.scale == "smoke"
     config = fig3.config_for("SPAIR_4x4", 0, paper_sizes, fig3.SCHEDULE, preset=args.scale)
-    assert (config.num_envs, config.epochs, config.eval_rand, config.regressor_iterations) == (
-        8, 4, 64, 200)
-    assert config.learner_overrides["grid_size"] == 4 and not config.regressor_normalize
+    assert (config.num_envs, config.epochs, config.eval.rand,
+            config.eval.regressor_iterations) == (8, 4, 64, 200)
+    assert config.learner_config.grid_size == 4 and not config.eval.regressor_normalize
     paper = fig3.config_for("SPAIR_4x4", 0, paper_sizes, fig3.SCHEDULE)
     assert paper.num_envs == 64 and paper.epochs == fig3.SCHEDULE[0]

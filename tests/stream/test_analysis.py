@@ -36,8 +36,9 @@ def _fast_compiling_prng():
 
 def small():
     """VAE_v0 (no kept slots) with narrow convolutions; 8 replay slots fill in one epoch."""
-    narrow = {"conv_filters": (8, 8, 8, 8), "conv_features": 16, "deconv_filters": (8, 8, 8, 8)}
-    return tiny(learner="VAE_v0", replay_slots=8, learner_steps=1, learner_overrides=narrow)
+    narrow = {"learner_config.conv_filters": (8, 8, 8, 8), "learner_config.conv_features": 16,
+              "learner_config.deconv_filters": (8, 8, 8, 8)}
+    return tiny(learner="VAE_v0", overrides={"replay.slots": 8, **narrow}, learner_steps=1)
 
 
 @pytest.mark.parametrize("normalize", [True, False])
@@ -90,8 +91,8 @@ def test_stacked_runs_analysed_at_once_match_each_run_alone():
     for _ in range(2):
         assert analysis.evaluate_runs(s, states, jax.numpy.stack(keys),
                                       jax.numpy.stack(pi_rand_keys), pi_rand_sets=kept) == together
-    assert kept[0].holds(s, pi_rand_keys[0], s.config.eval_rand)
-    assert kept[1].holds(s, pi_rand_keys[1], s.config.eval_rand)
+    assert kept[0].holds(s, pi_rand_keys[0], s.config.eval.rand)
+    assert kept[1].holds(s, pi_rand_keys[1], s.config.eval.rand)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -126,9 +127,9 @@ def _fake_stream(monkeypatch, env_name, **changes):
     """A Stream stand-in (config, env, seq_len) whose encoded data sets are `_synthetic` draws
     from the keys the analysis passes, for one run and for stacked runs."""
     env = envs_mjx.make(env_name, pixels="off")
-    config = stream.for_env(env_name, "VAE_rpl", num_envs=8, eval_train=EVAL_TRAIN, eval_rand=16,
-                            eval_curr=16, regressor_iterations=30,
-                            ppo=stream.PPOConfig(num_minibatches=4), **changes)
+    config = stream.for_env(env_name, "VAE_rpl", {
+        "num_envs": 8, "eval.train": EVAL_TRAIN, "eval.rand": 16, "eval.curr": 16,
+        "eval.regressor_iterations": 30, "ppo.num_minibatches": 4, **changes})
     fake = types.SimpleNamespace(config=config, env=env, seq_len=1)
 
     def one(stream_, s, key, num, random=None, fingerprints=False, kept=None):
@@ -159,7 +160,7 @@ def test_rearrange_rotation_blocks_are_scored_by_their_principal_axis(monkeypatc
     names = list(fake.env.ld_state_names)
     starts = [names.index(f"obj{k}_r00") for k in range(4)]
     labels = [f"obj{k}_rotation" for k in range(4)]
-    assert not fake.config.regressor_normalize  # for_env: Rearrange's targets used as is
+    assert not fake.config.eval.regressor_normalize  # for_env: Rearrange's targets used as is
     assert analysis.rotation_blocks(fake) == (tuple(starts), tuple(labels))
     assert analysis.error_names(fake) == names + labels
     key, pi_rand_key = jax.random.PRNGKey(3), jax.random.PRNGKey(5)
@@ -262,8 +263,8 @@ def test_other_domains_are_analysed_as_before(monkeypatch):
 
 
 def test_rearrange_with_normalised_targets_is_refused():
-    config = stream.for_env("RearrangeGeom", "VAE_rpl", regressor_normalize=True)
-    with pytest.raises(ValueError, match=r"rotation blocks .* set regressor_normalize=False"):
+    config = stream.for_env("RearrangeGeom", "VAE_rpl", {"eval.regressor_normalize": True})
+    with pytest.raises(ValueError, match=r"rotation blocks .* set eval.regressor_normalize=False"):
         stream.build(config)
 
 
@@ -322,8 +323,8 @@ def _stand_ins(monkeypatch):
                         lambda stream_, states, ks, random: jnp.zeros(len(ks), jnp.int32))
     monkeypatch.setattr(analysis, "_rollout_chunk", chunk)
     monkeypatch.setattr(analysis, "_encode", encode)
-    config = types.SimpleNamespace(env="CartPole", env_overrides={}, num_envs=E,
-                                   eval_transient=120)
+    config = types.SimpleNamespace(env="CartPole", env_config=None, num_envs=E,
+                                   eval=stream.EvalConfig(transient=120))
     return types.SimpleNamespace(config=config, seq_len=L), calls
 
 
@@ -363,7 +364,7 @@ def test_a_kept_pi_rand_set_is_encoded_again_not_rolled_out_again(monkeypatch):
     assert not kept.holds(fake, key, num) and not kept.holds(fake, other, 11)
     # Nor a stream whose rollouts differ (another transient), nor π_curr's sequences.
     longer = types.SimpleNamespace(config=types.SimpleNamespace(**{
-        **vars(fake.config), "eval_transient": 121}), seq_len=L)
+        **vars(fake.config), "eval": stream.EvalConfig(transient=121)}), seq_len=L)
     assert not kept.holds(longer, other, num)
     with pytest.raises(ValueError, match="π_rand"):
         encoded_rollouts(2.0, other, random=False, kept=kept)

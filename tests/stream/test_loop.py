@@ -25,13 +25,14 @@ def _fast_compiling_prng():
         yield
 
 
-def tiny(learner="VAE_rpl", **overrides):
-    """Two fill epochs, then training; analyses at epochs 2, 4, 6."""
-    settings = dict(num_envs=8, rollout_len=4, replay_slots=16, frames_per_batch=8,
-                    learner_steps=2, epochs=6, eval_every=2, eval_train=16, eval_rand=16,
-                    eval_curr=16, eval_transient=3, regressor_iterations=20,
-                    ppo=stream.PPOConfig(num_minibatches=4))
-    return stream.for_env("CartPole", learner, **{**settings, **overrides})
+def tiny(learner="VAE_rpl", overrides=None, **fields):
+    """Two fill epochs, then training; analyses at epochs 2, 4, 6. `overrides` (paths) and
+    `fields` (the stream's own) change it (`StreamConfig.with_overrides`)."""
+    settings = {"num_envs": 8, "rollout_len": 4, "replay.slots": 16, "frames_per_batch": 8,
+                "learner_steps": 2, "epochs": 6, "eval.every": 2, "eval.train": 16,
+                "eval.rand": 16, "eval.curr": 16, "eval.transient": 3,
+                "eval.regressor_iterations": 20, "ppo.num_minibatches": 4}
+    return stream.for_env("CartPole", learner, {**settings, **fields, **(overrides or {})})
 
 
 @pytest.mark.parametrize(
@@ -40,30 +41,35 @@ def tiny(learner="VAE_rpl", **overrides):
         (dict(env="Pendulum"), "unknown env 'Pendulum'; valid names"),
         (dict(learner="AE"), "unknown learner 'AE'; valid names"),
         (dict(learner="SVAE"), "needs sequences of 24 frames but replay columns hold"),
-        (dict(learner="PRED", learner_overrides={"hist": 2, "pred": 2}, frames_per_batch=3),
-         "frames_per_batch \\(3\\) holds no 4-frame sequence"),
-        (dict(replay_slots=20), "must be a multiple of num_envs"),
+        ({"learner": "PRED", "learner_config.hist": 2, "learner_config.pred": 2,
+          "frames_per_batch": 3}, "frames_per_batch \\(3\\) holds no 4-frame sequence"),
+        ({"replay.slots": 20}, "must be a multiple of num_envs"),
         (dict(epochs=1), "end before the replay fills"),
-        (dict(replay_slots=8, replay_keep_fraction=0.5), "only 4 replay slots are replaceable"),
+        ({"replay.slots": 8, "replay.keep_fraction": 0.5}, "only 4 replay slots are replaceable"),
+        ({"learner_config.hist": 2}, r"unknown config field 'learner_config.hist'; valid: "
+                                     r"learner_config.ld_dim, learner_config.latent_dim"),
+        ({"eval.every": 0}, r"eval.every must be ≥ 1, got 0"),
+        ({"replay.keep_fraction": 1.0}, r"replay.keep_fraction must be in \[0, 1\), got 1.0"),
     ],
 )
 def test_bad_configs_raise_before_anything_runs(change, message, tmp_path):
     with pytest.raises(ValueError, match=message):
-        run_lib.run(tiny().replace(**change), tmp_path / "run", progress=False)
+        run_lib.run(tiny().with_overrides(change), tmp_path / "run", progress=False)
     assert not (tmp_path / "run").exists()  # nothing written for a config that cannot run
 
 
 def test_replay_size_defaults_to_the_references_5000_columns_per_env_count():
-    assert stream.StreamConfig().replay_columns == 4992  # 78 columns of 64 envs
-    assert stream.StreamConfig(num_envs=200).replay_columns == 5000
-    assert stream.StreamConfig(num_envs=96, replay_slots=192).fill_epochs == 2
+    assert stream.StreamConfig().resolved().replay.slots == 4992  # 78 columns of 64 envs
+    assert stream.StreamConfig(num_envs=200).resolved().replay.slots == 5000
+    assert stream.StreamConfig(num_envs=96,
+                               replay=stream.ReplayConfig(slots=192)).fill_epochs == 2
 
 
 def test_bad_policy_and_sizes_are_named():
     with pytest.raises(ValueError, match="policy must be one of"):
         tiny(policy="greedy")
     with pytest.raises(ValueError, match=r"must split into ppo\.num_minibatches"):
-        tiny(num_envs=8, ppo=stream.PPOConfig(num_minibatches=3), replay_slots=16)
+        tiny(num_envs=8, ppo=stream.PPOConfig(num_minibatches=3))
 
 
 def test_a_run_directory_refuses_another_config(tmp_path):
@@ -100,7 +106,7 @@ def test_checkpoint_round_trip_keeps_every_leaf_by_name(tmp_path):
     for a, b in zip(jax.tree.leaves(state), jax.tree.leaves(restored), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     # Other shapes (more envs) or another learner's state: refused, naming what differs.
-    wider = stream.build(tiny(num_envs=16, replay_slots=32))
+    wider = stream.build(tiny(num_envs=16, overrides={"replay.slots": 32}))
     with pytest.raises(checkpoint.CheckpointMismatch, match=r"other shapes .*saved \(8"):
         checkpoint.restore(mgr, jax.eval_shape(wider.init, jax.random.PRNGKey(0)))
     other = stream.build(tiny(learner="SVAE", rollout_len=24, frames_per_batch=24))
@@ -152,7 +158,7 @@ def test_streams_of_other_seeds_share_compiled_code_not_their_seed():
 
 def test_analysis_epochs_start_when_the_replay_is_full():
     assert run_lib.analysis_epochs(tiny()) == [2, 4, 6]
-    assert run_lib.analysis_epochs(tiny(epochs=7, eval_every=4)) == [2, 6, 7]
+    assert run_lib.analysis_epochs(tiny(epochs=7, overrides={"eval.every": 4})) == [2, 6, 7]
 
 
 def _records(path):

@@ -31,8 +31,9 @@ def small():
     """VAE_v0 (no kept slots) with narrow convolutions (XLA:CPU runs convolutions inside the
     device loop's while loop slowly), one learner step per epoch: epoch 1 fills the replay (the
     learner waits), epoch 2 trains."""
-    narrow = {"conv_filters": (8, 8, 8, 8), "conv_features": 16, "deconv_filters": (8, 8, 8, 8)}
-    return tiny(learner="VAE_v0", replay_slots=16, learner_steps=1, learner_overrides=narrow)
+    narrow = {"learner_config.conv_filters": (8, 8, 8, 8), "learner_config.conv_features": 16,
+              "learner_config.deconv_filters": (8, 8, 8, 8)}
+    return tiny(learner="VAE_v0", overrides=narrow, learner_steps=1)
 
 
 @pytest.fixture(autouse=True, scope="module")

@@ -275,14 +275,18 @@ class StreamConfig:
         """A run's config.json: the resolved tree (`resolved(ld_dim)`), whole."""
         return self.resolved(ld_dim).to_dict()
 
+    def env_free(self) -> StreamConfig:
+        """The resolved config with the learner's ld_dim left to the env (None): what two
+        configs of one run compare on, before and after a stream has built its env."""
+        resolved = self.resolved()
+        if resolved.learner_config is None:
+            return resolved
+        return resolved.replace(learner_config=resolved.learner_config.replace(ld_dim=None))
+
     def program_key(self) -> str:
-        """The resolved config without its seed (and the learner's ld_dim, the env's), as
-        canonical JSON: what the compiled loop depends on (the seed only picks the run's
-        keys)."""
-        key = self.resolved().replace(seed=0)
-        if key.learner_config is not None:
-            key = key.replace(learner_config=key.learner_config.replace(ld_dim=None))
-        return json.dumps(key.to_dict(), sort_keys=True)
+        """`env_free` without the seed, as canonical JSON: what the compiled loop depends on
+        (the seed only picks the run's keys)."""
+        return json.dumps(self.env_free().replace(seed=0).to_dict(), sort_keys=True)
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)

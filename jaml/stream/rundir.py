@@ -33,19 +33,12 @@ def claim_run(out: Path, config: StreamConfig, stream: Stream | None = None) -> 
     new in the code at their defaults) resolves to this one; the learner's ld_dim, the env's,
     is not compared (a record written without the stream lacks it)."""
     ld_dim = None if stream is None else len(stream.env.ld_state_names)
-    now = _comparable(config)
+    now = config.env_free()
 
     def same(recorded: dict) -> bool:
-        return _comparable(StreamConfig.from_dict(recorded)) == now
+        return StreamConfig.from_dict(recorded).env_free() == now
 
     return claim(out, config.record(ld_dim), same)
-
-
-def _comparable(config: StreamConfig) -> StreamConfig:
-    resolved = config.resolved()
-    if resolved.learner_config is None:
-        return resolved
-    return resolved.replace(learner_config=resolved.learner_config.replace(ld_dim=None))
 
 
 def analysis_epochs(config: StreamConfig) -> list[int]:

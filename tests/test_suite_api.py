@@ -10,10 +10,12 @@ import pytest
 from jaml import stream, suite
 from jaml.stream import analysis
 
-# The API's numbers and the analysis' own, computed by two programs, agree to 1e-5 at the
-# default emitters' rounding (the older ones part them by 3e-5 after the regressor's fit).
+# The API's numbers and the analysis' own come from two programs: they agree to float rounding
+# (3e-5 after the regressor's fit with the suite's faster-compiling emitters, tests/conftest.py;
+# a different test set, key or target would part them by far more than RTOL).
 # One of the default suite's longest modules: scheduled early (tests/conftest.py).
-pytestmark = [pytest.mark.xla_fusion_emitters, pytest.mark.first]
+pytestmark = [pytest.mark.first]
+RTOL = 1e-4
 
 
 @pytest.fixture(scope="module")
@@ -38,11 +40,11 @@ def test_the_apis_numbers_equal_the_streams_own_analysis(run):
     api = suite.evaluate(encode, config, state, actions_seen=s.learner.config.actions_seen)
     assert set(api["errors"]) == set(own["errors"]) == {"pi_rand", "pi_curr", "validation"}
     for name in own["errors"]:
-        np.testing.assert_allclose(api["errors"][name], own["errors"][name], rtol=1e-5,
+        np.testing.assert_allclose(api["errors"][name], own["errors"][name], rtol=RTOL,
                                    atol=1e-6)
     assert api["baseline"] == own["baseline"]
-    np.testing.assert_allclose(api["distortion"], own["distortion"], rtol=1e-5)
-    assert api["irregularity"] == pytest.approx(own["irregularity"], rel=1e-5)
+    np.testing.assert_allclose(api["distortion"], own["distortion"], rtol=RTOL)
+    assert api["irregularity"] == pytest.approx(own["irregularity"], rel=RTOL)
     assert api["error_names"] == list(s.env.ld_state_names)
 
 

@@ -322,17 +322,17 @@ def main(argv=None) -> int:
     print(f"device: {jax.devices()[0].device_kind} ({jax.default_backend()}), "
           f"jax {jax.__version__}, python {platform.python_version()}, {platform.processor()}")
     print(f"train steps (ld_dim {LD_DIM}, Adam), median of {args.reps} reps × {args.steps} steps")
+    peer_gflop = {}  # the peer's own count, per learner (the same in every dtype)
+    for name in args.learners if variants else ():
+        t = tl.seq_len(name, LD_DIM)
+        peer_gflop[name] = sum(tl.useful_flops(name, 2, ld_dim=LD_DIM,
+                                               action_dim=ACTION_DIM).values()) / 2 / t / 1e9
+        print(f"{name}: the peer's own count {peer_gflop[name]:.3f} GFLOP/frame "
+              "(FlopCounterMode, convolutions by real taps)")
     for dtype in args.dtypes:
         ceiling = matmul_ceiling(dtype, args.matmul_size)
         print(f"{dtype}: {args.matmul_size}³ matmul ceiling {ceiling:.3g} TFLOP/s", flush=True)
         for name in args.learners:
-            peer_gflop = None
-            if variants:
-                t = tl.seq_len(name, LD_DIM)
-                peer_gflop = sum(tl.useful_flops(name, 2, ld_dim=LD_DIM,
-                                                 action_dim=ACTION_DIM).values()) / 2 / t / 1e9
-                print(f"{name}: the peer's own count {peer_gflop:.3f} GFLOP/frame "
-                      "(FlopCounterMode, convolutions by real taps)")
             for b in args.batches:
                 peers = []
                 for mode, fmt in variants:
@@ -343,7 +343,7 @@ def main(argv=None) -> int:
                           + (r["error"] if "error" in r else f"{r['fps']:.1f} frames/s"),
                           flush=True)
                 rows = _compare(name, b, dtype, args.reps, args.steps, ceiling, peers,
-                                peer_gflop, args.upsample_forms)
+                                peer_gflop.get(name), args.upsample_forms)
                 if not args.no_record:
                     harness.record("learner_throughput", rows, notes=NOTES)
     return 0

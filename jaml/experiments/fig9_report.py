@@ -8,6 +8,7 @@ The primary comparison is fixed before the runs (`PRIMARY`); everything else is 
 
 from __future__ import annotations
 
+import functools
 import itertools
 import json
 import math
@@ -160,15 +161,18 @@ def contrast_table(runs, step: int | None = None) -> list[str]:
     return lines
 
 
-def stream_check(out: Path, methods) -> list[str]:
+def _metrics(run: Path) -> list[dict]:
+    return read_jsonl(run / "metrics.jsonl")
+
+
+def stream_check(out: Path, methods, metrics=_metrics) -> list[str]:
     """Whether each seed's stream was the same for every method: its per-epoch episode returns
-    and PPO losses (metrics.jsonl) compared with PRED's, bit for bit; a seed that differs is
-    named with the first epoch where it does."""
+    and PPO losses (`metrics(run)`, its metrics.jsonl) compared with PRED's, bit for bit; a seed
+    that differs is named with the first epoch where it does."""
     keys = ("episode_return", "ppo/total_loss")
 
     def stream(run: Path) -> dict[int, str]:
-        return {r["epoch"]: json.dumps([r.get(k) for k in keys])
-                for r in read_jsonl(run / "metrics.jsonl")}
+        return {r["epoch"]: json.dumps([r.get(k) for k in keys]) for r in metrics(run)}
 
     base_streams: dict[str, dict[int, str]] = {}  # PRED's, read once for every method
     lines = []
@@ -203,7 +207,7 @@ LOSSES = {"learner/nll": "NLL", "learner/kl": "KL", "learner/penalty": "penalty"
           "learner/ok_fraction": "ok share"}
 
 
-def losses_table(out: Path, runs) -> list[str]:
+def losses_table(out: Path, runs, metrics=_metrics) -> list[str]:
     """Each method's learner losses per frame sequence, averaged over the epochs between
     consecutive analyses and then over seeds: what the penalty and the ok-row term do to the
     likelihood, the KL and the share of ok rows."""
@@ -219,8 +223,7 @@ def losses_table(out: Path, runs) -> list[str]:
              "|---|" + "---|" * len(LOSSES)]
     for method, seeds in runs.items():
         means = {key: [] for key in LOSSES}  # key → [block → seed means]
-        per_seed = [read_jsonl(out / method / f"seed_{seed}" / "metrics.jsonl")
-                    for seed in seeds]
+        per_seed = [metrics(out / method / f"seed_{seed}") for seed in seeds]
         for key in LOSSES:
             for lo, hi in blocks:
                 values = [np.mean(v) for v in ([r[key] for r in records
@@ -289,14 +292,15 @@ def report(out: Path, methods) -> str:
     if not runs:
         return "no finished runs\n"
     plot(runs, out / "fig9.png")
+    metrics = functools.cache(_metrics)  # each run's metrics.jsonl read once per report
     fill = _fill_epochs(out, runs)
     lines = [primary(runs, fill), "",
              "Streams (a seed's per-epoch episode returns and PPO losses against PRED's):",
-             *stream_check(out, runs), ""]
+             *stream_check(out, runs, metrics), ""]
     contrasts = contrast_table(runs)
     if contrasts:
         lines += [*contrasts, ""]
-    losses = losses_table(out, runs)
+    losses = losses_table(out, runs, metrics)
     if losses:
         lines += [*losses, ""]
     for metric in METRICS:

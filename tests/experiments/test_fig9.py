@@ -120,6 +120,29 @@ def test_the_penalty_is_contrasted_with_its_controls_seed_by_seed(tmp_path):
     assert row.split(" | ")[1] == f"**-0.0200 [{-0.02 - half:+.4f}, {-0.02 + half:+.4f}]**"
 
 
+def test_every_method_is_averaged_after_learner_epoch_500_and_the_beta_control_is_contrasted(
+        tmp_path):
+    """The late table averages the analyses at 678 and 1078 (after 78 + 500): β is PRED −
+    (0.01, 0.02, 0.03) at 678 and − (0.03, 0.04, 0.05) at 1078 → −0.03 ± the hand half-width;
+    the random-row control − β is a row of the contrasts at 1078 (control = β + 0.01 · seed)."""
+    for seed in range(3):
+        pred = (0.3, 0.2 + 0.01 * seed, 0.1)
+        d = 0.01 * (seed + 1)
+        beta = (0.3, pred[1] - d, pred[2] - d - 0.02)
+        _write_run(tmp_path / "PRED" / f"seed_{seed}", seed, pred)
+        _write_run(tmp_path / "PRED+beta_1of11" / f"seed_{seed}", seed, beta)
+        _write_run(tmp_path / "PRED+random_rows_5pct" / f"seed_{seed}", seed,
+                   (0.3, beta[1], beta[2] + 0.01 * seed))
+    text = fig9_report.report(
+        tmp_path, ["PRED", "PRED+random_rows_5pct", "PRED+beta_1of11"])
+    half = 2.9199856 * 0.01 / math.sqrt(3)
+    late = next(line for line in text.splitlines() if line.startswith("| PRED+beta_1of11 |"))
+    assert late.split(" | ")[1] == f"**-0.0300 [{-0.03 - half:+.4f}, {-0.03 + half:+.4f}]**"
+    row = next(line for line in text.splitlines()
+               if line.startswith("| PRED+random_rows_5pct − PRED+beta_1of11 |"))
+    assert row.split(" | ")[1] == f"+0.0100 [{0.01 - half:+.4f}, {0.01 + half:+.4f}]"
+
+
 def test_the_figure_draws_each_methods_seed_mean_and_90_percent_band(tmp_path):
     """Per panel and step: the mean over seeds and mean ± t(0.95, n−1)·s/√n, by hand."""
     ends = [(0.10, 1.0), (0.12, 1.2), (0.17, 1.9)]

@@ -33,7 +33,7 @@ def _jaml(name, batch=2):
     return learner, learner.init(jax.random.key(0), frames, actions), frames, actions
 
 
-def _lax_upsample2x(x, kernel, compute_dtype=None, cpu_kernels=None):
+def _lax_upsample2x(x, kernel, compute_dtype=None, form=None):
     """ConvTranspose2d(4, 2, 1) as the plain input-dilated convolution (tests/learners'
     reference): the formulation whose count is the model's, not a backend's."""
     return jax.lax.conv_transpose(x, kernel[::-1, ::-1], (2, 2), ((2, 2), (2, 2)),

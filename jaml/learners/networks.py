@@ -95,11 +95,11 @@ def _phase_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
     return y.reshape(n, 2 * h, 2 * w, o)
 
 
-# The CPU pair: the k4 s2 p1 convolution ("halving") and its transpose ("doubling", PyTorch's
-# ConvTranspose2d(4, 2, 1)) are each other's input gradients, so each one's backward pass runs
-# the other's forward pass, and both kernel gradients are `_halving_kernel_grad`. XLA's own
-# input gradients are input-dilated convolutions, which its CPU backend runs on a slow generic
-# path (docs/notes/learners.md).
+# The phase pair: the k4 s2 p1 convolution ("halving", the encoder's on the CPU) and its
+# transpose ("doubling", PyTorch's ConvTranspose2d(4, 2, 1), the decoder's on every backend) are
+# each other's input gradients, so each one's backward pass runs the other's forward pass, and
+# both kernel gradients are `_halving_kernel_grad`. XLA's own input gradients are input-dilated
+# convolutions, which its CPU backend runs on a slow generic path (docs/notes/learners.md).
 @jax.custom_vjp
 def _halving(x: jax.Array, kernel: jax.Array) -> jax.Array:
     return _xla_conv(x, kernel, (2, 2), _HALVE)
@@ -221,27 +221,24 @@ class ConvEncoder(nn.Module):
 
 
 def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,
-               cpu_kernels: bool | None = None, form: str = "auto") -> jax.Array:
+               form: str = "auto") -> jax.Array:
     """[N, H, W, I] → [N, 2H, 2W, O]: PyTorch's ConvTranspose2d(k=4, s=2, p=1), kernel [4, 4, I, O].
 
-    out[s·i − p + k] += x[i]·w[k] per axis, without input dilation: XLA's CPU backend runs
-    input-dilated convolutions (its transposed-conv lowering and their gradients) on a slow
-    generic path (docs/notes/learners.md). On the GPU (cpu_kernels
-    False; None: by the default backend) a stride-1 3×3 convolution onto the four output phases,
-    then depth-to-space. On the CPU `_doubling`: a 2×2 convolution of the padded input onto the
-    four phases (`_phase_conv`), whose input gradient is the k4 s2 p1 convolution's forward pass.
-    compute_dtype (e.g. bfloat16) is the convolution's input and kernel dtype; None keeps x's.
-    form ("auto": by `cpu_kernels` as above) picks one formulation on any backend: "subpixel"
-    (the 3×3 convolution, 36 taps an output phase against 16 useful), "phase" (`_doubling`, 16),
-    or "dilated": `lax.conv_transpose`, XLA's input-dilated convolution and its autodiff.
+    out[s·i − p + k] += x[i]·w[k] per axis. form picks the formulation, one function each way:
+    "phase" (`_doubling`: a 2×2 convolution of the padded input onto each of the four output
+    phases, 16 taps an output, whose input gradient is the k4 s2 p1 convolution's forward pass),
+    "subpixel" (one stride-1 3×3 convolution onto the four phases, then depth-to-space: 36 taps
+    an output phase against 16 useful), or "dilated" (`lax.conv_transpose`, XLA's input-dilated
+    convolution and its autodiff, which XLA's CPU backend runs on a slow generic path). "auto"
+    is "phase" on every backend, the fastest of the three on the CPU and on an H100
+    (docs/learners.md). compute_dtype (e.g. bfloat16) is the convolution's input and kernel
+    dtype; None keeps x's.
     """
     if form not in UPSAMPLE_FORMS:
         raise ValueError(f"upsample form must be one of {list(UPSAMPLE_FORMS)}, got {form!r}")
     if compute_dtype is not None:
         x, kernel = x.astype(compute_dtype), kernel.astype(compute_dtype)
-    if form == "auto":
-        form = "phase" if _use_cpu_kernels(cpu_kernels) else "subpixel"
-    if form == "phase":
+    if form in ("auto", "phase"):
         return _doubling(x, kernel)
     if form == "dilated":  # the flipped kernel over x dilated by 2, padded by k − 1 − p = 2
         return lax.conv_transpose(x, kernel[::-1, ::-1], (2, 2), ((2, 2), (2, 2)),
@@ -262,7 +259,6 @@ class Upsample2x(nn.Module):
 
     features: int
     compute_dtype: jnp.dtype = jnp.float32
-    cpu_kernels: bool | None = None
     form: str = "auto"
 
     @nn.compact
@@ -270,7 +266,7 @@ class Upsample2x(nn.Module):
         kernel = self.param("kernel", nn.initializers.lecun_normal(),
                             (4, 4, x.shape[-1], self.features))
         bias = self.param("bias", nn.initializers.zeros, (self.features,))
-        return upsample2x(x, kernel, self.compute_dtype, self.cpu_kernels, self.form) + bias
+        return upsample2x(x, kernel, self.compute_dtype, self.form) + bias
 
 
 class ConvDecoder(nn.Module):
@@ -284,9 +280,9 @@ class ConvDecoder(nn.Module):
     channels: int = 3
     # As ConvEncoder's: the transposed convolutions' dtype; the output is float32.
     compute_dtype: jnp.dtype = jnp.float32
-    # As ConvEncoder's: the CPU formulation (`upsample2x`); None: when tracing for the CPU.
+    # As ConvEncoder's: the CPU formulation of its ELUs (`elu`); None: when tracing for the CPU.
     cpu_kernels: bool | None = None
-    # The transposed convolutions' formulation (`upsample2x`'s form; "auto": by backend).
+    # The transposed convolutions' formulation (`upsample2x`'s form; "auto": "phase").
     upsample_form: str = "auto"
 
     @nn.compact
@@ -297,8 +293,7 @@ class ConvDecoder(nn.Module):
         x = nn.ConvTranspose(first, (4, 4), padding="VALID", dtype=dt, name="deconv0")(
             z.reshape(z.shape[0], 1, 1, z.shape[-1]))
         x = self._norm("bn0", train)(elu(x, self.cpu_kernels))
-        up = functools.partial(Upsample2x, compute_dtype=dt, cpu_kernels=self.cpu_kernels,
-                               form=self.upsample_form)
+        up = functools.partial(Upsample2x, compute_dtype=dt, form=self.upsample_form)
         for i, f in enumerate(middle, start=1):
             x = elu(up(f, name=f"deconv{i}")(x), self.cpu_kernels)
             x = self._norm(f"bn{i}", train)(x)

@@ -14,9 +14,8 @@ from jaml import learners
 from jaml.learners.networks import Conv, ConvDecoder, ConvEncoder, conv2d, elu, upsample2x
 
 
-@pytest.mark.parametrize("cpu_kernels, form", [(False, "auto"), (True, "auto"), (None, "subpixel"),
-                                               (None, "phase"), (None, "dilated")])
-def test_upsample2x_is_pytorch_conv_transpose_k4_s2_p1(cpu_kernels, form):
+@pytest.mark.parametrize("form", ["auto", "subpixel", "phase", "dilated"])
+def test_upsample2x_is_pytorch_conv_transpose_k4_s2_p1(form):
     rng = np.random.default_rng(0)
     x, w = rng.normal(size=(2, 3, 4, 5)), rng.normal(size=(4, 4, 5, 6))
     # ConvTranspose2d: out[s·i − p + k] += x[i]·w[k] per axis, s = 2, p = 1.
@@ -26,8 +25,7 @@ def test_upsample2x_is_pytorch_conv_transpose_k4_s2_p1(cpu_kernels, form):
             for kh in range(4):
                 for kw in range(4):
                     full[:, 2 * i + kh, 2 * j + kw] += x[:, i, j] @ w[kh, kw]
-    got = upsample2x(jnp.asarray(x, jnp.float32), jnp.asarray(w, jnp.float32),
-                     cpu_kernels=cpu_kernels, form=form)
+    got = upsample2x(jnp.asarray(x, jnp.float32), jnp.asarray(w, jnp.float32), form=form)
     assert got.shape == (2, 6, 8, 6)
     np.testing.assert_allclose(got, full[:, 1:-1, 1:-1], atol=1e-5)
 
@@ -104,11 +102,12 @@ def test_cpu_conv_matches_xla_conv_and_autodiff(shape, k, strides, padding):
 
 
 @pytest.mark.parametrize("shape, out", [((2, 4, 3, 5), 6), ((3, 2, 6, 5), 6), ((2, 4, 3, 5), 3)])
-def test_upsample2x_cpu_matches_lax_conv_transpose_and_the_gpu_formulation(shape, out):
-    """Values and both gradients: against `lax.conv_transpose` (ConvTranspose2d(4, 2, 1) is its
-    input-dilated convolution with the spatially flipped kernel, padded by k − 1 − p = 2) and its
-    autodiff, and against the GPU's sub-pixel formulation; per-phase convolutions (6 outputs) and
-    the four phases in one (3, the frames')."""
+def test_upsample2x_phase_matches_lax_conv_transpose_and_the_subpixel_form(shape, out):
+    """Values and both gradients of the phase pair (the default form): against
+    `lax.conv_transpose` (ConvTranspose2d(4, 2, 1) is its input-dilated convolution with the
+    spatially flipped kernel, padded by k − 1 − p = 2) and its autodiff, and against the
+    sub-pixel form; per-phase convolutions (6 outputs) and the four phases in one (3, the
+    frames')."""
     rng = np.random.default_rng(0)
     x = jnp.asarray(rng.normal(size=shape), jnp.float32)
     w = jnp.asarray(rng.normal(size=(4, 4, 5, out)), jnp.float32)
@@ -118,8 +117,8 @@ def test_upsample2x_cpu_matches_lax_conv_transpose_and_the_gpu_formulation(shape
                                       dimension_numbers=("NHWC", "HWIO", "NHWC"))
 
     got = jax.jit(lambda x, w: _value_and_grads(
-        lambda x, w: upsample2x(x, w, cpu_kernels=True), x, w))(x, w)
-    for ref in (lax_ref, lambda x, w: upsample2x(x, w, cpu_kernels=False)):
+        lambda x, w: upsample2x(x, w, form="phase"), x, w))(x, w)
+    for ref in (lax_ref, lambda x, w: upsample2x(x, w, form="subpixel")):
         want = _value_and_grads(ref, x, w)
         for g, r, what in zip(got, want, ("output", "input gradient", "kernel gradient"),
                               strict=True):
@@ -158,6 +157,24 @@ def test_the_decoder_gives_one_output_and_gradient_in_every_upsample_form():
                                        err_msg=form)
 
 
+@pytest.mark.parametrize("gpu", [False, True])
+def test_auto_is_the_phase_form_on_every_backend(gpu, monkeypatch):
+    """The decoder's default traces the program of upsample_form="phase", whichever backend it
+    is traced for (gpu: `_use_cpu_kernels` as on a GPU), and not the sub-pixel one."""
+    from jaml.learners import networks
+
+    if gpu:
+        monkeypatch.setattr(networks, "_use_cpu_kernels", lambda cpu_kernels: False)
+    z = jnp.zeros((2, 5))
+
+    def program(form):
+        decoder = ConvDecoder((8, 6, 6, 4), upsample_form=form)
+        return str(jax.make_jaxpr(lambda z: decoder.init_with_output(
+            jax.random.key(0), z, True))(z))
+
+    assert program("auto") == program("phase") != program("subpixel")
+
+
 @pytest.mark.parametrize("name", ["VAE_rpl", "PRED", "DSA", "SVAE"])
 def test_a_learners_upsample_form_reaches_every_transposed_convolution(name, monkeypatch):
     from jaml.learners import networks
@@ -165,7 +182,7 @@ def test_a_learners_upsample_form_reaches_every_transposed_convolution(name, mon
     seen, real = [], networks.upsample2x
 
     def recording(*args, **kwargs):
-        seen.append(args[4] if len(args) > 4 else kwargs.get("form"))
+        seen.append(args[3] if len(args) > 3 else kwargs.get("form"))
         return real(*args, **kwargs)
 
     monkeypatch.setattr(networks, "upsample2x", recording)
@@ -187,7 +204,7 @@ def test_cpu_formulation_second_derivatives_match_xla():
     def grad_norm(cpu):
         def f(x, w1, w2):
             h = conv2d(x, w1, (2, 2), ((1, 1), (1, 1)), cpu_kernels=cpu)
-            return jnp.sum(jnp.sin(upsample2x(h, w2, cpu_kernels=cpu)))
+            return jnp.sum(jnp.sin(upsample2x(h, w2, form="phase" if cpu else "dilated")))
         return lambda *a: sum(jnp.sum(g ** 2) for g in jax.grad(f, argnums=(0, 1, 2))(*a))
 
     want = jax.grad(grad_norm(False), argnums=(0, 1, 2))(x, w1, w2)
@@ -214,7 +231,8 @@ def test_conv_module_is_nn_conv_without_bias():
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.bfloat16])
 @pytest.mark.parametrize("stack", ["encoder", "decoder"])
 def test_cpu_stacks_are_the_same_functions_of_the_same_parameters(stack, dtype):
-    """Encoder and decoder (train mode, batch norms) with and without the CPU formulation:
+    """Encoder and decoder (train mode, batch norms) with and without the CPU formulation (the
+    decoder's: its ELUs and the phase pair, against the sub-pixel form and XLA's autodiff):
     one parameter tree, equal outputs and parameter gradients (float32 gradients either way;
     with bfloat16 convolutions, equal to bfloat16 rounding)."""
     rng = np.random.default_rng(0)
@@ -227,7 +245,8 @@ def test_cpu_stacks_are_the_same_functions_of_the_same_parameters(stack, dtype):
         inp = jnp.asarray(rng.normal(size=(2, 5)), jnp.float32)
 
         def make(c):
-            return ConvDecoder((4, 4, 4, 4), compute_dtype=dtype, cpu_kernels=c)
+            return ConvDecoder((4, 4, 4, 4), compute_dtype=dtype, cpu_kernels=c,
+                               upsample_form="phase" if c else "subpixel")
     variables = make(False).init(jax.random.key(0), inp, True)
     assert jax.tree.structure(make(True).init(jax.random.key(0), inp, True)) \
         == jax.tree.structure(variables)
@@ -271,7 +290,7 @@ def test_cpu_compiler_options_put_the_convolutions_on_xla_s_own_path():
 
     def f(x, w):
         return _value_and_grads(lambda x, w: upsample2x(conv2d(
-            x, w, (2, 2), ((1, 1), (1, 1)), cpu_kernels=True), w, cpu_kernels=True), x, w)
+            x, w, (2, 2), ((1, 1), (1, 1)), cpu_kernels=True), w, form="phase"), x, w)
 
     options = learners.compiler_options()
     assert options == learners.CPU_COMPILER_OPTIONS

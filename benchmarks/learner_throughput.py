@@ -1,17 +1,23 @@
 """Training throughput (frames/s) of a learner's train step, jaml vs its PyTorch peer.
 
-    python benchmarks/learner_throughput.py [--learners VAE_rpl PRED DSA] [--batches 64 256 1024]
+    python benchmarks/learner_throughput.py [--learners VAE_rpl PRED DSA] [--frames 64 256 1024]
         [--reps 5] [--steps 3] [--dtypes float32 bfloat16] [--torch eager compiled]
         [--torch-compile-modes max-autotune-no-cudagraphs default]
         [--torch-memory-formats channels_last contiguous] [--upsample-forms auto dilated phase]
+        [--case-timeout 200]
+
+A case's size is in frames per step, as the stream's (`StreamConfig.frames_per_batch`): a step
+of F frames is B = F // T sequences of a learner's T frames (T = 1 for VAE_rpl, 24 for PRED and
+DSA), B·T frames, and both sides get the same B sequences. Rows carry `batch` (B),
+`seq_len` (T) and `frames_per_step` (B·T); a sequence learner's case names all three.
 
 jaml's rows carry the step's useful FLOPs per frame (`benchmarks/flops.py`: the convolutions and
 matmuls the model asks for, counted from its jaxpr; XLA's own `cost_analysis` counts no cuDNN
 convolution on a GPU), the useful TFLOP/s they imply, and that rate as a share (MFU) of a matmul
 ceiling measured in the same run (a large matmul in the same dtype) and, on a device whose dense
-peak is known, of that quoted peak. A frame is one frame a step reads (batch × T for a sequence
-learner). Compile time is reported apart; steady state is the median over `reps` blocked
-repetitions of `steps` train steps each. jaml's step is compiled with `learners.compiler_options()`
+peak is known, of that quoted peak. A frame is one frame a step reads (B·T). Compile time is
+reported apart; steady state is the median over `reps` blocked repetitions of `steps` train steps
+each. jaml's step is compiled with `learners.compiler_options()`
 (on the CPU: convolutions on XLA's Eigen path, not YNNPACK; elsewhere XLA's defaults). Its
 decoder's transposed convolutions run in each `--upsample-forms` formulation, a row each: "auto"
 (the learner's default: the phase pair on every backend), "subpixel", "phase", "dilated"
@@ -33,17 +39,21 @@ batch norms, heads, loss and Adam float32) and the peer runs its forward pass un
 casts the MLP, heads and RNNs). Case by case (learner, dtype, batch), the peer's variants run
 first and release their memory, then jaml's step (XLA_PYTHON_CLIENT_PREALLOCATE=false, set here
 unless already set), and the case's rows are recorded at once, so a run cut short keeps the
-cases it finished. A peer variant that fails (out of memory, a compiler error) is a row with the
-error's first line, not fatal.
+cases it finished. A peer variant or jaml form that fails (out of memory, a compiler error) is a
+row with the error's first line, not fatal; jaml's compiled step is checked against the device's
+free memory before it runs (`memory_shortfall`), and with `--case-timeout` a case that runs past
+it is recorded as far as it got, with an error row for the impl that did not finish.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import platform
 import statistics
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -54,7 +64,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import flops, harness
 from jaml import learners
-from jaml.learners.config import UPSAMPLE_FORMS
+from jaml.learners.config import UPSAMPLE_FORMS, default_config
 
 LD_DIM, ACTION_DIM = 4, 1  # CartPole: D = 4, latent 2·D = 8
 # Quoted dense peaks (TFLOP/s; NVIDIA's H100 SXM / H200 datasheets, without sparsity): float32
@@ -99,43 +109,99 @@ def _median_rate(run_steps, frames_per_step: int, reps: int, steps: int) -> floa
     return frames_per_step * steps / statistics.median(times)
 
 
-def bench_jax(b: int, reps: int, steps: int, dtype: str = "float32",
-              learner_name: str = "VAE_rpl", upsample_form: str = "auto") -> dict:
-    learner = learners.make(learner_name, ld_dim=LD_DIM, compute_dtype=dtype,
-                            upsample_form=upsample_form)
-    opt = learners.default_optimizer(learner)
-    seq_len = learner.config.seq_len
-    batch = tuple(jax.device_put(x) for x in _batch(b, seq_len))
-    state = learners.init_train_state(learner, opt, jax.random.key(0), batch)
-    train_step = learners.make_train_step(learner, opt)
+def step_shape(learner_name: str, frames: int) -> tuple[int, int]:
+    """(B sequences, T frames each) of a train step on `frames` frames, batched as the stream
+    batches them (`StreamConfig.frames_per_batch`): B = frames // T, so a sequence learner's
+    step reads B·T ≤ frames frames and a single-frame learner's batch is `frames`."""
+    t = default_config(learner_name, ld_dim=LD_DIM).seq_len
+    if frames < t:
+        raise ValueError(f"{frames} frames hold no {t}-frame {learner_name} sequence")
+    return frames // t, t
+
+
+def useful_gflop_per_frame(learner_name: str, sequences: int, dtype: str) -> float:
+    """The model's FLOPs per frame of one train step on `sequences` sequences, counted from the
+    jaxpr (traced on shapes alone: no device memory)."""
     # Useful work is the model's, whatever formulation runs: counted on the plain (input-dilated)
     # transposed convolutions, whose inserted zeros flops.py does not count (the sub-pixel form
     # executes 36 taps an output phase where 16 meet real input).
     plain = learners.make(learner_name, ld_dim=LD_DIM, compute_dtype=dtype,
                           upsample_form="dilated")
-    useful = flops.flops(learners.make_train_step(plain, learners.default_optimizer(plain)),
-                         state, batch, jax.random.key(0))
-    t0 = time.perf_counter()
-    step = jax.jit(train_step, donate_argnums=0,
-                   compiler_options=learners.compiler_options()).lower(
-        state, batch, jax.random.key(0)).compile()
-    compile_s = time.perf_counter() - t0
-    holder = {"state": state, "i": 0}
-    # XLA's own count for the program it compiled (on a GPU it leaves out cuDNN's convolutions).
-    cost = step.cost_analysis()
-    xla = (cost[0] if isinstance(cost, list) else cost or {}).get("flops", float("nan"))
+    opt = learners.default_optimizer(plain)
+    t = plain.config.seq_len
+    batch = (jax.ShapeDtypeStruct((sequences, t, 64, 64, 3), np.uint8),
+             jax.ShapeDtypeStruct((sequences, t, ACTION_DIM), np.float32))
+    state = jax.eval_shape(lambda *batch: learners.init_train_state(
+        plain, opt, jax.random.key(0), batch), *batch)
+    count = flops.flops(learners.make_train_step(plain, opt), state, batch, jax.random.key(0))
+    return count / (sequences * t) / 1e9
 
-    def run_steps(n):
-        for _ in range(n):
-            holder["i"] += 1
-            holder["state"], metrics = step(holder["state"], batch, jax.random.key(holder["i"]))
-        jax.block_until_ready((holder["state"], metrics))
 
-    run_steps(1)  # warm-up
-    frames = b * seq_len
-    return {"compile_s": compile_s, "fps": _median_rate(run_steps, frames, reps, steps),
-            "gflop_per_frame": useful / frames / 1e9, "xla_gflop_per_frame": xla / frames / 1e9,
-            "seq_len": seq_len}
+def memory_shortfall(analysis, stats: dict | None) -> str | None:
+    """Why a compiled program cannot run on a device, or None: what it allocates beyond its
+    arguments (temporaries and outputs, less the donated buffers it reuses) against the device
+    allocator's free bytes (`Device.memory_stats()`; None, as on the CPU: not checked)."""
+    if not stats or "bytes_limit" not in stats:
+        return None
+    need = (analysis.temp_size_in_bytes + analysis.output_size_in_bytes
+            - analysis.alias_size_in_bytes)
+    free = stats["bytes_limit"] - stats.get("bytes_in_use", 0)
+    if need <= free:
+        return None
+    limit = stats["bytes_limit"] / 2**30
+    return (f"out of memory: the compiled step needs {need / 2**30:.1f} GiB beyond its "
+            f"arguments, {free / 2**30:.1f} GiB of the allocator's {limit:.1f} GiB are free")
+
+
+def _first_line(e: Exception) -> str:
+    lines = [ln for ln in str(e).splitlines() if ln.strip()] or [""]
+    return f"{type(e).__name__}: {lines[0][:160]}"
+
+
+def bench_jax(sequences: int, reps: int, steps: int, dtype: str = "float32",
+              learner_name: str = "VAE_rpl", upsample_form: str = "auto") -> dict:
+    """jaml's train step on `sequences` sequences: frames/s (median over reps of `steps` blocked
+    steps) after its compilation (timed apart) and one warm-up step. {"error": ...} when it
+    fails: a compiled step that needs more memory than the device has free (not run), or an
+    error from XLA (its first line)."""
+    try:
+        learner = learners.make(learner_name, ld_dim=LD_DIM, compute_dtype=dtype,
+                                upsample_form=upsample_form)
+        opt = learners.default_optimizer(learner)
+        seq_len = learner.config.seq_len
+        batch = tuple(jax.device_put(x) for x in _batch(sequences, seq_len))
+        state = learners.init_train_state(learner, opt, jax.random.key(0), batch)
+        train_step = learners.make_train_step(learner, opt)
+        t0 = time.perf_counter()
+        step = jax.jit(train_step, donate_argnums=0,
+                       compiler_options=learners.compiler_options()).lower(
+            state, batch, jax.random.key(0)).compile()
+        compile_s = time.perf_counter() - t0
+        analysis = step.memory_analysis()
+        short = analysis and memory_shortfall(analysis, jax.devices()[0].memory_stats())
+        if short:
+            return {"error": short}
+        holder = {"state": state, "i": 0}
+        del state  # donated to the first step
+        # XLA's own count for the program it compiled (on a GPU it leaves out cuDNN's
+        # convolutions).
+        cost = step.cost_analysis()
+        xla = (cost[0] if isinstance(cost, list) else cost or {}).get("flops", float("nan"))
+
+        def run_steps(n):
+            for _ in range(n):
+                holder["i"] += 1
+                holder["state"], metrics = step(holder["state"], batch,
+                                                jax.random.key(holder["i"]))
+            jax.block_until_ready((holder["state"], metrics))
+
+        run_steps(1)  # warm-up
+        frames = sequences * seq_len
+        return {"compile_s": compile_s, "fps": _median_rate(run_steps, frames, reps, steps),
+                "xla_gflop_per_frame": xla / frames / 1e9,
+                "temp_gib": analysis.temp_size_in_bytes / 2**30 if analysis else float("nan")}
+    except Exception as e:  # XLA's RESOURCE_EXHAUSTED among them: a row, not the run's end
+        return {"error": _first_line(e)}
 
 
 # Inductor's autotuned kernels without CUDA graphs (its autotuning takes minutes a case on an
@@ -147,7 +213,9 @@ NOTES = ("Frames/s of one training step (forward, backward, Adam) on random 64×
          "device (cuDNN autotune, TF32), eager and torch.compile'd, in the layout its label "
          "names, its rates from jaml's FLOP count; jaml's step compiled with "
          "learners.compiler_options(); bfloat16 rows: jaml's convolutions in bfloat16, the peer "
-         "under torch.autocast(bfloat16).")
+         "under torch.autocast(bfloat16). batch: sequences of seq_len frames, "
+         "frames_per_step = batch × seq_len (frames // T sequences of a --frames size); "
+         "temp_gib: the compiled jaml step's temporaries (XLA's memory_analysis).")
 DEFAULT_COMPILE_MODES = ("max-autotune-no-cudagraphs",)
 MEMORY_FORMATS = ("channels_last", "contiguous")
 
@@ -169,18 +237,17 @@ def setup_torch() -> None:
     torch.set_float32_matmul_precision("high")  # TF32 matmuls (convolutions: cuDNN's default)
 
 
-def bench_torch(name: str, b: int, reps: int, steps: int, dtype: str = "float32",
+def bench_torch(name: str, sequences: int, reps: int, steps: int, dtype: str = "float32",
                 compile_mode: str | None = None, warmup: int = 3,
                 memory_format: str = "channels_last") -> dict:
-    """The peer's train step: frames/s (median over reps of `steps` synchronised steps) after
-    its first step (timed apart: compilation, cuDNN autotuning) and `warmup` more (CUDA graph
-    recording under reduce-overhead). {"error": ...} when it fails: out of memory, or a
-    compiler error (its first line)."""
+    """The peer's train step on `sequences` sequences (jaml's): frames/s (median over reps of
+    `steps` synchronised steps) after its first step (timed apart: compilation, cuDNN
+    autotuning) and `warmup` more (CUDA graph recording under reduce-overhead). {"error": ...}
+    when it fails: out of memory, or a compiler error (its first line)."""
     import torch
 
     tl = torch_peer()
-    # The peer runs where jaml runs: on the GPU when there is one.
-    device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    device = _torch_device()
     variant = tl.Variant(compile_mode, channels_last=memory_format == "channels_last",
                          dtype=dtype)
     info = {"label": variant.label, "version": torch.__version__, "device": str(device),
@@ -189,7 +256,7 @@ def bench_torch(name: str, b: int, reps: int, steps: int, dtype: str = "float32"
     peer = None
     try:
         peer = tl.Peer(name, variant, ld_dim=LD_DIM, action_dim=ACTION_DIM, device=device)
-        batch = peer.batch(*_batch(b, tl.seq_len(name, LD_DIM)))
+        batch = peer.batch(*_batch(sequences, tl.seq_len(name, LD_DIM)))
 
         def run_steps(n):
             for _ in range(n):
@@ -202,18 +269,30 @@ def bench_torch(name: str, b: int, reps: int, steps: int, dtype: str = "float32"
             run_steps(1)
             first_s = time.perf_counter() - t0
             run_steps(warmup)
-            fps = _median_rate(run_steps, b * tl.seq_len(name, LD_DIM), reps, steps)
+            fps = _median_rate(run_steps, sequences * tl.seq_len(name, LD_DIM), reps, steps)
         return {**info, "first_step_s": first_s, "fps": fps}
     except torch.OutOfMemoryError as e:
         return {**info, "error": f"out of memory: {str(e).splitlines()[0][:120]}"}
     except Exception as e:
-        lines = [ln for ln in str(e).splitlines() if ln.strip()] or [""]
-        return {**info, "error": f"{type(e).__name__}: {lines[0][:160]}"}
+        return {**info, "error": _first_line(e)}
     finally:
         peer = None  # the model, its optimizer state and compiled graphs, released
         torch._dynamo.reset()
         if device.type == "cuda":
             torch.cuda.empty_cache()
+
+
+def _torch_device():
+    import torch
+
+    # The peer runs where jaml runs: on the GPU when there is one.
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+
+
+def _peer_impl(label: str) -> str:
+    import torch
+
+    return f"pytorch {torch.__version__} {label} ({_torch_device()})"
 
 
 def _rates(gflop_per_frame: float, fps: float, ceiling: float, peak: float | None) -> dict:
@@ -230,58 +309,154 @@ def _mfu_text(rates: dict) -> str:
                if "mfu_of_quoted_peak" in rates else ""))
 
 
-def _compare(learner_name: str, b: int, dtype: str, reps: int, steps: int, ceiling: float,
-             peers: list[dict], peer_gflop: float | None,
-             upsample_forms=("auto",)) -> list[dict]:
-    """jaml at one batch size and dtype, a row per decoder formulation (`upsample_forms`),
-    beside the peer's rows measured for the same case."""
-    peak = quoted_peak(dtype)
-    jaml_rows, lines, j = [], [], None
+@dataclasses.dataclass
+class Case:
+    """One learner at one step size and dtype: what its sides measured so far (`jaml`: (form,
+    `bench_jax` result); `peers`: `bench_torch` results) and the impl now running, so that a
+    case cut short still gives its rows (`rows`)."""
+
+    learner: str
+    sequences: int
+    seq_len: int
+    dtype: str
+    ceiling: float
+    peak: float | None
+    gflop_per_frame: float
+    peer_gflop: float | None = None
+    jaml: list = dataclasses.field(default_factory=list)
+    peers: list = dataclasses.field(default_factory=list)
+    running: str | None = None
+
+    @property
+    def frames(self) -> int:
+        return self.sequences * self.seq_len
+
+    @property
+    def name(self) -> str:
+        size = (f"batch {self.frames}" if self.seq_len == 1 else
+                f"{self.frames} frames ({self.sequences} sequence{'s' * (self.sequences > 1)}"
+                f" × {self.seq_len})")
+        return (f"{self.learner} train step, {size}"
+                + ("" if self.dtype == "float32" else f", {self.dtype}"))
+
+    def rows(self, timeout_s: float | None = None) -> list[dict]:
+        """A row per jaml form and peer variant measured (an error row for each that failed),
+        and with `timeout_s`, an error row for the impl still running when the case's time ran
+        out. jaml's speedups: each row against the peer's fastest eager and compiled rows."""
+        base = {"case": self.name, "learner": self.learner, "batch": self.sequences,
+                "seq_len": self.seq_len, "frames_per_step": self.frames, "dtype": self.dtype}
+        jaml_rows, rows = [], []
+        for form, j in self.jaml:
+            row = {**base, "impl": "jaml" if form == "auto" else f"jaml, upsample {form}"}
+            if "error" in j:
+                rows.append({**row, "note": j["error"]})
+                continue
+            row.update({"compile_s": j["compile_s"], "frames_per_s": j["fps"],
+                        **_rates(self.gflop_per_frame, j["fps"], self.ceiling, self.peak),
+                        "xla_gflop_per_frame": j["xla_gflop_per_frame"],
+                        "temp_gib": j["temp_gib"]})
+            jaml_rows.append(row)
+            rows.append(row)
+        fastest = {"eager": [], "compiled": []}
+        for t in self.peers:
+            impl = f"pytorch {t['version']} {t['label']} ({t['device']})"
+            row = {**base, "impl": impl, "torch_threads": t["threads"],
+                   "peer_gflop_per_frame": self.peer_gflop}
+            if "error" in t:
+                rows.append({**row, "note": t["error"]})
+                continue
+            eager = t["label"].startswith("eager")
+            row.update({"first_step_s" if eager else "compile_s": t["first_step_s"],
+                        "frames_per_s": t["fps"],
+                        **_rates(self.gflop_per_frame, t["fps"], self.ceiling, self.peak)})
+            rows.append(row)
+            fastest["eager" if eager else "compiled"].append(t["fps"])
+        if timeout_s is not None and self.running:
+            rows.append({**base, "impl": self.running,
+                         "note": f"did not finish within the case's {timeout_s:g} s "
+                                 "(--case-timeout)"})
+        for run, key in (("eager", "speedup_vs_pytorch"),
+                         ("compiled", "speedup_vs_pytorch_compiled")):
+            if fastest[run]:
+                for r in jaml_rows:
+                    r[key] = r["frames_per_s"] / max(fastest[run])
+        return rows
+
+
+def _lines(rows: list[dict]) -> str:
+    """The case's rows as the run prints them; the jaml/torch ratio is the first jaml row's."""
+    first = next((r["frames_per_s"] for r in rows
+                  if r["impl"].startswith("jaml") and "frames_per_s" in r), None)
+    lines = []
+    for r in rows:
+        jaml = r["impl"].startswith("jaml")
+        head = f"{r['case']}: {r['impl']}" if jaml else f"    {r['impl']}"
+        if "note" in r:
+            lines.append(f"{head}: {r['note']}")
+        elif jaml:
+            lines.append(f"{head} {r['frames_per_s']:9.1f} frames/s (compile {r['compile_s']:.1f}"
+                         f" s, {r['temp_gib']:.2f} GiB of temporaries; "
+                         f"{r['useful_gflop_per_frame']:.3f} useful GFLOP/frame, {_mfu_text(r)})")
+        else:
+            eager = "first_step_s" in r
+            ratio = f" | jaml/torch {first / r['frames_per_s']:.2f}×" if first else ""
+            lines.append(f"{head} ({r['torch_threads']} threads): {r['frames_per_s']:9.1f} "
+                         f"frames/s ({'first step' if eager else 'compile + first step'} "
+                         f"{r['first_step_s' if eager else 'compile_s']:.1f} s; "
+                         f"{_mfu_text(r)}){ratio}")
+    return "\n".join(lines)
+
+
+def measure_case(case: Case, reps: int, steps: int, variants, upsample_forms) -> list[dict]:
+    """The peer's variants (each releasing its memory), then jaml's step in each form."""
+    for mode, fmt in variants:
+        case.running = _peer_impl(torch_peer().Variant(
+            mode, channels_last=fmt == "channels_last", dtype=case.dtype).label)
+        r = bench_torch(case.learner, case.sequences, reps, steps, case.dtype, mode,
+                        memory_format=fmt)
+        case.peers.append(r)
+        print(f"  {case.name} {r['label']}: "
+              + (r["error"] if "error" in r else f"{r['fps']:.1f} frames/s"), flush=True)
     for form in upsample_forms:
-        j = bench_jax(b, reps, steps, dtype, learner_name, form)
-        case = (f"{learner_name} train step, batch {b}" + (f" × {j['seq_len']} frames"
-                if j["seq_len"] > 1 else "") + ("" if dtype == "float32" else f", {dtype}"))
-        impl = "jaml" if form == "auto" else f"jaml, upsample {form}"
-        rates = _rates(j["gflop_per_frame"], j["fps"], ceiling, peak)
-        jaml_rows.append({"case": case, "impl": impl, "learner": learner_name, "batch": b,
-                          "dtype": dtype, "compile_s": j["compile_s"], "frames_per_s": j["fps"],
-                          **rates, "xla_gflop_per_frame": j["xla_gflop_per_frame"]})
-        lines.append(f"{case}: {impl} {j['fps']:9.1f} frames/s (compile {j['compile_s']:.1f} s; "
-                     f"{j['gflop_per_frame']:.3f} useful GFLOP/frame, {_mfu_text(rates)})")
-    fps = jaml_rows[0]["frames_per_s"]  # the ratios are the first form's (auto by default)
-    rows = list(jaml_rows)
-    fastest = {"eager": [], "compiled": []}
-    for t in peers:
-        impl = f"pytorch {t['version']} {t['label']} ({t['device']})"
-        row = {"case": case, "impl": impl, "learner": learner_name, "batch": b, "dtype": dtype,
-               "torch_threads": t["threads"], "peer_gflop_per_frame": peer_gflop}
-        if "error" in t:
-            rows.append({**row, "note": t["error"]})
-            lines.append(f"    {impl}: {t['error']}")
-            continue
-        eager = t["label"].startswith("eager")
-        row.update({"first_step_s" if eager else "compile_s": t["first_step_s"],
-                    "frames_per_s": t["fps"],
-                    **_rates(j["gflop_per_frame"], t["fps"], ceiling, peak)})
-        rows.append(row)
-        fastest["eager" if eager else "compiled"].append(t["fps"])
-        lines.append(f"    {impl} ({t['threads']} threads): {t['fps']:9.1f} frames/s "
-                     f"({'first step' if eager else 'compile + first step'} "
-                     f"{t['first_step_s']:.1f} s; {_mfu_text(row)}) | jaml/torch "
-                     f"{fps / t['fps']:.2f}×")
-    for run, key in (("eager", "speedup_vs_pytorch"), ("compiled", "speedup_vs_pytorch_compiled")):
-        if fastest[run]:  # each jaml row against the peer's fastest variant of that kind
-            for r in jaml_rows:
-                r[key] = r["frames_per_s"] / max(fastest[run])
-    print("\n".join(lines), flush=True)
+        case.running = "jaml" if form == "auto" else f"jaml, upsample {form}"
+        case.jaml.append((form, bench_jax(case.sequences, reps, steps, case.dtype, case.learner,
+                                          form)))
+    case.running = None
+    rows = case.rows()
+    print(_lines(rows), flush=True)
     return rows
+
+
+def _watch(case: Case, seconds: float | None, record: bool) -> threading.Timer | None:
+    """After `seconds`, the case's rows so far and an error row for the impl still running are
+    recorded and the process exits (status 3): a step XLA cannot fit (it retries its allocator
+    and rematerialisation for minutes) or a compiler that does not return cannot be cancelled
+    from Python."""
+    if not seconds:
+        return None
+
+    def give_up():
+        if case.running is None:  # the case has just finished: the main thread records it
+            return
+        rows = case.rows(timeout_s=seconds)
+        print(_lines(rows), flush=True)
+        if record:
+            harness.record("learner_throughput", rows, notes=NOTES)
+        os._exit(3)
+
+    timer = threading.Timer(seconds, give_up)
+    timer.daemon = True
+    timer.start()
+    return timer
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--learners", nargs="+", default=["VAE_rpl"],
                         choices=["VAE_rpl", "PRED", "DSA"])
-    parser.add_argument("--batches", type=int, nargs="+", default=[64, 256])
+    parser.add_argument("--frames", type=int, nargs="+", default=[64, 256],
+                        help="frames per train step, a case each: frames // T sequences of a "
+                        "learner's T frames (the stream's frames_per_batch)")
     parser.add_argument("--matmul-size", type=int, default=8192,
                         help="n of the n × n × n matmul that sets the ceiling")
     parser.add_argument("--reps", type=int, default=5)
@@ -301,8 +476,16 @@ def main(argv=None) -> int:
     parser.add_argument("--upsample-forms", nargs="+", default=["auto"],
                         choices=list(UPSAMPLE_FORMS), help="jaml's decoder formulations "
                         "(LearnerConfig.upsample_form), a row each; ratios are the first's")
+    parser.add_argument("--case-timeout", type=float, default=None, metavar="S",
+                        help="seconds a case (peer variants and jaml forms) may take; past "
+                        "them its rows so far and an error row for the impl still running are "
+                        "recorded, and the run ends")
     parser.add_argument("--no-record", action="store_true", help="print only")
     args = parser.parse_args(argv)
+    try:
+        shapes = {(name, f): step_shape(name, f) for name in args.learners for f in args.frames}
+    except ValueError as e:
+        parser.error(str(e))
     tl = torch_peer() if args.torch else None
     modes = ([None] if "eager" in args.torch else []) + (
         list(args.torch_compile_modes) if "compiled" in args.torch else [])
@@ -333,17 +516,14 @@ def main(argv=None) -> int:
         ceiling = matmul_ceiling(dtype, args.matmul_size)
         print(f"{dtype}: {args.matmul_size}³ matmul ceiling {ceiling:.3g} TFLOP/s", flush=True)
         for name in args.learners:
-            for b in args.batches:
-                peers = []
-                for mode, fmt in variants:
-                    r = bench_torch(name, b, args.reps, args.steps, dtype, mode,
-                                    memory_format=fmt)
-                    peers.append(r)
-                    print(f"  {name} batch {b} {dtype} {r['label']}: "
-                          + (r["error"] if "error" in r else f"{r['fps']:.1f} frames/s"),
-                          flush=True)
-                rows = _compare(name, b, dtype, args.reps, args.steps, ceiling, peers,
-                                peer_gflop.get(name), args.upsample_forms)
+            for f in args.frames:
+                sequences, seq_len = shapes[name, f]
+                case = Case(name, sequences, seq_len, dtype, ceiling, quoted_peak(dtype),
+                            useful_gflop_per_frame(name, sequences, dtype), peer_gflop.get(name))
+                timer = _watch(case, args.case_timeout, not args.no_record)
+                rows = measure_case(case, args.reps, args.steps, variants, args.upsample_forms)
+                if timer:
+                    timer.cancel()
                 if not args.no_record:
                     harness.record("learner_throughput", rows, notes=NOTES)
     return 0

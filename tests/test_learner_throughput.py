@@ -24,22 +24,37 @@ def _peer(label, fps=None, error=None):
 
 
 def test_a_case_s_rows_name_sequences_and_frames_and_keep_its_errors():
-    case = lt.Case("PRED", 42, 24, "bfloat16", ceiling=100.0, peak=None, gflop_per_frame=0.5,
-                   peer_gflop=0.4)
-    case.jaml = [("auto", {"compile_s": 3.0, "fps": 2000.0, "xla_gflop_per_frame": 0.1,
-                           "temp_gib": 2.5}),
-                 ("dilated", {"error": "out of memory: the compiled step needs 90.0 GiB"})]
-    case.peers = [_peer("eager", fps=1000.0), _peer("compiled default", error="AssertionError: x"),
-                  _peer("compiled default, channels_last", fps=1600.0)]
+    case = lt.Case(
+        "PRED", 42, 24, "bfloat16", ceiling=100.0, peak=None, gflop_per_frame=0.5, peer_gflop=0.4
+    )
+    case.jaml = [
+        ("auto", {"compile_s": 3.0, "fps": 2000.0, "xla_gflop_per_frame": 0.1, "temp_gib": 2.5}),
+        ("dilated", {"error": "out of memory: the compiled step needs 90.0 GiB"}),
+    ]
+    case.peers = [
+        _peer("eager", fps=1000.0),
+        _peer("compiled default", error="AssertionError: x"),
+        _peer("compiled default, channels_last", fps=1600.0),
+    ]
     rows = case.rows()
-    assert {r["case"] for r in rows} == {"PRED train step, 1008 frames (42 sequences × 24), "
-                                         "bfloat16"}
+    assert {r["case"] for r in rows} == {
+        "PRED train step, 1008 frames (42 sequences × 24), bfloat16"
+    }
     assert {(r["batch"], r["seq_len"], r["frames_per_step"]) for r in rows} == {(42, 24, 1008)}
     assert [r["impl"] for r in rows] == [
-        "jaml", "jaml, upsample dilated", "pytorch 2.x eager (cuda)",
-        "pytorch 2.x compiled default (cuda)", "pytorch 2.x compiled default, channels_last (cuda)"]
+        "jaml",
+        "jaml, upsample dilated",
+        "pytorch 2.x eager (cuda)",
+        "pytorch 2.x compiled default (cuda)",
+        "pytorch 2.x compiled default, channels_last (cuda)",
+    ]
     assert [r.get("note") for r in rows] == [
-        None, "out of memory: the compiled step needs 90.0 GiB", None, "AssertionError: x", None]
+        None,
+        "out of memory: the compiled step needs 90.0 GiB",
+        None,
+        "AssertionError: x",
+        None,
+    ]
     assert rows[0]["speedup_vs_pytorch"] == 2000.0 / 1000.0
     assert rows[0]["speedup_vs_pytorch_compiled"] == 2000.0 / 1600.0
     assert rows[0]["useful_tflop_per_s"] == pytest.approx(0.5 * 2000.0 / 1e3)
@@ -53,17 +68,21 @@ def test_a_case_s_rows_name_sequences_and_frames_and_keep_its_errors():
     assert cut[-1]["note"] == "did not finish within the case's 200 s (--case-timeout)"
     single = lt.Case("VAE_rpl", 1024, 1, "float32", 100.0, None, 0.67)
     assert single.name == "VAE_rpl train step, batch 1024"  # as before: batch = frames
-    assert lt.Case("DSA", 1, 24, "float32", 100.0, None, 0.7).name == \
-        "DSA train step, 24 frames (1 sequence × 24)"
+    assert (
+        lt.Case("DSA", 1, 24, "float32", 100.0, None, 0.7).name
+        == "DSA train step, 24 frames (1 sequence × 24)"
+    )
 
 
 def test_a_step_that_needs_more_than_the_free_memory_is_refused_with_its_sizes():
     gib = 2**30
-    analysis = types.SimpleNamespace(temp_size_in_bytes=3 * gib, output_size_in_bytes=gib,
-                                     alias_size_in_bytes=gib)  # needs 3 + 1 − 1 = 3 GiB
+    analysis = types.SimpleNamespace(
+        temp_size_in_bytes=3 * gib, output_size_in_bytes=gib, alias_size_in_bytes=gib
+    )  # needs 3 + 1 − 1 = 3 GiB
     assert lt.memory_shortfall(analysis, {"bytes_limit": 4 * gib, "bytes_in_use": 2 * gib}) == (
         "out of memory: the compiled step needs 3.0 GiB beyond its arguments, 2.0 GiB of the "
-        "allocator's 4.0 GiB are free")
+        "allocator's 4.0 GiB are free"
+    )
     assert lt.memory_shortfall(analysis, {"bytes_limit": 4 * gib, "bytes_in_use": gib}) is None
     assert lt.memory_shortfall(analysis, None) is None  # the CPU: no allocator limit
 

@@ -230,8 +230,7 @@ def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,
     "subpixel" (one stride-1 3×3 convolution onto the four phases, then depth-to-space: 36 taps
     an output phase against 16 useful), or "dilated" (`lax.conv_transpose`, XLA's input-dilated
     convolution and its autodiff, which XLA's CPU backend runs on a slow generic path). "auto"
-    is "phase" on every backend, the fastest of the three on the CPU and on an H100
-    (docs/learners.md). compute_dtype (e.g. bfloat16) is the convolution's input and kernel
+    is "phase" on every backend (why: docs/learners.md). compute_dtype (e.g. bfloat16) is the convolution's input and kernel
     dtype; None keeps x's.
     """
     if form not in UPSAMPLE_FORMS:

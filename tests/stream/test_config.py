@@ -251,7 +251,8 @@ def test_every_committed_stream_run_config_reads_back():
         if "learner_overrides" not in recorded:  # the typed tree, written whole: as written
             assert config.to_dict() == recorded, path
             continue
-        # An older record: its flat fields as written, its learner's and env's configs with every override.
+        # An older record: its flat fields as written, its learner's and env's configs with
+        # every override.
         old = {k: v for k, v in recorded.items() if k != "resolved"}
         flat = _flat(config)
         assert {k: flat[k] for k in old if not k.endswith("_overrides")} == {

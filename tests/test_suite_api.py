@@ -4,10 +4,12 @@ import json
 import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaml import stream, suite
+from jaml.cli import main
 from jaml.stream import analysis
 
 # The API's numbers and the analysis' own come from two programs: they agree to float rounding
@@ -115,3 +117,23 @@ def test_readme_encoder_snippet_runs_as_written(run):
     assert np.all(np.isfinite(report["errors"]["pi_rand"]))
     assert np.isfinite(report["distortion"])
     assert set(report["linear"]["r2"]) == {"pi_rand", "pi_curr"}
+
+
+def test_own_learner_trains_on_the_stream_with_every_analysis(tmp_path, capsys):
+    """`jaml suite --learner MODULE:FACTORY` (tests/stream/test_own_learner.py's TinyAE), every
+    analysis. Here, after the fixture's run: the env's acting and test-set programs are the same
+    ones, read from the run's XLA cache instead of compiled again."""
+    out = tmp_path / "own"
+    spec = "tests.stream.test_own_learner:make_tiny"
+    assert main(["suite", "--env", "CartPole", "--learner", spec, "--scale", "smoke",
+                 "--no-progress", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "finished" and summary["epoch"] == 4
+    history = [json.loads(line) for line in (out / "history.jsonl").read_text().splitlines()]
+    assert sorted({r["step"] for r in history}) == [2, 4]  # replay full, then the end
+    assert {r["test_set"] for r in history} == {"pi_rand", "pi_curr"}
+    metrics = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    trained = [m for m in metrics if m["learner/training"] == 1.0]
+    assert trained and all(jnp.isfinite(m["learner/loss"]) for m in trained)
+    assert (out / "alignment.png").is_file() and (out / "recon" / "epoch_000004.png").is_file()
+    assert f"CartPole {spec} (ppo): finished at epoch 4" in capsys.readouterr().out

@@ -1,6 +1,6 @@
-"""Your own learner on the suite's stream: `jaml suite --learner MODULE:FACTORY`, every analysis."""
+"""Your own learner on the suite's stream: `jaml suite --learner MODULE:FACTORY` (its whole run
+is in tests/test_suite_api.py, which compiles the same env programs first)."""
 
-import json
 
 import flax.linen as nn
 import jax.numpy as jnp
@@ -8,10 +8,6 @@ import pytest
 
 from jaml.cli import main
 from jaml.learners.learner import Learner, Outputs, SingleFrameConfig
-
-# A whole suite run (~100 s on two cores): scheduled early, so that it does not end the run on
-# one worker (tests/conftest.py).
-pytestmark = pytest.mark.first
 
 
 class TinyAE(nn.Module):
@@ -47,23 +43,6 @@ def make_tiny(ld_dim: int, latent_dim: int = 6, **overrides) -> Learner:
     config = SingleFrameConfig(ld_dim=ld_dim, latent_dim=latent_dim, learning_rate=1e-3,
                                **overrides)
     return Learner("TinyAE", config, TinyAE(latent_dim), kl_weights={"kl": 0.0})
-
-
-def test_own_learner_trains_on_the_stream_with_every_analysis(tmp_path, capsys):
-    out = tmp_path / "own"
-    spec = "tests.stream.test_own_learner:make_tiny"
-    assert main(["suite", "--env", "CartPole", "--learner", spec, "--scale", "smoke",
-                 "--no-progress", "--out", str(out)]) == 0
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["status"] == "finished" and summary["epoch"] == 4
-    history = [json.loads(line) for line in (out / "history.jsonl").read_text().splitlines()]
-    assert sorted({r["step"] for r in history}) == [2, 4]  # replay full, then the end
-    assert {r["test_set"] for r in history} == {"pi_rand", "pi_curr"}
-    metrics = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
-    trained = [m for m in metrics if m["learner/training"] == 1.0]
-    assert trained and all(jnp.isfinite(m["learner/loss"]) for m in trained)
-    assert (out / "alignment.png").is_file() and (out / "recon" / "epoch_000004.png").is_file()
-    assert f"CartPole {spec} (ppo): finished at epoch 4" in capsys.readouterr().out
 
 
 def test_a_factory_that_cannot_be_imported_is_one_line(tmp_path, capsys):

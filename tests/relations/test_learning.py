@@ -42,6 +42,21 @@ def ellipse():
     return src, relations.fit(src, relations.Config(max_relations=2))
 
 
+def test_readme_relations_snippet_runs_as_written_and_fits_the_fixtures_relations(
+        ellipse, capsys):
+    """README's 'your relations' snippet, as written: in this module, whose `ellipse` fixture
+    fits the same source with the same config, so its programs are compiled once (and at XLA's
+    full level, as this module's training loops are; tests/test_readme.py)."""
+    from tests.test_readme import snippet
+
+    namespace = {}
+    exec(compile(snippet("relations"), "README:relations", "exec"), namespace)
+    assert "RelationSet(2 relations" in capsys.readouterr().out
+    tau = namespace["tau"]
+    np.testing.assert_allclose(relations.evaluate(namespace["rs"], tau),
+                               relations.evaluate(ellipse[1], tau), rtol=1e-5, atol=1e-7)
+
+
 def test_ellipse_relations_separate_on_from_off_manifold(ellipse):
     src, rs = ellipse
     assert rs.num_relations == 2

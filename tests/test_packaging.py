@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+# One of the default suite's longest modules: scheduled early (tests/conftest.py).
+pytestmark = pytest.mark.first
 ROOT = Path(__file__).resolve().parents[1]
 _SOURCES = ("jaml", "envs_mjx", "assets", "pyproject.toml", "README.md", "LICENSE")
 

@@ -24,6 +24,9 @@ from envs_mjx.domains.mesh_object import load_object, read_obj
 from jaml.stream import collect
 from tests.envs_mjx.rollout_harness import FAST_COMPILE
 
+# One of the default suite's longest modules: scheduled early (tests/conftest.py).
+pytestmark = pytest.mark.first
+
 B, T, SIZE = 8, 40, 48
 N = len(mesh_incline.MESH_OBJECTS)
 # Objects that rest on a hull face: MJX and C MuJoCo agree on them as on GeomOnIncline's block.

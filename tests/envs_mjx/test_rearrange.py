@@ -26,6 +26,9 @@ from envs_mjx import render
 from envs_mjx.domains import rearrange
 from tests.envs_mjx.rollout_harness import FAST_COMPILE, RECORD, Harness
 
+# One of the default suite's longest modules: scheduled early (tests/conftest.py).
+pytestmark = pytest.mark.first
+
 B, T = 4, 10
 COMPILE_OPTIONS = {"reacher": FAST_COMPILE, "franka": FAST_COMPILE}
 PAIRS = [(n, a) for n in ("RearrangeGeom", "RearrangeYCB") for a in rearrange.ARMS]

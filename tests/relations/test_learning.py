@@ -17,7 +17,8 @@ from jaml.relations.data import prepare
 from jaml.relations.training import fit_syzygy
 
 # Thousands of training steps per test: compiled at XLA's full level (185 s → 118 s here).
-pytestmark = pytest.mark.xla_optimized
+# One of the default suite's longest modules: scheduled early (tests/conftest.py).
+pytestmark = [pytest.mark.xla_optimized, pytest.mark.first]
 
 N_FRESH = 20_000
 

@@ -289,10 +289,13 @@ def _torch_device():
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
-def _peer_impl(label: str) -> str:
-    import torch
+def _jaml_impl(form: str) -> str:
+    """A jaml row's impl: the learner's default form plainly, another form by name."""
+    return "jaml" if form == "auto" else f"jaml, upsample {form}"
 
-    return f"pytorch {torch.__version__} {label} ({_torch_device()})"
+
+def _peer_impl(version: str, label: str, device: str) -> str:
+    return f"pytorch {version} {label} ({device})"
 
 
 def _rates(gflop_per_frame: float, fps: float, ceiling: float, peak: float | None) -> dict:
@@ -347,7 +350,7 @@ class Case:
                 "seq_len": self.seq_len, "frames_per_step": self.frames, "dtype": self.dtype}
         jaml_rows, rows = [], []
         for form, j in self.jaml:
-            row = {**base, "impl": "jaml" if form == "auto" else f"jaml, upsample {form}"}
+            row = {**base, "impl": _jaml_impl(form)}
             if "error" in j:
                 rows.append({**row, "note": j["error"]})
                 continue
@@ -359,8 +362,8 @@ class Case:
             rows.append(row)
         fastest = {"eager": [], "compiled": []}
         for t in self.peers:
-            impl = f"pytorch {t['version']} {t['label']} ({t['device']})"
-            row = {**base, "impl": impl, "torch_threads": t["threads"],
+            row = {**base, "impl": _peer_impl(t["version"], t["label"], t["device"]),
+                   "torch_threads": t["threads"],
                    "peer_gflop_per_frame": self.peer_gflop}
             if "error" in t:
                 rows.append({**row, "note": t["error"]})
@@ -410,15 +413,18 @@ def _lines(rows: list[dict]) -> str:
 def measure_case(case: Case, reps: int, steps: int, variants, upsample_forms) -> list[dict]:
     """The peer's variants (each releasing its memory), then jaml's step in each form."""
     for mode, fmt in variants:
-        case.running = _peer_impl(torch_peer().Variant(
-            mode, channels_last=fmt == "channels_last", dtype=case.dtype).label)
+        import torch
+
+        label = torch_peer().Variant(mode, channels_last=fmt == "channels_last",
+                                     dtype=case.dtype).label
+        case.running = _peer_impl(torch.__version__, label, str(_torch_device()))
         r = bench_torch(case.learner, case.sequences, reps, steps, case.dtype, mode,
                         memory_format=fmt)
         case.peers.append(r)
         print(f"  {case.name} {r['label']}: "
               + (r["error"] if "error" in r else f"{r['fps']:.1f} frames/s"), flush=True)
     for form in upsample_forms:
-        case.running = "jaml" if form == "auto" else f"jaml, upsample {form}"
+        case.running = _jaml_impl(form)
         case.jaml.append((form, bench_jax(case.sequences, reps, steps, case.dtype, case.learner,
                                           form)))
     case.running = None

@@ -117,12 +117,13 @@ def late_table(runs, fill_epochs: int) -> list[str]:
              "interval.", "",
              "| method − PRED | " + " | ".join(METRICS[m][0] for m in METRICS) + " |",
              "|---" * (len(METRICS) + 1) + "|"]
+    base = {metric: _late_means(runs[BASE], metric, first) for metric in METRICS}
     rows = []
     for m in others:
         cells = []
         for metric in METRICS:
-            a, b = _late_means(runs[m], metric, first), _late_means(runs[BASE], metric, first)
-            cells.append(_paired(a, b) if set(a) & set(b) else "")
+            a = _late_means(runs[m], metric, first)
+            cells.append(_paired(a, base[metric]) if set(a) & set(base[metric]) else "")
         if any(cells):
             rows.append(f"| {m} | " + " | ".join(cells) + " |")
     return lines + rows if rows else []

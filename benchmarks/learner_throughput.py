@@ -159,14 +159,15 @@ def _first_line(e: Exception) -> str:
 
 
 def bench_jax(sequences: int, reps: int, steps: int, dtype: str = "float32",
-              learner_name: str = "VAE_rpl", upsample_form: str = "auto") -> dict:
+              learner_name: str = "VAE_rpl", upsample_form: str = "auto",
+              activation_dtype: str = "float32") -> dict:
     """jaml's train step on `sequences` sequences: frames/s (median over reps of `steps` blocked
     steps) after its compilation (timed apart) and one warm-up step. {"error": ...} when it
     fails: a compiled step that needs more memory than the device has free (not run), or an
     error from XLA (its first line)."""
     try:
         learner = learners.make(learner_name, ld_dim=LD_DIM, compute_dtype=dtype,
-                                upsample_form=upsample_form)
+                                upsample_form=upsample_form, activation_dtype=activation_dtype)
         opt = learners.default_optimizer(learner)
         seq_len = learner.config.seq_len
         batch = tuple(jax.device_put(x) for x in _batch(sequences, seq_len))
@@ -289,9 +290,12 @@ def _torch_device():
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
-def _jaml_impl(form: str) -> str:
-    """A jaml row's impl: the learner's default form plainly, another form by name."""
-    return "jaml" if form == "auto" else f"jaml, upsample {form}"
+def _jaml_impl(form: str, activation_dtype: str = "float32") -> str:
+    """A jaml row's impl: the learner's defaults plainly, another form or activation dtype by
+    name."""
+    return ", ".join(["jaml"] + ([f"upsample {form}"] if form != "auto" else [])
+                     + ([f"{activation_dtype} activations"]
+                        if activation_dtype != "float32" else []))
 
 
 def _peer_impl(version: str, label: str, device: str) -> str:
@@ -314,9 +318,9 @@ def _mfu_text(rates: dict) -> str:
 
 @dataclasses.dataclass
 class Case:
-    """One learner at one step size and dtype: what its sides measured so far (`jaml`: (form,
-    `bench_jax` result); `peers`: `bench_torch` results) and the impl now running, so that a
-    case cut short still gives its rows (`rows`)."""
+    """One learner at one step size and dtype: what its sides measured so far (`jaml`:
+    ((upsample form, activation dtype), `bench_jax` result); `peers`: `bench_torch` results)
+    and the impl now running, so that a case cut short still gives its rows (`rows`)."""
 
     learner: str
     sequences: int
@@ -350,7 +354,7 @@ class Case:
                 "seq_len": self.seq_len, "frames_per_step": self.frames, "dtype": self.dtype}
         jaml_rows, rows = [], []
         for form, j in self.jaml:
-            row = {**base, "impl": _jaml_impl(form)}
+            row = {**base, "impl": _jaml_impl(*form)}
             if "error" in j:
                 rows.append({**row, "note": j["error"]})
                 continue
@@ -410,8 +414,9 @@ def _lines(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def measure_case(case: Case, reps: int, steps: int, variants, upsample_forms) -> list[dict]:
-    """The peer's variants (each releasing its memory), then jaml's step in each form."""
+def measure_case(case: Case, reps: int, steps: int, variants, jaml_variants) -> list[dict]:
+    """The peer's variants (each releasing its memory), then jaml's step in each (upsample form,
+    activation dtype)."""
     for mode, fmt in variants:
         import torch
 
@@ -423,10 +428,10 @@ def measure_case(case: Case, reps: int, steps: int, variants, upsample_forms) ->
         case.peers.append(r)
         print(f"  {case.name} {r['label']}: "
               + (r["error"] if "error" in r else f"{r['fps']:.1f} frames/s"), flush=True)
-    for form in upsample_forms:
-        case.running = _jaml_impl(form)
-        case.jaml.append((form, bench_jax(case.sequences, reps, steps, case.dtype, case.learner,
-                                          form)))
+    for form, act in jaml_variants:
+        case.running = _jaml_impl(form, act)
+        case.jaml.append(((form, act), bench_jax(case.sequences, reps, steps, case.dtype,
+                                                 case.learner, form, act)))
     case.running = None
     rows = case.rows()
     print(_lines(rows), flush=True)
@@ -482,6 +487,9 @@ def main(argv=None) -> int:
     parser.add_argument("--upsample-forms", nargs="+", default=["auto"],
                         choices=list(UPSAMPLE_FORMS), help="jaml's decoder formulations "
                         "(LearnerConfig.upsample_form), a row each; ratios are the first's")
+    parser.add_argument("--activation-dtypes", nargs="+", default=["float32"],
+                        choices=["float32", "bfloat16"], help="jaml's activation dtypes "
+                        "(LearnerConfig.activation_dtype), a row each per upsample form")
     parser.add_argument("--case-timeout", type=float, default=None, metavar="S",
                         help="seconds a case (peer variants and jaml forms) may take; past "
                         "them its rows so far and an error row for the impl still running are "
@@ -527,7 +535,9 @@ def main(argv=None) -> int:
                 case = Case(name, sequences, seq_len, dtype, ceiling, quoted_peak(dtype),
                             useful_gflop_per_frame(name, sequences, dtype), peer_gflop.get(name))
                 timer = _watch(case, args.case_timeout, not args.no_record)
-                rows = measure_case(case, args.reps, args.steps, variants, args.upsample_forms)
+                rows = measure_case(case, args.reps, args.steps, variants,
+                                    [(form, act) for act in args.activation_dtypes
+                                     for form in args.upsample_forms])
                 if timer:
                     timer.cancel()
                 if not args.no_record:

@@ -28,8 +28,10 @@ def test_a_case_s_rows_name_sequences_and_frames_and_keep_its_errors():
         "PRED", 42, 24, "bfloat16", ceiling=100.0, peak=None, gflop_per_frame=0.5, peer_gflop=0.4
     )
     case.jaml = [
-        ("auto", {"compile_s": 3.0, "fps": 2000.0, "xla_gflop_per_frame": 0.1, "temp_gib": 2.5}),
-        ("dilated", {"error": "out of memory: the compiled step needs 90.0 GiB"}),
+        (("auto", "float32"),
+         {"compile_s": 3.0, "fps": 2000.0, "xla_gflop_per_frame": 0.1, "temp_gib": 2.5}),
+        (("dilated", "float32"), {"error": "out of memory: the compiled step needs 90.0 GiB"}),
+        (("auto", "bfloat16"), {"error": "x"}),
     ]
     case.peers = [
         _peer("eager", fps=1000.0),
@@ -44,6 +46,7 @@ def test_a_case_s_rows_name_sequences_and_frames_and_keep_its_errors():
     assert [r["impl"] for r in rows] == [
         "jaml",
         "jaml, upsample dilated",
+        "jaml, bfloat16 activations",
         "pytorch 2.x eager (cuda)",
         "pytorch 2.x compiled default (cuda)",
         "pytorch 2.x compiled default, channels_last (cuda)",
@@ -51,6 +54,7 @@ def test_a_case_s_rows_name_sequences_and_frames_and_keep_its_errors():
     assert [r.get("note") for r in rows] == [
         None,
         "out of memory: the compiled step needs 90.0 GiB",
+        "x",
         None,
         "AssertionError: x",
         None,
@@ -58,7 +62,7 @@ def test_a_case_s_rows_name_sequences_and_frames_and_keep_its_errors():
     assert rows[0]["speedup_vs_pytorch"] == 2000.0 / 1000.0
     assert rows[0]["speedup_vs_pytorch_compiled"] == 2000.0 / 1600.0
     assert rows[0]["useful_tflop_per_s"] == pytest.approx(0.5 * 2000.0 / 1e3)
-    assert rows[2]["useful_tflop_per_s"] == pytest.approx(0.5 * 1000.0 / 1e3)  # jaml's count
+    assert rows[3]["useful_tflop_per_s"] == pytest.approx(0.5 * 1000.0 / 1e3)  # jaml's count
     assert "speedup_vs_pytorch" not in rows[1]
     # Cut short while a form runs: the rows so far, and an error row for that form.
     case.running = "jaml, upsample phase"

@@ -147,7 +147,7 @@ def test_a_failing_peer_variant_is_an_error_row_and_the_case_goes_on(monkeypatch
     assert good["label"] == "eager" and good["fps"] > 0
     case = lt.Case("VAE_rpl", 2, 1, "float32", 1.0, None, lt.useful_gflop_per_frame(
         "VAE_rpl", 2, "float32"), peers=[bad, good])
-    case.jaml = [("auto", lt.bench_jax(2, 1, 1))]
+    case.jaml = [(("auto", "float32"), lt.bench_jax(2, 1, 1))]
     rows = case.rows()
     assert [r.get("note") for r in rows[1:]] == [bad["error"], None]
     assert rows[0]["speedup_vs_pytorch"] == rows[0]["frames_per_s"] / good["fps"]

@@ -44,6 +44,11 @@ class LearnerConfig:
       and decoder's convolutions (VAEs, PRED, SVAE, DSA; not SPAIR's): mixed precision, with
       parameters, batch norms, heads, the loss and the optimizer in float32. Not in the
       reference.
+    activation_dtype: "float32" (default) or "bfloat16": the dtype of the conv stacks'
+      activations between convolutions (batch-norm and ELU outputs, the decoder's biased
+      transposed-convolution outputs), what `torch.autocast` stores; batch-norm statistics,
+      parameters and everything after the encoder stay float32. With compute_dtype "bfloat16"
+      it halves the memory traffic of those elementwise passes. Not in the reference.
     current_action: "observed" (the reference code): the encoder sees the executed action of
       every input frame, the one into the first predicted frame included; "hidden": that last
       action is zeroed (`elbo.encoder_actions`).
@@ -64,6 +69,7 @@ class LearnerConfig:
     deconv_filters: tuple[int, ...] = (256, 128, 128, 64)
     frame_nll: str = "sum"
     compute_dtype: str = "float32"
+    activation_dtype: str = "float32"
     current_action: str = "observed"
     kl_form: str = "standard"
     upsample_form: str = "auto"
@@ -78,9 +84,10 @@ class LearnerConfig:
         if self.kl_form not in KL_FORMS:
             raise ValueError(f"kl_form must be one of {list(KL_FORMS)}, got "
                              f"{self.kl_form!r}")
-        if self.compute_dtype not in COMPUTE_DTYPE_NAMES:
-            raise ValueError(f"compute_dtype must be one of {list(COMPUTE_DTYPE_NAMES)}, got "
-                             f"{self.compute_dtype!r}")
+        for field in ("compute_dtype", "activation_dtype"):
+            if getattr(self, field) not in COMPUTE_DTYPE_NAMES:
+                raise ValueError(f"{field} must be one of {list(COMPUTE_DTYPE_NAMES)}, got "
+                                 f"{getattr(self, field)!r}")
         if self.frame_nll not in FRAME_NLLS:
             raise ValueError(f"frame_nll must be 'sum' or 'mean', got "
                              f"{self.frame_nll!r}")
@@ -102,6 +109,13 @@ class LearnerConfig:
         import jax.numpy as jnp  # here: the configs import no JAX
 
         return getattr(jnp, self.compute_dtype)
+
+    @property
+    def act_dtype(self):
+        """activation_dtype as a JAX dtype, for the conv encoder and decoder."""
+        import jax.numpy as jnp
+
+        return getattr(jnp, self.activation_dtype)
 
     @property
     def actions_seen(self) -> int:

@@ -36,7 +36,8 @@ class DisentangledSequentialAE(nn.Module):
     def setup(self):
         c = self.config
         mu_act = "elu" if c.mu_nl else "none"
-        self.conv = ConvEncoder(c.conv_filters, c.conv_features, c.conv_dtype)
+        self.conv = ConvEncoder(c.conv_filters, c.conv_features, c.conv_dtype,
+                                activation_dtype=c.act_dtype)
         self.static_rnn = lstm(c.rnn_hidden)
         self.static_head = GaussianHead(c.f_size, "sigmoid", c.logvar_limit)
         self.dynamic_rnn = RNNEncoder(c.rnn_hidden)
@@ -47,6 +48,7 @@ class DisentangledSequentialAE(nn.Module):
         self.prior_fc = nn.Dense(c.prior_hidden)
         self.prior_head = GaussianHead(c.z_step, "sigmoid", c.logvar_limit)
         self.decoder = ConvDecoder(c.deconv_filters, compute_dtype=c.conv_dtype,
+                                   activation_dtype=c.act_dtype,
                                    upsample_form=c.upsample_form)
 
     def features(self, x, train: bool):

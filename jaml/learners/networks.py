@@ -202,6 +202,8 @@ class ConvEncoder(nn.Module):
     compute_dtype: jnp.dtype = jnp.float32
     # The CPU formulation of its convolutions (`conv2d`); None: when tracing for the CPU.
     cpu_kernels: bool | None = None
+    # The batch norms' and ELUs' output dtype (statistics float32); the feature is float32.
+    activation_dtype: jnp.dtype = jnp.float32
 
     @nn.compact
     def __call__(self, x: jax.Array, train: bool) -> jax.Array:
@@ -210,14 +212,17 @@ class ConvEncoder(nn.Module):
         for i, f in enumerate(self.filters):
             x = Conv(f, (4, 4), (2, 2), _HALVE, self.compute_dtype, self.cpu_kernels,
                      name=f"conv{i}")(x)
-            x = elu(self._norm(f"bn{i}", train)(x), self.cpu_kernels)
+            x = elu(_norm(f"bn{i}", train, self.activation_dtype)(x), self.cpu_kernels)
         x = Conv(self.features, (4, 4), dtype=self.compute_dtype, cpu_kernels=self.cpu_kernels,
                  name="conv_out")(x)
-        x = elu(self._norm("bn_out", train)(x), self.cpu_kernels)
-        return x.reshape(x.shape[0], self.features)
+        x = elu(_norm("bn_out", train, self.activation_dtype)(x), self.cpu_kernels)
+        return x.reshape(x.shape[0], self.features).astype(jnp.float32)
 
-    def _norm(self, name: str, train: bool) -> nn.BatchNorm:
-        return nn.BatchNorm(use_running_average=not train, dtype=jnp.float32, name=name, **_BN)
+
+def _norm(name: str, train: bool, dtype: jnp.dtype) -> nn.BatchNorm:
+    """PyTorch's BatchNorm (batch statistics in training, running ones otherwise), its output in
+    dtype; statistics and parameters float32 whatever dtype is (Flax's float32 reductions)."""
+    return nn.BatchNorm(use_running_average=not train, dtype=dtype, name=name, **_BN)
 
 
 def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,
@@ -259,13 +264,16 @@ class Upsample2x(nn.Module):
     features: int
     compute_dtype: jnp.dtype = jnp.float32
     form: str = "auto"
+    # The biased output's dtype.
+    dtype: jnp.dtype = jnp.float32
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         kernel = self.param("kernel", nn.initializers.lecun_normal(),
                             (4, 4, x.shape[-1], self.features))
         bias = self.param("bias", nn.initializers.zeros, (self.features,))
-        return upsample2x(x, kernel, self.compute_dtype, self.form) + bias
+        y = upsample2x(x, kernel, self.compute_dtype, self.form)
+        return y.astype(self.dtype) + bias.astype(self.dtype)
 
 
 class ConvDecoder(nn.Module):
@@ -283,25 +291,24 @@ class ConvDecoder(nn.Module):
     cpu_kernels: bool | None = None
     # The transposed convolutions' formulation (`upsample2x`'s form; "auto": "phase").
     upsample_form: str = "auto"
+    # As ConvEncoder's: the dtype between convolutions; the output is float32.
+    activation_dtype: jnp.dtype = jnp.float32
 
     @nn.compact
     def __call__(self, z: jax.Array, train: bool) -> jax.Array:
         first, *middle, last = self.filters
-        dt = self.compute_dtype
+        dt, at = self.compute_dtype, self.activation_dtype
         # k4 s1 p0 on a 1×1 input is a dense layer onto a 4×4 map (no input dilation).
         x = nn.ConvTranspose(first, (4, 4), padding="VALID", dtype=dt, name="deconv0")(
             z.reshape(z.shape[0], 1, 1, z.shape[-1]))
-        x = self._norm("bn0", train)(elu(x, self.cpu_kernels))
-        up = functools.partial(Upsample2x, compute_dtype=dt, form=self.upsample_form)
+        x = _norm("bn0", train, at)(elu(x, self.cpu_kernels))
+        up = functools.partial(Upsample2x, compute_dtype=dt, form=self.upsample_form, dtype=at)
         for i, f in enumerate(middle, start=1):
             x = elu(up(f, name=f"deconv{i}")(x), self.cpu_kernels)
-            x = self._norm(f"bn{i}", train)(x)
+            x = _norm(f"bn{i}", train, at)(x)
         x = elu(up(last, name=f"deconv{len(middle) + 1}")(x), self.cpu_kernels)
-        out = up(self.channels, name="deconv_out")(x)
-        return nn.sigmoid(out.astype(jnp.float32))
-
-    def _norm(self, name: str, train: bool) -> nn.BatchNorm:
-        return nn.BatchNorm(use_running_average=not train, dtype=jnp.float32, name=name, **_BN)
+        out = up(self.channels, name="deconv_out", dtype=jnp.float32)(x)
+        return nn.sigmoid(out)
 
 
 class MLP(nn.Module):

@@ -21,10 +21,12 @@ class SequenceVAE(StepwiseGaussianVAE):
 
     def setup(self):
         c = self.config
-        self.conv = ConvEncoder(c.conv_filters, c.conv_features, c.conv_dtype)
+        self.conv = ConvEncoder(c.conv_filters, c.conv_features, c.conv_dtype,
+                                activation_dtype=c.act_dtype)
         self.rnn = RNNEncoder(c.rnn_hidden)
         self.head = GaussianHead(c.z_step, "elu" if c.mu_nl else "none", c.logvar_limit)
         self.decoder = ConvDecoder(c.deconv_filters, compute_dtype=c.conv_dtype,
+                                   activation_dtype=c.act_dtype,
                                    upsample_form=c.upsample_form)
 
     def posterior(self, x, a, train: bool):

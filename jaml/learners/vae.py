@@ -84,7 +84,8 @@ class FeedForwardVAE(StepwiseGaussianVAE):
 
     def setup(self):
         c = self.config
-        self.conv = ConvEncoder(c.conv_filters, c.conv_features, c.conv_dtype)
+        self.conv = ConvEncoder(c.conv_filters, c.conv_features, c.conv_dtype,
+                                activation_dtype=c.act_dtype)
         self.trunk = MLP(c.mlp_widths)
         self.head = GaussianHead(
             c.latent_steps * (c.static_size + c.z_step) if _static_per_step(c)
@@ -93,6 +94,7 @@ class FeedForwardVAE(StepwiseGaussianVAE):
             c.logvar_limit,
         )
         self.decoder = ConvDecoder(c.deconv_filters, compute_dtype=c.conv_dtype,
+                                   activation_dtype=c.act_dtype,
                                    upsample_form=c.upsample_form)
 
     def posterior(self, x, a, train: bool):

@@ -1,0 +1,142 @@
+"""Where a learner's train step spends its GPU time: kernel time by kind, from JAX's profiler.
+
+    python benchmarks/learner_profile.py [--learner VAE_rpl] [--frames 1024] [--dtype bfloat16]
+        [--activation-dtype bfloat16] [--upsample-form auto] [--steps 10] [--json out.json]
+
+The step is built and compiled as `learner_throughput.py` builds it, run once to warm up, then
+`--steps` steps run under `jax.profiler.trace`. The trace's device planes (`ProfileData`) give
+every kernel's time; each is put in one kind by the HLO instruction it ran for (its `hlo_op`
+stat) or, lacking one, its kernel name: convolution (cuDNN), matmul, reduction fusion,
+elementwise fusion, transpose/copy, memset/memcpy, other. Printed: GPU time per step by kind, its
+share of the busy time, the busy time against the step's wall time, and the longest ops. This is
+a profile, not a benchmark: rates go in `learner_throughput.py`'s rows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import glob
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.learner_throughput import LD_DIM, _batch, step_shape
+from jaml import learners
+from jaml.learners.config import COMPUTE_DTYPE_NAMES, UPSAMPLE_FORMS
+
+KINDS = ("convolution", "matmul", "reduction fusion", "elementwise fusion", "transpose/copy",
+         "memset/memcpy", "other")
+
+
+def kind_of(op: str, kernel: str) -> str:
+    """The kind of a kernel, from its HLO instruction's name (XLA names fusions by their kind:
+    loop_*, input_* for reductions) or, without one, from the kernel's own name."""
+    o, k = op.lower(), kernel.lower()
+    if "memcpy" in k or "memset" in k:
+        return "memset/memcpy"
+    if "conv" in o or (not o and any(s in k for s in ("conv", "fprop", "dgrad", "wgrad"))):
+        return "convolution"
+    if any(s in o for s in ("gemm", "dot", "cublas")) or (not o and "gemm" in k):
+        return "matmul"
+    if "transpose" in o or o.startswith("copy"):
+        return "transpose/copy"
+    if o.startswith("input_") or "reduce" in o:
+        return "reduction fusion"
+    if "fusion" in o or o.startswith("loop_"):
+        return "elementwise fusion"
+    return "other"
+
+
+def device_kernels(xspace_path: str) -> list[tuple[str, str, float]]:
+    """(hlo op, kernel name, seconds) of every kernel on the trace's GPU planes."""
+    from jax.profiler import ProfileData
+
+    out = []
+    for plane in ProfileData.from_file(xspace_path).planes:
+        if not plane.name.startswith("/device:GPU"):
+            continue
+        for line in plane.lines:
+            if not line.name.startswith("Stream"):
+                continue
+            for event in line.events:
+                stats = dict(event.stats)
+                out.append((str(stats.get("hlo_op", "")), event.name, event.duration_ns / 1e9))
+    return out
+
+
+def summarise(kernels, steps: int, wall_s: float, top: int = 25) -> dict:
+    by_kind = collections.Counter()
+    by_op = collections.Counter()
+    names = {}
+    for op, kernel, s in kernels:
+        kind = kind_of(op, kernel)
+        by_kind[kind] += s
+        by_op[op or kernel] += s
+        names.setdefault(op or kernel, (kind, kernel))
+    busy = sum(by_kind.values())
+    return {"steps": steps, "wall_ms_per_step": 1e3 * wall_s / steps,
+            "busy_ms_per_step": 1e3 * busy / steps, "kernels_per_step": len(kernels) / steps,
+            "by_kind_ms_per_step": {k: 1e3 * by_kind[k] / steps for k in KINDS if by_kind[k]},
+            "top_ops": [{"op": op, "kind": names[op][0], "kernel": names[op][1][:90],
+                         "ms_per_step": 1e3 * s / steps} for op, s in by_op.most_common(top)]}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--learner", default="VAE_rpl", choices=["VAE_rpl", "PRED", "DSA"])
+    parser.add_argument("--frames", type=int, default=1024)
+    parser.add_argument("--dtype", default="float32", choices=COMPUTE_DTYPE_NAMES)
+    parser.add_argument("--activation-dtype", default="float32", choices=COMPUTE_DTYPE_NAMES)
+    parser.add_argument("--upsample-form", default="auto", choices=UPSAMPLE_FORMS)
+    parser.add_argument("--steps", type=int, default=10)
+    parser.add_argument("--json", type=Path, help="also write the summary here")
+    args = parser.parse_args(argv)
+    if jax.default_backend() != "gpu":
+        parser.error(f"profiles GPU kernels; the default backend is {jax.default_backend()}")
+    sequences, seq_len = step_shape(args.learner, args.frames)
+    learner = learners.make(args.learner, ld_dim=LD_DIM, compute_dtype=args.dtype,
+                            activation_dtype=args.activation_dtype,
+                            upsample_form=args.upsample_form)
+    opt = learners.default_optimizer(learner)
+    batch = tuple(jax.device_put(x) for x in _batch(sequences, seq_len))
+    state = learners.init_train_state(learner, opt, jax.random.key(0), batch)
+    step = jax.jit(learners.make_train_step(learner, opt), donate_argnums=0,
+                   compiler_options=learners.compiler_options())
+    state, metrics = step(state, batch, jax.random.key(0))
+    jax.block_until_ready((state, metrics))
+    with tempfile.TemporaryDirectory() as log_dir:
+        with jax.profiler.trace(log_dir):
+            t0 = time.perf_counter()
+            for i in range(args.steps):
+                state, metrics = step(state, batch, jax.random.key(i + 1))
+            jax.block_until_ready((state, metrics))
+            wall = time.perf_counter() - t0
+        (path,) = glob.glob(f"{log_dir}/**/*.xplane.pb", recursive=True)
+        summary = summarise(device_kernels(path), args.steps, wall)
+    summary.update({"learner": args.learner, "frames_per_step": sequences * seq_len,
+                    "dtype": args.dtype, "activation_dtype": args.activation_dtype,
+                    "upsample_form": args.upsample_form, "device": jax.devices()[0].device_kind,
+                    "jax": jax.__version__})
+    print(f"{args.learner}, {sequences * seq_len} frames, {args.dtype} convolutions, "
+          f"{args.activation_dtype} activations, upsample {args.upsample_form}, "
+          f"{summary['device']}: wall {summary['wall_ms_per_step']:.2f} ms/step (profiled), "
+          f"GPU busy {summary['busy_ms_per_step']:.2f} ms, "
+          f"{summary['kernels_per_step']:.0f} kernels/step")
+    for kind, ms in summary["by_kind_ms_per_step"].items():
+        print(f"  {kind:20s} {ms:7.3f} ms  {100 * ms / summary['busy_ms_per_step']:5.1f} %")
+    for o in summary["top_ops"]:
+        print(f"  {o['ms_per_step']:7.3f} ms  {o['kind']:18s} {o['op'][:48]:48s} {o['kernel']}")
+    if args.json:
+        args.json.write_text(json.dumps(summary, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

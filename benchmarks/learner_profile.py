@@ -6,7 +6,8 @@
 The step is built and compiled as `learner_throughput.py` builds it, run once to warm up, then
 `--steps` steps run under `jax.profiler.trace`. The trace's device planes (`ProfileData`) give
 every kernel's time; each is put in one kind by the HLO instruction it ran for (its `hlo_op`
-stat) or, lacking one, its kernel name: convolution (cuDNN), matmul, reduction fusion,
+stat; inside a CUDA graph, whose op is the graph, the kernel's name, which XLA gives its
+fusion) or, lacking either, its kernel name: convolution (cuDNN), matmul, reduction fusion,
 elementwise fusion, transpose/copy, memset/memcpy, other. Printed: GPU time per step by kind, its
 share of the busy time, the busy time against the step's wall time, and the longest ops. This is
 a profile, not a benchmark: rates go in `learner_throughput.py`'s rows.
@@ -39,6 +40,8 @@ def kind_of(op: str, kernel: str) -> str:
     """The kind of a kernel, from its HLO instruction's name (XLA names fusions by their kind:
     loop_*, input_* for reductions) or, without one, from the kernel's own name."""
     o, k = op.lower(), kernel.lower()
+    if o.startswith("command_buffer"):  # a CUDA graph's kernels: the kernel names the fusion
+        o = k
     if "memcpy" in k or "memset" in k:
         return "memset/memcpy"
     if "conv" in o or (not o and any(s in k for s in ("conv", "fprop", "dgrad", "wgrad"))):
@@ -78,8 +81,9 @@ def summarise(kernels, steps: int, wall_s: float, top: int = 25) -> dict:
     for op, kernel, s in kernels:
         kind = kind_of(op, kernel)
         by_kind[kind] += s
-        by_op[op or kernel] += s
-        names.setdefault(op or kernel, (kind, kernel))
+        key = kernel if not op or op.startswith("command_buffer") else op
+        by_op[key] += s
+        names.setdefault(key, (kind, kernel))
     busy = sum(by_kind.values())
     return {"steps": steps, "wall_ms_per_step": 1e3 * wall_s / steps,
             "busy_ms_per_step": 1e3 * busy / steps, "kernels_per_step": len(kernels) / steps,

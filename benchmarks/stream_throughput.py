@@ -9,7 +9,10 @@ epochs (the state carried from call to call, as in a run):
   loop    — whole epochs (`run_stacked_epochs`): the stream plus `learner_steps` learner
             updates on replay batches; env frames/s collected, learner frames/s trained and
             epochs/s, all aggregated over the R runs;
-  learner — the learner updates alone, on batches sampled from the filled replay.
+  learner — the learner updates alone, on batches sampled from the filled replay;
+  analysis — one analysis of the R runs (`analysis.evaluate_runs`, as a run calls it: the
+            π_rand sets kept after the first, so a repeat encodes them again), seconds per
+            part (train_set, pi_rand, pi_curr, regressor) the median over the repeats.
 The peer of a row is the same code at R = 1 in the same run (`speedup_vs_one_run`): the loop
 before runs were stacked. There is no peer for the whole loop from the paper's PyBullet +
 PyTorch stack here; its anchors are in `reference/perf_anchors.md`.
@@ -21,6 +24,7 @@ PyTorch stack here; its anchors are in `reference/perf_anchors.md`.
 from __future__ import annotations
 
 import argparse
+import statistics
 import sys
 from pathlib import Path
 
@@ -30,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import harness
 from jaml import learners
-from jaml.stream import build, for_env
+from jaml.stream import analysis, build, for_env
 from jaml.stream.executor import (
     _act_runs,
     _learn_step_runs,
@@ -42,12 +46,15 @@ from jaml.stream.executor import (
 
 def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_per_batch: int,
           replay_slots: int, repeats: int, devices: int | None,
-          compute_dtype: str = "float32") -> list[dict]:
+          compute_dtype: str = "float32", activation_dtype: str = "float32",
+          eval_sizes: dict | None = None) -> list[dict]:
     defaults = for_env(env, learner)
     minibatches = defaults.ppo.num_minibatches
     minibatches = minibatches if num_envs % minibatches == 0 else 1
     config = defaults.with_overrides({
-        "learner_config.compute_dtype": compute_dtype, "num_envs": num_envs,
+        "learner_config.compute_dtype": compute_dtype,
+        "learner_config.activation_dtype": activation_dtype, "num_envs": num_envs,
+        **{f"eval.{k}": v for k, v in (eval_sizes or {}).items()},
         "replay.slots": replay_slots, "frames_per_batch": frames_per_batch,
         "epochs": max(1000, replay_slots // num_envs), "ppo.num_minibatches": minibatches})
     stream = build(config)
@@ -83,17 +90,31 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
         holder["s"] = s.replace(learner=ls)
         return ls.step
 
+    kept = [analysis.PiRandSet() for _ in range(runs)]
+    parts: list[dict] = []
+
+    def analyse():  # one analysis of the R runs, as `run._analyse_due` makes it
+        seconds: dict = {}
+        keys = jax.random.split(jax.random.PRNGKey(2), (2, runs))
+        out = analysis.evaluate_runs(stream, holder["s"], keys[0], keys[1], seconds=seconds,
+                                     pi_rand_sets=kept)
+        parts.append(seconds)
+        return out
+
     env_frames = runs * epochs * num_envs * config.rollout_len
     learner_frames = runs * epochs * config.learner_steps * stream.batch_sequences * stream.seq_len
     rows = []
-    cases = (("stream", stream_only), ("loop", loop), ("learner", learner_only))
+    cases = (("stream", stream_only), ("loop", loop), ("learner", learner_only),
+             ("analysis", analyse))
     for case, fn in cases:
         if case != "loop" and mesh.size > 1:
             continue  # the pieces are jitted for one device; only the loop is sharded
         t = harness.measure(fn, repeats=repeats)
         row = {
             "case": f"{env}/{learner}/{case}"
-                    + ("" if compute_dtype == "float32" else f", {compute_dtype}"),
+                    + ("" if compute_dtype == "float32" else f", {compute_dtype}")
+                    + ("" if activation_dtype == "float32"
+                       else f", {activation_dtype} activations"),
             "impl": "jaml",
             "batch": num_envs,
             "runs": runs,
@@ -109,6 +130,10 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
             row["learner_frames_per_s"] = learner_frames / t["median_s"]
         if case == "loop":
             row["epochs_per_s"] = runs * epochs / t["median_s"]
+        if case == "analysis":  # no epochs: a call is one analysis
+            row["epochs_per_call"] = None
+            row.update({f"{k}_s": statistics.median(p.get(k, 0.0) for p in parts[1:])
+                        for k in ("train_set", "pi_rand", "pi_curr", "regressor")})
         rows.append(row)
         print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()},
               flush=True)
@@ -120,7 +145,9 @@ def _speedups(rows: list[dict]) -> None:
     speedup_vs_one_device: over the same case and R on one device (the devices' scaling;
     per-device efficiency is it over `devices`)."""
     for row in rows:
-        key = "env_frames_per_s" if "env_frames_per_s" in row else "learner_frames_per_s"
+        key = next((k for k in ("env_frames_per_s", "learner_frames_per_s") if k in row), None)
+        if key is None:  # the analysis: no frame rate
+            continue
         base = next((r for r in rows if r["case"] == row["case"] and r["runs"] == 1
                      and r["devices"] == 1), None)
         if base is not None:
@@ -149,6 +176,8 @@ def main(argv=None) -> int:
     parser.add_argument("--dtypes", nargs="+", default=["float32"],
                         choices=["float32", "bfloat16"],
                         help="the learner's convolution compute dtypes (one row set each)")
+    parser.add_argument("--activation-dtype", default="float32", choices=["float32", "bfloat16"],
+                        help="the learner's activation dtype (LearnerConfig.activation_dtype)")
     parser.add_argument("--quick", action="store_true", help="tiny sizes for a CPU smoke run")
     parser.add_argument("--no-record", action="store_true", help="print only")
     args = parser.parse_args(argv)
@@ -157,6 +186,7 @@ def main(argv=None) -> int:
     if args.quick:
         args.num_envs, args.epochs, args.frames_per_batch = 8, 1, 8
         args.replay_slots, args.repeats = 16, 1
+    eval_sizes = {"train": 64, "rand": 16, "curr": 16} if args.quick else None
     for env in args.envs:
         for learner in args.learners:
             rows, measured = [], set()
@@ -170,13 +200,15 @@ def main(argv=None) -> int:
                         measured.add((dtype, runs, used))
                         rows += bench(env, learner, runs, args.num_envs, args.epochs,
                                       args.frames_per_batch, args.replay_slots, args.repeats,
-                                      used, dtype)
+                                      used, dtype, args.activation_dtype, eval_sizes)
             _speedups(rows)
             if not args.no_record:  # after each pair: a run cut short keeps what it measured
                 harness.record("stream_throughput", rows,
                                notes="frames/s through jaml.stream, R stacked runs: stream = "
                                      "act (physics+render+PPO+replay), loop = whole epochs, "
-                                     "learner = updates only; speedup_vs_one_run = aggregate "
+                                     "learner = updates only, analysis = one analysis "
+                                     "of the R runs (its parts' seconds apart); "
+                                     "speedup_vs_one_run = aggregate "
                                      "over R = 1 on one device, same run; speedup_vs_one_"
                                      "device = over the same R on one device, same run")
     return 0

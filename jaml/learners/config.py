@@ -16,7 +16,7 @@ if typing.TYPE_CHECKING:
 CURRENT_ACTIONS = ("observed", "hidden")
 # How the decoder's k4 s2 p1 transposed convolutions are computed (`networks.upsample2x`):
 # "auto" is "phase" on every backend; the others stay selectable, all one function.
-UPSAMPLE_FORMS = ("auto", "subpixel", "phase", "dilated")
+UPSAMPLE_FORMS = ("auto", "subpixel", "phase", "dilated", "pair")
 # The KL term's forms (`elbo.kl_to_standard_normal`).
 KL_FORMS = ("standard", "reference")
 # How the decoded frames' log-likelihoods combine (`LearnerConfig.frame_nll`).

@@ -110,6 +110,14 @@ def _doubling(x: jax.Array, kernel: jax.Array) -> jax.Array:
     return _phase_conv(x, kernel)
 
 
+@jax.custom_vjp
+def _doubling_dilated(x: jax.Array, kernel: jax.Array) -> jax.Array:
+    """`_doubling` computed as XLA's input-dilated convolution (on a GPU, cuDNN's
+    backward-data kernel, writing each output once), with the phase pair's backward pass."""
+    return lax.conv_transpose(x, kernel[::-1, ::-1], (2, 2), ((2, 2), (2, 2)),
+                              dimension_numbers=_NHWC)
+
+
 def _halving_bwd(res, g):
     x, kernel = res
     return _doubling(g, _swap_io(kernel)), _halving_kernel_grad(x, g)
@@ -122,6 +130,8 @@ def _doubling_bwd(res, g):
 
 _halving.defvjp(lambda x, kernel: (_halving(x, kernel), (x, kernel)), _halving_bwd)
 _doubling.defvjp(lambda x, kernel: (_doubling(x, kernel), (x, kernel)), _doubling_bwd)
+_doubling_dilated.defvjp(lambda x, kernel: (_doubling_dilated(x, kernel), (x, kernel)),
+                         _doubling_bwd)
 
 
 @jax.custom_vjp
@@ -234,7 +244,8 @@ def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,
     phases, 16 taps an output, whose input gradient is the k4 s2 p1 convolution's forward pass),
     "subpixel" (one stride-1 3×3 convolution onto the four phases, then depth-to-space: 36 taps
     an output phase against 16 useful), or "dilated" (`lax.conv_transpose`, XLA's input-dilated
-    convolution and its autodiff, which XLA's CPU backend runs on a slow generic path). "auto"
+    convolution and its autodiff, which XLA's CPU backend runs on a slow generic path), or
+    "pair" (that input-dilated convolution forward, the phase pair's backward pass). "auto"
     is "phase" on every backend (why: docs/learners.md). compute_dtype (e.g. bfloat16) is the
     convolution's input and kernel dtype; None keeps x's.
     """
@@ -244,6 +255,8 @@ def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,
         x, kernel = x.astype(compute_dtype), kernel.astype(compute_dtype)
     if form in ("auto", "phase"):
         return _doubling(x, kernel)
+    if form == "pair":
+        return _doubling_dilated(x, kernel)
     if form == "dilated":  # the flipped kernel over x dilated by 2, padded by k − 1 − p = 2
         return lax.conv_transpose(x, kernel[::-1, ::-1], (2, 2), ((2, 2), (2, 2)),
                                   dimension_numbers=_NHWC)

@@ -14,7 +14,7 @@ from jaml import learners
 from jaml.learners.networks import Conv, ConvDecoder, ConvEncoder, conv2d, elu, upsample2x
 
 
-@pytest.mark.parametrize("form", ["auto", "subpixel", "phase", "dilated"])
+@pytest.mark.parametrize("form", ["auto", "subpixel", "phase", "dilated", "pair"])
 def test_upsample2x_is_pytorch_conv_transpose_k4_s2_p1(form):
     rng = np.random.default_rng(0)
     x, w = rng.normal(size=(2, 3, 4, 5)), rng.normal(size=(4, 4, 5, 6))
@@ -103,7 +103,8 @@ def test_cpu_conv_matches_xla_conv_and_autodiff(shape, k, strides, padding):
 
 @pytest.mark.parametrize("shape, out", [((2, 4, 3, 5), 6), ((3, 2, 6, 5), 6), ((2, 4, 3, 5), 3)])
 def test_upsample2x_phase_matches_lax_conv_transpose_and_the_subpixel_form(shape, out):
-    """Values and both gradients of the phase pair (the default form): against
+    """Values and both gradients of the phase pair (the default form), and of its backward
+    under the input-dilated forward ("pair"): against
     `lax.conv_transpose` (ConvTranspose2d(4, 2, 1) is its input-dilated convolution with the
     spatially flipped kernel, padded by k − 1 − p = 2) and its autodiff, and against the
     sub-pixel form; per-phase convolutions (6 outputs) and the four phases in one (3, the
@@ -116,19 +117,20 @@ def test_upsample2x_phase_matches_lax_conv_transpose_and_the_subpixel_form(shape
         return jax.lax.conv_transpose(x, w[::-1, ::-1], (2, 2), ((2, 2), (2, 2)),
                                       dimension_numbers=("NHWC", "HWIO", "NHWC"))
 
-    got = jax.jit(lambda x, w: _value_and_grads(
-        lambda x, w: upsample2x(x, w, form="phase"), x, w))(x, w)
-    for ref in (lax_ref, lambda x, w: upsample2x(x, w, form="subpixel")):
-        want = _value_and_grads(ref, x, w)
-        for g, r, what in zip(got, want, ("output", "input gradient", "kernel gradient"),
-                              strict=True):
-            assert g.shape == r.shape and g.dtype == r.dtype, what
-            np.testing.assert_allclose(g, r, rtol=1e-5, atol=1e-4, err_msg=what)
+    for form in ("phase", "pair"):
+        got = jax.jit(lambda x, w, form=form: _value_and_grads(
+            lambda x, w: upsample2x(x, w, form=form), x, w))(x, w)
+        for ref in (lax_ref, lambda x, w: upsample2x(x, w, form="subpixel")):
+            want = _value_and_grads(ref, x, w)
+            for g, r, what in zip(got, want, ("output", "input gradient", "kernel gradient"),
+                                  strict=True):
+                assert g.shape == r.shape and g.dtype == r.dtype, what
+                np.testing.assert_allclose(g, r, rtol=1e-5, atol=1e-4, err_msg=f"{form} {what}")
 
 
 def test_an_unknown_upsample_form_is_refused_by_name():
     with pytest.raises(ValueError, match=r"upsample form must be one of \['auto', 'subpixel', "
-                                         r"'phase', 'dilated'\], got 'fft'"):
+                                         r"'phase', 'dilated', 'pair'\], got 'fft'"):
         upsample2x(jnp.zeros((1, 2, 2, 1)), jnp.zeros((4, 4, 1, 1)), form="fft")
     with pytest.raises(ValueError, match="upsample_form must be one of"):
         learners.make("VAE_rpl", ld_dim=2, upsample_form="fft")
@@ -149,7 +151,7 @@ def test_the_decoder_gives_one_output_and_gradient_in_every_upsample_form():
         return jax.jit(jax.value_and_grad(f, has_aux=True))(variables["params"])
 
     (_, want), want_grad = value_and_grad("dilated")
-    for form in ("auto", "subpixel", "phase"):
+    for form in ("auto", "subpixel", "phase", "pair"):
         (_, out), grad = value_and_grad(form)
         np.testing.assert_allclose(out, want, rtol=1e-5, atol=1e-6, err_msg=form)
         for g, r in zip(jax.tree.leaves(grad), jax.tree.leaves(want_grad), strict=True):

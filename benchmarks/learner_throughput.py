@@ -20,8 +20,8 @@ reported apart; steady state is the median over `reps` blocked repetitions of `s
 each. jaml's step is compiled with `learners.compiler_options()`
 (on the CPU: convolutions on XLA's Eigen path, not YNNPACK; elsewhere XLA's defaults). Its
 decoder's transposed convolutions run in each `--upsample-forms` formulation, a row each: "auto"
-(the learner's default: the phase pair on every backend), "subpixel", "phase", "dilated"
-(XLA's input-dilated convolution); the useful FLOPs are the same for all.
+(the learner's default: "phase" on the CPU, "pair" elsewhere), "subpixel", "phase", "dilated"
+(XLA's input-dilated convolution), "pair"; the useful FLOPs are the same for all.
 
 If torch imports, the same network in PyTorch (`benchmarks/peers/torch_learners.py`: the three
 learners, jaml's parameter counts and FLOPs) is timed the same way in the same run on the same

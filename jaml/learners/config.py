@@ -15,7 +15,7 @@ if typing.TYPE_CHECKING:
 # The encoder's view of the last input frame's action (`elbo.encoder_actions`).
 CURRENT_ACTIONS = ("observed", "hidden")
 # How the decoder's k4 s2 p1 transposed convolutions are computed (`networks.upsample2x`):
-# "auto" is "phase" on every backend; the others stay selectable, all one function.
+# "auto" is "phase" on the CPU, "pair" elsewhere; all stay selectable, one function.
 UPSAMPLE_FORMS = ("auto", "subpixel", "phase", "dilated", "pair")
 # The KL term's forms (`elbo.kl_to_standard_normal`).
 KL_FORMS = ("standard", "reference")

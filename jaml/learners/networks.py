@@ -246,14 +246,16 @@ def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,
     an output phase against 16 useful), or "dilated" (`lax.conv_transpose`, XLA's input-dilated
     convolution and its autodiff, which XLA's CPU backend runs on a slow generic path), or
     "pair" (that input-dilated convolution forward, the phase pair's backward pass). "auto"
-    is "phase" on every backend (why: docs/learners.md). compute_dtype (e.g. bfloat16) is the
+    is "phase" on the CPU and "pair" elsewhere (why: docs/learners.md). compute_dtype (e.g. bfloat16) is the
     convolution's input and kernel dtype; None keeps x's.
     """
     if form not in UPSAMPLE_FORMS:
         raise ValueError(f"upsample form must be one of {list(UPSAMPLE_FORMS)}, got {form!r}")
     if compute_dtype is not None:
         x, kernel = x.astype(compute_dtype), kernel.astype(compute_dtype)
-    if form in ("auto", "phase"):
+    if form == "auto":
+        form = "phase" if _use_cpu_kernels(None) else "pair"
+    if form == "phase":
         return _doubling(x, kernel)
     if form == "pair":
         return _doubling_dilated(x, kernel)
@@ -302,7 +304,7 @@ class ConvDecoder(nn.Module):
     compute_dtype: jnp.dtype = jnp.float32
     # As ConvEncoder's: the CPU formulation of its ELUs (`elu`); None: when tracing for the CPU.
     cpu_kernels: bool | None = None
-    # The transposed convolutions' formulation (`upsample2x`'s form; "auto": "phase").
+    # The transposed convolutions' formulation (`upsample2x`'s form; "auto": per backend).
     upsample_form: str = "auto"
     # As ConvEncoder's: the dtype between convolutions; the output is float32.
     activation_dtype: jnp.dtype = jnp.float32

@@ -160,9 +160,9 @@ def test_the_decoder_gives_one_output_and_gradient_in_every_upsample_form():
 
 
 @pytest.mark.parametrize("gpu", [False, True])
-def test_auto_is_the_phase_form_on_every_backend(gpu, monkeypatch):
-    """The decoder's default traces the program of upsample_form="phase", whichever backend it
-    is traced for (gpu: `_use_cpu_kernels` as on a GPU), and not the sub-pixel one."""
+def test_auto_is_the_phase_form_on_the_cpu_and_the_pair_elsewhere(gpu, monkeypatch):
+    """The decoder's default traces the program of upsample_form="phase" for the CPU and of
+    "pair" for a GPU (`_use_cpu_kernels` as on a GPU), and not the other's."""
     from jaml.learners import networks
 
     if gpu:
@@ -174,7 +174,8 @@ def test_auto_is_the_phase_form_on_every_backend(gpu, monkeypatch):
         return str(jax.make_jaxpr(lambda z: decoder.init_with_output(
             jax.random.key(0), z, True))(z))
 
-    assert program("auto") == program("phase") != program("subpixel")
+    assert program("auto") == program("pair" if gpu else "phase")
+    assert program("auto") != program("phase" if gpu else "pair")
 
 
 @pytest.mark.parametrize("name", ["VAE_rpl", "PRED", "DSA", "SVAE"])

@@ -81,15 +81,17 @@ def summarise(kernels, steps: int, wall_s: float, top: int = 25) -> dict:
     for op, kernel, s in kernels:
         kind = kind_of(op, kernel)
         by_kind[kind] += s
-        key = kernel if not op or op.startswith("command_buffer") else op
+        # An op's kernels of one kind together (a cuDNN convolution's memset apart from it).
+        key = (kernel if not op or op.startswith("command_buffer") else op, kind)
         by_op[key] += s
-        names.setdefault(key, (kind, kernel))
+        names.setdefault(key, kernel)
     busy = sum(by_kind.values())
     return {"steps": steps, "wall_ms_per_step": 1e3 * wall_s / steps,
             "busy_ms_per_step": 1e3 * busy / steps, "kernels_per_step": len(kernels) / steps,
             "by_kind_ms_per_step": {k: 1e3 * by_kind[k] / steps for k in KINDS if by_kind[k]},
-            "top_ops": [{"op": op, "kind": names[op][0], "kernel": names[op][1][:90],
-                         "ms_per_step": 1e3 * s / steps} for op, s in by_op.most_common(top)]}
+            "top_ops": [{"op": op, "kind": kind, "kernel": names[op, kind][:90],
+                         "ms_per_step": 1e3 * s / steps}
+                        for (op, kind), s in by_op.most_common(top)]}
 
 
 def main(argv=None) -> int:

@@ -246,8 +246,8 @@ def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,
     an output phase against 16 useful), or "dilated" (`lax.conv_transpose`, XLA's input-dilated
     convolution and its autodiff, which XLA's CPU backend runs on a slow generic path), or
     "pair" (that input-dilated convolution forward, the phase pair's backward pass). "auto"
-    is "phase" on the CPU and "pair" elsewhere (why: docs/learners.md). compute_dtype (e.g. bfloat16) is the
-    convolution's input and kernel dtype; None keeps x's.
+    is "phase" on the CPU and "pair" elsewhere (why: docs/learners.md). compute_dtype (e.g.
+    bfloat16) is the convolution's input and kernel dtype; None keeps x's.
     """
     if form not in UPSAMPLE_FORMS:
         raise ValueError(f"upsample form must be one of {list(UPSAMPLE_FORMS)}, got {form!r}")

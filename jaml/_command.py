@@ -82,6 +82,7 @@ def _choices() -> dict[tuple[str, str], tuple[str, ...]]:
         ("RearrangeConfig", "physics"): PHYSICS,
         ("LearnerConfig", "frame_nll"): FRAME_NLLS,
         ("LearnerConfig", "compute_dtype"): COMPUTE_DTYPE_NAMES,
+        ("LearnerConfig", "activation_dtype"): COMPUTE_DTYPE_NAMES,
         ("LearnerConfig", "current_action"): CURRENT_ACTIONS,
         ("LearnerConfig", "kl_form"): KL_FORMS,
         ("EnvConfig", "pixels"): PIXELS,

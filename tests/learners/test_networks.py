@@ -64,6 +64,33 @@ def test_bfloat16_convolutions_keep_float32_parameters_and_outputs():
         assert 0 < float(jnp.mean(jnp.abs(got - want))) < 0.01, "bfloat16 must be used"
 
 
+def test_bfloat16_activations_are_the_batch_norm_and_elu_outputs_and_track_float32():
+    """activation_dtype: every batch norm's output (and so each ELU's) is bfloat16, its
+    statistics float32; the encoder's feature and the decoder's frames stay float32."""
+    rng = np.random.default_rng(0)
+    x = jnp.asarray(rng.uniform(size=(4, 64, 64, 3)), jnp.float32)
+    z = jnp.asarray(rng.normal(size=(4, 5)), jnp.float32)
+    bf = jnp.bfloat16
+    for mixed, act, inp, n_norms in (
+            (ConvEncoder((4, 4, 4, 4), 6, bf), ConvEncoder((4, 4, 4, 4), 6, bf,
+                                                           activation_dtype=bf), x, 5),
+            (ConvDecoder((4, 4, 4, 4), compute_dtype=bf),
+             ConvDecoder((4, 4, 4, 4), compute_dtype=bf, activation_dtype=bf), z, 3)):
+        variables = jax.jit(lambda k, x, m=mixed: m.init(k, x, True))(jax.random.key(0), inp)
+
+        def apply(m, v, x):
+            return m.apply(v, x, True, mutable=["batch_stats"],
+                           capture_intermediates=lambda mdl, _: isinstance(mdl, nn.BatchNorm))
+        want, _ = jax.jit(lambda v, x, m=mixed: apply(m, v, x))(variables, inp)
+        got, state = jax.jit(lambda v, x, m=act: apply(m, v, x))(variables, inp)
+        norms = jax.tree.leaves(state["intermediates"])
+        assert len(norms) == n_norms and {n.dtype for n in norms} == {jnp.dtype(bf)}
+        assert {a.dtype for a in jax.tree.leaves(state["batch_stats"])} == {jnp.dtype("float32")}
+        assert got.dtype == want.dtype == jnp.float32
+        np.testing.assert_allclose(got, want, atol=0.05)
+        assert 0 < float(jnp.mean(jnp.abs(got - want))) < 0.01
+
+
 def test_compute_dtype_is_checked_and_reaches_the_learner():
     with pytest.raises(ValueError, match=r"compute_dtype must be one of \['float32', 'bfloat16'\]"):
         learners.make("VAE_rpl", ld_dim=4, compute_dtype="float16")

@@ -248,8 +248,13 @@ def test_every_committed_stream_run_config_reads_back():
         config = stream.StreamConfig.from_dict(recorded)
         resolved = config.resolved()
         assert stream.StreamConfig.from_dict(resolved.to_dict()) == resolved, path
-        if "learner_overrides" not in recorded:  # the typed tree, written whole: as written
-            assert config.to_dict() == recorded, path
+        if "learner_overrides" not in recorded:  # the typed tree, written whole: as written,
+            # and a field added to the learner's config since at its default.
+            got = config.to_dict()
+            learner, written = got["learner_config"], recorded["learner_config"]
+            defaults = {f.name: f.default for f in dataclasses.fields(config.learner_config)}
+            assert all(learner.pop(k) == defaults[k] for k in learner.keys() - written.keys())
+            assert got == recorded, path
             continue
         # An older record: its flat fields as written, its learner's and env's configs with
         # every override.

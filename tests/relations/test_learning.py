@@ -4,6 +4,8 @@ Stochastic training; thresholds are loose bounds from aml_reference.md §12 and 
 on fresh data never seen in training.
 """
 
+import contextlib
+import io
 import math
 
 import jax
@@ -38,24 +40,33 @@ def _fresh_ratio(rs, src, key, scale=1.0):
 
 
 @pytest.fixture(scope="module")
-def ellipse():
-    src = sources.make("ellipse")
-    return src, relations.fit(src, relations.Config(max_relations=2))
-
-
-def test_readme_relations_snippet_runs_as_written_and_fits_the_fixtures_relations(
-        ellipse, capsys):
-    """README's 'your relations' snippet, as written: in this module, whose `ellipse` fixture
-    fits the same source with the same config, so its programs are compiled once (and at XLA's
-    full level, as this module's training loops are; tests/test_readme.py)."""
+def readme_relations():
+    """README's 'your relations' snippet, run as written: (its namespace, what it printed)."""
     from tests.test_readme import snippet
 
-    namespace = {}
-    exec(compile(snippet("relations"), "README:relations", "exec"), namespace)
-    assert "RelationSet(2 relations" in capsys.readouterr().out
-    tau = namespace["tau"]
-    np.testing.assert_allclose(relations.evaluate(namespace["rs"], tau),
-                               relations.evaluate(ellipse[1], tau), rtol=1e-5, atol=1e-7)
+    namespace, out = {}, io.StringIO()
+    with contextlib.redirect_stdout(out):
+        exec(compile(snippet("relations"), "README:relations", "exec"), namespace)
+    return namespace, out.getvalue()
+
+
+@pytest.fixture(scope="module")
+def ellipse(readme_relations):
+    """(source, relations) the README's snippet fits: the ellipse tests below check them."""
+    namespace, _ = readme_relations
+    return namespace["src"], namespace["rs"]
+
+
+def test_readme_relations_snippet_runs_as_written_on_the_ellipse(readme_relations):
+    """The snippet fits the ellipse source with two relations (the module's fit, at its full XLA
+    level; tests/test_readme.py) and prints them; its evaluate and penalty calls keep shapes."""
+    namespace, printed = readme_relations
+    src, rs, tau = namespace["src"], namespace["rs"], namespace["tau"]
+    assert "RelationSet(2 relations" in printed
+    assert src.name == "ellipse" and rs.num_relations == 2 and tau.shape == (8, 3)
+    assert relations.evaluate(rs, tau).shape == (8, 2)
+    np.testing.assert_allclose(relations.penalty(rs, tau),
+                               jnp.abs(relations.evaluate(rs, tau)).sum(-1), rtol=1e-6)
 
 
 def test_ellipse_relations_separate_on_from_off_manifold(ellipse):

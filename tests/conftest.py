@@ -18,9 +18,10 @@ jaml already gives its env programs (`envs_mjx/compile.py`): the same HLO, emitt
 code generator, which compiles the stream's rendering rollouts and learner steps faster (on two
 cores test_suite_api took 163 s of CPU against 227 s). A module whose checks compare two code
 paths' floats at the default emitters' rounding is marked `xla_fusion_emitters` and keeps them.
-Modules marked `first` are collected first: xdist's loadfile hands out whole modules in
-collection order, and the two-device stacked test (~3 min alone) ended the run on one worker
-while the other sat idle when it came last.
+Modules marked `first` are collected first, and xdist's loadfile hands out whole modules in
+collection order: by default xdist reorders them by their number of tests, which started the long
+modules of a few tests (test_suite_api, the Franka's contract) last, each then ending the run on
+one worker while the other sat idle; `pytest_configure` turns that reordering off.
 """
 
 import os
@@ -80,6 +81,12 @@ def _xla_optimization(request):
     _OLDER_EMITTERS[0] = not optimized and (
         request.node.get_closest_marker("xla_fusion_emitters") is None)
     yield
+
+
+def pytest_configure(config):
+    """xdist's loadfile keeps the collection order (`--no-loadscope-reorder`), `first` included."""
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
 
 
 def pytest_collection_modifyitems(items):

@@ -13,6 +13,9 @@ from jaml import cli, sources
 from jaml.sources import incline_env
 from tests.envs_mjx.rollout_harness import FAST_COMPILE
 
+# One of the default suite's longest modules: scheduled early (tests/conftest.py).
+pytestmark = pytest.mark.first
+
 N = 512
 NAMES = ("theta", "s0", "v0", "a0", "s1", "v1")
 

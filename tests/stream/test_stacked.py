@@ -18,10 +18,6 @@ from jaml.stream import executor
 from jaml.stream import run as run_lib
 from tests.stream.test_loop import tiny
 
-# The default suite's longest test (two per-device compiles): scheduled early, see
-# tests/conftest.py.
-pytestmark = pytest.mark.first
-
 SEEDS = (0, 1, 2)
 EPOCHS = 2
 METRICS = ("ppo/total_loss", "ppo/v_loss", "learner/training", "learner/loss")

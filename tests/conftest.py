@@ -54,6 +54,7 @@ if _FORCED not in (None, "optimized", "fast"):
 
 
 _OLDER_EMITTERS = [False]  # the current module's setting, read at each compile
+_SETTING = [None]  # (optimized, older emitters) of the worker's previous module
 _get_compile_options = _compiler.get_compile_options
 
 
@@ -77,9 +78,15 @@ def _xla_optimization(request):
     optimized = request.node.get_closest_marker("xla_optimized") is not None
     if _FORCED:
         optimized = _FORCED == "optimized"
+    older = not optimized and request.node.get_closest_marker("xla_fusion_emitters") is None
+    if _SETTING[0] not in (None, (optimized, older)):
+        # Neither setting is in JAX's in-memory executable keys: without this, a module would
+        # run ops an earlier module of the worker compiled at the other setting (test_api's
+        # checkpoint round trip after test_learning got two roundings of one function).
+        jax.clear_caches()
+    _SETTING[0] = (optimized, older)
     jax.config.update("jax_disable_most_optimizations", not optimized)
-    _OLDER_EMITTERS[0] = not optimized and (
-        request.node.get_closest_marker("xla_fusion_emitters") is None)
+    _OLDER_EMITTERS[0] = older
     yield
 
 

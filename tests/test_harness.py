@@ -117,9 +117,9 @@ def test_stream_throughput_times_each_mesh_once_and_scales_against_one_device(mo
 
     calls = []
 
-    def bench(env, learner, runs, *args):
-        devices, dtype = args[-2], args[-1]
-        calls.append((runs, devices, dtype))
+    def bench(env, learner, runs, num_envs, epochs, frames_per_batch, replay_slots, repeats,
+              devices, dtype, activation_dtype, eval_sizes):
+        calls.append((runs, devices, dtype, activation_dtype, eval_sizes))
         rate = {1: 10.0, 2: 18.0}[devices] * runs
         return [{"case": "c/loop", "runs": runs, "devices": devices, "env_frames_per_s": rate}]
 
@@ -127,7 +127,8 @@ def test_stream_throughput_times_each_mesh_once_and_scales_against_one_device(mo
     recorded = []
     monkeypatch.setattr(harness, "record", lambda name, rows, notes: recorded.extend(rows))
     assert stream_throughput.main(["--runs", "1", "4", "--devices", "1", "2", "4"]) == 0
-    assert calls == [(1, 1, "float32"), (4, 1, "float32"), (4, 2, "float32")]
+    assert calls == [(runs, devices, "float32", "float32", None)
+                     for runs, devices in ((1, 1), (4, 1), (4, 2))]
     by = {(r["runs"], r["devices"]): r for r in recorded}
     assert by[(4, 2)]["speedup_vs_one_device"] == pytest.approx(1.8)
     assert by[(4, 1)]["speedup_vs_one_run"] == pytest.approx(4.0)

@@ -28,8 +28,7 @@ import jax
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.learner_throughput import LD_DIM, _batch, step_shape
-from jaml import learners
+from benchmarks.learner_throughput import jaml_step, step_shape
 from jaml.learners.config import COMPUTE_DTYPE_NAMES, UPSAMPLE_FORMS
 
 KINDS = ("convolution", "matmul", "reduction fusion", "elementwise fusion", "transpose/copy",
@@ -107,14 +106,8 @@ def main(argv=None) -> int:
     if jax.default_backend() != "gpu":
         parser.error(f"profiles GPU kernels; the default backend is {jax.default_backend()}")
     sequences, seq_len = step_shape(args.learner, args.frames)
-    learner = learners.make(args.learner, ld_dim=LD_DIM, compute_dtype=args.dtype,
-                            activation_dtype=args.activation_dtype,
-                            upsample_form=args.upsample_form)
-    opt = learners.default_optimizer(learner)
-    batch = tuple(jax.device_put(x) for x in _batch(sequences, seq_len))
-    state = learners.init_train_state(learner, opt, jax.random.key(0), batch)
-    step = jax.jit(learners.make_train_step(learner, opt), donate_argnums=0,
-                   compiler_options=learners.compiler_options())
+    step, state, batch = jaml_step(args.learner, sequences, args.dtype, args.upsample_form,
+                                   args.activation_dtype)
     state, metrics = step(state, batch, jax.random.key(0))
     jax.block_until_ready((state, metrics))
     with tempfile.TemporaryDirectory() as log_dir:

@@ -158,6 +158,20 @@ def _first_line(e: Exception) -> str:
     return f"{type(e).__name__}: {lines[0][:160]}"
 
 
+def jaml_step(learner_name: str, sequences: int, dtype: str = "float32",
+              upsample_form: str = "auto", activation_dtype: str = "float32"):
+    """(train step jitted as the benchmark runs it, its first state, a device batch) of a
+    learner on `sequences` random sequences."""
+    learner = learners.make(learner_name, ld_dim=LD_DIM, compute_dtype=dtype,
+                            upsample_form=upsample_form, activation_dtype=activation_dtype)
+    opt = learners.default_optimizer(learner)
+    batch = tuple(jax.device_put(x) for x in _batch(sequences, learner.config.seq_len))
+    state = learners.init_train_state(learner, opt, jax.random.key(0), batch)
+    step = jax.jit(learners.make_train_step(learner, opt), donate_argnums=0,
+                   compiler_options=learners.compiler_options())
+    return step, state, batch
+
+
 def bench_jax(sequences: int, reps: int, steps: int, dtype: str = "float32",
               learner_name: str = "VAE_rpl", upsample_form: str = "auto",
               activation_dtype: str = "float32") -> dict:
@@ -166,17 +180,10 @@ def bench_jax(sequences: int, reps: int, steps: int, dtype: str = "float32",
     fails: a compiled step that needs more memory than the device has free (not run), or an
     error from XLA (its first line)."""
     try:
-        learner = learners.make(learner_name, ld_dim=LD_DIM, compute_dtype=dtype,
-                                upsample_form=upsample_form, activation_dtype=activation_dtype)
-        opt = learners.default_optimizer(learner)
-        seq_len = learner.config.seq_len
-        batch = tuple(jax.device_put(x) for x in _batch(sequences, seq_len))
-        state = learners.init_train_state(learner, opt, jax.random.key(0), batch)
-        train_step = learners.make_train_step(learner, opt)
+        jitted, state, batch = jaml_step(learner_name, sequences, dtype, upsample_form,
+                                         activation_dtype)
         t0 = time.perf_counter()
-        step = jax.jit(train_step, donate_argnums=0,
-                       compiler_options=learners.compiler_options()).lower(
-            state, batch, jax.random.key(0)).compile()
+        step = jitted.lower(state, batch, jax.random.key(0)).compile()
         compile_s = time.perf_counter() - t0
         analysis = step.memory_analysis()
         short = analysis and memory_shortfall(analysis, jax.devices()[0].memory_stats())
@@ -197,7 +204,7 @@ def bench_jax(sequences: int, reps: int, steps: int, dtype: str = "float32",
             jax.block_until_ready((holder["state"], metrics))
 
         run_steps(1)  # warm-up
-        frames = sequences * seq_len
+        frames = batch[0].shape[0] * batch[0].shape[1]
         return {"compile_s": compile_s, "fps": _median_rate(run_steps, frames, reps, steps),
                 "xla_gflop_per_frame": xla / frames / 1e9,
                 "temp_gib": analysis.temp_size_in_bytes / 2**30 if analysis else float("nan")}

@@ -25,6 +25,12 @@ FRAME_NLLS = ("sum", "mean")
 COMPUTE_DTYPE_NAMES = ("float32", "bfloat16")
 
 
+def _jax_dtype(name: str):
+    import jax.numpy as jnp  # here: the configs import no JAX
+
+    return getattr(jnp, name)
+
+
 @dataclasses.dataclass(frozen=True)
 class LearnerConfig:
     """What every learner shares; defaults reproduce the reference (suite_reference.md §4).
@@ -106,16 +112,12 @@ class LearnerConfig:
     @property
     def conv_dtype(self):
         """compute_dtype as a JAX dtype, for the conv encoder and decoder."""
-        import jax.numpy as jnp  # here: the configs import no JAX
-
-        return getattr(jnp, self.compute_dtype)
+        return _jax_dtype(self.compute_dtype)
 
     @property
     def act_dtype(self):
         """activation_dtype as a JAX dtype, for the conv encoder and decoder."""
-        import jax.numpy as jnp
-
-        return getattr(jnp, self.activation_dtype)
+        return _jax_dtype(self.activation_dtype)
 
     @property
     def actions_seen(self) -> int:

@@ -110,12 +110,16 @@ def _doubling(x: jax.Array, kernel: jax.Array) -> jax.Array:
     return _phase_conv(x, kernel)
 
 
-@jax.custom_vjp
-def _doubling_dilated(x: jax.Array, kernel: jax.Array) -> jax.Array:
-    """`_doubling` computed as XLA's input-dilated convolution (on a GPU, cuDNN's
-    backward-data kernel, writing each output once), with the phase pair's backward pass."""
+def _dilated(x: jax.Array, kernel: jax.Array) -> jax.Array:
+    """The k4 s2 p1 transposed convolution as XLA's input-dilated convolution: the flipped
+    kernel over x dilated by 2, padded by k − 1 − p = 2 (on a GPU, cuDNN's backward-data
+    kernel, writing each output once)."""
     return lax.conv_transpose(x, kernel[::-1, ::-1], (2, 2), ((2, 2), (2, 2)),
                               dimension_numbers=_NHWC)
+
+
+# `_dilated` with the phase pair's backward pass (upsample form "pair").
+_doubling_dilated = jax.custom_vjp(_dilated)
 
 
 def _halving_bwd(res, g):
@@ -128,10 +132,10 @@ def _doubling_bwd(res, g):
     return _halving(g, _swap_io(kernel)), _swap_io(_halving_kernel_grad(g, x))
 
 
-_halving.defvjp(lambda x, kernel: (_halving(x, kernel), (x, kernel)), _halving_bwd)
-_doubling.defvjp(lambda x, kernel: (_doubling(x, kernel), (x, kernel)), _doubling_bwd)
-_doubling_dilated.defvjp(lambda x, kernel: (_doubling_dilated(x, kernel), (x, kernel)),
-                         _doubling_bwd)
+for _f, _bwd in ((_halving, _halving_bwd), (_doubling, _doubling_bwd),
+                 (_doubling_dilated, _doubling_bwd)):  # each saves its inputs for the backward
+    _f.defvjp(lambda x, kernel, f=_f: (f(x, kernel), (x, kernel)), _bwd)
+del _f, _bwd
 
 
 @jax.custom_vjp
@@ -259,9 +263,8 @@ def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,
         return _doubling(x, kernel)
     if form == "pair":
         return _doubling_dilated(x, kernel)
-    if form == "dilated":  # the flipped kernel over x dilated by 2, padded by k − 1 − p = 2
-        return lax.conv_transpose(x, kernel[::-1, ::-1], (2, 2), ((2, 2), (2, 2)),
-                                  dimension_numbers=_NHWC)
+    if form == "dilated":
+        return _dilated(x, kernel)
     n, h, w, i = x.shape
     o = kernel.shape[-1]
     padded = jnp.pad(kernel, ((0, 1), (0, 1), (0, 0), (0, 0)))  # tap index 4 reads zeros

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The bfloat16 Fig. 2 cells of issue #48 on one 4-GPU host, as they were run (compare.md):
-# CartPole PRED and DSA, 6 seeds each at the paper's settings, with both bf16 knobs
+# CartPole PRED, DSA and VAE_rpl, 6 seeds each at the paper's settings, with both bf16 knobs
 # (compute_dtype and activation_dtype) and the committed fp32 cells' hidden current action.
 # Each cell runs as two processes of three seeds, one per GPU. Every process trains until
 # LIMIT seconds and checkpoints; the same command again resumes each run from it.
@@ -19,6 +19,8 @@ lane() {  # lane GPU VARIANT SEEDS...
 }
 lane 0 PRED 0 1 2
 lane 1 PRED 3 4 5
+lane 0 VAE_rpl 0 1 2  # a finished run's lane ends at once
+lane 1 VAE_rpl 3 4 5
 lane 2 DSA 0 1 2
 lane 3 DSA 3 4 5
 wait

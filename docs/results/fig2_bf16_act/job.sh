@@ -4,9 +4,9 @@
 # (compute_dtype and activation_dtype) and the committed fp32 cells' hidden current action.
 # Each cell runs as two processes of three seeds, one per GPU. Every process trains until
 # LIMIT seconds and checkpoints; the same command again resumes each run from it.
-#   bash docs/results/fig2_bf16/job.sh OUT LIMIT_SECONDS
+#   bash docs/results/fig2_bf16_act/job.sh OUT LIMIT_SECONDS
 set -u
-out=${1:-runs/fig2_bf16}; limit=${2:-480}
+out=${1:-runs/fig2_bf16_act}; limit=${2:-480}
 mkdir -p "$out/logs"
 export PYTHONUNBUFFERED=1
 lane() {  # lane GPU VARIANT SEEDS...

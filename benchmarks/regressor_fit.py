@@ -66,6 +66,30 @@ def bench(runs: int, train: int, tests: dict[str, int], iterations: int, repeats
             "jax": jax.__version__}
 
 
+def profile(runs: int, train: int, tests: dict[str, int], iterations: int, d: int = 4) -> dict:
+    """GPU kernel time of one (compiled) fit by kind and op, per Adam step."""
+    import glob
+    import tempfile
+
+    from benchmarks.learner_profile import device_kernels, summarise
+
+    sets = data(runs, {"train": train, **tests}, d)
+    x, y = sets.pop("train")
+
+    def fit():
+        return jax.block_until_ready(alignment.alignment_errors_runs(
+            x, y, sets, np.arange(runs), num_iterations=iterations))
+
+    fit()
+    with tempfile.TemporaryDirectory() as log_dir:
+        with jax.profiler.trace(log_dir):
+            started = time.perf_counter()
+            fit()
+            wall = time.perf_counter() - started
+        (path,) = glob.glob(f"{log_dir}/**/*.xplane.pb", recursive=True)
+        return summarise(device_kernels(path), iterations, wall, top=30)
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=4)
@@ -73,6 +97,8 @@ def main(argv=None) -> None:
     parser.add_argument("--iterations", type=int, default=10_000)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--quick", action="store_true", help="tiny sizes for a CPU smoke run")
+    parser.add_argument("--profile", action="store_true",
+                        help="also the GPU kernels of one fit by kind (learner_profile's summary)")
     args = parser.parse_args(argv)
     tests = {"pi_rand": 10_048, "pi_curr": 2_500}
     if args.quick:
@@ -80,6 +106,8 @@ def main(argv=None) -> None:
                                                                         "pi_curr": 32}
     row = bench(args.runs, args.train, tests, args.iterations, args.repeats)
     print(json.dumps(row))
+    if args.profile:
+        print(json.dumps(profile(args.runs, args.train, tests, args.iterations)))
 
 
 if __name__ == "__main__":

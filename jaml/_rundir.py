@@ -73,19 +73,23 @@ def lock(out: Path):
     return handle
 
 
-def claim(out: Path, resolved: dict, same: Callable[[dict], bool] | None = None) -> bool:
+def claim(out: Path, resolved: dict, same: Callable[[dict], bool] | None = None,
+          differences: Callable[[dict], str] | None = None) -> bool:
     """Make `out` the directory of the run that `resolved` (JSON-ready) describes: created if
     missing, config.json written. Returns True when it held this run already (a resume).
 
     Raises ValueError when `out` holds a run with another configuration (`same(recorded)` is
     False; default: the recorded JSON differs from `resolved`), so that resuming never mixes
-    two runs' checkpoints and logs."""
+    two runs' checkpoints and logs; `differences(recorded)` names what differs, in the
+    message."""
     config_path = Path(out) / "config.json"
     resuming = config_path.exists()
     same = (lambda recorded: recorded == resolved) if same is None else same
     if resuming and not same(json.loads(config_path.read_text())):
-        raise ValueError(f"{out} holds a run with a different configuration ({config_path}); "
-                         "resume with the same options or choose a new --out")
+        recorded = json.loads(config_path.read_text())
+        what = "" if differences is None else f": {differences(recorded)}"
+        raise ValueError(f"{out} holds a run with a different configuration ({config_path}"
+                         f"{what}); resume with the same options or choose a new --out")
     Path(out).mkdir(parents=True, exist_ok=True)
     write_json(config_path, resolved)
     return resuming

@@ -88,8 +88,8 @@ def options(part: str, fields: dict) -> dict:
 def settings(record: dict) -> dict:
     """A run's config.json as the reports show it, flat: the run's fields, its sizes by the
     names of records written before the config tree (`SIZES`, "eval_every", …: `FLAT_FIELDS`),
-    and its learner's and env's fields that differ from their defaults as "learner_overrides"
-    and "env_overrides" (the learner's ld_dim, the env's, left out). Such an older record is
+    and its learner's and env's fields that differ from their defaults (float32 dtypes) as
+    "learner_overrides" and "env_overrides" (the learner's ld_dim, the env's, left out). Such an older record is
     shown as written (less its "resolved" configs)."""
     if "replay" not in record:  # written before the tree
         return {k: v for k, v in record.items() if k != RESOLVED}
@@ -99,7 +99,11 @@ def settings(record: dict) -> dict:
     for name, path in FLAT_FIELDS.items():
         part, field = path.split(".")
         flat[name] = record[part][field]
+    # Against the defaults with float32 conv stacks, the reference's: a bfloat16 run says so,
+    # whichever machine writes the report.
     default = StreamConfig(env=config.env, learner=config.learner)
+    if default.learner_config is not None:
+        default = default.replace(learner_config=default.learner_config.for_backend("cpu"))
     for part in ("learner", "env"):
         mine, theirs = getattr(config, f"{part}_config"), getattr(default, f"{part}_config")
         changed = {} if mine is None else changed_fields(mine, theirs, skip=("ld_dim",))

@@ -103,7 +103,8 @@ class Recipe:
     scale: dict
 
 
-# "reference": the released code (fig9_reference.md §2–3). Its loss averages the likelihood and
+# "reference": the released code (fig9_reference.md §2–3), in its float32 (the learners' GPU
+# default is bfloat16, `LearnerConfig.compute_dtype`). Its loss averages the likelihood and
 # the KL over the S = 2 decoded steps; ours sums them, S times the reference's loss. Adam does
 # not see a loss's scale, so its 1e3 × hinge and 10 × (mean NLL of ok rows, per frame) are, in
 # our units, S·1e3 × hinge and 10 × (mean NLL of ok rows, summed over frames).
@@ -115,7 +116,8 @@ RECIPES = {
          "eval.regressor_iterations": 4000}),
     "reference": Recipe(
         "reference",
-        {"current_action": "observed", "kl_form": "reference",
+        {"current_action": "observed", "kl_form": "reference", "compute_dtype": "float32",
+         "activation_dtype": "float32",
          "conv_filters": (32, 64, 64, 128), "deconv_filters": (128, 64, 64, 32)},
         {"static_per_step": True}, (1e3 * _STEPS,), 10.0, True,
         # The reference's replay (5,000 → 4,992 columns at 64 envs) and regressor sizes (§6);

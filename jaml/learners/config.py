@@ -21,14 +21,24 @@ UPSAMPLE_FORMS = ("auto", "subpixel", "phase", "dilated", "pair")
 KL_FORMS = ("standard", "reference")
 # How the decoded frames' log-likelihoods combine (`LearnerConfig.frame_nll`).
 FRAME_NLLS = ("sum", "mean")
-# The conv stacks' dtypes, by their JAX names (`LearnerConfig.conv_dtype`).
-COMPUTE_DTYPE_NAMES = ("float32", "bfloat16")
+# The conv stacks' dtypes, by their JAX names (`LearnerConfig.conv_dtype`); "auto" is
+# "bfloat16" off the CPU and "float32" on it (`dtype_for_backend`).
+COMPUTE_DTYPE_NAMES = ("auto", "float32", "bfloat16")
+
+
+def dtype_for_backend(name: str, backend: str) -> str:
+    """A compute / activation dtype name with "auto" made concrete for `backend` (JAX's name:
+    "cpu", "gpu", "tpu"): bfloat16 on accelerators, where it kept the Fig. 2 cells' results
+    (docs/learners.md); float32 on the CPU, where XLA's bfloat16 convolutions are slower."""
+    if name != "auto":
+        return name
+    return "float32" if backend == "cpu" else "bfloat16"
 
 
 def _jax_dtype(name: str):
-    import jax.numpy as jnp  # here: the configs import no JAX
+    import jax  # here: the configs import no JAX
 
-    return getattr(jnp, name)
+    return getattr(jax.numpy, dtype_for_backend(name, jax.default_backend()))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,15 +56,16 @@ class LearnerConfig:
       averages likelihood and KL over the frames); "mean" averages the likelihood alone, which
       weighs the KL S times more per frame and collapsed the posteriors of PRED and SVAE
       (S = 24) in our runs (docs/learners.md). Same for S = 1.
-    compute_dtype: "float32" (default) or "bfloat16": the dtype of the shared conv encoder's
-      and decoder's convolutions (VAEs, PRED, SVAE, DSA; not SPAIR's): mixed precision, with
-      parameters, batch norms, heads, the loss and the optimizer in float32. Not in the
-      reference.
-    activation_dtype: "float32" (default) or "bfloat16": the dtype of the conv stacks'
-      activations between convolutions (batch-norm and ELU outputs, the decoder's biased
-      transposed-convolution outputs), what `torch.autocast` stores; batch-norm statistics,
-      parameters and everything after the encoder stay float32. With compute_dtype "bfloat16"
-      it halves the memory traffic of those elementwise passes. Not in the reference.
+    compute_dtype: "auto" (default: "bfloat16" on a GPU or TPU, "float32" on the CPU),
+      "float32" or "bfloat16": the dtype of the shared conv encoder's and decoder's
+      convolutions (VAEs, PRED, SVAE, DSA; not SPAIR's): mixed precision, with parameters, batch
+      norms, heads, the loss and the optimizer in float32. Not in the reference (float32).
+    activation_dtype: "auto" (default, as compute_dtype), "float32" or "bfloat16": the dtype of
+      the conv stacks' activations between convolutions (batch-norm and ELU outputs, the
+      decoder's biased transposed-convolution outputs), what `torch.autocast` stores;
+      batch-norm statistics, parameters and everything after the encoder stay float32. With
+      compute_dtype "bfloat16" it halves the memory traffic of those elementwise passes. Not in
+      the reference. A run records both concrete (`StreamConfig.resolved`).
     current_action: "observed" (the reference code): the encoder sees the executed action of
       every input frame, the one into the first predicted frame included; "hidden": that last
       action is zeroed (`elbo.encoder_actions`).
@@ -74,8 +85,8 @@ class LearnerConfig:
     conv_features: int = 128
     deconv_filters: tuple[int, ...] = (256, 128, 128, 64)
     frame_nll: str = "sum"
-    compute_dtype: str = "float32"
-    activation_dtype: str = "float32"
+    compute_dtype: str = "auto"
+    activation_dtype: str = "auto"
     current_action: str = "observed"
     kl_form: str = "standard"
     upsample_form: str = "auto"
@@ -109,14 +120,22 @@ class LearnerConfig:
     def replace(self, **changes) -> LearnerConfig:
         return dataclasses.replace(self, **changes)
 
+    def for_backend(self, backend: str) -> LearnerConfig:
+        """This config with its "auto" dtypes made concrete for `backend` (`dtype_for_backend`):
+        what a run on that backend computes, and records."""
+        return self.replace(**{f: dtype_for_backend(getattr(self, f), backend)
+                               for f in ("compute_dtype", "activation_dtype")})
+
     @property
     def conv_dtype(self):
-        """compute_dtype as a JAX dtype, for the conv encoder and decoder."""
+        """compute_dtype as a JAX dtype, for the conv encoder and decoder ("auto": for JAX's
+        default backend)."""
         return _jax_dtype(self.compute_dtype)
 
     @property
     def act_dtype(self):
-        """activation_dtype as a JAX dtype, for the conv encoder and decoder."""
+        """activation_dtype as a JAX dtype, for the conv encoder and decoder ("auto": as
+        conv_dtype)."""
         return _jax_dtype(self.activation_dtype)
 
     @property

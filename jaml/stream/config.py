@@ -264,11 +264,16 @@ class StreamConfig:
 
     def resolved(self, ld_dim: int | None = None) -> StreamConfig:
         """This config with its derived values filled in: the replay's columns and kept share,
+        the learner's "auto" dtypes for JAX's default backend (`LearnerConfig.for_backend`),
         and, given the env's LD-state size, the learner's ld_dim. What a run records, so its
         config.json reads without rules."""
         changes = {"replay": self.replay.resolved(self.num_envs, self.learner)}
-        if ld_dim is not None and self.learner_config is not None:
-            changes["learner_config"] = self.learner_config.replace(ld_dim=ld_dim)
+        if self.learner_config is not None:
+            import jax  # here: the configs import no JAX
+
+            learner = self.learner_config.for_backend(jax.default_backend())
+            changes["learner_config"] = (learner if ld_dim is None
+                                         else learner.replace(ld_dim=ld_dim))
         return dataclasses.replace(self, **changes)
 
     def record(self, ld_dim: int | None = None) -> dict[str, Any]:
@@ -297,7 +302,8 @@ class StreamConfig:
         """The config a `to_dict` or `record` describes: a run's config.json, or one written
         before the tree (flat fields, `learner_overrides` / `env_overrides`, and maybe their
         configs under "resolved"), read as the run it was. Fields a record lacks (new in the
-        code) take their defaults; fields of the learner's and env's configs that the code no
+        code) take their defaults, the learner's `LEGACY_LEARNER_FIELDS` the values it ran with;
+        fields of the learner's and env's configs that the code no
         longer has are dropped."""
         d = _migrated(d)
         learner_fields = d.pop("learner_config", None)
@@ -308,9 +314,15 @@ class StreamConfig:
         config = cls(**d, **parts)
         env = None if env_fields is None else _known(config.env_config, env_fields)
         learner = (None if learner_fields is None or config.learner_config is None
-                   else _known(config.learner_config, learner_fields))
+                   else _known(config.learner_config, LEGACY_LEARNER_FIELDS | learner_fields))
         return config.replace(env_config=env, learner_config=learner)
 
+
+# Learner fields added after runs were first recorded, at the values a record that lacks them
+# ran with (then the only behaviour), not at today's defaults: the conv stacks in float32, the
+# encoder blind to the action into the first predicted frame.
+LEGACY_LEARNER_FIELDS = {"compute_dtype": "float32", "activation_dtype": "float32",
+                         "current_action": "hidden"}
 
 # The flat fields of records written before the tree → their paths in it.
 FLAT_FIELDS = {

@@ -18,7 +18,7 @@ import numpy as np
 from jaml._rundir import RunLog, claim, lock, truncate_jsonl, write_json
 from jaml.evaluation import plots
 from jaml.stream import analysis, checkpoint
-from jaml.stream.config import StreamConfig
+from jaml.stream.config import StreamConfig, changed_fields
 from jaml.stream.loop import Stream, StreamState
 from jaml.stream.timing import timed
 
@@ -29,8 +29,7 @@ resume_log = logging.getLogger("jaml.resume")
 def claim_run(out: Path, config: StreamConfig, stream: Stream | None = None) -> bool:
     """`_rundir.claim` for a stream run: config.json holds the resolved config tree whole, the
     learner's ld_dim the `stream`'s env's (`StreamConfig.record`). A recorded run is this one
-    when its tree (`StreamConfig.from_dict`: older records read as the runs they were, fields
-    new in the code at their defaults) resolves to this one; the learner's ld_dim, the env's,
+    when its tree (`StreamConfig.from_dict`: older records read as the runs they were) resolves to this one; the learner's ld_dim, the env's,
     is not compared (a record written without the stream lacks it)."""
     ld_dim = None if stream is None else len(stream.env.ld_state_names)
     now = config.env_free()
@@ -38,7 +37,13 @@ def claim_run(out: Path, config: StreamConfig, stream: Stream | None = None) -> 
     def same(recorded: dict) -> bool:
         return StreamConfig.from_dict(recorded).env_free() == now
 
-    return claim(out, config.record(ld_dim), same)
+    def differences(recorded: dict) -> str:
+        then = StreamConfig.from_dict(recorded).env_free()
+        was = changed_fields(then, now)
+        return ", ".join(f"{path} {was[path]!r} recorded, {value!r} now"
+                         for path, value in changed_fields(now, then).items())
+
+    return claim(out, config.record(ld_dim), same, differences)
 
 
 def analysis_epochs(config: StreamConfig) -> list[int]:

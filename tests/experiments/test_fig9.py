@@ -260,7 +260,8 @@ def test_the_reference_recipe_and_its_controls():
     assert pred.learner_config == default_config(
         "PRED", ld_dim=None, hist=1, pred=1, static_dim=3, latent_dim=2, mu_nl=False,
         logvar_limit=20.0, current_action="observed", kl_form="reference",
-        conv_filters=(32, 64, 64, 128), deconv_filters=(128, 64, 64, 32), static_per_step=True)
+        conv_filters=(32, 64, 64, 128), deconv_filters=(128, 64, 64, 32), static_per_step=True,
+        compute_dtype="float32", activation_dtype="float32")  # the reference's, on any device
     assert (pred.resolved().replay.slots, pred.frames_per_batch // 2, pred.learner_steps) == (
         4992, 512, 10)
     assert (pred.eval.train, pred.eval.rand, pred.eval.regressor_iterations) == (

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaml import learners
+from jaml import learners, stream
 from jaml.learners.networks import Conv, ConvDecoder, ConvEncoder, conv2d, elu, upsample2x
 
 
@@ -92,10 +92,27 @@ def test_bfloat16_activations_are_the_batch_norm_and_elu_outputs_and_track_float
 
 
 def test_compute_dtype_is_checked_and_reaches_the_learner():
-    with pytest.raises(ValueError, match=r"compute_dtype must be one of \['float32', 'bfloat16'\]"):
+    with pytest.raises(ValueError, match=r"compute_dtype must be one of "
+                                         r"\['auto', 'float32', 'bfloat16'\], got 'float16'"):
         learners.make("VAE_rpl", ld_dim=4, compute_dtype="float16")
+    with pytest.raises(ValueError, match=r"activation_dtype must be one of"):
+        learners.make("PRED", ld_dim=4, activation_dtype="half")
     assert learners.make("PRED", ld_dim=4, compute_dtype="bfloat16").config.conv_dtype \
         == jnp.bfloat16
+
+
+def test_auto_dtypes_are_bfloat16_off_the_cpu_and_float32_on_it():
+    config = learners.make("DSA", ld_dim=4).config
+    assert (config.compute_dtype, config.activation_dtype) == ("auto", "auto")
+    for backend, name in (("cpu", "float32"), ("gpu", "bfloat16"), ("tpu", "bfloat16")):
+        concrete = config.for_backend(backend)
+        assert (concrete.compute_dtype, concrete.activation_dtype) == (name, name)
+    # A given dtype is kept on every backend.
+    assert config.replace(compute_dtype="float32").for_backend("gpu").compute_dtype == "float32"
+    # Here (the CPU), "auto" computes float32; a run records it concrete.
+    assert config.conv_dtype == config.act_dtype == jnp.float32
+    run = stream.for_env("CartPole", "DSA").resolved(4)
+    assert run.learner_config.compute_dtype == run.learner_config.activation_dtype == "float32"
 
 
 def _value_and_grads(f, x, w):

@@ -13,7 +13,7 @@ from jaml import stream
 from jaml.learners import config as learners_config
 from jaml.learners.config import ALL_LEARNERS
 from jaml.stream import run as run_lib
-from jaml.stream.config import DOMAINS, FLAT_FIELDS, changed_fields
+from jaml.stream.config import DOMAINS, FLAT_FIELDS, LEGACY_LEARNER_FIELDS, changed_fields
 from tests.stream.test_loop import tiny
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
@@ -150,11 +150,20 @@ def _old_record(config: stream.StreamConfig) -> dict:
 
 
 def test_a_run_records_its_resolved_config_and_resumes_from_an_older_record(tmp_path):
-    config = tiny()
+    # An older record lacks the learner fields added since (LEGACY_LEARNER_FIELDS): it ran
+    # float32 with the encoder blind to the current action, so only such a config resumes it.
+    today = tiny()
+    config = today.with_overrides({f"learner_config.{k}": v
+                                   for k, v in LEGACY_LEARNER_FIELDS.items()})
     old = tmp_path / "old"
     old.mkdir()
-    (old / "config.json").write_text(json.dumps(_old_record(config)))  # as older runs wrote it
+    record = _old_record(today)  # as older runs wrote it: none of those fields
+    assert not LEGACY_LEARNER_FIELDS.keys() & record["learner_overrides"].keys()
+    (old / "config.json").write_text(json.dumps(record))
     assert json.loads((old / "config.json").read_text())["replay_keep_fraction"] is None
+    with pytest.raises(ValueError, match=r"learner_config.current_action 'hidden' recorded, "
+                                         r"'observed' now"):
+        run_lib.claim_run(old, today)
     assert run_lib.claim_run(old, config)  # a resume of the same run
     recorded = json.loads((old / "config.json").read_text())
     assert recorded == config.resolved().to_dict() and recorded["replay"]["keep_fraction"] == 0.5
@@ -248,11 +257,13 @@ def test_every_committed_stream_run_config_reads_back():
         config = stream.StreamConfig.from_dict(recorded)
         resolved = config.resolved()
         assert stream.StreamConfig.from_dict(resolved.to_dict()) == resolved, path
-        if "learner_overrides" not in recorded:  # the typed tree, written whole: as written,
-            # and a field added to the learner's config since at its default.
+        # A field added to the learner's config since: at the value such runs ran with
+        # (LEGACY_LEARNER_FIELDS), else at its default.
+        defaults = {f.name: f.default for f in dataclasses.fields(config.learner_config)}
+        defaults |= LEGACY_LEARNER_FIELDS
+        if "learner_overrides" not in recorded:  # the typed tree, written whole: as written
             got = config.to_dict()
             learner, written = got["learner_config"], recorded["learner_config"]
-            defaults = {f.name: f.default for f in dataclasses.fields(config.learner_config)}
             assert all(learner.pop(k) == defaults[k] for k in learner.keys() - written.keys())
             assert got == recorded, path
             continue
@@ -266,8 +277,7 @@ def test_every_committed_stream_run_config_reads_back():
                              (config.env_config, recorded["env_overrides"])):
             assert _fields(typed) == _fields(typed) | given, path
         if "resolved" in recorded:
-            # As recorded; a field added to the learner's config since takes its default.
+            # As recorded, a field added to the learner's config since as above.
             got, written = _fields(config.learner_config), recorded["resolved"]["learner"]
             assert {k: got[k] for k in written} == written, path
-            defaults = {f.name: f.default for f in dataclasses.fields(config.learner_config)}
             assert all(got[k] == defaults[k] for k in got.keys() - written.keys()), path

@@ -1,7 +1,7 @@
 """Seconds per alignment fit of R runs (`evaluation.alignment_errors_runs`, as one analysis
 calls it: the reference's regressor, 10 000 Adam steps, two test sets), compile time apart.
 
-The fit is a scan of small steps, latency bound on a GPU; this times it under the process's
+The fit is a scan of 10 000 small Adam steps; this times it under the process's
 XLA flags (`XLA_FLAGS`, recorded in the row), so that flag sets (CUDA graphs of the loop, say)
 can be compared one process per GPU, and prints a checksum of the errors: a flag set that
 changes the numbers shows it. Synthetic latents: a random linear map of the states plus

@@ -298,8 +298,7 @@ def alignment_errors_runs(latents_train, states_train, test_sets: Mapping[str, t
     latents_train [R, N, Z], states_train [R, N, D], test_sets {name: ([R, Nt, Z], [R, Nt, D])},
     seeds [R] ints: errors [R, D] per name (and "validation"), where row r is what
     `alignment_errors` gives for run r's arrays and seeds[r] ([D + J] with `rotation_starts`).
-    One compiled program fits every run: on a GPU the fit is latency bound (a scan of small
-    steps), so R fits cost about one.
+    One compiled program fits every run: one scan of Adam steps, each step every run's.
     """
     if not isinstance(test_sets, Mapping) or not test_sets:
         raise ValueError("test_sets must be a non-empty mapping name → (latents, states)")

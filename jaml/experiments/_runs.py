@@ -89,8 +89,8 @@ def settings(record: dict) -> dict:
     """A run's config.json as the reports show it, flat: the run's fields, its sizes by the
     names of records written before the config tree (`SIZES`, "eval_every", …: `FLAT_FIELDS`),
     and its learner's and env's fields that differ from their defaults (float32 dtypes) as
-    "learner_overrides" and "env_overrides" (the learner's ld_dim, the env's, left out). Such an older record is
-    shown as written (less its "resolved" configs)."""
+    "learner_overrides" and "env_overrides" (the learner's ld_dim, the env's, left out). Such an
+    older record is shown as written (less its "resolved" configs)."""
     if "replay" not in record:  # written before the tree
         return {k: v for k, v in record.items() if k != RESOLVED}
     config = StreamConfig.from_dict(record)

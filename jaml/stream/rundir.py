@@ -29,8 +29,9 @@ resume_log = logging.getLogger("jaml.resume")
 def claim_run(out: Path, config: StreamConfig, stream: Stream | None = None) -> bool:
     """`_rundir.claim` for a stream run: config.json holds the resolved config tree whole, the
     learner's ld_dim the `stream`'s env's (`StreamConfig.record`). A recorded run is this one
-    when its tree (`StreamConfig.from_dict`: older records read as the runs they were) resolves to this one; the learner's ld_dim, the env's,
-    is not compared (a record written without the stream lacks it)."""
+    when its tree (`StreamConfig.from_dict`: older records read as the runs they were) resolves
+    to this one; the learner's ld_dim, the env's, is not compared (a record written without the
+    stream lacks it). A refusal names the fields that differ."""
     ld_dim = None if stream is None else len(stream.env.ld_state_names)
     now = config.env_free()
 

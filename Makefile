@@ -17,10 +17,12 @@ endif
 install: $(STAMP)
 
 # Reinstall only when the dependency pins change: the stamp makes `make install` idempotent.
+# --no-compile: Python writes the bytecode of the modules a run imports when it imports them,
+# instead of pip compiling every installed file (half the install's time on two cores).
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[$(EXTRAS)]'
+	$(BIN)/python -m pip install --quiet --no-compile -e '.[$(EXTRAS)]'
 	touch $(sort $(STAMP) $(VENV)/.installed)
 
 demo: $(STAMP)

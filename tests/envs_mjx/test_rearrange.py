@@ -52,10 +52,10 @@ def _row(tree, i):
 
 
 # The reacher pairs here (RearrangeYCB's is RearrangeGeom's scene with other meshes, ~40 s of
-# compile on two cores); the Franka pairs in test_rearrange_franka.py, a module of their own that
-# xdist starts first (its two contracts are the longest checks).
-# RearrangeGeom's reacher contract is slow-marked: the Geom scene's contract runs with the Franka
-# (test_rearrange_franka.py), the reacher's with RearrangeYCB here.
+# compile on two cores); the Franka pairs in test_rearrange_franka.py, slow-marked. RearrangeGeom's
+# reacher contract is slow-marked too: the default suite steps the Geom scene's versions
+# (test_every_version_steps_as_its_compiled_model) and runs the tray's contract with
+# RearrangeYCB here.
 REACHER = [pytest.param("RearrangeGeom", "reacher", marks=pytest.mark.slow),
            ("RearrangeYCB", "reacher")]
 

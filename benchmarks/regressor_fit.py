@@ -17,10 +17,14 @@ import hashlib
 import json
 import os
 import statistics
+import sys
 import time
+from pathlib import Path
 
 import jax
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from jaml.evaluation import alignment
 

@@ -17,12 +17,14 @@ endif
 install: $(STAMP)
 
 # Reinstall only when the dependency pins change: the stamp makes `make install` idempotent.
-# --no-compile: Python writes the bytecode of the modules a run imports when it imports them,
-# instead of pip compiling every installed file (half the install's time on two cores).
+# pip installs without compiling the bytecode (one file at a time, half its time on two cores),
+# then compileall writes it on every core: the machines here set PYTHONDONTWRITEBYTECODE, so
+# without it every test process would compile jax and MJX from source as it imports them.
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet --no-compile -e '.[$(EXTRAS)]'
+	$(BIN)/python -m compileall -q -j 0 $$($(BIN)/python -c 'import sysconfig; print(sysconfig.get_path("purelib"))') >/dev/null
 	touch $(sort $(STAMP) $(VENV)/.installed)
 
 demo: $(STAMP)

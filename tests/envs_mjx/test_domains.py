@@ -339,10 +339,7 @@ def test_cartpole_pole_falls_the_way_it_leans():
     np.testing.assert_allclose(traj["reward"][:50], 1 / 200)
 
 
-# HalfCheetah's case is slow-marked (21 s of the default suite's CPU): Ant's runs the same flags
-# against C MuJoCo, and HalfCheetah's MJX step is checked against C MuJoCo below.
-@pytest.mark.parametrize("name,min_feet", [("Ant", 2),
-                                           pytest.param("HalfCheetah", 1, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("name,min_feet", [("Ant", 2), ("HalfCheetah", 1)])
 def test_locomotion_foot_contacts(name, min_feet):
     """Feet start in the air (flags 0); after settling under zero action the robot stands on
     the floor with feet flagged, and every flag agrees with C MuJoCo's geom distance to the floor

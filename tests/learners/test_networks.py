@@ -109,10 +109,11 @@ def test_auto_dtypes_are_bfloat16_off_the_cpu_and_float32_on_it():
         assert (concrete.compute_dtype, concrete.activation_dtype) == (name, name)
     # A given dtype is kept on every backend.
     assert config.replace(compute_dtype="float32").for_backend("gpu").compute_dtype == "float32"
-    # Here (the CPU), "auto" computes float32; a run records it concrete.
-    assert config.conv_dtype == config.act_dtype == jnp.float32
+    # Here, "auto" computes the backend's dtype (the CPU's float32), and a run records it.
+    here = "float32" if jax.default_backend() == "cpu" else "bfloat16"
+    assert config.conv_dtype == config.act_dtype == getattr(jnp, here)
     run = stream.for_env("CartPole", "DSA").resolved(4)
-    assert run.learner_config.compute_dtype == run.learner_config.activation_dtype == "float32"
+    assert run.learner_config.compute_dtype == run.learner_config.activation_dtype == here
 
 
 def _value_and_grads(f, x, w):

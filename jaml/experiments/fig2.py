@@ -34,7 +34,11 @@ covers the runs finished by then, so rebuild it with --report-only when all are 
 Defaults are the paper's settings where they are sizes of one epoch (64 envs, a 5000-column
 replay, 1024 frames per learner batch, 10 learner steps per epoch and 50 for locomotion, the
 reference's regressor) and the shortest training the issue asked for: 1000 epochs on the
-pendulums, 300 on locomotion (the paper trained tens of thousands).
+pendulums, 300 on locomotion (the paper trained tens of thousands). On a GPU the learners'
+conv stacks run in bfloat16 by default (`LearnerConfig.compute_dtype`); the committed grid
+(docs/results/fig2_runs) ran float32 with the encoder blind to the current action, so a cell
+added to it takes `--learner-opt compute_dtype=float32 --learner-opt activation_dtype=float32
+--learner-opt current_action=hidden`.
 """
 
 from __future__ import annotations

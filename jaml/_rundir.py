@@ -85,8 +85,8 @@ def claim(out: Path, resolved: dict, same: Callable[[dict], bool] | None = None,
     config_path = Path(out) / "config.json"
     resuming = config_path.exists()
     same = (lambda recorded: recorded == resolved) if same is None else same
-    if resuming and not same(json.loads(config_path.read_text())):
-        recorded = json.loads(config_path.read_text())
+    recorded = json.loads(config_path.read_text()) if resuming else None
+    if resuming and not same(recorded):
         what = "" if differences is None else f": {differences(recorded)}"
         raise ValueError(f"{out} holds a run with a different configuration ({config_path}"
                          f"{what}); resume with the same options or choose a new --out")

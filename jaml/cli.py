@@ -40,11 +40,9 @@ def _print_summary(out, summary) -> None:
             f"{r['seconds']:.1f}s, mean |g| on {r['on_mean']:.4g} off {r['off_mean']:.4g} "
             f"(x{r['ratio']:.1f}), syzygies {r['syzygies_found']}"
         )
-    codim = summary.get("codimension") or {}
-    if codim:
-        print(f"  gradients of all {codim['relations']} independent (Jacobian rank "
-              f"{codim['relations']}) on {100 * codim['full_rank_fraction']:.0f}% of "
-              f"{codim['points']} on-manifold rows")
+    report = summary.get("quality") or {}
+    for line in report.get("lines", ()):
+        print(f"  {line}")
 
 
 def _relations_config():

@@ -34,6 +34,7 @@ import tyro
 
 from jaml.experiments import _runs
 from jaml.experiments._runs import read_jsonl
+from jaml.relations.config import Config
 
 SOURCE, TARGET = "geom-on-incline", "MeshOnIncline"
 # The objects' mass and friction, in the source's rows and in the target's envs alike.
@@ -72,10 +73,14 @@ PILOT = "PRED+AML_trnsv"  # the method whose pilot runs choose the weight ("ours
 COORDINATES = dict(static=("theta",), dynamic=("s", "v"))
 # Relations: 3 per set as in the paper's block-on-incline figures, with budgets cut to fit the
 # experiment's time (the stopping rule usually ends a relation well before them).
+# Pinned to the algorithm the committed relation sets were learned with (no mining or
+# refinement, all three relations trained): `relations.config.LEGACY_FIELDS`.
+_LEGACY = dict(mined_weight=0.0, refine_rounds=0, stop_when_complete=False)
 RELATIONS = {
-    "trnsv": dict(max_relations=3, independence="transversality", max_steps=20_000),
+    "trnsv": dict(max_relations=3, independence="transversality", max_steps=20_000, **_LEGACY),
     "syz": dict(max_relations=3, independence="syzygy", max_steps=20_000,
-                syzygies_per_relation=2, syzygy_max_steps=4_000, syzygy_push_steps=4_000),
+                syzygies_per_relation=2, syzygy_max_steps=4_000, syzygy_push_steps=4_000,
+                **_LEGACY),
 }
 # --scale smoke: each relation a few hundred steps on a small pool, to check the pipeline.
 SMOKE_RELATIONS = dict(max_relations=2, max_steps=300, pretrain_steps=100, chunk_steps=100,
@@ -169,12 +174,14 @@ def _finished(directory: Path, cfg, source_options: dict) -> dict | None:
     summary, config = directory / "summary.json", directory / "config.json"
     if not (summary.exists() and config.exists()):
         return None
-    expected = {"source": SOURCE, "relations": cfg.to_dict()}
+    expected = {"source": SOURCE}
     if source_options:
         expected["source_options"] = source_options
     done = json.loads(summary.read_text())
-    if done["status"] != "done" or json.loads(config.read_text()) != json.loads(
-            json.dumps(expected)):
+    recorded = json.loads(config.read_text())
+    relations_cfg = recorded.pop("relations", {})
+    if done["status"] in ("running", "interrupted") or recorded != json.loads(
+            json.dumps(expected)) or Config.from_record(relations_cfg) != cfg:
         return None
     return done
 

@@ -16,7 +16,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from jaml.relations.networks import Relation
-from jaml.relations.relation_set import RelationSet
+from jaml.relations.relation_set import RelationSet, Report
 
 log = logging.getLogger("jaml.relations")
 FORMAT = "jaml.relations/1"
@@ -37,6 +37,9 @@ def _describe(rs: RelationSet) -> dict:
         "dim_names": list(rs.dim_names),
         "on_means": np.asarray(rs.on_means).tolist(),
         "off_means": np.asarray(rs.off_means).tolist(),
+        "low": list(rs.low),
+        "high": list(rs.high),
+        "quality": rs.quality.to_dict() if rs.quality is not None else None,
     }
 
 
@@ -105,6 +108,10 @@ def load(path) -> RelationSet:
         tolerance=meta["tolerance"],
         syzygies=tuple(meta["syzygies"]),
         dim_names=tuple(meta["dim_names"]),
+        # Checkpoints written before the trust region and the quality report lack these.
+        low=tuple(meta.get("low") or ()),
+        high=tuple(meta.get("high") or ()),
+        quality=Report(meta["quality"]) if meta.get("quality") else None,
     )
     log.info(
         "AML loaded %d relations, %d syzygies, on/off means:\n%s\n%s",

@@ -17,6 +17,12 @@ INDEPENDENCE: tuple[str, ...] = get_args(Independence)
 OBJECTIVES: tuple[str, ...] = get_args(Objective)
 
 
+# Fields added after runs were recorded, with the values that reproduce what those runs did
+# (no mining, no refinement, every one of max_relations trained).
+LEGACY_FIELDS = {"mined_weight": 0.0, "refine_rounds": 0, "stop_when_complete": False,
+                 "codimension": None}
+
+
 @dataclasses.dataclass(frozen=True)
 class Config:
     """Configuration of `relations.fit`.
@@ -50,6 +56,18 @@ class Config:
         gradients to exceed this (radians; reference 0.4·π/2).
       tolerance: `holds` accepts τ when every |g_k(τ)| < tolerance × its recorded on-manifold mean.
       noise_scale: uniform noise, as a fraction of the data box, added to on and off rows.
+      mined_weight: weight of jaml's mined-rows term; 0 (the default, by measurement: see
+        docs/notes/relations.md "Mining spurious zeros") is the paper's algorithm. Before g_k
+        trains, box points are projected onto {g_1 = … = g_{k−1} = 0}; those landing away
+        from the data are rows where g_k is pushed not to vanish.
+      mine_points: box points projected per mining round (and the capacity of the mined pool).
+      refine_rounds: after g_k stops, rounds of {project onto {g_1 = … = g_k = 0}, mine the
+        points landing away from the data, train g_k on on, while any land there}.
+      codimension: D minus the data manifold's dimension; None estimates it by local PCA.
+        Mining and refining start at the codimension-th relation (before it, the intersection
+        is meant to be larger than the data).
+      stop_when_complete: stop adding relations once (almost) no projected box point lands
+        away from the data: the zero set is the data's, and its codimension is found.
       pretrain_steps: supervised steps towards a prior heuristic, when `fit` is given priors.
       chunk_steps: optimizer steps per compiled `lax.scan` call (logging / progress granularity).
       eval_batches: batches of fresh data used to record on/off means after each relation.
@@ -77,6 +95,11 @@ class Config:
     stop_patience: int = 250
     tolerance: float = 1.5
     noise_scale: float = 0.0
+    mined_weight: float = 0.0
+    mine_points: int = 1024
+    refine_rounds: int = 2
+    codimension: int | None = None
+    stop_when_complete: bool = True
     pretrain_steps: int = 2_000
     chunk_steps: int = 500
     eval_batches: int = 16
@@ -100,16 +123,17 @@ class Config:
             "chunk_steps",
             "eval_batches",
             "stop_patience",
+            "mine_points",
         )
         for name in positive_ints:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 problems.append(f"{name} must be a positive integer, got {value!r}")
-        for name in ("syzygies_per_relation", "pretrain_steps", "seed"):
+        for name in ("syzygies_per_relation", "pretrain_steps", "seed", "refine_rounds"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 problems.append(f"{name} must be a non-negative integer, got {value!r}")
-        for name in ("syzygy_max_steps", "syzygy_push_steps"):
+        for name in ("syzygy_max_steps", "syzygy_push_steps", "codimension"):
             value = getattr(self, name)
             if value is not None and (not isinstance(value, int) or value < 1):
                 problems.append(f"{name} must be None or a positive integer, got {value!r}")
@@ -130,6 +154,9 @@ class Config:
             )
         if not 0.0 <= self.min_angle <= math.pi / 2:
             problems.append(f"min_angle must lie in [0, π/2], got {self.min_angle}")
+        if not (isinstance(self.mined_weight, int | float) and math.isfinite(self.mined_weight)
+                and self.mined_weight >= 0):
+            problems.append(f"mined_weight must be ≥ 0, got {self.mined_weight!r}")
         if not (math.isfinite(self.noise_scale) and self.noise_scale >= 0):
             problems.append(f"noise_scale must be ≥ 0, got {self.noise_scale}")
         if (
@@ -165,6 +192,11 @@ class Config:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+    @classmethod
+    def from_record(cls, values: dict) -> Config:
+        """A config as a run recorded it: fields added since read as what that run did."""
+        return cls.from_dict(LEGACY_FIELDS | values)
 
     @classmethod
     def from_dict(cls, values: dict) -> Config:

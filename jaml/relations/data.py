@@ -41,6 +41,10 @@ class Batches(NamedTuple):
     batch_size: int
     noise_scale: float
     dim_names: tuple[str, ...]
+    # Rows kept out of training for the quality report ([H, D]), and training rows the mining
+    # of spurious zeros measures distances to ([R, D]); neither enters the training loops.
+    held_out: jax.Array | None = None
+    dense: jax.Array | None = None
 
     @property
     def dim(self) -> int:
@@ -118,13 +122,47 @@ def _check_rows(rows, what: str) -> np.ndarray:
         rows_bad = np.unique(np.nonzero(bad)[0])
         raise ValueError(
             f"{what} has {bad.sum()} non-finite values (NaN/inf) in {rows_bad.size} rows, "
-            f"first at row {rows_bad[0]}"
+            f"first at row {rows_bad[0]}: drop them first (rows[np.isfinite(rows).all(1)])"
         )
     if host.shape[0] < 2 or np.all(host.max(axis=0) == host.min(axis=0)):
         raise ValueError(
             f"{what} is constant: every row is identical, there is no manifold to learn"
         )
+    if host.shape[0] < MIN_ROWS:
+        raise ValueError(
+            f"{what} has {host.shape[0]} rows: at least {MIN_ROWS} are needed to learn a "
+            f"manifold and keep some rows out to check it; pass more rows"
+        )
     return host
+
+
+MIN_ROWS = 32
+HELD_OUT = 8192  # rows kept out of training (at most a tenth of the user's rows)
+DENSE = 16384  # training rows the mining of spurious zeros measures distances to
+THIN = 0.01  # an axis narrower than this share of the widest is padded ...
+PADDED = 0.1  # ... to this share of it
+
+
+def padded_box(low: np.ndarray, high: np.ndarray, names=()) -> tuple[np.ndarray, np.ndarray]:
+    """The data's box with every axis at least `PADDED` × the widest one wide.
+
+    A constant (or nearly constant) coordinate is itself a relation, x_i = c; in a box of zero
+    width no off-manifold row would ever leave it, so nothing could be learned of it. Padded,
+    the relation is learned like any other.
+    """
+    low, high = np.asarray(low, np.float64), np.asarray(high, np.float64)
+    width = high - low
+    widest = float(width.max())
+    thin = width < THIN * widest
+    for i in np.nonzero(thin)[0]:
+        name = names[i] if i < len(names) else f"column {i}"
+        log.warning(
+            "%s is %s (%.4g): it is the relation %s = %.4g; its off-manifold box is padded to "
+            "±%.3g", name, "constant" if width[i] == 0 else "nearly constant",
+            (low[i] + high[i]) / 2, name, (low[i] + high[i]) / 2, PADDED * widest / 2)
+    centre = (low + high) / 2
+    half = np.where(thin, PADDED * widest / 2, width / 2)
+    return (centre - half).astype(np.float32), (centre + half).astype(np.float32)
 
 
 def _pool_size(on_manifold) -> int | None:
@@ -159,15 +197,28 @@ def prepare(on_manifold, batch_size: int, noise_scale: float, key, calibration_b
             )
             if names and len(names) != host.shape[1]:
                 names = ()
-        rows = jnp.asarray(host, jnp.float32)
-        low, high = bounding_box(rows)
-        return Batches(rows, None, low, high, batch_size, noise_scale, names)
+        k_split = jax.random.fold_in(key, 1)
+        order = np.asarray(jax.random.permutation(k_split, host.shape[0]))
+        held = min(HELD_OUT, max(host.shape[0] // 10, 1))
+        held_out, train = host[order[:held]], host[order[held:]]
+        if train.shape[0] < batch_size:
+            log.warning("%d training rows < batch_size %d: batches repeat rows (drawn with "
+                        "replacement)", train.shape[0], batch_size)
+        low, high = padded_box(*np.asarray(bounding_box(jnp.asarray(host))), names)
+        rows = jnp.asarray(train, jnp.float32)
+        dense = rows[: min(DENSE, rows.shape[0])]
+        return Batches(rows, None, jnp.asarray(low), jnp.asarray(high), batch_size,
+                       noise_scale, names, jnp.asarray(held_out, jnp.float32), dense)
     sample = _call_sampler(sampler, key, batch_size * calibration_batches)
     host = _check_rows(sample, "the on_manifold sampler's output")
-    low, high = bounding_box(jnp.asarray(host, jnp.float32))
     if names and len(names) != host.shape[1]:
         names = ()
-    return Batches(None, sampler, low, high, batch_size, noise_scale, names)
+    low, high = padded_box(*np.asarray(bounding_box(jnp.asarray(host, jnp.float32))), names)
+    fresh = jnp.asarray(_call_sampler(sampler, jax.random.fold_in(key, 1), HELD_OUT + DENSE),
+                        jnp.float32)
+    held_out, dense = fresh[:HELD_OUT], fresh[HELD_OUT:]
+    return Batches(None, sampler, jnp.asarray(low), jnp.asarray(high), batch_size, noise_scale,
+                   names, held_out, dense)
 
 
 def _call_sampler(sampler, key, n: int):

@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaml.relations.loop import ONCE_COMPILER_OPTIONS
-from jaml.relations.relation_set import RelationSet, _check_tau, evaluate
+from jaml.relations.relation_set import RelationSet, _check_tau, evaluate, holds
 
 DEFAULT_RANK_RTOL = 0.1  # σ_i / σ_1 of the row-normalised Jacobian; for K = 2, tan(θ/2) > 0.1
 
@@ -25,11 +26,21 @@ def _relations_fn(relations) -> Callable:
     raise TypeError(f"relations must be a RelationSet or a callable, got {type(relations)}")
 
 
-def _gauss_newton(fn, tau, mask, steps: int, rtol, max_step):
+class Projection(NamedTuple):
+    """What `project` returns: the moved points, G there, and whether every equation holds."""
+
+    points: jax.Array  # [..., D]
+    residuals: jax.Array  # [..., K] G(points)
+    converged: jax.Array  # bool [...]
+
+
+def _gauss_newton(fn, tau, mask, low, high, steps: int, rtol, max_step):
     """`steps` minimum-norm steps δ = −J⁺ G(τ) per row, J's fixed columns zeroed by `mask`.
 
-    Each step is at most `max_step` long and halved (up to 3 times) until ‖G‖ decreases: where
-    a tanh network saturates its gradient is tiny and the full step would leave for infinity.
+    A trust region: each step is at most `max_step` long, halved (up to 3 times) until ‖G‖
+    decreases (else the point stays), and every iterate, the start too, stays in the box
+    [low, high]: where a tanh network saturates its gradient is tiny, and a full step would
+    leave for infinity.
     """
 
     def one_row(t):
@@ -41,45 +52,70 @@ def _gauss_newton(fn, tau, mask, steps: int, rtol, max_step):
             inv = jnp.where(keep, 1.0 / jnp.where(keep, s, 1.0), 0.0)
             delta = vt.T @ (inv * (u.T @ g))
             delta = delta * jnp.minimum(1.0, max_step / jnp.maximum(jnp.linalg.norm(delta), 1e-30))
-            tries = t - _HALVINGS[:, None] * delta  # [4, D]
+            tries = jnp.clip(t - _HALVINGS[:, None] * delta, low, high)  # [4, D]
             norms = jnp.linalg.norm(jax.vmap(fn)(tries), axis=-1)
             better = norms < jnp.linalg.norm(g)
-            return jnp.where(jnp.any(better), tries[jnp.argmax(better)], tries[-1]), None
+            # No try reduces ‖G‖: stay (a full step from a saturated point only wanders off).
+            return jnp.where(jnp.any(better), tries[jnp.argmax(better)], t), None
 
-        t, _ = jax.lax.scan(step, t, None, length=steps)
+        t, _ = jax.lax.scan(step, jnp.clip(t, low, high), None, length=steps)
         return t, fn(t)
 
     return jax.vmap(one_row)(tau)
 
 
 _HALVINGS = jnp.asarray([1.0, 0.5, 0.25, 0.125])
+# The trust region's defaults, in units of the data's box: steps of at most a tenth of its
+# diagonal, iterates inside the box grown by half its width on every side.
+STEP_FRACTION = 0.1
+BOX_MARGIN = 0.5
 
 
 @functools.partial(jax.jit, static_argnames="steps")
-def _project_set(rs: RelationSet, tau, mask, steps: int, rtol, max_step):
+def _project_set(rs: RelationSet, tau, mask, low, high, steps: int, rtol, max_step):
     scale = 1.0 / jnp.maximum(rs.on_means, 1e-30)
     points, residuals = _gauss_newton(
-        lambda t: evaluate(rs, t) * scale, tau, mask, steps, rtol, max_step
+        lambda t: evaluate(rs, t) * scale, tau, mask, low, high, steps, rtol, max_step
     )
     return points, residuals / scale
 
 
-def project(relations, tau, steps: int = 10, free=None, max_step: float = jnp.inf,
-            rtol: float = 1e-6):
-    """Move τ [..., D] onto the learned manifold by Gauss–Newton steps; returns (points [..., D],
-    residuals G(points) [..., K]).
+def trust_region(bounds, dim: int, max_step=None):
+    """(low, high, max_step) of `project`'s trust region from the data box `bounds` (or None:
+    unbounded, unless `max_step` is given)."""
+    if bounds is None:
+        low = jnp.full((dim,), -jnp.inf)
+        high = jnp.full((dim,), jnp.inf)
+        return low, high, (jnp.inf if max_step is None else max_step)
+    low, high = (np.asarray(b, np.float32).reshape(dim) for b in bounds)
+    width = high - low
+    if max_step is None:
+        max_step = STEP_FRACTION * float(np.linalg.norm(width))
+    return (jnp.asarray(low - BOX_MARGIN * width), jnp.asarray(high + BOX_MARGIN * width),
+            max_step)
+
+
+def project(relations, tau, steps: int = 50, free=None, max_step: float | None = None,
+            rtol: float = 1e-6, bounds=None, tolerance: float = 1e-3) -> Projection:
+    """Move τ [..., D] onto the learned manifold by damped Gauss–Newton steps; returns a
+    `Projection` (points [..., D], residuals G(points) [..., K], converged bool [...]).
 
     Each step is the minimum-norm solution of J δ = −G (J⁺ through an SVD of the K×D Jacobian,
     singular values below rtol·σ_max dropped), so a point moves as little as it must; for
-    relations linear in τ one step lands on the nearest point of their intersection. Steps are
-    cut to `max_step` and halved while they do not reduce ‖G‖ (a damped Gauss–Newton). `free`
-    (bool [D]) restricts the moves to those coordinates, e.g. the next state of a transition for
-    given start (s0, v0). `relations`: a RelationSet, or a function τ [..., D] → [..., K].
-    A RelationSet's g_k are measured in units of their recorded on-manifold means, which matters
-    only where the K equations cannot all hold (then ‖G‖ is minimised in those units).
+    relations linear in τ one step lands on the nearest point of their intersection. A trust
+    region keeps it from diverging: steps are cut to `max_step` (default: a tenth of the data
+    box's diagonal) and halved while they do not reduce ‖G‖, and points stay inside the box
+    grown by half its width on each side. `bounds` = (low, high) is that box; a RelationSet
+    carries its own. `free` (bool [D]) restricts the moves to those coordinates, e.g. the next
+    state of a transition for given start (s0, v0). `relations`: a RelationSet, or a function
+    τ [..., D] → [..., K]. `converged`: `holds` at the point for a RelationSet; every
+    |G_k| ≤ `tolerance` for a function. A RelationSet's g_k are measured in units of their
+    recorded on-manifold means, which matters only where the K equations cannot all hold.
     """
     if isinstance(relations, RelationSet):
         tau = _check_tau(relations, tau)
+        if bounds is None and relations.low:
+            bounds = (relations.low, relations.high)
     tau = jnp.asarray(tau)
     if not jnp.issubdtype(tau.dtype, jnp.floating):
         tau = tau.astype(jnp.float32)
@@ -89,17 +125,26 @@ def project(relations, tau, steps: int = 10, free=None, max_step: float = jnp.in
         raise ValueError(f"free must have shape ({dim},), got {mask.shape}")
     if steps < 1:
         raise ValueError(f"steps must be ≥ 1, got {steps}")
+    low, high, max_step = trust_region(bounds, dim, max_step)
     flat = tau.reshape(-1, dim)
+    # Fixed coordinates stay where they are, even outside the box.
+    low = jnp.where(mask > 0, low, -jnp.inf)
+    high = jnp.where(mask > 0, high, jnp.inf)
     if isinstance(relations, RelationSet):
-        points, residuals = _project_set(relations, flat, mask, steps, rtol, max_step)
+        points, residuals = _project_set(relations, flat, mask, low, high, steps, rtol, max_step)
+        converged = holds(relations, points)
     else:
         run = jax.jit(functools.partial(_gauss_newton, _relations_fn(relations), steps=steps))
-        points, residuals = run(flat, mask, rtol=rtol, max_step=max_step)
-    return points.reshape(tau.shape), residuals.reshape(*tau.shape[:-1], -1)
+        points, residuals = run(flat, mask, low, high, rtol=rtol, max_step=max_step)
+        converged = jnp.all(jnp.abs(residuals) <= tolerance, axis=-1)
+    lead = tau.shape[:-1]
+    return Projection(points.reshape(tau.shape), residuals.reshape(*lead, -1),
+                      converged.reshape(lead))
 
 
-def _sigma_ratios(fn, tau):
-    """[N, K]: singular values of the row-normalised Jacobian at each row, over the largest."""
+def _jacobian_geometry(fn, tau):
+    """([N, K] singular values of the row-normalised Jacobian at each row over the largest,
+    [N, K, K] |cos| between the K gradients there): one pass serves both measures."""
 
     def one_row(t):
         jac = jax.jacfwd(fn)(t)
@@ -108,14 +153,23 @@ def _sigma_ratios(fn, tau):
         unit = jnp.where(flat, 0.0, jac / jnp.where(flat, 1.0, norms))
         s = jnp.linalg.svd(unit, compute_uv=False)
         s = jnp.pad(s, (0, jac.shape[0] - s.shape[0]))  # K > D: the missing ones are zero
-        return s / jnp.maximum(s[0], 1e-30)
+        return s / jnp.maximum(s[0], 1e-30), jnp.abs(unit @ unit.T)
 
     return jax.vmap(one_row)(tau)
 
 
 @functools.partial(jax.jit, compiler_options=ONCE_COMPILER_OPTIONS)
-def _sigma_ratios_set(rs: RelationSet, tau):
-    return _sigma_ratios(lambda t: evaluate(rs, t), tau)
+def _jacobian_geometry_set(rs: RelationSet, tau):
+    return _jacobian_geometry(lambda t: evaluate(rs, t), tau)
+
+
+def _geometry(relations, tau):
+    tau = jnp.asarray(tau).reshape(-1, jnp.shape(tau)[-1])
+    if isinstance(relations, RelationSet):
+        out = _jacobian_geometry_set(relations, _check_tau(relations, tau))
+    else:
+        out = jax.jit(functools.partial(_jacobian_geometry, _relations_fn(relations)))(tau)
+    return tuple(np.asarray(x) for x in out)
 
 
 def jacobian_ranks(relations, tau, rtol: float = DEFAULT_RANK_RTOL):
@@ -126,13 +180,18 @@ def jacobian_ranks(relations, tau, rtol: float = DEFAULT_RANK_RTOL):
     rank counts singular values above rtol × the largest. With K ≤ D, rank K means the K
     gradients are independent there, i.e. the zero sets cut K dimensions (transversality).
     """
-    tau = jnp.asarray(tau).reshape(-1, jnp.shape(tau)[-1])
-    if isinstance(relations, RelationSet):
-        ratios = _sigma_ratios_set(relations, _check_tau(relations, tau))
-    else:
-        ratios = jax.jit(functools.partial(_sigma_ratios, _relations_fn(relations)))(tau)
-    ratios = np.asarray(ratios)
+    ratios, _ = _geometry(relations, tau)
     return (ratios > rtol).sum(-1), ratios
+
+
+def pairwise_cosines(relations, tau) -> np.ndarray:
+    """[K, K]: the median over rows τ [N, D] of |cos θ(∇g_i, ∇g_j)|, 1 on the diagonal.
+
+    Independent relations have gradients at an angle on the data (|cos| well below 1); a
+    relation that copies another (the same zero set) has |cos| ≈ 1 everywhere on it.
+    """
+    _, cos = _geometry(relations, tau)
+    return np.median(cos, axis=0)
 
 
 def codimension(relations, tau, rtol: float = DEFAULT_RANK_RTOL) -> dict:
@@ -151,4 +210,12 @@ def codimension(relations, tau, rtol: float = DEFAULT_RANK_RTOL) -> dict:
     }
 
 
-__all__ = ["DEFAULT_RANK_RTOL", "codimension", "jacobian_ranks", "project"]
+__all__ = [
+    "DEFAULT_RANK_RTOL",
+    "Projection",
+    "codimension",
+    "jacobian_ranks",
+    "pairwise_cosines",
+    "project",
+    "trust_region",
+]

@@ -115,8 +115,21 @@ def separated(on_abs: jax.Array, off_abs: jax.Array, ratio: float, top_fraction:
     The on-manifold statistic is the mean of the largest ⌊top_fraction·B⌋ values of |g| (the
     reference used the top 20%, stricter than a mean; all rows when B ≤ 10 or fraction 1).
     """
-    count = on_abs.shape[0]
+    return ratio * top_mean(on_abs, top_fraction) < jnp.mean(off_abs)
+
+
+def top_mean(values: jax.Array, top_fraction: float) -> jax.Array:
+    """Mean of the largest ⌊top_fraction·B⌋ of values [B] (all of them when B ≤ 10)."""
+    count = values.shape[0]
     top = int(top_fraction * count) if count > 10 else count
-    top = max(top, 1)
-    on_stat = jnp.mean(jax.lax.top_k(on_abs, top)[0])
-    return ratio * on_stat < jnp.mean(off_abs)
+    return jnp.mean(jax.lax.top_k(values, max(top, 1))[0])
+
+
+def mined_hinge(y_abs: jax.Array, level: jax.Array) -> jax.Array:
+    """max(0, log level − log |g|) [B]: |g| pushed above `level` on mined rows (jaml's own term).
+
+    Mined rows lie on the earlier relations' zero set away from the data; a relation that
+    vanishes there leaves that spurious part in the intersection. In log units the term is
+    blind to g's scale, and it stops acting once |g| clears the level.
+    """
+    return jnp.maximum(0.0, jnp.log(level + EPS) - jnp.log(y_abs + EPS))

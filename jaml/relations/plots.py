@@ -69,7 +69,7 @@ def manifold_points(rs: RelationSet, low, high, key, n_points=2000):
     low, high = np.asarray(low), np.asarray(high)
     start = jax.random.uniform(key, (n_points, low.shape[0]), minval=low, maxval=high)
     max_step = 0.1 * float(np.linalg.norm(high - low))
-    points, residuals = project(rs, start, steps=PROJECTION_STEPS, max_step=max_step)
+    points, residuals, _ = project(rs, start, steps=PROJECTION_STEPS, max_step=max_step)
     points = np.asarray(points)
     ok = _converged(rs, residuals) & np.all((points >= low) & (points <= high), -1)
     return points[ok], float(ok.mean())
@@ -166,7 +166,8 @@ def learned_transitions(rs: RelationSet, on: np.ndarray):
     free = np.zeros(on.shape[-1], bool)
     free[2:4] = True
     max_step = 0.1 * float(np.linalg.norm(on.max(0) - on.min(0)))
-    points, residuals = project(rs, start, steps=PROJECTION_STEPS, free=free, max_step=max_step)
+    points, residuals, _ = project(rs, start, steps=PROJECTION_STEPS, free=free,
+                                   max_step=max_step)
     return np.asarray(points), _converged(rs, residuals)
 
 

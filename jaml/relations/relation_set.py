@@ -2,11 +2,46 @@
 
 from __future__ import annotations
 
+import json
+from collections.abc import Mapping
+
 import jax
 import jax.numpy as jnp
 from flax import struct
 
 from jaml.relations.networks import Relation
+
+
+class Report(Mapping):
+    """A fit's quality report (`relations.quality.assess`): a read-only mapping of JSON values.
+
+    Hashable (by its JSON text), so a RelationSet carrying one stays a valid static pytree part.
+    """
+
+    def __init__(self, data: Mapping):
+        self._data = dict(data)
+        self._text = json.dumps(self._data, sort_keys=True, default=float)
+
+    def __getitem__(self, key):
+        return self._data[key]
+
+    def __iter__(self):
+        return iter(self._data)
+
+    def __len__(self):
+        return len(self._data)
+
+    def __hash__(self):
+        return hash(self._text)
+
+    def __eq__(self, other):
+        return isinstance(other, Report) and self._text == other._text
+
+    def to_dict(self) -> dict:
+        return json.loads(self._text)
+
+    def __repr__(self) -> str:
+        return "\n".join(self.get("lines", ()))
 
 
 @struct.dataclass
@@ -20,6 +55,8 @@ class RelationSet:
       tolerance: `holds` accepts |g_k| < tolerance × on_means[k].
       syzygies: restricted syzygies found (and pushed away from) per relation.
       dim_names: names of τ's coordinates, when the source gave them.
+      low, high: the box of the training data (per coordinate), `project`'s trust region.
+      quality: the fit's quality report on held-out rows (`relations.quality.assess`), or None.
     """
 
     params: tuple
@@ -31,6 +68,9 @@ class RelationSet:
     tolerance: float = struct.field(pytree_node=False, default=1.5)
     syzygies: tuple[int, ...] = struct.field(pytree_node=False, default=())
     dim_names: tuple[str, ...] = struct.field(pytree_node=False, default=())
+    low: tuple[float, ...] = struct.field(pytree_node=False, default=())
+    high: tuple[float, ...] = struct.field(pytree_node=False, default=())
+    quality: Report | None = struct.field(pytree_node=False, default=None)
 
     @property
     def num_relations(self) -> int:
@@ -46,8 +86,11 @@ class RelationSet:
         rows = "; ".join(f"g{k + 1}: width {w}, {m}"
                          for k, (w, m) in enumerate(zip(self.widths, means, strict=True)))
         names = f" ({', '.join(self.dim_names)})" if self.dim_names else ""
-        return (f"RelationSet({self.num_relations} relations of τ in R^{self.dim}{names}, depth "
-                f"{self.depth}, tolerance {self.tolerance}: {rows})")
+        head = (f"RelationSet({self.num_relations} relations of τ in R^{self.dim}{names}, depth "
+                f"{self.depth}, tolerance {self.tolerance:.3g}: {rows})")
+        if self.quality is None:
+            return head
+        return head + "\n" + "\n".join("  " + line for line in self.quality.get("lines", ()))
 
     def relation(self, k: int):
         """g_{k+1} as a function of τ [..., D] → [...]."""
@@ -61,6 +104,7 @@ class RelationSet:
             off_means=jnp.append(self.off_means, off_mean),
             widths=(*self.widths, width),
             syzygies=(*self.syzygies, syzygies),
+            quality=None,
         )
 
     def select(self, indices) -> RelationSet:
@@ -77,12 +121,15 @@ class RelationSet:
             off_means=self.off_means[idx],
             widths=tuple(self.widths[i] for i in indices),
             syzygies=syzygies,
+            quality=None,
         )
 
     @classmethod
-    def empty(cls, dim: int, depth: int, tolerance: float, dim_names=()) -> RelationSet:
+    def empty(cls, dim: int, depth: int, tolerance: float, dim_names=(), low=(), high=()
+              ) -> RelationSet:
         zeros = jnp.zeros((0,), jnp.float32)
-        return cls((), zeros, zeros, (), depth, dim, tolerance, (), tuple(dim_names))
+        return cls((), zeros, zeros, (), depth, dim, tolerance, (), tuple(dim_names),
+                   tuple(float(x) for x in low), tuple(float(x) for x in high))
 
 
 def _check_tau(rs: RelationSet, tau) -> jax.Array:

@@ -116,6 +116,16 @@ class _PartialDir:
         self.meta = None
 
 
+def _as_now(recorded: dict) -> dict:
+    """A recorded config.json with its relations config read as that run ran it
+    (`Config.from_record`), comparable with today's."""
+    try:
+        relations = Config.from_record(recorded.get("relations", {})).to_dict()
+    except (TypeError, ValueError):
+        return recorded
+    return recorded | {"relations": relations}
+
+
 def _restored_summary(rs: RelationSet, k: int) -> dict:
     """A summary entry rebuilt from a checkpoint whose summary.json was lost."""
     on, off = float(rs.on_means[k]), float(rs.off_means[k])
@@ -157,7 +167,7 @@ def run(
     with lock(out):  # one process per run directory (`_rundir.lock`)
         summary_path, ckpt_path = out / "summary.json", out / "checkpoint"
         start, done = None, []
-        resuming = claim(out, resolved)
+        resuming = claim(out, resolved, same=lambda recorded: _as_now(recorded) == resolved)
         partial = _PartialDir(out / "partial")
         if not resuming:
             partial.clear()
@@ -179,6 +189,7 @@ def run(
         summaries = list(done)
 
         def write_summary(rs: RelationSet | None, status: str):
+            report = rs.quality.to_dict() if rs is not None and rs.quality is not None else None
             write_json(
                 summary_path,
                 {
@@ -189,6 +200,8 @@ def run(
                     # Rank of the K×D Jacobian of all K relations on on-manifold rows.
                     "codimension": summaries[-1].get("codimension", {}) if summaries else {},
                     "relations": summaries,
+                    # The fit's quality report on held-out rows (`relations.quality.assess`).
+                    "quality": report,
                 },
             )
 
@@ -210,7 +223,15 @@ def run(
             raise
         finally:
             recorder.close()
-        status = "done" if rs.num_relations == cfg.max_relations else "stopped"
+        # "done" only where every relation met its stopping rule; the reason otherwise.
+        capped = [r["index"] for r in summaries if r["status"] not in ("done", "restored")]
+        if capped:
+            status = "capped: " + ", ".join(f"g{i}" for i in capped)
+        elif rs.num_relations < cfg.max_relations:
+            status = "done: complete at " + str(rs.num_relations)
+        else:
+            status = "done"
+        checkpoint.save(rs, ckpt_path)  # again, now with the quality report
         write_summary(rs, status)
         if figures and rs.num_relations:
             draw_figures(rs, source, out)

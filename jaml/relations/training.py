@@ -22,11 +22,12 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from jaml.relations import losses
+from jaml.relations import losses, quality
 from jaml.relations.config import Config
 from jaml.relations.data import Batches, prepare
 from jaml.relations.geometry import codimension
 from jaml.relations.loop import (
+    CAPPED,
     LOOP_COMPILER_OPTIONS,
     NONFINITE,
     ONCE_COMPILER_OPTIONS,
@@ -62,6 +63,8 @@ class RelationSummary:
     syzygy_rounds: list = dataclasses.field(default_factory=list)
     # `geometry.codimension` of g_1..g_index on fresh on-manifold rows: do they cut index dims?
     codimension: dict = dataclasses.field(default_factory=dict)
+    # `quality.landing` of g_1..g_index: where projected box points land (mining's measure).
+    landing: dict = dataclasses.field(default_factory=dict)
 
     @property
     def ratio(self) -> float:
@@ -85,7 +88,7 @@ def _relation_objective(
     syz_module = SyzygyCoefficients(max(len(earlier_modules), 1), cfg.syzygy_width, cfg.depth)
     B = cfg.batch_size
 
-    def objective(params, syz_params, earlier_params, on, off, thick):
+    def objective(params, syz_params, earlier_params, pool_count, on, off, thick, mined):
         g = lambda t: module.apply(params, t)  # noqa: E731
         pairs = zip(earlier_modules, earlier_params, strict=True)
         earlier = [(lambda t, m=m, p=p: m.apply(p, t)) for m, p in pairs]
@@ -107,6 +110,19 @@ def _relation_objective(
         converged = losses.separated(
             jnp.abs(y_on), jnp.abs(y_off), cfg.separation_ratio, cfg.separation_top_fraction
         )
+        # Mined rows: points of the earlier relations' (or this relation's) zero set away from
+        # the data. g_k must not vanish there, or the intersection keeps a spurious part.
+        has_pool = pool_count > 0
+        on_stat = jax.lax.stop_gradient(
+            losses.top_mean(jnp.abs(y_on), cfg.separation_top_fraction))
+        # |g_k| grows with the distance from the data along the earlier zero set: a flat level
+        # would leave local minima of |g_k| there, where projections stall.
+        y_mined = jnp.abs(g(mined[:, :-1]))
+        mined_term = jnp.where(has_pool, jnp.mean(losses.mined_hinge(
+            y_mined, cfg.separation_ratio * on_stat * mined[:, -1])), 0.0)
+        loss = loss + cfg.mined_weight * mined_term
+        metrics |= {"mined": mined_term, "mined_mean": jnp.mean(y_mined)}
+        converged &= ~has_pool | (jnp.mean(y_mined) > cfg.separation_ratio * on_stat)
         if cfg.objective == "reference":
             # Reference stopping also waits for mean ‖∇g/B‖ ≥ 0.9e-4.
             converged &= metrics["grad_norm"] / B >= 0.9 * losses.REF_GRAD_FLOOR
@@ -156,8 +172,11 @@ def relation_trainer(
     max_steps: int,
     syz_params=None,
     thickening: float = 0.0,
+    pool=None,
 ):
     """The compiled training loop of g_{K+1} given frozen `rs`: (chunk, initial state, args).
+
+    `pool` = (rows [C, D], count): mined points where g_{K+1} must not vanish (`mine`).
 
     `chunk(state, args)` runs `cfg.chunk_steps` optimizer steps in one jitted `lax.scan`.
     """
@@ -168,13 +187,18 @@ def relation_trainer(
     objective = _relation_objective(cfg, module, earlier, num_syz)
     optimizer = optax.adam(cfg.learning_rate)
 
+    if pool is None:
+        pool = empty_pool(cfg, batches.dim)
+    pool_rows, pool_count = pool
+
     def draw(key, args):
-        data = args[0]
-        k_on, k_off, k_thick, k_jit = jax.random.split(key, 4)
+        data, rows, count = args[0], args[3], args[4]
+        k_on, k_off, k_thick, k_jit, k_mined = jax.random.split(key, 5)
         thick = None
         if num_syz:  # syzygy push rounds only: skip the extra batch otherwise
             thick = thicken(k_jit, batches.on(k_thick, data), data.low, data.high, thickening)
-        return batches.on(k_on, data), batches.off(k_off, data), thick
+        mined = draw_mined(k_mined, rows, count, data, cfg.batch_size // MINED_SHARE)
+        return batches.on(k_on, data), batches.off(k_off, data), thick, mined
 
     def train_step(state, batch, args):
         return optimizer_step(
@@ -184,12 +208,52 @@ def relation_trainer(
             max_steps,
             args[1],
             args[2],
+            args[4],
             *batch,
             patience=cfg.stop_patience,
         )
 
     chunk = make_chunk(train_step, cfg.chunk_steps, draw)
-    return chunk, init_state(params, optimizer, key), (batches.data, syz_params, rs.params)
+    args = (batches.data, syz_params, rs.params, jnp.asarray(pool_rows),
+            jnp.asarray(pool_count, jnp.int32))
+    return chunk, init_state(params, optimizer, key), args
+
+
+MINED_SHARE = 4  # a step's mined rows: a quarter of its batch
+MINED_JITTER = 0.01  # mined rows are jittered by this share of the box, per coordinate
+
+
+def empty_pool(cfg: Config, dim: int):
+    """(rows [C, D + 1], count): mined points, each with its distance to the data (in units of
+    the landing distance) as a last column."""
+    return np.zeros((cfg.mine_points, dim + 1), np.float32), 0
+
+
+def draw_mined(key, rows, count, data, n: int):
+    """[n, D + 1] mined rows drawn with replacement from the first `count` of `rows`, jittered
+    (their distance column kept)."""
+    k_idx, k_jit = jax.random.split(key)
+    idx = jax.random.randint(k_idx, (n,), 0, jnp.maximum(count, 1))
+    dim = rows.shape[-1] - 1
+    jitter = (jax.random.uniform(k_jit, (n, dim)) - 0.5) * (data.high - data.low)
+    picked = rows[idx]
+    return jnp.concatenate([picked[:, :dim] + MINED_JITTER * jitter, picked[:, dim:]], -1)
+
+
+def mine(cfg: Config, rs: RelationSet, batches: Batches, key, within: float, pool=None):
+    """Points of {g_1 = … = g_K = 0} away from the data: n box points projected onto the zero
+    set, kept where they converged farther than `within` from the training rows. Returns the
+    pool (rows [C, D], count) with earlier pool rows after the new ones, and the landing shares.
+    """
+    land = quality.landing(rs, key, batches.low, batches.high, batches.dense, within,
+                           n=cfg.mine_points)
+    found = np.concatenate([land.pop("_spurious_points"),
+                            land.pop("_spurious_distances")[:, None] / within], -1)
+    old = pool[0][: pool[1]] if pool is not None else np.zeros((0, batches.dim + 1), np.float32)
+    rows = np.concatenate([found, old])[: cfg.mine_points]
+    padded = np.zeros((cfg.mine_points, batches.dim + 1), np.float32)
+    padded[: len(rows)] = rows
+    return (padded, len(rows)), land
 
 
 def _fit_relation(
@@ -205,10 +269,11 @@ def _fit_relation(
     phase="relation",
     compiled=None,
     partial: Partial | None = None,
+    pool=None,
 ):
     k = rs.num_relations
     chunk, state, args = relation_trainer(
-        cfg, batches, rs, params, key, max_steps, syz_params, thickening
+        cfg, batches, rs, params, key, max_steps, syz_params, thickening, pool
     )
     if compiled is not None:  # the same loop, compiled ahead of time by `_compile_ahead`
         chunk = compiled
@@ -406,7 +471,8 @@ def fit(
             raise ValueError(f"start relations take τ of size {start.dim}, data has {batches.dim}")
         rs = start
     else:
-        rs = RelationSet.empty(batches.dim, cfg.depth, cfg.tolerance, batches.dim_names)
+        rs = RelationSet.empty(batches.dim, cfg.depth, cfg.tolerance, batches.dim_names,
+                               np.asarray(batches.low), np.asarray(batches.high))
     if priors is not None and not all(p is None or callable(p) for p in priors):
         raise TypeError("priors must be a sequence of callables (or None entries)")
 
@@ -442,12 +508,32 @@ def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, 
     return {k_next: pool.submit(chunk.lower(state, args).compile, LOOP_COMPILER_OPTIONS)}
 
 
+COMPLETE = 0.02  # at most this share of projected box points on spurious zeros: complete
+CALIBRATION_ROWS = 4096  # training rows `holds`' tolerance is calibrated on
+
+
+def _grow(cfg, batches: Batches, rs: RelationSet, module, params, width, key, syzygies=0):
+    """rs with g = module(params) appended: its on/off means recorded on fresh batches and
+    `holds`' tolerance calibrated on training rows (`quality.calibrated_tolerance`)."""
+    on_mean, off_mean = record_means(cfg, batches, module, params, key)
+    grown = rs.append(params, on_mean, off_mean, width, syzygies)
+    tolerance = quality.calibrated_tolerance(grown, batches.dense[:CALIBRATION_ROWS])
+    return grown.replace(tolerance=tolerance), on_mean, off_mean
+
+
 def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partial=None):
     ahead = {}
+    statuses = ["restored"] * rs.num_relations
+    mining = cfg.mined_weight > 0
+    within = quality.landing_distance(batches.dense, batches.held_out, batches.low, batches.high)
+    codim = cfg.codimension or quality.data_codimension(batches.dense, jax.random.fold_in(key, 5))
+    log.info("the data's codimension: %d%s", codim, "" if cfg.codimension else
+             " (local PCA of the data; Config.codimension overrides it)")
     for k in range(rs.num_relations, cfg.max_relations):
         started = time.perf_counter()
         k_key = jax.random.fold_in(key, k)
         k_init, k_pre, k_train, k_syz, k_eval = jax.random.split(k_key, 5)
+        k_mine = jax.random.fold_in(k_key, 7)
         width = relation_width(k, cfg.base_width, cfg.max_width)
         module = Relation(width, cfg.depth)
         init = jax.jit(module.init, compiler_options=ONCE_COMPILER_OPTIONS)
@@ -456,6 +542,12 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
         resuming = partial is not None and partial.holds(k)
         if priors is not None and k < len(priors) and priors[k] is not None and not resuming:
             params = _pretrain(cfg, batches, module, params, priors[k], k_pre)
+        mined = None
+        # From the codim-th relation on, the intersection should be the data: its parts away
+        # from the data are spurious, and g_k is trained not to vanish there.
+        completing = k + 1 >= codim
+        if mining and completing and rs.num_relations:  # the earlier zero set, off the data
+            mined, _ = mine(cfg, rs, batches, jax.random.fold_in(k_mine, 0), within)
         compiled = ahead.pop(k, None)
         state = _fit_relation(
             cfg,
@@ -467,6 +559,7 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             callback=callback,
             compiled=compiled.result() if compiled is not None else None,
             partial=partial,
+            pool=mined,
         )
         steps, status, rounds = int(state.step), int(state.status), []
         if cfg.independence == "syzygy" and k > 0 and status != NONFINITE:
@@ -508,12 +601,46 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
                     thickening=level,
                     callback=callback,
                     phase="push",
+                    pool=mined,
                 )
                 steps += int(state.step)
                 status = int(state.status)
                 if status == NONFINITE:
                     break
-        on_mean, off_mean = record_means(cfg, batches, module, state.params, k_eval)
+        if status == NONFINITE:
+            log.error(
+                "relation %d: loss became non-finite at step %d; stopping with the %d "
+                "relations learned so far",
+                k + 1,
+                steps,
+                rs.num_relations,
+            )
+            break
+        grown, on_mean, off_mean = _grow(cfg, batches, rs, module, state.params, width, k_eval)
+        land = None
+        last = k + 1 == cfg.max_relations  # the final report measures it anyway
+        if completing and (mining or (cfg.stop_when_complete and not last)):
+            new_pool, land = mine(cfg, grown, batches, jax.random.fold_in(k_mine, 1), within,
+                                  mined)
+            for r in range(cfg.refine_rounds if mining else 0):
+                if land["spurious"] <= COMPLETE:
+                    break
+                # The intersection still has parts away from the data: train g_k on, pushed
+                # off the points that landed there (and those mined before).
+                log.info("relation %d: %.0f%% of projected box points land away from the data; "
+                         "refining (round %d)", k + 1, 100 * land["spurious"], r + 1)
+                mined = new_pool
+                state = _fit_relation(cfg, batches, rs, state.params,
+                                      jax.random.fold_in(k_train, 100 + r), cfg.max_steps,
+                                      callback=callback, phase="refine", pool=mined)
+                steps += int(state.step)
+                status = int(state.status)
+                if status == NONFINITE:
+                    break
+                grown, on_mean, off_mean = _grow(cfg, batches, rs, module, state.params, width,
+                                                 k_eval)
+                new_pool, land = mine(cfg, grown, batches, jax.random.fold_in(k_mine, 2 + r),
+                                      within, mined)
         summary = RelationSummary(
             index=k + 1,
             width=width,
@@ -525,20 +652,24 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             syzygies_found=sum(r["found"] for r in rounds),
             syzygy_rounds=rounds,
         )
-        if status != NONFINITE:
-            grown = rs.append(state.params, on_mean, off_mean, width)
-            rows = batches.on(jax.random.fold_in(k_eval, 1), batches.data, RANK_ROWS)
-            summary.codimension = codimension(grown, rows)
         if status == NONFINITE:
-            log.error(
-                "relation %d: loss became non-finite at step %d; stopping with the %d "
-                "relations learned so far",
-                k + 1,
-                steps,
-                rs.num_relations,
-            )
+            log.error("relation %d: loss became non-finite while refining; stopping with the "
+                      "%d relations learned so far", k + 1, rs.num_relations)
             break
-        rs = rs.append(state.params, on_mean, off_mean, width, summary.syzygies_found)
+        if status == CAPPED and summary.ratio < cfg.separation_ratio:
+            # Not a relation: it could not separate on- from off-manifold rows (the paper's
+            # termination: no further relation vanishes on the data and nowhere else).
+            log.warning(
+                "relation %d is not a relation (capped at %d steps, off/on %.1f < %g): dropped; "
+                "stopping with %d relations", k + 1, steps, summary.ratio,
+                cfg.separation_ratio, rs.num_relations)
+            break
+        rows = batches.on(jax.random.fold_in(k_eval, 1), batches.data, RANK_ROWS)
+        summary.codimension = codimension(grown, rows)
+        if land is not None:
+            summary.landing = {n: v for n, v in land.items() if not n.startswith("_")}
+        rs = grown.replace(syzygies=(*rs.syzygies, summary.syzygies_found))
+        statuses.append(summary.status)
         log.info(
             "relation %d %s after %d steps (%.1fs): mean |g| on %.4g off %.4g (x%.1f)",
             k + 1,
@@ -551,6 +682,17 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
         )
         if on_relation is not None:
             on_relation(rs, summary)
+        if cfg.stop_when_complete and land is not None and land["spurious"] <= COMPLETE and \
+                k + 1 < cfg.max_relations:
+            log.info("relations complete: %.0f%% of projected box points land on the data, "
+                     "none away from it; stopping at %d relations", 100 * land["landed"], k + 1)
+            break
+    if rs.num_relations:
+        report = quality.assess(rs, jax.random.fold_in(key, 10_000), batches.held_out,
+                                batches.dense, batches.low, batches.high, statuses, codim)
+        rs = rs.replace(quality=report)
+        for line in report["lines"]:
+            (log.warning if line.startswith("warning") else log.info)("%s", line)
     return rs
 
 

@@ -23,7 +23,7 @@ def _planes(tau):
 
 def test_linear_relations_project_in_one_step_to_the_nearest_point_of_their_intersection():
     tau = np.asarray(jax.random.normal(jax.random.key(0), (64, 3))) * 3.0
-    points, residuals = relations.project(_planes, tau, steps=1)
+    points, residuals, _ = relations.project(_planes, tau, steps=1)
     t = (tau - LINE_POINT) @ LINE_DIR / (LINE_DIR @ LINE_DIR)
     nearest = LINE_POINT + t[:, None] * LINE_DIR
     np.testing.assert_allclose(points, nearest, atol=1e-5)
@@ -38,7 +38,7 @@ def test_free_coordinates_solve_for_the_next_state_and_keep_the_start():
         return jnp.stack([s1 - s0 - v0 - c / 2, v1 - v0 - c], axis=-1)
 
     tau = np.asarray(jax.random.uniform(jax.random.key(1), (32, 4), minval=-1.0, maxval=1.0))
-    points, _ = relations.project(dynamics, tau, steps=1, free=[False, False, True, True])
+    points, _, _ = relations.project(dynamics, tau, steps=1, free=[False, False, True, True])
     np.testing.assert_allclose(points[:, :2], tau[:, :2], atol=1e-6)
     np.testing.assert_allclose(points[:, 2], tau[:, 0] + tau[:, 1] + c / 2, atol=1e-5)
     np.testing.assert_allclose(points[:, 3], tau[:, 1] + c, atol=1e-5)
@@ -48,7 +48,7 @@ def test_gauss_newton_reaches_the_true_ellipse_from_nearby_points():
     src = sources.make("ellipse")
     on = src.sample(jax.random.key(2), 256)
     start = on + 0.2 * jax.random.normal(jax.random.key(3), on.shape)
-    points, residuals = relations.project(src.residuals, start, steps=15)
+    points, residuals, _ = relations.project(src.residuals, start, steps=15)
     assert float(jnp.max(jnp.abs(residuals))) < 1e-4
     # Independent check: distance to a dense sampling of the curve (spacing ≈ 1.5e-4).
     t = np.linspace(0.0, 2.0 * np.pi, 100_000)
@@ -62,8 +62,8 @@ def test_project_on_a_relation_set_matches_its_function_form():
     params = module.init(jax.random.key(4), jnp.zeros((1, 3)))
     rs = RelationSet.empty(3, 2, 1.5).append(params, 0.1, 1.0, 4)
     tau = jax.random.normal(jax.random.key(5), (8, 3))
-    got, res = relations.project(rs, tau, steps=3)
-    want, want_res = relations.project(lambda t: relations.evaluate(rs, t), tau, steps=3)
+    got, res, _ = relations.project(rs, tau, steps=3)
+    want, want_res, _ = relations.project(lambda t: relations.evaluate(rs, t), tau, steps=3)
     np.testing.assert_allclose(got, want, atol=1e-5)
     np.testing.assert_allclose(res, want_res, atol=1e-6)
     assert res.shape == (8, 1)
@@ -109,3 +109,38 @@ def test_codimension_counts_dependent_and_degenerate_relations():
 def test_project_rejects_a_mask_of_the_wrong_size():
     with pytest.raises(ValueError, match="free"):
         relations.project(_planes, np.zeros((2, 3), np.float32), free=[True, False])
+
+
+def test_the_trust_region_keeps_a_saturated_relation_from_sending_points_away():
+    """g = tanh(5 (x − 0.5)) is flat far from its zero: an undamped Gauss–Newton step from
+    there is |g| / |g'| ≈ e^{10 |x − 0.5|} / 10 long. With the data box [0, 1]³ every step is
+    at most a tenth of its diagonal and every point stays in the box grown by half its width."""
+
+    def saturated(tau):
+        return jnp.tanh(5.0 * (tau[..., :1] - 0.5))
+
+    start = np.asarray(jax.random.uniform(jax.random.key(6), (256, 3), minval=-0.5, maxval=1.5))
+    x = start[:, 0]
+    undamped = np.abs(np.tanh(5 * (x - 0.5)) / (5 * (1 - np.tanh(5 * (x - 0.5)) ** 2)))
+    assert undamped.max() > 100  # the plain Gauss–Newton step the trust region prevents
+    out = relations.project(saturated, start, steps=50, bounds=(np.zeros(3), np.ones(3)))
+    points = np.asarray(out.points)
+    assert np.isfinite(points).all() and points.min() >= -0.5 and points.max() <= 1.5
+    np.testing.assert_allclose(points[:, 1:], start[:, 1:], atol=1e-6)  # only x moves
+    inside = np.abs(start[:, 0] - 0.5) < 0.5  # starts whose slope is not vanishingly small
+    assert np.asarray(out.converged)[inside].all()
+    np.testing.assert_allclose(points[inside, 0], 0.5, atol=1e-3)
+    # converged says so exactly where every |G_k| ≤ tolerance
+    np.testing.assert_array_equal(np.asarray(out.converged),
+                                  np.abs(np.asarray(out.residuals)[:, 0]) <= 1e-3)
+
+
+def test_a_relation_set_projects_inside_its_own_data_box():
+    module = Relation(4, 2)
+    params = module.init(jax.random.key(7), jnp.zeros((1, 3)))
+    rs = RelationSet.empty(3, 2, 1.5, low=(0.0, 0.0, 0.0), high=(1.0, 2.0, 1.0)).append(
+        params, 0.01, 1.0, 4)
+    start = jax.random.uniform(jax.random.key(8), (128, 3), minval=-3.0, maxval=3.0)
+    points = np.asarray(relations.project(rs, start).points)
+    low, high = np.array([-0.5, -1.0, -0.5]), np.array([1.5, 3.0, 1.5])
+    assert (points >= low - 1e-6).all() and (points <= high + 1e-6).all()

@@ -104,7 +104,7 @@ def test_points_projected_onto_the_learned_relations_lie_on_the_true_ellipse(ell
     box = jax.random.uniform(jax.random.key(32), (512, 3), minval=on.min(0), maxval=on.max(0))
     share = {}
     for name, start in (("near", near), ("box", box)):
-        points, _ = relations.project(rs, start, steps=30, max_step=0.5)
+        points = relations.project(rs, start, steps=30, max_step=0.5).points
         assert np.mean(np.asarray(relations.holds(rs, points))) >= 0.95, name
         distance = np.min(np.linalg.norm(np.asarray(points)[:, None] - curve[None], axis=-1), 1)
         share[name] = float(np.mean(distance < 0.05))
@@ -112,6 +112,34 @@ def test_points_projected_onto_the_learned_relations_lie_on_the_true_ellipse(ell
     # intersection also has branches off the ellipse, which catch a run-dependent share
     # (docs/results/aml_figures.md).
     assert share["near"] >= 0.8 and share["box"] >= 0.25, share
+
+
+def test_every_fit_carries_its_quality_report_measured_on_held_out_rows(ellipse, readme_relations):
+    """The report's fields, printed by the README's `print(rs)`; `holds` recalls ≥ 95 % of fresh
+    curve rows by its calibration, and `project` at its defaults keeps every point finite and
+    near the data's box."""
+    src, rs = ellipse
+    report = rs.quality
+    assert report["held_out_rows"] == 8192
+    assert [r["status"] for r in report["relations"]] == ["done", "done"]
+    assert all(r["ratio"] >= 5 for r in report["relations"])
+    assert report["independence"]["codimension"] == 2
+    assert report["independence"]["data_codimension"] == 2
+    assert report["independence"]["max_pair_cos"] < 0.5
+    land = report["landing"]
+    assert land["landed"] + land["spurious"] == pytest.approx(land["converged"])
+    assert land["landed"] > 0.2
+    assert "quality on 8192 held-out rows" in readme_relations[1]
+    fresh = src.sample(jax.random.key(41), 20_000)
+    assert float(np.mean(relations.holds(rs, fresh))) >= 0.95
+    assert report["holds"]["recall"] >= 0.95 and report["holds"]["off_acceptance"] < 0.05
+    box = jax.random.uniform(jax.random.key(42), (512, 3), minval=fresh.min(0),
+                             maxval=fresh.max(0))
+    points = np.asarray(relations.project(rs, box).points)
+    width = np.asarray(fresh.max(0) - fresh.min(0))
+    assert np.isfinite(points).all()
+    assert (points >= np.asarray(fresh.min(0)) - 0.51 * width).all()
+    assert (points <= np.asarray(fresh.max(0)) + 0.51 * width).all()
 
 
 @pytest.mark.parametrize("preset", ["block45",

@@ -1,0 +1,196 @@
+"""Is the learned zero set the data's? Measured on rows kept out of training.
+
+`assess` is the report every fit carries (`RelationSet.quality`): per relation, whether it met
+the stopping rule and how well it separates held-out on-manifold rows from off-manifold ones;
+whether the relations are independent (the rank of their Jacobian, the angles between their
+gradients); where points of the data's box land when projected onto {g = 0} (on the data, or on
+spurious parts of the zero set away from it); and how `holds` does on held-out rows.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.spatial import cKDTree
+
+from jaml.relations.geometry import codimension, pairwise_cosines, project
+from jaml.relations.relation_set import RelationSet, Report, evaluate
+
+log = logging.getLogger("jaml.relations")
+
+BOX_POINTS = 512  # box points projected to see where the zero set lies
+PROJECTION_STEPS = 50
+LANDING_FRACTION = 0.01  # "on the data": within this share of the box diagonal, ...
+LANDING_SPACING = 3.0  # ... or this many times the data sample's own spacing, if larger
+RECALL = 0.99  # `holds`' tolerance: this quantile of held-out rows' largest |g_k| / on-mean
+DEPENDENT_COS = 0.9  # a pair of relations whose gradients' median |cos| exceeds this: dependent
+SPURIOUS = 0.1  # warn when more than this share of converged box points lands off the data
+
+
+def nearest_distances(points, reference) -> np.ndarray:
+    """[M]: Euclidean distance from each point [M, D] to its nearest row of reference [R, D]
+    (a k-d tree: exact, and no program to compile)."""
+    return cKDTree(np.asarray(reference, np.float64)).query(np.asarray(points, np.float64))[0]
+
+
+def landing_distance(reference, held_out, low, high) -> float:
+    """The distance within which a projected point counts as on the data: a share of the box
+    diagonal, or a multiple of how far held-out rows lie from the reference sample (a sparse
+    sample of a manifold of dimension > 1 is farther apart), whichever is larger."""
+    diag = float(np.linalg.norm(np.asarray(high) - np.asarray(low)))
+    spacing = float(np.quantile(nearest_distances(held_out[:1024], reference), 0.95))
+    return max(LANDING_FRACTION * diag, LANDING_SPACING * spacing)
+
+
+def data_codimension(rows, key, sample: int = 1024, queries: int = 256, neighbours: int = 32,
+                     rtol: float = 0.2) -> int:
+    """D minus the data's local dimension, by PCA of each of `queries` rows' `neighbours` nearest
+    rows in a `sample` of rows [N, D]: the median count of singular values above rtol × the
+    largest. The number of relations whose joint zero set can be the data (no fewer)."""
+    rows = np.asarray(rows, np.float64)
+    rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel())
+    sub = rows[rng.permutation(rows.shape[0])[:sample]]
+    query = sub[rng.permutation(sub.shape[0])[:queries]]
+    _, idx = cKDTree(sub).query(query, k=min(neighbours, sub.shape[0]))
+    local = sub[idx] - sub[idx].mean(axis=1, keepdims=True)  # [Q, k, D]
+    s = np.linalg.svd(local, compute_uv=False)
+    dims = (s > rtol * s[:, :1]).sum(-1)
+    return int(rows.shape[1] - np.median(dims))
+
+
+def landing(relations, key, low, high, reference, within: float, n: int = BOX_POINTS,
+            steps: int = PROJECTION_STEPS, tolerance: float = 1e-3) -> dict:
+    """Project n uniform points of the box [low, high] onto {g = 0}; where do they land?
+
+    Returns shares of the n points: converged (every equation holds there), landed (converged
+    within `within` of a reference row) and spurious (converged farther away: a part of the zero
+    set that is not the data's), and the spurious points themselves ([M, D], host array).
+    """
+    low, high = jnp.asarray(low), jnp.asarray(high)
+    start = jax.random.uniform(key, (n, low.shape[0]), minval=low, maxval=high)
+    out = project(relations, start, steps=steps, bounds=(low, high), tolerance=tolerance)
+    dist = nearest_distances(out.points, reference)
+    converged = np.asarray(out.converged)
+    near = dist <= within
+    spurious = converged & ~near
+    return {
+        "points": n,
+        "within": float(within),
+        "converged": float(converged.mean()),
+        "landed": float((converged & near).mean()),
+        "spurious": float(spurious.mean()),
+        "median_distance": float(np.median(dist[converged])) if converged.any() else None,
+        "_spurious_points": np.asarray(out.points)[spurious],
+        "_spurious_distances": dist[spurious],
+    }
+
+
+def calibrated_tolerance(rs: RelationSet, held_out) -> float:
+    """`holds`' tolerance (in units of each relation's on-manifold mean) under which the RECALL
+    quantile of held-out rows holds: recall ≈ RECALL on fresh rows by construction."""
+    ratio = np.asarray(jnp.max(jnp.abs(evaluate(rs, held_out)) / rs.on_means, axis=-1))
+    return float(np.quantile(ratio, RECALL))
+
+
+def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
+           data_codim: int | None = None) -> Report:
+    """The quality report of `rs` on held-out rows [H, D]; `reference` [R, D] are training rows
+    (where "on the data" is measured), `statuses` each relation's end ("done" / "capped")."""
+    k_box, k_off = jax.random.split(key)
+    k = rs.num_relations
+    held_out = jnp.asarray(held_out)
+    g_on = np.abs(np.asarray(evaluate(rs, held_out)))
+    off = jax.random.uniform(k_off, held_out.shape, minval=jnp.asarray(low),
+                             maxval=jnp.asarray(high))
+    g_off = np.abs(np.asarray(evaluate(rs, off)))
+    relations = []
+    for j in range(k):
+        on_mean, off_mean = float(g_on[:, j].mean()), float(g_off[:, j].mean())
+        relations.append({
+            "index": j + 1,
+            "status": statuses[j] if j < len(statuses) else "restored",
+            "on_mean": on_mean,
+            "off_mean": off_mean,
+            "ratio": off_mean / max(on_mean, 1e-30),
+        })
+    codim = codimension(rs, held_out[:2048])
+    cos = pairwise_cosines(rs, held_out[:2048]) if k > 1 else np.ones((k, k))
+    upper = cos[np.triu_indices(k, 1)]
+    ranks = np.asarray(codim["rank_fractions"])
+    within = landing_distance(reference, held_out, low, high)
+    land = landing(rs, k_box, low, high, reference, within)
+    land.pop("_spurious_points")
+    land.pop("_spurious_distances")
+    holds_on = float(np.mean(np.all(g_on < rs.tolerance * np.asarray(rs.on_means), -1)))
+    holds_off = float(np.mean(np.all(g_off < rs.tolerance * np.asarray(rs.on_means), -1)))
+    report = {
+        "held_out_rows": int(held_out.shape[0]),
+        "relations": relations,
+        "independence": {
+            "rank_fractions": codim["rank_fractions"],
+            "full_rank_fraction": codim["full_rank_fraction"],
+            # The codimension the relations cut: the median rank of their Jacobian.
+            "codimension": int(np.searchsorted(np.cumsum(ranks), 0.5)),
+            "data_codimension": data_codim,
+            "median_abs_cos": cos.tolist(),
+            "max_pair_cos": float(upper.max()) if upper.size else None,
+        },
+        "landing": land,
+        "holds": {"tolerance": rs.tolerance, "recall": holds_on, "off_acceptance": holds_off},
+    }
+    report["warnings"] = _warnings(report)
+    report["lines"] = _lines(report)
+    return Report(report)
+
+
+def _warnings(report: dict) -> list[str]:
+    out = []
+    for r in report["relations"]:
+        if r["status"] != "done":
+            out.append(f"g{r['index']} {r['status']}: it did not meet the stopping rule "
+                       f"(held-out off/on {r['ratio']:.1f})")
+    cos = np.asarray(report["independence"]["median_abs_cos"])
+    for i, j in zip(*np.triu_indices(len(cos), 1), strict=True):
+        if cos[i, j] > DEPENDENT_COS:
+            out.append(f"g{i + 1} and g{j + 1} are dependent: their gradients' median |cos| on "
+                       f"held-out rows is {cos[i, j]:.2f}")
+    land = report["landing"]
+    if land["converged"] > 0 and land["spurious"] > SPURIOUS * land["converged"]:
+        out.append(f"the zero set has parts away from the data: {100 * land['spurious']:.0f}% of "
+                   f"projected box points land on it farther than {land['within']:.3g} from "
+                   f"the data")
+    return out
+
+
+def _lines(report: dict) -> list[str]:
+    rel = "; ".join(f"g{r['index']} {r['status']} off/on {r['ratio']:.1f}"
+                    for r in report["relations"])
+    ind, land, hold = report["independence"], report["landing"], report["holds"]
+    lines = [
+        f"quality on {report['held_out_rows']} held-out rows: {rel}",
+        f"independence: rank {len(ind['median_abs_cos'])} on "
+        f"{100 * ind['full_rank_fraction']:.0f}% of rows (codimension {ind['codimension']}"
+        + (f"; the data's, by local PCA: {ind['data_codimension']}"
+           if ind.get("data_codimension") is not None else "") + "), "
+        + (f"largest pairwise median |cos| {ind['max_pair_cos']:.2f}"
+           if ind["max_pair_cos"] is not None else "one relation"),
+        f"projection: {100 * land['landed']:.0f}% of {land['points']} box points land on the "
+        f"data (within {land['within']:.3g}), {100 * land['spurious']:.0f}% on spurious zeros, "
+        f"{100 * (1 - land['converged']):.0f}% not converged",
+        f"holds: recall {100 * hold['recall']:.1f}% of held-out rows, accepts "
+        f"{100 * hold['off_acceptance']:.1f}% of box rows (tolerance {hold['tolerance']:.3g})",
+    ]
+    return lines + [f"warning: {w}" for w in report["warnings"]]
+
+
+__all__ = [
+    "assess",
+    "calibrated_tolerance",
+    "data_codimension",
+    "landing",
+    "landing_distance",
+    "nearest_distances",
+]

@@ -1,0 +1,114 @@
+"""Guards of a fit: degenerate data refused or handled before training, `holds` calibrated to
+its recall, a relation that cannot separate dropped, and the quality report's measures checked
+against closed forms."""
+
+import logging
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaml import relations
+from jaml.relations import quality
+from jaml.relations.data import MIN_ROWS, padded_box, prepare
+from jaml.relations.networks import Relation
+from jaml.relations.relation_set import RelationSet
+
+
+def _circle(n, z=0.3, seed=0):
+    t = np.random.default_rng(seed).uniform(0, 2 * np.pi, n)
+    return np.stack([np.cos(t), np.sin(t), np.full(n, z)], -1).astype(np.float32)
+
+
+def test_nan_rows_are_refused_with_the_fix():
+    rows = _circle(256)
+    rows[[3, 7], 1] = np.nan
+    with pytest.raises(ValueError, match=r"2 rows, first at row 3: drop them first"):
+        relations.fit(rows, relations.Config(max_relations=1))
+
+
+def test_too_few_rows_are_refused_before_training():
+    with pytest.raises(ValueError, match=f"at least {MIN_ROWS} are needed"):
+        relations.fit(_circle(MIN_ROWS - 1), relations.Config(max_relations=1))
+
+
+def test_a_constant_column_pads_its_box_and_says_which_relation_it_is(caplog):
+    rows = _circle(1000)
+    with caplog.at_level(logging.WARNING, logger="jaml.relations.data"):
+        low, high = padded_box(rows.min(0), rows.max(0), ("x", "y", "z"))
+    assert "z is constant (0.3): it is the relation z = 0.3" in caplog.text
+    np.testing.assert_allclose(high - low, [2.0, 2.0, 0.2], atol=1e-3)  # 10 % of the widest
+    np.testing.assert_allclose((low + high)[2] / 2, 0.3, atol=1e-6)
+
+
+def test_held_out_rows_never_train():
+    rows = np.random.default_rng(1).normal(size=(5000, 3)).astype(np.float32)
+    batches = prepare(rows, 256, 0.0, jax.random.key(0), 4)
+    train = {tuple(r) for r in np.asarray(batches.rows)}
+    held = {tuple(r) for r in np.asarray(batches.held_out)}
+    assert len(held) == 500 and not train & held and len(train) + len(held) == 5000
+
+
+def _random_set(seed=0):
+    params = Relation(8, 2).init(jax.random.key(seed), jnp.zeros((1, 3)))
+    return RelationSet.empty(3, 2, 1.5).append(params, 0.05, 1.0, 8)
+
+
+def test_holds_calibrated_on_rows_accepts_that_share_of_fresh_rows():
+    """The tolerance is the RECALL quantile of max_k |g_k| / on-mean on calibration rows, so
+    fresh rows of the same law pass at that rate (binomial spread: ±1 % at 8,192 rows)."""
+    rs = _random_set()
+    calib = jax.random.normal(jax.random.key(1), (8192, 3)) * 0.2
+    fresh = jax.random.normal(jax.random.key(2), (8192, 3)) * 0.2
+    tol = quality.calibrated_tolerance(rs, calib)
+    ratio = np.abs(np.asarray(relations.evaluate(rs, calib)))[:, 0] / 0.05
+    assert tol == pytest.approx(np.quantile(ratio, quality.RECALL), rel=1e-5)
+    recall = float(np.mean(relations.holds(rs.replace(tolerance=tol), fresh)))
+    assert abs(recall - quality.RECALL) < 0.01
+
+
+def test_data_codimension_of_a_curve_a_surface_and_a_plane_in_r4():
+    key = jax.random.key(3)
+    circle = _circle(4000)
+    u = np.random.default_rng(2).normal(size=(4000, 3))
+    sphere = u / np.linalg.norm(u, axis=1, keepdims=True)
+    s0v0 = np.random.default_rng(3).uniform(-1, 1, (4000, 2))
+    block = np.concatenate([s0v0, s0v0 @ np.array([[1.0, 0.0], [1.0, 1.0]]) + 0.5], -1)
+    assert quality.data_codimension(circle, key) == 2
+    assert quality.data_codimension(sphere, key) == 1
+    assert quality.data_codimension(block, key) == 2
+
+
+def test_the_true_ellipse_relations_land_every_box_point_and_a_spurious_pair_does_not():
+    """The landing measure against closed forms: plane ∩ hyperboloid is the ellipse; plane ∩
+    (hyperboloid · another plane) adds a line across it, which catches projected points."""
+    t = np.random.default_rng(4).uniform(0, 2 * np.pi, 20_000)
+    curve = np.stack([np.sqrt(2) * np.cos(t), 2 * np.sin(t) - 1, np.sin(t) - 1], -1)
+    low, high = curve.min(0), curve.max(0)
+
+    def true(tau):
+        x, y, z = (tau[..., i] for i in range(3))
+        return jnp.stack([y - 2 * z - 1, x**2 + y**2 - 2 * z**2 - 1], -1)
+
+    def spurious(tau):
+        g = true(tau)
+        return jnp.stack([g[..., 0], g[..., 1] * tau[..., 0]], -1)  # also x = 0 in the plane
+
+    within = quality.landing_distance(curve, curve[:1024], low, high)
+    good = quality.landing(true, jax.random.key(5), low, high, curve, within, tolerance=1e-4)
+    bad = quality.landing(spurious, jax.random.key(5), low, high, curve, within, tolerance=1e-4)
+    assert good["landed"] >= 0.97 and good["spurious"] <= 0.01, good
+    assert bad["spurious"] >= 0.1 and bad["landed"] <= good["landed"] - 0.1, bad
+
+
+def test_uniform_noise_has_no_relation_and_the_capped_one_is_dropped(caplog):
+    """Rows filling their box have nothing that vanishes on them and nowhere else: g_1 caps
+    without separating and is dropped, not returned as a relation."""
+    rows = np.random.default_rng(5).uniform(-1, 1, (4096, 3)).astype(np.float32)
+    cfg = relations.Config(max_relations=2, max_steps=300, chunk_steps=100, stop_patience=20,
+                           batch_size=256, eval_batches=2, codimension=1)
+    with caplog.at_level(logging.WARNING, logger="jaml.relations"):
+        rs = relations.fit(rows, cfg)
+    assert rs.num_relations == 0
+    assert "relation 1 is not a relation (capped at 300 steps" in caplog.text

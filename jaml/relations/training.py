@@ -656,7 +656,7 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             log.error("relation %d: loss became non-finite while refining; stopping with the "
                       "%d relations learned so far", k + 1, rs.num_relations)
             break
-        if status == CAPPED and summary.ratio < cfg.separation_ratio:
+        if cfg.stop_when_complete and status == CAPPED and summary.ratio < cfg.separation_ratio:
             # Not a relation: it could not separate on- from off-manifold rows (the paper's
             # termination: no further relation vanishes on the data and nowhere else).
             log.warning(

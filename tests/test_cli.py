@@ -86,7 +86,8 @@ def test_a_second_run_reads_the_compilation_cache(tmp_path):
 # One config/CLI mechanism: typed, complete help; one-line errors; --debug; file sources.
 
 TINY = ["--max-relations", "1", "--max-steps", "20", "--chunk-steps", "20", "--batch-size", "32",
-        "--stop-patience", "1", "--eval-batches", "1", "--no-progress"]
+        "--stop-patience", "1", "--eval-batches", "1", "--no-progress", "--mined-weight", "0",
+        "--no-stop-when-complete"]
 
 
 @pytest.mark.parametrize("command", ["relations", "suite", "fig2", "fig3", "fig9", "demo", "envs",

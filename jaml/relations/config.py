@@ -56,13 +56,13 @@ class Config:
         gradients to exceed this (radians; reference 0.4·π/2).
       tolerance: `holds` accepts τ when every |g_k(τ)| < tolerance × its recorded on-manifold mean.
       noise_scale: uniform noise, as a fraction of the data box, added to on and off rows.
-      mined_weight: weight of jaml's mined-rows term; 0 (the default, by measurement: see
-        docs/notes/relations.md "Mining spurious zeros") is the paper's algorithm. Before g_k
-        trains, box points are projected onto {g_1 = … = g_{k−1} = 0}; those landing away
-        from the data are rows where g_k is pushed not to vanish.
+      mined_weight: weight of jaml's mined-rows term (0 turns mining off: the paper's
+        algorithm). From the data's codimension-th relation on, box points are projected onto
+        the intersection; where they converge away from the data, g_k is refined not to vanish
+        (a round kept only if more projected points then land on the data).
       mine_points: box points projected per mining round (and the capacity of the mined pool).
-      refine_rounds: after g_k stops, rounds of {project onto {g_1 = … = g_k = 0}, mine the
-        points landing away from the data, train g_k on on, while any land there}.
+      refine_rounds: after g_k stops, at most this many rounds of {project onto
+        {g_1 = … = g_k = 0}, mine the points landing away from the data, train g_k on}.
       codimension: D minus the data manifold's dimension; None estimates it by local PCA.
         Mining and refining start at the codimension-th relation (before it, the intersection
         is meant to be larger than the data).
@@ -95,8 +95,8 @@ class Config:
     stop_patience: int = 250
     tolerance: float = 1.5
     noise_scale: float = 0.0
-    mined_weight: float = 0.0
-    mine_points: int = 1024
+    mined_weight: float = 1.0
+    mine_points: int = 512
     refine_rounds: int = 2
     codimension: int | None = None
     stop_when_complete: bool = True

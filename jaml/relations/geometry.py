@@ -12,9 +12,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaml.relations.loop import ONCE_COMPILER_OPTIONS
-from jaml.relations.relation_set import RelationSet, _check_tau, evaluate, holds
+from jaml.relations.relation_set import RelationSet, _check_tau, evaluate, evaluate_raw, holds
 
 DEFAULT_RANK_RTOL = 0.1  # σ_i / σ_1 of the row-normalised Jacobian; for K = 2, tan(θ/2) > 0.1
+
+
+def _canonical(rs: RelationSet) -> RelationSet:
+    """rs without the static fields no computation here reads (its tolerance, box, names,
+    report): one compiled program serves every set of the same shapes."""
+    return rs.replace(tolerance=1.0, syzygies=(), dim_names=(), low=(), high=(), quality=None)
 
 
 def _relations_fn(relations) -> Callable:
@@ -73,11 +79,13 @@ BOX_MARGIN = 0.5
 
 @functools.partial(jax.jit, static_argnames="steps")
 def _project_set(rs: RelationSet, tau, mask, low, high, steps: int, rtol, max_step):
+    # Gauss–Newton on atanh g (the outputs before their tanh): the same zero set, but no
+    # plateau where a relation saturates at ±1 and its gradient underflows to zero.
     scale = 1.0 / jnp.maximum(rs.on_means, 1e-30)
-    points, residuals = _gauss_newton(
-        lambda t: evaluate(rs, t) * scale, tau, mask, low, high, steps, rtol, max_step
+    points, _ = _gauss_newton(
+        lambda t: evaluate_raw(rs, t) * scale, tau, mask, low, high, steps, rtol, max_step
     )
-    return points, residuals / scale
+    return points, evaluate(rs, points)
 
 
 def trust_region(bounds, dim: int, max_step=None):
@@ -131,7 +139,8 @@ def project(relations, tau, steps: int = 50, free=None, max_step: float | None =
     low = jnp.where(mask > 0, low, -jnp.inf)
     high = jnp.where(mask > 0, high, jnp.inf)
     if isinstance(relations, RelationSet):
-        points, residuals = _project_set(relations, flat, mask, low, high, steps, rtol, max_step)
+        points, residuals = _project_set(_canonical(relations), flat, mask, low, high, steps,
+                                         rtol, max_step)
         converged = holds(relations, points)
     else:
         run = jax.jit(functools.partial(_gauss_newton, _relations_fn(relations), steps=steps))
@@ -166,7 +175,7 @@ def _jacobian_geometry_set(rs: RelationSet, tau):
 def _geometry(relations, tau):
     tau = jnp.asarray(tau).reshape(-1, jnp.shape(tau)[-1])
     if isinstance(relations, RelationSet):
-        out = _jacobian_geometry_set(relations, _check_tau(relations, tau))
+        out = _jacobian_geometry_set(_canonical(relations), _check_tau(relations, tau))
     else:
         out = jax.jit(functools.partial(_jacobian_geometry, _relations_fn(relations)))(tau)
     return tuple(np.asarray(x) for x in out)

@@ -130,6 +130,8 @@ def mined_hinge(y_abs: jax.Array, level: jax.Array) -> jax.Array:
 
     Mined rows lie on the earlier relations' zero set away from the data; a relation that
     vanishes there leaves that spurious part in the intersection. In log units the term is
-    blind to g's scale, and it stops acting once |g| clears the level.
+    blind to g's scale, and it stops acting once |g| clears the level; a floor of 1 % of the
+    level inside the logarithm keeps its gradient bounded where g is still zero.
     """
-    return jnp.maximum(0.0, jnp.log(level + EPS) - jnp.log(y_abs + EPS))
+    floor = 0.01 * level + EPS  # bounds the gradient where g is still zero
+    return jnp.maximum(0.0, jnp.log(level + EPS) - jnp.log(y_abs + floor))

@@ -85,10 +85,11 @@ class Relation(nn.Module):
 
     width: int
     depth: int = 3
+    raw: bool = False  # the output before its tanh: the same zero set, never saturated
 
     @nn.compact
     def __call__(self, tau):
-        """tau [..., D] → g(tau) [...]."""
+        """tau [..., D] → g(tau) [...] (atanh g(tau) when raw)."""
         lead, dim = tau.shape[:-1], tau.shape[-1]
         h = tau.reshape(-1, dim).T  # [D, N]
         fan_in = dim
@@ -97,7 +98,9 @@ class Relation(nn.Module):
             name = f"hidden{i}" if i < self.depth else "out"
             kernel = self.param(f"{name}_kernel", _bias_init(fan_in), (out, fan_in))
             bias = self.param(f"{name}_bias", _bias_init(fan_in), (out, 1))
-            h = tanh(kernel @ h + bias)
+            h = kernel @ h + bias
+            if i < self.depth or not self.raw:
+                h = tanh(h)
             fan_in = out
         return h[0].reshape(lead)
 

@@ -45,13 +45,23 @@ def landing_distance(reference, held_out, low, high) -> float:
     return max(LANDING_FRACTION * diag, LANDING_SPACING * spacing)
 
 
+def _uniform(key, n: int, low, high) -> np.ndarray:
+    """[n, D] uniform points of the box, drawn by numpy from the JAX key (no program to
+    compile for a draw made once)."""
+    return _rng(key).uniform(low, high, (n, len(low))).astype(np.float32)
+
+
+def _rng(key) -> np.random.Generator:
+    return np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel())
+
+
 def data_codimension(rows, key, sample: int = 1024, queries: int = 256, neighbours: int = 32,
                      rtol: float = 0.2) -> int:
     """D minus the data's local dimension, by PCA of each of `queries` rows' `neighbours` nearest
     rows in a `sample` of rows [N, D]: the median count of singular values above rtol × the
     largest. The number of relations whose joint zero set can be the data (no fewer)."""
     rows = np.asarray(rows, np.float64)
-    rng = np.random.default_rng(np.asarray(jax.random.key_data(key)).ravel())
+    rng = _rng(key)
     sub = rows[rng.permutation(rows.shape[0])[:sample]]
     query = sub[rng.permutation(sub.shape[0])[:queries]]
     _, idx = cKDTree(sub).query(query, k=min(neighbours, sub.shape[0]))
@@ -69,8 +79,8 @@ def landing(relations, key, low, high, reference, within: float, n: int = BOX_PO
     within `within` of a reference row) and spurious (converged farther away: a part of the zero
     set that is not the data's), and the spurious points themselves ([M, D], host array).
     """
-    low, high = jnp.asarray(low), jnp.asarray(high)
-    start = jax.random.uniform(key, (n, low.shape[0]), minval=low, maxval=high)
+    low, high = np.asarray(low, np.float32), np.asarray(high, np.float32)
+    start = _uniform(key, n, low, high)
     out = project(relations, start, steps=steps, bounds=(low, high), tolerance=tolerance)
     dist = nearest_distances(out.points, reference)
     converged = np.asarray(out.converged)
@@ -103,8 +113,7 @@ def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
     k = rs.num_relations
     held_out = jnp.asarray(held_out)
     g_on = np.abs(np.asarray(evaluate(rs, held_out)))
-    off = jax.random.uniform(k_off, held_out.shape, minval=jnp.asarray(low),
-                             maxval=jnp.asarray(high))
+    off = jnp.asarray(_uniform(k_off, held_out.shape[0], np.asarray(low), np.asarray(high)))
     g_off = np.abs(np.asarray(evaluate(rs, off)))
     relations = []
     for j in range(k):

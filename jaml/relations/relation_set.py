@@ -92,9 +92,10 @@ class RelationSet:
             return head
         return head + "\n" + "\n".join("  " + line for line in self.quality.get("lines", ()))
 
-    def relation(self, k: int):
-        """g_{k+1} as a function of τ [..., D] → [...]."""
-        module = Relation(self.widths[k], self.depth)
+    def relation(self, k: int, raw: bool = False):
+        """g_{k+1} as a function of τ [..., D] → [...]; raw: its output before the final tanh
+        (atanh g: the same zero set, with no plateau where g saturates at ±1)."""
+        module = Relation(self.widths[k], self.depth, raw)
         return lambda tau: module.apply(self.params[k], tau)
 
     def append(self, params, on_mean, off_mean, width: int, syzygies: int = 0) -> RelationSet:
@@ -147,6 +148,14 @@ def evaluate(rs: RelationSet, tau) -> jax.Array:
     if rs.num_relations == 0:
         return jnp.zeros((*tau.shape[:-1], 0), tau.dtype)
     return jnp.stack([rs.relation(k)(tau) for k in range(rs.num_relations)], axis=-1)
+
+
+def evaluate_raw(rs: RelationSet, tau) -> jax.Array:
+    """[..., K]: atanh g_1..g_K at tau [..., D], the relations before their output tanh."""
+    tau = _check_tau(rs, tau)
+    if rs.num_relations == 0:
+        return jnp.zeros((*tau.shape[:-1], 0), tau.dtype)
+    return jnp.stack([rs.relation(k, raw=True)(tau) for k in range(rs.num_relations)], axis=-1)
 
 
 def penalty(rs: RelationSet, tau) -> jax.Array:

@@ -231,7 +231,10 @@ def run(
             status = "done: complete at " + str(rs.num_relations)
         else:
             status = "done"
-        checkpoint.save(rs, ckpt_path)  # again, now with the quality report
+        if rs.num_relations:
+            checkpoint.save(rs, ckpt_path)  # again, now with the quality report
+        else:
+            status = "no relation: none separated on- from off-manifold rows"
         write_summary(rs, status)
         if figures and rs.num_relations:
             draw_figures(rs, source, out)

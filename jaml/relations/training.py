@@ -31,6 +31,7 @@ from jaml.relations.loop import (
     LOOP_COMPILER_OPTIONS,
     NONFINITE,
     ONCE_COMPILER_OPTIONS,
+    PASS_RATE,
     STATUS_NAMES,
     LoopState,
     init_state,
@@ -65,6 +66,7 @@ class RelationSummary:
     codimension: dict = dataclasses.field(default_factory=dict)
     # `quality.landing` of g_1..g_index: where projected box points land (mining's measure).
     landing: dict = dataclasses.field(default_factory=dict)
+    refined: int = 0  # refinement rounds kept (they moved more projected points onto the data)
 
     @property
     def ratio(self) -> float:
@@ -79,7 +81,8 @@ def _frozen_relations(rs: RelationSet):
 
 
 def _relation_objective(
-    cfg: Config, module: Relation, earlier_modules: Sequence[Relation], num_syz: int
+    cfg: Config, module: Relation, earlier_modules: Sequence[Relation], num_syz: int,
+    with_mined: bool = True,
 ):
     """The per-step loss of g_k: (params, frozen syzygy params, frozen g_j params, batches) →
     (loss, aux). The frozen relations' parameters are arguments, not constants, so the compiled
@@ -107,22 +110,18 @@ def _relation_objective(
             grad_term = jnp.mean(losses.reference_gradient_term(v, B))
         loss = first + grad_term
         metrics |= {"distance": first, "gradient_term": grad_term}
-        converged = losses.separated(
-            jnp.abs(y_on), jnp.abs(y_off), cfg.separation_ratio, cfg.separation_top_fraction
-        )
-        # Mined rows: points of the earlier relations' (or this relation's) zero set away from
-        # the data. g_k must not vanish there, or the intersection keeps a spurious part.
-        has_pool = pool_count > 0
+        # The stopping rule (`losses.separated`), its on-manifold statistic kept for below.
         on_stat = jax.lax.stop_gradient(
             losses.top_mean(jnp.abs(y_on), cfg.separation_top_fraction))
-        # |g_k| grows with the distance from the data along the earlier zero set: a flat level
-        # would leave local minima of |g_k| there, where projections stall.
-        y_mined = jnp.abs(g(mined[:, :-1]))
-        mined_term = jnp.where(has_pool, jnp.mean(losses.mined_hinge(
-            y_mined, cfg.separation_ratio * on_stat * mined[:, -1])), 0.0)
-        loss = loss + cfg.mined_weight * mined_term
-        metrics |= {"mined": mined_term, "mined_mean": jnp.mean(y_mined)}
-        converged &= ~has_pool | (jnp.mean(y_mined) > cfg.separation_ratio * on_stat)
+        converged = cfg.separation_ratio * on_stat < jnp.mean(jnp.abs(y_off))
+        if with_mined:
+            mined_term, cleared = _mined_term(cfg, g(mined[:, :-1]), mined[:, -1], on_stat,
+                                              first)
+            has_pool = pool_count > 0
+            mined_term = jnp.where(has_pool, mined_term, 0.0)
+            loss = loss + cfg.mined_weight * mined_term
+            metrics |= {"mined": mined_term, "mined_cleared": cleared}
+            converged &= ~has_pool | (cleared >= PASS_RATE)
         if cfg.objective == "reference":
             # Reference stopping also waits for mean ‖∇g/B‖ ≥ 0.9e-4.
             converged &= metrics["grad_norm"] / B >= 0.9 * losses.REF_GRAD_FLOOR
@@ -163,6 +162,22 @@ def _relation_objective(
     return objective
 
 
+def _mined_term(cfg: Config, y_mined, distance, on_stat, first):
+    """(loss term, share of rows cleared) on mined rows: points of the intersection so far
+    away from the data, where g_k must not vanish or the intersection keeps a spurious part.
+
+    |g_k| is pushed above a level growing with the row's distance from the data (in landing
+    distances; a flat level would leave local minima of |g_k| there), the term scaled to at
+    most twice the first, like the paper's other terms: vanishing on the data leads. A row is
+    cleared at half its level; the stopping rule wants 90 % cleared (a mean could hide rows at
+    zero).
+    """
+    level = cfg.separation_ratio * on_stat * distance
+    y_mined = jnp.abs(y_mined)
+    term = losses.clip_to(jnp.mean(losses.mined_hinge(y_mined, level)), first)
+    return term, jnp.mean(y_mined >= 0.5 * level)
+
+
 def relation_trainer(
     cfg: Config,
     batches: Batches,
@@ -173,6 +188,7 @@ def relation_trainer(
     syz_params=None,
     thickening: float = 0.0,
     pool=None,
+    with_mined: bool = True,
 ):
     """The compiled training loop of g_{K+1} given frozen `rs`: (chunk, initial state, args).
 
@@ -184,7 +200,7 @@ def relation_trainer(
     module = Relation(relation_width(k, cfg.base_width, cfg.max_width), cfg.depth)
     earlier = [Relation(w, rs.depth) for w in rs.widths]
     num_syz = 0 if syz_params is None else int(jax.tree.leaves(syz_params)[0].shape[0])
-    objective = _relation_objective(cfg, module, earlier, num_syz)
+    objective = _relation_objective(cfg, module, earlier, num_syz, with_mined)
     optimizer = optax.adam(cfg.learning_rate)
 
     if pool is None:
@@ -256,6 +272,12 @@ def mine(cfg: Config, rs: RelationSet, batches: Batches, key, within: float, poo
     return (padded, len(rows)), land
 
 
+def _with_mined(cfg: Config, k: int, codim: int) -> bool:
+    """Whether g_{k+1}'s loop carries the mined-rows term: mining is on, and g_{k+1} is at or
+    beyond the data's codimension (before it, the intersection is meant to exceed the data)."""
+    return cfg.mined_weight > 0 and k + 1 >= codim
+
+
 def _fit_relation(
     cfg,
     batches: Batches,
@@ -270,13 +292,30 @@ def _fit_relation(
     compiled=None,
     partial: Partial | None = None,
     pool=None,
+    budget: int | None = None,
+    programs: dict | None = None,
+    codim: int = 1,
 ):
+    """Train g_{K+1} until its stopping rule holds or it has taken `max_steps` (or `budget`)
+    steps; returns its loop state, `step` counting the steps taken here.
+
+    `programs` keeps the compiled plain loop of each relation, so later rounds (refinement)
+    run it again rather than compile their own: a `budget` below `max_steps` starts the step
+    counter at max_steps − budget instead of building a loop with another cap.
+    """
     k = rs.num_relations
     chunk, state, args = relation_trainer(
-        cfg, batches, rs, params, key, max_steps, syz_params, thickening, pool
+        cfg, batches, rs, params, key, max_steps, syz_params, thickening, pool,
+        with_mined=_with_mined(cfg, rs.num_relations, codim),
     )
     if compiled is not None:  # the same loop, compiled ahead of time by `_compile_ahead`
         chunk = compiled
+    if programs is not None and syz_params is None:
+        chunk = programs.setdefault(k, chunk)
+    start = 0
+    if budget is not None:
+        start = max(max_steps - budget, 0)
+        state = state.replace(step=jnp.asarray(start, jnp.int32))
     report = None
     if callback is not None:
         report = lambda s, m, n: callback(phase, k, {"step": int(s.step), "steps": n, **m})  # noqa: E731
@@ -286,7 +325,8 @@ def _fit_relation(
         if restored is not None:
             state = restored
         keep = lambda s: partial.save(k, s)  # noqa: E731
-    return run_until_done(chunk, state, args, report, keep)
+    final = run_until_done(chunk, state, args, report, keep)
+    return final.replace(step=final.step - start)
 
 
 def fit_syzygy(
@@ -376,11 +416,19 @@ def choose_thickening(cfg, batches: Batches, rs: RelationSet, key) -> float:
 def record_means(cfg, batches: Batches, module, params, key):
     """Mean |g| of g = module.apply(params, ·) over `eval_batches` fresh on- and off-manifold
     batches (App. B.3.1)."""
-    n = cfg.batch_size * cfg.eval_batches
+    # The samplers read their arrays from `data`: the program depends on the rest alone.
+    shape_only = batches._replace(rows=None, low=None, high=None, held_out=None, dense=None)
+    means = _means_program(shape_only, module, cfg.batch_size * cfg.eval_batches)
+    on, off = jax.device_get(means(key, batches.data, params))
+    return float(on), float(off)
 
-    # One compiled call (op by op this cost seconds of dispatch on CPU), with the parameters as
-    # an argument rather than baked-in constants: one program per relation width, which the
-    # persistent compilation cache can serve again.
+
+@functools.lru_cache(maxsize=16)
+def _means_program(batches: Batches, module, n: int):
+    """One compiled call (op by op this cost seconds of dispatch on CPU), with the parameters as
+    an argument rather than baked-in constants: one program per relation width and fit, kept
+    for the relation's later rounds, which the persistent compilation cache can serve again."""
+
     @functools.partial(jax.jit, compiler_options=ONCE_COMPILER_OPTIONS)
     def means(key, data, params):
         k_on, k_off = jax.random.split(key)
@@ -388,8 +436,7 @@ def record_means(cfg, batches: Batches, module, params, key):
         off = jnp.mean(jnp.abs(module.apply(params, batches.off(k_off, data, n))))
         return on, off
 
-    on, off = jax.device_get(means(key, batches.data, params))
-    return float(on), float(off)
+    return means
 
 
 def _pretrain(cfg, batches: Batches, module, params, prior: Callable, key):
@@ -483,7 +530,8 @@ def fit(
         pool.shutdown(wait=False, cancel_futures=True)
 
 
-def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, pool):
+def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, pool,
+                   codim: int = 1):
     """Compile g_{k_next+1}'s training loop in a background thread while g_{k_next} trains.
 
     The loop depends on the frozen relations only through their shapes, so the still untrained
@@ -503,11 +551,14 @@ def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, 
     next_params = jax.eval_shape(next_module.init, jax.random.key(0), jnp.zeros((1, rs.dim)))
     next_params = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), next_params)
     chunk, state, args = relation_trainer(
-        cfg, batches, stand_in, next_params, jax.random.key(0), cfg.max_steps
+        cfg, batches, stand_in, next_params, jax.random.key(0), cfg.max_steps,
+        with_mined=_with_mined(cfg, k_next, codim),
     )
     return {k_next: pool.submit(chunk.lower(state, args).compile, LOOP_COMPILER_OPTIONS)}
 
 
+DROP_RATIO = 2.0  # off/on below which a capped relation up to the codimension is dropped
+REFINE_SHARE = 5  # a refinement round's step budget: this fraction of max_steps
 COMPLETE = 0.02  # at most this share of projected box points on spurious zeros: complete
 CALIBRATION_ROWS = 4096  # training rows `holds`' tolerance is calibrated on
 
@@ -522,7 +573,7 @@ def _grow(cfg, batches: Batches, rs: RelationSet, module, params, width, key, sy
 
 
 def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partial=None):
-    ahead = {}
+    ahead, programs = {}, {}
     statuses = ["restored"] * rs.num_relations
     mining = cfg.mined_weight > 0
     within = quality.landing_distance(batches.dense, batches.held_out, batches.low, batches.high)
@@ -538,16 +589,14 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
         module = Relation(width, cfg.depth)
         init = jax.jit(module.init, compiler_options=ONCE_COMPILER_OPTIONS)
         params = init(k_init, jnp.zeros((1, batches.dim)))
-        ahead |= _compile_ahead(cfg, batches, rs, params, k + 1, pool)
+        ahead |= _compile_ahead(cfg, batches, rs, params, k + 1, pool, codim)
         resuming = partial is not None and partial.holds(k)
         if priors is not None and k < len(priors) and priors[k] is not None and not resuming:
             params = _pretrain(cfg, batches, module, params, priors[k], k_pre)
         mined = None
         # From the codim-th relation on, the intersection should be the data: its parts away
-        # from the data are spurious, and g_k is trained not to vanish there.
+        # from the data are spurious, and g_k is refined not to vanish there (below).
         completing = k + 1 >= codim
-        if mining and completing and rs.num_relations:  # the earlier zero set, off the data
-            mined, _ = mine(cfg, rs, batches, jax.random.fold_in(k_mine, 0), within)
         compiled = ahead.pop(k, None)
         state = _fit_relation(
             cfg,
@@ -560,6 +609,8 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             compiled=compiled.result() if compiled is not None else None,
             partial=partial,
             pool=mined,
+            programs=programs,
+            codim=codim,
         )
         steps, status, rounds = int(state.step), int(state.status), []
         if cfg.independence == "syzygy" and k > 0 and status != NONFINITE:
@@ -602,6 +653,7 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
                     callback=callback,
                     phase="push",
                     pool=mined,
+                    codim=codim,
                 )
                 steps += int(state.step)
                 status = int(state.status)
@@ -617,7 +669,7 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             )
             break
         grown, on_mean, off_mean = _grow(cfg, batches, rs, module, state.params, width, k_eval)
-        land = None
+        land, refined_rounds = None, 0
         last = k + 1 == cfg.max_relations  # the final report measures it anyway
         if completing and (mining or (cfg.stop_when_complete and not last)):
             new_pool, land = mine(cfg, grown, batches, jax.random.fold_in(k_mine, 1), within,
@@ -626,21 +678,36 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
                 if land["spurious"] <= COMPLETE:
                     break
                 # The intersection still has parts away from the data: train g_k on, pushed
-                # off the points that landed there (and those mined before).
+                # off the points that landed there (and those mined before). A round is kept
+                # only if more projected points land on the data; otherwise g_k stays as it was.
                 log.info("relation %d: %.0f%% of projected box points land away from the data; "
                          "refining (round %d)", k + 1, 100 * land["spurious"], r + 1)
-                mined = new_pool
-                state = _fit_relation(cfg, batches, rs, state.params,
-                                      jax.random.fold_in(k_train, 100 + r), cfg.max_steps,
-                                      callback=callback, phase="refine", pool=mined)
-                steps += int(state.step)
-                status = int(state.status)
-                if status == NONFINITE:
+                before = (state, grown, on_mean, off_mean, land, status)
+                refined = _fit_relation(cfg, batches, rs, state.params,
+                                        jax.random.fold_in(k_train, 100 + r), cfg.max_steps,
+                                        callback=callback, phase="refine", pool=new_pool,
+                                        budget=max(cfg.max_steps // REFINE_SHARE, 1),
+                                        programs=programs, codim=codim)
+                steps += int(refined.step)
+                if int(refined.status) == NONFINITE:
                     break
+                # The relation's status stays that of Algorithm 1's stopping rule (above); a
+                # round ends where its mined rows clear or at its budget.
+                mined, state = new_pool, refined
                 grown, on_mean, off_mean = _grow(cfg, batches, rs, module, state.params, width,
                                                  k_eval)
                 new_pool, land = mine(cfg, grown, batches, jax.random.fold_in(k_mine, 2 + r),
                                       within, mined)
+                ratio = off_mean / max(on_mean, 1e-30)
+                # Separation may give way to landing, down to twice the stopping rule's.
+                kept_ratio = min(before[3] / max(before[2], 1e-30), 2 * cfg.separation_ratio)
+                if land["landed"] <= before[4]["landed"] or ratio < kept_ratio:
+                    log.info("relation %d: refining did not help (%.0f%% → %.0f%% land on the "
+                             "data, off/on %.1f); kept as before", k + 1,
+                             100 * before[4]["landed"], 100 * land["landed"], ratio)
+                    state, grown, on_mean, off_mean, land, status = before
+                    break
+                refined_rounds += 1
         summary = RelationSummary(
             index=k + 1,
             width=width,
@@ -651,18 +718,18 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             off_mean=off_mean,
             syzygies_found=sum(r["found"] for r in rounds),
             syzygy_rounds=rounds,
+            refined=refined_rounds,
         )
-        if status == NONFINITE:
-            log.error("relation %d: loss became non-finite while refining; stopping with the "
-                      "%d relations learned so far", k + 1, rs.num_relations)
-            break
-        if cfg.stop_when_complete and status == CAPPED and summary.ratio < cfg.separation_ratio:
-            # Not a relation: it could not separate on- from off-manifold rows (the paper's
-            # termination: no further relation vanishes on the data and nowhere else).
+        # Not a relation: capped without separating on- from off-manifold rows (the paper's
+        # termination: no further relation vanishes on the data and nowhere else). Up to the
+        # data's codimension a relation is needed, so only one that barely separates goes;
+        # beyond it a relation must separate fully to earn its place.
+        needed = cfg.separation_ratio if k + 1 > codim else DROP_RATIO
+        if cfg.stop_when_complete and status == CAPPED and summary.ratio < needed:
             log.warning(
                 "relation %d is not a relation (capped at %d steps, off/on %.1f < %g): dropped; "
-                "stopping with %d relations", k + 1, steps, summary.ratio,
-                cfg.separation_ratio, rs.num_relations)
+                "stopping with %d relations", k + 1, steps, summary.ratio, needed,
+                rs.num_relations)
             break
         rows = batches.on(jax.random.fold_in(k_eval, 1), batches.data, RANK_ROWS)
         summary.codimension = codimension(grown, rows)

@@ -144,3 +144,23 @@ def test_a_relation_set_projects_inside_its_own_data_box():
     points = np.asarray(relations.project(rs, start).points)
     low, high = np.array([-0.5, -1.0, -0.5]), np.array([1.5, 3.0, 1.5])
     assert (points >= low - 1e-6).all() and (points <= high + 1e-6).all()
+
+
+def test_a_saturated_relation_projects_through_its_output_before_the_tanh():
+    """g = tanh(u) with the output layer scaled ×1e4: g is ±1 (its float32 gradient 0) almost
+    everywhere, yet its zero set is u's. `evaluate_raw` is u (atanh g where g is not saturated),
+    and `project` moves along u, so box points still reach {g = 0}."""
+    module = Relation(4, 2)
+    params = module.init(jax.random.key(9), jnp.zeros((1, 3)))
+    params = jax.tree_util.tree_map_with_path(
+        lambda path, x: x * 1e4 if "out_" in jax.tree_util.keystr(path) else x, params)
+    rs = RelationSet.empty(3, 2, 1.5, low=(-1.0,) * 3, high=(1.0,) * 3).append(params, 1e-3,
+                                                                             1.0, 4)
+    tau = jax.random.uniform(jax.random.key(10), (256, 3), minval=-1.0, maxval=1.0)
+    g = np.asarray(relations.evaluate(rs, tau))[:, 0]
+    u = np.asarray(relations.relation_set.evaluate_raw(rs, tau))[:, 0]
+    assert np.mean(np.abs(g) == 1.0) > 0.5  # saturated in float32
+    small = np.abs(g) < 0.9
+    np.testing.assert_allclose(u[small], np.arctanh(g[small]), rtol=1e-3, atol=1e-5)
+    out = relations.project(rs, tau)
+    assert np.mean(np.asarray(out.converged)) > 0.9

@@ -12,12 +12,12 @@ from jaml.relations import run as run_module
 
 TINY_FLAGS = ["--max-steps", "40", "--chunk-steps", "20", "--batch-size", "64",
               "--stop-patience", "1", "--eval-batches", "2", "--no-progress",
-              "--no-stop-when-complete"]
+              "--no-stop-when-complete", "--mined-weight", "0"]
 
 
 def _tiny_config(**changes):
     return relations.Config(max_relations=2, max_steps=40, chunk_steps=20, batch_size=64,
-                            stop_patience=1, eval_batches=2,
+                            stop_patience=1, eval_batches=2, mined_weight=0.0,
                             stop_when_complete=False).replace(**changes)
 
 

@@ -699,8 +699,8 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
                 new_pool, land = mine(cfg, grown, batches, jax.random.fold_in(k_mine, 2 + r),
                                       within, mined)
                 ratio = off_mean / max(on_mean, 1e-30)
-                # Separation may give way to landing, down to twice the stopping rule's.
-                kept_ratio = min(before[3] / max(before[2], 1e-30), 2 * cfg.separation_ratio)
+                # Separation may give way to landing, down to the stopping rule's.
+                kept_ratio = min(before[3] / max(before[2], 1e-30), cfg.separation_ratio)
                 if land["landed"] <= before[4]["landed"] or ratio < kept_ratio:
                     log.info("relation %d: refining did not help (%.0f%% → %.0f%% land on the "
                              "data, off/on %.1f); kept as before", k + 1,

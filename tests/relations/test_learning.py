@@ -70,10 +70,12 @@ def test_readme_relations_snippet_runs_as_written_on_the_ellipse(readme_relation
 
 
 def test_ellipse_relations_separate_on_from_off_manifold(ellipse):
+    """aml_reference.md §12 item 14: g1 off/on ≥ 10, g2 ≥ 5 (refinement may trade g2's
+    separation for a zero set with fewer spurious parts, down to the stopping rule's 5)."""
     src, rs = ellipse
     assert rs.num_relations == 2
     ratios = _fresh_ratio(rs, src, jax.random.key(11))
-    assert (ratios >= 10).all(), ratios
+    assert ratios[0] >= 10 and ratios[1] >= 5, ratios
 
 
 def test_ellipse_relations_are_transverse_on_the_curve(ellipse):

@@ -70,8 +70,9 @@ def test_readme_relations_snippet_runs_as_written_on_the_ellipse(readme_relation
 
 
 def test_ellipse_relations_separate_on_from_off_manifold(ellipse):
-    """aml_reference.md §12 item 14: g1 off/on ≥ 10, g2 ≥ 5 (refinement may trade g2's
-    separation for a zero set with fewer spurious parts, down to the stopping rule's 5)."""
+    """The authors' end-to-end bounds for the ellipse: g1 off/on ≥ 10, g2 ≥ 5 (refinement may
+    trade g2's separation for a zero set with fewer spurious parts, down to the stopping
+    rule's 5)."""
     src, rs = ellipse
     assert rs.num_relations == 2
     ratios = _fresh_ratio(rs, src, jax.random.key(11))

@@ -206,7 +206,18 @@ def pairwise_cosines(relations, tau) -> np.ndarray:
 def codimension(relations, tau, rtol: float = DEFAULT_RANK_RTOL) -> dict:
     """JSON-ready summary of `jacobian_ranks` on on-manifold rows τ [N, D]: how often the K
     relations have independent gradients (the fraction a user reads as "they cut K dims")."""
-    ranks, ratios = jacobian_ranks(relations, tau, rtol)
+    return codimension_summary(_geometry(relations, tau)[0], rtol)
+
+
+def independence(relations, tau, rtol: float = DEFAULT_RANK_RTOL) -> tuple[dict, np.ndarray]:
+    """(`codimension`, `pairwise_cosines`) from one pass over the rows' Jacobians."""
+    ratios, cos = _geometry(relations, tau)
+    return codimension_summary(ratios, rtol), np.median(cos, axis=0)
+
+
+def codimension_summary(ratios: np.ndarray, rtol: float) -> dict:
+    """`codimension`'s summary from the σ ratios [N, K] of `jacobian_ranks`."""
+    ranks = (ratios > rtol).sum(-1)
     k = ratios.shape[-1]
     counts = np.bincount(ranks, minlength=k + 1)
     return {
@@ -223,6 +234,8 @@ __all__ = [
     "DEFAULT_RANK_RTOL",
     "Projection",
     "codimension",
+    "codimension_summary",
+    "independence",
     "jacobian_ranks",
     "pairwise_cosines",
     "project",

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.spatial import cKDTree
 
-from jaml.relations.geometry import codimension, pairwise_cosines, project
+from jaml.relations.geometry import independence, project
 from jaml.relations.relation_set import RelationSet, Report, evaluate
 
 log = logging.getLogger("jaml.relations")
@@ -75,9 +75,9 @@ def landing(relations, key, low, high, reference, within: float, n: int = BOX_PO
             steps: int = PROJECTION_STEPS, tolerance: float = 1e-3) -> dict:
     """Project n uniform points of the box [low, high] onto {g = 0}; where do they land?
 
-    Returns shares of the n points: converged (every equation holds there), landed (converged
-    within `within` of a reference row) and spurious (converged farther away: a part of the zero
-    set that is not the data's), and the spurious points themselves ([M, D], host array).
+    Returns (shares, spurious points [M, D], their distances [M]): the shares of the n points
+    converged (every equation holds there), landed (converged within `within` of a reference
+    row) and spurious (converged farther away: a part of the zero set that is not the data's).
     """
     low, high = np.asarray(low, np.float32), np.asarray(high, np.float32)
     start = _uniform(key, n, low, high)
@@ -93,9 +93,7 @@ def landing(relations, key, low, high, reference, within: float, n: int = BOX_PO
         "landed": float((converged & near).mean()),
         "spurious": float(spurious.mean()),
         "median_distance": float(np.median(dist[converged])) if converged.any() else None,
-        "_spurious_points": np.asarray(out.points)[spurious],
-        "_spurious_distances": dist[spurious],
-    }
+    }, np.asarray(out.points)[spurious], dist[spurious]
 
 
 def calibrated_tolerance(rs: RelationSet, held_out) -> float:
@@ -125,14 +123,11 @@ def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
             "off_mean": off_mean,
             "ratio": off_mean / max(on_mean, 1e-30),
         })
-    codim = codimension(rs, held_out[:2048])
-    cos = pairwise_cosines(rs, held_out[:2048]) if k > 1 else np.ones((k, k))
+    codim, cos = independence(rs, held_out[:2048])
     upper = cos[np.triu_indices(k, 1)]
     ranks = np.asarray(codim["rank_fractions"])
     within = landing_distance(reference, held_out, low, high)
-    land = landing(rs, k_box, low, high, reference, within)
-    land.pop("_spurious_points")
-    land.pop("_spurious_distances")
+    land, _, _ = landing(rs, k_box, low, high, reference, within)
     holds_on = float(np.mean(np.all(g_on < rs.tolerance * np.asarray(rs.on_means), -1)))
     holds_off = float(np.mean(np.all(g_off < rs.tolerance * np.asarray(rs.on_means), -1)))
     report = {

@@ -15,7 +15,7 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import jax
 import jax.numpy as jnp
@@ -261,10 +261,9 @@ def mine(cfg: Config, rs: RelationSet, batches: Batches, key, within: float, poo
     set, kept where they converged farther than `within` from the training rows. Returns the
     pool (rows [C, D], count) with earlier pool rows after the new ones, and the landing shares.
     """
-    land = quality.landing(rs, key, batches.low, batches.high, batches.dense, within,
-                           n=cfg.mine_points)
-    found = np.concatenate([land.pop("_spurious_points"),
-                            land.pop("_spurious_distances")[:, None] / within], -1)
+    land, points, distances = quality.landing(rs, key, batches.low, batches.high,
+                                              batches.dense, within, n=cfg.mine_points)
+    found = np.concatenate([points, distances[:, None] / within], -1)
     old = pool[0][: pool[1]] if pool is not None else np.zeros((0, batches.dim + 1), np.float32)
     rows = np.concatenate([found, old])[: cfg.mine_points]
     padded = np.zeros((cfg.mine_points, batches.dim + 1), np.float32)
@@ -572,6 +571,63 @@ def _grow(cfg, batches: Batches, rs: RelationSet, module, params, width, key, sy
     return grown.replace(tolerance=tolerance), on_mean, off_mean
 
 
+class _Fitted(NamedTuple):
+    """A relation as trained so far: its loop state, the set grown by it, its recorded means
+    and Algorithm 1's status."""
+
+    state: LoopState
+    grown: RelationSet
+    on_mean: float
+    off_mean: float
+    status: int
+
+    @property
+    def ratio(self) -> float:
+        return self.off_mean / max(self.on_mean, 1e-30)
+
+
+def _refine(cfg, batches, rs, module, width, fitted: _Fitted, within, codim, programs,
+            callback, k_train, k_mine, k_eval):
+    """Where the intersection with g_k has parts away from the data, train g_k on, pushed off
+    the points that landed there (and those mined before), for up to `refine_rounds` rounds.
+    A round is kept only if more projected points then land on the data and g_k still
+    separates (down to the stopping rule's ratio); otherwise g_k stays as it was.
+
+    Returns (the relation as kept, its landing shares, rounds kept, steps spent). The status
+    stays that of Algorithm 1's stopping rule: a round ends where its mined rows clear or at
+    its budget.
+    """
+    k = rs.num_relations
+    pool, land = mine(cfg, fitted.grown, batches, jax.random.fold_in(k_mine, 1), within)
+    kept, spent = 0, 0
+    for r in range(cfg.refine_rounds if cfg.mined_weight > 0 else 0):
+        if land["spurious"] <= COMPLETE:
+            break
+        log.info("relation %d: %.0f%% of projected box points land away from the data; "
+                 "refining (round %d)", k + 1, 100 * land["spurious"], r + 1)
+        refined = _fit_relation(cfg, batches, rs, fitted.state.params,
+                                jax.random.fold_in(k_train, 100 + r), cfg.max_steps,
+                                callback=callback, phase="refine", pool=pool,
+                                budget=max(cfg.max_steps // REFINE_SHARE, 1),
+                                programs=programs, codim=codim)
+        spent += int(refined.step)
+        if int(refined.status) == NONFINITE:
+            break
+        grown, on_mean, off_mean = _grow(cfg, batches, rs, module, refined.params, width, k_eval)
+        candidate = _Fitted(refined, grown, on_mean, off_mean, fitted.status)
+        new_pool, new_land = mine(cfg, grown, batches, jax.random.fold_in(k_mine, 2 + r),
+                                  within, pool)
+        # Separation may give way to landing, down to the stopping rule's.
+        if (new_land["landed"] <= land["landed"]
+                or candidate.ratio < min(fitted.ratio, cfg.separation_ratio)):
+            log.info("relation %d: refining did not help (%.0f%% → %.0f%% land on the data, "
+                     "off/on %.1f); kept as before", k + 1, 100 * land["landed"],
+                     100 * new_land["landed"], candidate.ratio)
+            break
+        fitted, pool, land, kept = candidate, new_pool, new_land, kept + 1
+    return fitted, land, kept, spent
+
+
 def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partial=None):
     ahead, programs = {}, {}
     statuses = ["restored"] * rs.num_relations
@@ -593,7 +649,6 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
         resuming = partial is not None and partial.holds(k)
         if priors is not None and k < len(priors) and priors[k] is not None and not resuming:
             params = _pretrain(cfg, batches, module, params, priors[k], k_pre)
-        mined = None
         # From the codim-th relation on, the intersection should be the data: its parts away
         # from the data are spurious, and g_k is refined not to vanish there (below).
         completing = k + 1 >= codim
@@ -608,7 +663,6 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             callback=callback,
             compiled=compiled.result() if compiled is not None else None,
             partial=partial,
-            pool=mined,
             programs=programs,
             codim=codim,
         )
@@ -652,7 +706,6 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
                     thickening=level,
                     callback=callback,
                     phase="push",
-                    pool=mined,
                     codim=codim,
                 )
                 steps += int(state.step)
@@ -672,42 +725,12 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
         land, refined_rounds = None, 0
         last = k + 1 == cfg.max_relations  # the final report measures it anyway
         if completing and (mining or (cfg.stop_when_complete and not last)):
-            new_pool, land = mine(cfg, grown, batches, jax.random.fold_in(k_mine, 1), within,
-                                  mined)
-            for r in range(cfg.refine_rounds if mining else 0):
-                if land["spurious"] <= COMPLETE:
-                    break
-                # The intersection still has parts away from the data: train g_k on, pushed
-                # off the points that landed there (and those mined before). A round is kept
-                # only if more projected points land on the data; otherwise g_k stays as it was.
-                log.info("relation %d: %.0f%% of projected box points land away from the data; "
-                         "refining (round %d)", k + 1, 100 * land["spurious"], r + 1)
-                before = (state, grown, on_mean, off_mean, land, status)
-                refined = _fit_relation(cfg, batches, rs, state.params,
-                                        jax.random.fold_in(k_train, 100 + r), cfg.max_steps,
-                                        callback=callback, phase="refine", pool=new_pool,
-                                        budget=max(cfg.max_steps // REFINE_SHARE, 1),
-                                        programs=programs, codim=codim)
-                steps += int(refined.step)
-                if int(refined.status) == NONFINITE:
-                    break
-                # The relation's status stays that of Algorithm 1's stopping rule (above); a
-                # round ends where its mined rows clear or at its budget.
-                mined, state = new_pool, refined
-                grown, on_mean, off_mean = _grow(cfg, batches, rs, module, state.params, width,
-                                                 k_eval)
-                new_pool, land = mine(cfg, grown, batches, jax.random.fold_in(k_mine, 2 + r),
-                                      within, mined)
-                ratio = off_mean / max(on_mean, 1e-30)
-                # Separation may give way to landing, down to the stopping rule's.
-                kept_ratio = min(before[3] / max(before[2], 1e-30), cfg.separation_ratio)
-                if land["landed"] <= before[4]["landed"] or ratio < kept_ratio:
-                    log.info("relation %d: refining did not help (%.0f%% → %.0f%% land on the "
-                             "data, off/on %.1f); kept as before", k + 1,
-                             100 * before[4]["landed"], 100 * land["landed"], ratio)
-                    state, grown, on_mean, off_mean, land, status = before
-                    break
-                refined_rounds += 1
+            fitted = _Fitted(state, grown, on_mean, off_mean, status)
+            fitted, land, refined_rounds, spent = _refine(
+                cfg, batches, rs, module, width, fitted, within, codim, programs, callback,
+                k_train, k_mine, k_eval)
+            state, grown, on_mean, off_mean, status = fitted
+            steps += spent
         summary = RelationSummary(
             index=k + 1,
             width=width,
@@ -734,7 +757,7 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
         rows = batches.on(jax.random.fold_in(k_eval, 1), batches.data, RANK_ROWS)
         summary.codimension = codimension(grown, rows)
         if land is not None:
-            summary.landing = {n: v for n, v in land.items() if not n.startswith("_")}
+            summary.landing = land
         rs = grown.replace(syzygies=(*rs.syzygies, summary.syzygies_found))
         statuses.append(summary.status)
         log.info(

@@ -96,8 +96,10 @@ def test_the_true_ellipse_relations_land_every_box_point_and_a_spurious_pair_doe
         return jnp.stack([g[..., 0], g[..., 1] * tau[..., 0]], -1)  # also x = 0 in the plane
 
     within = quality.landing_distance(curve, curve[:1024], low, high)
-    good = quality.landing(true, jax.random.key(5), low, high, curve, within, tolerance=1e-4)
-    bad = quality.landing(spurious, jax.random.key(5), low, high, curve, within, tolerance=1e-4)
+    good, _, _ = quality.landing(true, jax.random.key(5), low, high, curve, within,
+                                 tolerance=1e-4)
+    bad, _, _ = quality.landing(spurious, jax.random.key(5), low, high, curve, within,
+                                tolerance=1e-4)
     assert good["landed"] >= 0.97 and good["spurious"] <= 0.01, good
     assert bad["spurious"] >= 0.1 and bad["landed"] <= good["landed"] - 0.1, bad
 

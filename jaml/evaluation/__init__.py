@@ -5,6 +5,7 @@
     evaluation.alignment_errors(lat_tr, st_tr, {"pi_curr": (l, s), "pi_rand": (l, s)})
     evaluation.constant_errors(st_tr, {"pi_rand": s})            # [D]: a latent with no information
     evaluation.distortion(latents, states)                       # Var ρ over random pairs
+    evaluation.distortion_trimmed(latents, states)               # (exact, finite pairs', left out)
     evaluation.irregularity(latents, states, names)              # the reference's irreg_std
     evaluation.principal_axis_error(R_true, R_hat)               # Rearrange rotation blocks
     evaluation.plot_alignment(history, "alignment.png"); evaluation.plot_distortion(...)
@@ -23,6 +24,7 @@ from jaml.evaluation.alignment import (
 from jaml.evaluation.distortion import (
     distortion,
     distortion_coefficients,
+    distortion_trimmed,
     irregularity,
     sample_pairs,
 )
@@ -37,6 +39,7 @@ __all__ = [
     "constant_errors",
     "distortion",
     "distortion_coefficients",
+    "distortion_trimmed",
     "fit_regressor",
     "history_records",
     "irregularity",

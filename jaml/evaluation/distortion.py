@@ -98,6 +98,26 @@ def distortion(latents, states, num_pairs: int = DEFAULT_NUM_PAIRS, seed: int = 
     return float(np.var(rho))
 
 
+def distortion_trimmed(latents, states, num_pairs: int = DEFAULT_NUM_PAIRS, seed: int = 0,
+                       inputs=None) -> tuple[float, float, int]:
+    """(exact, trimmed, left out): `distortion`'s Var(ρ) over the same pairs (+inf when the
+    encoder maps a pair of distinct states and inputs to one latent), Var(ρ) over the pairs
+    with a finite ρ, and how many pairs the trimmed figure leaves out (those with ρ = −∞).
+    One collapsed pair makes eq. 5's figure infinite; the trimmed one still says how the
+    encoder stretches the other pairs, and the count how far it is from the definition."""
+    rho, valid = distortion_coefficients(latents, states, num_pairs, seed, inputs)
+    rho = np.asarray(rho, np.float64)[np.asarray(valid)]
+    if rho.size < 2:
+        raise ValueError(
+            f"too few non-coincident pairs: {rho.size} of {num_pairs} have τ1 ≠ τ2 (and distinct "
+            "inputs); need at least 2"
+        )
+    finite = rho[np.isfinite(rho)]
+    left_out = int(rho.size - finite.size)
+    trimmed = float(np.var(finite)) if finite.size >= 2 else float("nan")
+    return (float("inf") if left_out else float(np.var(rho)), trimmed, left_out)
+
+
 IRREGULARITY_POINTS = 500
 IRREGULARITY_EPS = 1e-10
 

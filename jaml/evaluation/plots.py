@@ -190,7 +190,13 @@ def plot_alignment(history: Iterable[Mapping], path,
 
 
 def plot_distortion(history: Iterable[Mapping], path) -> Figure:
-    """Distortion Var(ρ) vs epoch, one curve per learner (and test set, if several)."""
+    """Distortion Var(ρ) vs epoch, one curve per learner (and test set, if several).
+
+    eq. 5's figure is +inf at an analysis where the encoder maps a pair of distinct states
+    (and inputs) to one latent; such a point has no place on the curve. Where a record carries
+    "distortion_trimmed" (Var ρ over the finite pairs, `distortion.distortion_trimmed`) and
+    "distortion_left_out" (the pairs it leaves out), that point is drawn on a dashed curve
+    whose label gives the count; a figure with nothing finite to draw says so in words."""
     history = [r for r in _check(history) if r.get("distortion") is not None]
     if not history:
         raise ValueError("history has no records with a distortion value")
@@ -198,17 +204,38 @@ def plot_distortion(history: Iterable[Mapping], path) -> Figure:
     series = _ordered((r["learner"], r["test_set"]) for r in history)
     fig = Figure(figsize=(5.0, 3.5), layout="constrained")
     ax = fig.subplots()
+    drawn = False
     for k, (learner, test_set) in enumerate(series):
-        points = defaultdict(list)
+        exact, trimmed, left_out = defaultdict(list), defaultdict(list), []
         for r in history:
             if r["learner"] == learner and r["test_set"] == test_set:
-                points[int(r["step"])].append(float(r["distortion"]))
-        steps, mean, lo, hi = _curves(points)
+                value = float(r["distortion"])
+                if np.isfinite(value):
+                    exact[int(r["step"])].append(value)
+                elif r.get("distortion_trimmed") is not None and np.isfinite(
+                        float(r["distortion_trimmed"])):
+                    trimmed[int(r["step"])].append(float(r["distortion_trimmed"]))
+                    left_out.append(int(r.get("distortion_left_out") or 0))
         label = learner if len(test_sets) == 1 else f"{learner} ({test_set})"
-        ax.plot(steps, mean, color=f"C{k % 10}", label=label)
-        ax.fill_between(steps, lo, hi, color=f"C{k % 10}", alpha=0.2, linewidth=0)
+        color = f"C{k % 10}"
+        if exact:
+            steps, mean, lo, hi = _curves(exact)
+            ax.plot(steps, mean, color=color, label=label)
+            ax.fill_between(steps, lo, hi, color=color, alpha=0.2, linewidth=0)
+        if trimmed:
+            steps, mean, _, _ = _curves(trimmed)
+            ax.plot(steps, mean, color=color, linestyle="--", marker="o", markersize=3,
+                    label=f"{label}: +inf, trimmed ({min(left_out)}–{max(left_out)} "
+                          "collapsed pairs left out)" if min(left_out) != max(left_out) else
+                          f"{label}: +inf, trimmed ({left_out[0]} collapsed pairs left out)")
+        drawn = drawn or bool(exact or trimmed)
+    if not drawn:
+        ax.text(0.5, 0.5, "distortion +inf at every analysis: the encoder maps distinct\n"
+                "states to one latent (no trimmed figure recorded)", ha="center",
+                va="center", transform=ax.transAxes, fontsize=9)
     ax.set_xlabel("epoch")
     ax.set_ylabel("distortion Var(ρ)")
-    ax.legend(fontsize=8)
+    if drawn:
+        ax.legend(fontsize=8)
     save_figure(fig, path)
     return fig

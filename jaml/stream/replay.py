@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 
@@ -112,6 +113,38 @@ def sample(replay: Replay, key: jax.Array, batch: int, seq_len: int) -> Columns:
         )
     k_col, k_start = jax.random.split(key)
     cols = jax.random.randint(k_col, (batch,), 0, jnp.maximum(replay.size, 1))
+    starts = jax.random.randint(k_start, (batch,), 0, max(replay.column_len - seq_len, 1))
+    return jax.vmap(lambda c, t: window(jax.tree.map(lambda x: x[c], replay.data), t, seq_len))(
+        cols, starts
+    )
+
+
+def held_out_slots(num_slots: int, fraction: float) -> np.ndarray:
+    """bool [N]: the slots whose columns only give held-out (validation) rows, floor(N·fraction)
+    of them spread evenly over the kept and the replaceable slots. Rows drawn from them share no
+    frame with rows drawn from the others: a column's frames are its own."""
+    i = np.arange(num_slots)
+    return np.floor((i + 1) * fraction) > np.floor(i * fraction)
+
+
+def sample_split(replay: Replay, key: jax.Array, held_out: jax.Array, seq_len: int,
+                 fraction: float) -> Columns:
+    """Sequences as `sample` draws them, one per entry of `held_out` (bool [B]): those marked
+    from the `held_out_slots(N, fraction)` columns, the others from the rest, each uniform over
+    its filled slots. The fit rows and the held-out rows of a regressor then share no frame."""
+    mask = held_out_slots(replay.num_slots, fraction)
+    pools = np.flatnonzero(mask), np.flatnonzero(~mask)
+    if not all(len(p) for p in pools):
+        raise ValueError(f"a replay of {replay.num_slots} slots cannot hold out {fraction:.0%} of "
+                         "them by slot: raise replay.slots or use eval.validation_split=leading")
+    k_val, k_fit, k_start = jax.random.split(key, 3)
+    batch = held_out.shape[0]
+
+    def draw(k, pool):  # the filled slots of a sorted pool are its leading entries
+        filled = jnp.maximum(jnp.sum(jnp.asarray(pool) < replay.size), 1)
+        return jnp.asarray(pool)[jax.random.randint(k, (batch,), 0, filled)]
+
+    cols = jnp.where(held_out, draw(k_val, pools[0]), draw(k_fit, pools[1]))
     starts = jax.random.randint(k_start, (batch,), 0, max(replay.column_len - seq_len, 1))
     return jax.vmap(lambda c, t: window(jax.tree.map(lambda x: x[c], replay.data), t, seq_len))(
         cols, starts

@@ -169,3 +169,23 @@ def test_irregularity_matches_a_hand_computation():
     assert np.isnan(evaluation.irregularity(latents, states, NAMES, num_points=3))
     with pytest.raises(ValueError, match="names"):
         evaluation.irregularity(latents, states, NAMES[:4])
+
+
+def test_the_trimmed_distortion_leaves_out_the_collapsed_pairs_and_counts_them():
+    """Points 0 and 1 share a latent but not a state: the exact figure is +inf, the trimmed one
+    the variance of the other pairs' ρ computed by hand, and the count the collapsed pairs."""
+    states = np.arange(12.0).reshape(6, 2) ** 1.5
+    latents = np.concatenate([np.zeros((2, 3)), np.arange(12.0).reshape(4, 3) + 1])
+    i, j = (np.asarray(x) for x in evaluation.sample_pairs(6, 50, seed=1))
+    collapsed = (i < 2) & (j < 2)
+    with np.errstate(divide="ignore"):  # log 0 at the collapsed pairs
+        rho = (np.log(np.linalg.norm(latents[i] - latents[j], axis=1))
+               - np.log(np.linalg.norm(states[i] - states[j], axis=1)))
+    exact, trimmed, left_out = evaluation.distortion_trimmed(latents, states, 50, seed=1)
+    assert collapsed.any() and exact == math.inf and left_out == int(collapsed.sum())
+    assert trimmed == pytest.approx(np.var(rho[~collapsed]), rel=1e-6)
+    # No collapsed pair: both figures are eq. 5's.
+    spread = latents + np.arange(6)[:, None]
+    exact, trimmed, left_out = evaluation.distortion_trimmed(spread, states, 50, seed=1)
+    assert left_out == 0 and exact == trimmed == pytest.approx(
+        evaluation.distortion(spread, states, 50, seed=1), rel=1e-12)

@@ -138,3 +138,25 @@ def test_the_constant_predictor_is_drawn_dashed_where_records_carry_it(tmp_path)
     plain = evaluation.plot_alignment([{k: v for k, v in r.items() if k != "baseline"}
                                        for r in history], tmp_path / "b.png")
     assert not [ln for ln in plain.axes[0].get_lines() if ln.get_label() == "constant predictor"]
+
+
+def test_an_infinite_distortion_is_drawn_trimmed_with_its_count_or_said_in_words(tmp_path):
+    """Steps 1 and 3 finite (solid), step 2 +inf with a trimmed figure (a dashed point whose
+    label gives the pairs left out); a history that is +inf throughout and carries no trimmed
+    figure draws no curve and says so."""
+    records = []
+    for step, exact, trimmed, left in ((1, 0.5, 0.5, 0), (2, math.inf, 0.7, 3), (3, 0.4, 0.4, 0)):
+        records += [r | {"distortion_trimmed": trimmed, "distortion_left_out": left}
+                    for r in evaluation.history_records(step, "VAE", {"pi_rand": [0.1] * 4},
+                                                        NAMES, exact)]
+    ax = evaluation.plot_distortion(records, tmp_path / "d.png").axes[0]
+    solid, dashed = ax.lines
+    np.testing.assert_array_equal(solid.get_xdata(), [1, 3])
+    np.testing.assert_allclose(solid.get_ydata(), [0.5, 0.4])
+    assert dashed.get_linestyle() == "--" and list(dashed.get_xdata()) == [2]
+    assert dashed.get_ydata()[0] == pytest.approx(0.7)
+    assert dashed.get_label() == "VAE: +inf, trimmed (3 collapsed pairs left out)"
+    infinite = evaluation.history_records(1, "VAE", {"pi_rand": [0.1] * 4}, NAMES, math.inf)
+    ax = evaluation.plot_distortion(infinite, tmp_path / "e.png").axes[0]
+    assert not ax.lines and "+inf at every analysis" in ax.texts[0].get_text()
+    assert _png(tmp_path / "e.png")

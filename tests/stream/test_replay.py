@@ -107,3 +107,36 @@ def test_bad_sizes_raise_named_errors():
         rl.add(replay, columns(range(5)), jax.random.PRNGKey(0))
     with pytest.raises(ValueError, match="keep_fraction"):
         rl.init(8, 5, FRAME, 1, 1, keep_fraction=1.0)
+
+
+@pytest.mark.parametrize("num_slots", [8, 16, 64, 4992])
+def test_held_out_slots_are_the_fraction_spread_over_kept_and_replaceable(num_slots):
+    mask = rl.held_out_slots(num_slots, 0.3)
+    assert mask.sum() == int(np.floor(0.3 * num_slots))
+    half = num_slots // 2  # the kept half and the replaceable half each hold some
+    assert mask[:half].any() and mask[half:].any()
+
+
+def test_split_rows_come_from_disjoint_columns_and_share_no_frame():
+    """Held-out rows only from the held-out slots, the others only from the rest, each pool's
+    every filled slot drawn; a partly filled replay draws from its filled slots alone."""
+    replay = rl.add(empty(num_slots=16), columns(np.arange(1, 9)), jax.random.PRNGKey(0))
+    replay = rl.add(replay, columns(np.arange(9, 17)), jax.random.PRNGKey(1))
+    mask = rl.held_out_slots(16, 0.3)
+    held = np.arange(400) < 120
+    seqs = rl.sample_split(replay, jax.random.PRNGKey(2), jnp.asarray(held), 2, 0.3)
+    slot = np.asarray(seqs.ld[:, 0, 0]) // 100 - 1  # column id k sits in slot k - 1
+    assert set(slot[held]) == set(np.flatnonzero(mask))
+    assert set(slot[~held]) == set(np.flatnonzero(~mask))
+    tags = np.asarray(seqs.ld[..., 0])
+    assert not set(tags[held].ravel()) & set(tags[~held].ravel())
+    half = rl.add(empty(num_slots=16), columns(np.arange(1, 9)), jax.random.PRNGKey(0))
+    seqs = rl.sample_split(half, jax.random.PRNGKey(3), jnp.asarray(held), 2, 0.3)
+    slot = np.asarray(seqs.ld[:, 0, 0]) // 100 - 1
+    assert slot.max() < 8 and set(slot[held]) == set(np.flatnonzero(mask[:8]))
+
+
+def test_a_replay_too_small_to_hold_out_a_slot_says_so():
+    with pytest.raises(ValueError, match=r"cannot hold out 30% of them by slot.*leading"):
+        rl.sample_split(empty(num_slots=2, keep=0.0), jax.random.PRNGKey(0),
+                        jnp.zeros(4, bool), 2, 0.3)

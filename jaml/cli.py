@@ -120,9 +120,11 @@ class Suite:
         default_factory=CallOptions)
     no_progress: bool = False
     """no progress bar"""
-    scale: Literal["paper", "smoke"] = "paper"
-    """sizes: "paper" (the reference's, for a GPU) or "smoke" (8 envs, 4 epochs, small analysis
-    sets: minutes on a CPU; `jaml.suite.SCALES`); flags given beside it win"""
+    scale: Literal["paper", "small", "smoke"] = "paper"
+    """sizes: "paper" (the reference's, for a GPU), "small" (16 envs, 8 epochs, 1,024-sequence
+    analysis sets: minutes on a CPU, the smallest whose numbers rank encoders) or "smoke"
+    (8 envs, 4 epochs: plumbing only, its numbers do not rank encoders); `jaml.suite.SCALES`;
+    flags given beside it win"""
     config: Annotated[_suite_config(), tyro.conf.arg(name="")] = dataclasses.field(
         default_factory=_suite_config())
 
@@ -150,10 +152,25 @@ class Suite:
         print(f"{config.env} {config.learner} ({config.policy}): {summary['status']} at epoch "
               f"{summary['epoch']}{resumed}, checkpoint {summary['checkpoint_epoch']} -> "
               f"{self.out}")
-        for r in summary["final"]:
-            errs = " ".join(f"{k}={v:.3f}" for k, v in r["errors"].items())
-            print(f"  {r['test_set']}: {errs}")
+        _print_errors(summary)
         return 0
+
+
+def _print_errors(summary: dict) -> None:
+    """The last analysis's errors per test set, each under its reference rows (the constant
+    predictor, the ceiling; the true state, the floor; raw pixels' PCA and random projection),
+    and at the smoke scale the note that its numbers do not rank encoders."""
+    refs = summary.get("references") or {}
+    for r in summary["final"]:
+        names = list(r["errors"])
+        print(f"  {r['test_set']}: " + " ".join(f"{k}={v:.3f}" for k, v in r["errors"].items()))
+        for ref in ("constant", "true_state", "pca", "random_projection"):
+            values = (refs.get(ref) or {}).get(r["test_set"])
+            if values is not None:
+                print(f"    {ref} (epoch {refs['epoch']}): " + " ".join(
+                    f"{k}={v:.3f}" for k, v in zip(names, values, strict=False)))
+    if summary.get("note"):
+        print(f"  note: {summary['note']}")
 
 
 def _env_default(name: str):

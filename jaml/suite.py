@@ -1,9 +1,10 @@
 """Score your own encoder on the suite's protocol: the runs' test sets and their analysis.
 
     from jaml import suite, stream
-    config = stream.for_env("CartPole", "VAE_rpl", suite.SCALES["smoke"])
+    config = stream.for_env("CartPole", "VAE_rpl", suite.SCALES["small"])
     sets = suite.test_sets(config)               # {"train", "pi_rand", "pi_curr"}: TestSet
     report = suite.evaluate(my_encode, config)   # encode(frames, actions) -> latents [E, Z]
+    report["references"]["true_state"]["pi_rand"], report["references"]["constant"]["pi_rand"]
 
 Both run the stream's own code (`jaml.stream.analysis`): the regressor's training set sampled
 from the replay, π_rand from a uniform policy under the run's fixed key, π_curr from the current
@@ -11,7 +12,11 @@ PPO policy, in chunks of `num_envs` sequences of the learner's `seq_len` frames;
 the LD state at the learner's last input frame (`hist`). Without a `state` (a run's
 `StreamState`), the run's initial state is taken and its replay filled (`fill_epochs`).
 `evaluate` returns what a run's analysis reports (errors, baseline, distortion) plus a linear
-probe's errors and R² beside the MLP's.
+probe's errors and R² beside the MLP's, and the reference rows an error is read between: the
+constant predictor (the ceiling) and the true state (the floor), pixels' PCA and a random
+projection (`jaml.evaluation.references`). Its errors, baseline, linear probe and references
+share their keys: the test sets, then "validation" (held-out replay rows; by replay column
+unless `eval.validation_split` is "leading").
 """
 
 from __future__ import annotations
@@ -25,27 +30,39 @@ import numpy as np
 
 from jaml import evaluation
 from jaml.evaluation import alignment
+from jaml.learners.learner import FRAME_SHAPE
 from jaml.stream import analysis
 from jaml.stream.config import StreamConfig
 from jaml.stream.executor import build, run_epochs
 from jaml.stream.loop import Stream, StreamState
 
-# Sizes for a run that finishes in minutes on two CPU cores (`jaml suite --scale smoke`), and
-# the paper's (the StreamConfig defaults, `for_env`'s per-domain settings), as overrides
-# (`StreamConfig.with_overrides`).
+# Sizes as overrides (`StreamConfig.with_overrides`): "smoke", the plumbing of a run in
+# minutes on two CPU cores (its sets are too small for its numbers to rank encoders: `SMOKE_NOTE`);
+# "small", the smallest whose numbers order a true-state, a pixel-PCA and a no-information
+# encoder on π_rand and validation, within minutes on two CPU cores (measured: docs/usage.md,
+# "Small runs"); "paper", the paper's (the StreamConfig defaults, `for_env`'s per-domain
+# settings).
 SCALES: dict[str, dict] = {
     "smoke": {"num_envs": 8, "rollout_len": 4, "replay.slots": 16, "frames_per_batch": 8,
               "learner_steps": 2, "epochs": 4, "eval.every": 2, "eval.train": 64,
               "eval.rand": 64, "eval.curr": 32, "eval.transient": 3,
               "eval.regressor_iterations": 200},
+    "small": {"num_envs": 16, "rollout_len": 16, "replay.slots": 64, "frames_per_batch": 32,
+              "learner_steps": 4, "epochs": 8, "eval.every": 4, "eval.train": 1024,
+              "eval.rand": 1024, "eval.curr": 256, "eval.transient": 3,
+              "eval.regressor_iterations": 2000},
     "paper": {},
 }
+# The sizes that make the analysis's sets and fit (what `scale_of` compares).
+_SET_SIZES = ("num_envs", "replay.slots", "eval.train", "eval.rand", "eval.curr",
+              "eval.transient", "eval.regressor_iterations")
 
 
 def scaled(config: StreamConfig, scale: str) -> StreamConfig:
-    """`config` with the sizes of `scale` ("smoke": minutes on a CPU; "paper": unchanged); PPO's
-    minibatches are cut to split the smoke run's envs, and a sequence learner's window (SVAE's
-    24 frames) keeps the rollout and batch long enough to hold one sequence."""
+    """`config` with the sizes of `scale` ("smoke": plumbing, minutes on a CPU; "small": the
+    smallest that ranks encoders, minutes on a CPU; "paper": unchanged); PPO's minibatches are
+    cut to split the scale's envs, and a sequence learner's window (SVAE's 24 frames) keeps the
+    rollout and batch long enough to hold one sequence."""
     if scale not in SCALES:
         raise ValueError(f"unknown scale {scale!r}; valid: {list(SCALES)}")
     changes = dict(SCALES[scale])
@@ -126,17 +143,39 @@ test_sets.__test__ = False  # not a pytest test
 
 
 def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None = None, *,
-             actions_seen: int = 0) -> dict:
+             actions_seen: int = 0, references: bool = True) -> dict:
     """A run's analysis report for `encode(frames uint8 [E, L, 64, 64, 3], actions [E, L, A])
-    -> latents [E, Z]`, plus "linear" (a least-squares probe's errors and R², per test set)
-    and "error_names". `actions_seen`: how many of a sequence's first actions `encode` reads
-    (0: frames only; a suite learner's: `config.actions_seen`); the distortion skips pairs whose
-    inputs `encode` cannot tell apart."""
+    -> latents [E, Z]`, plus "linear" (a least-squares probe's errors and R², per test set and
+    validation), "error_names", "scale" (the `SCALES` entry `config` has the sizes of, else
+    None) and, at the smoke scale, a "note" that its numbers do not rank encoders.
+    `references`: the reference rows on the same sets and regressor ("references": constant,
+    true state, pixels' PCA, a random projection of pixels; three more regressor fits).
+    `actions_seen`: how many of a sequence's first actions `encode` reads (0: frames only; a
+    suite learner's: `config.actions_seen`); the distortion skips pairs whose inputs `encode`
+    cannot tell apart. `encode` is first called on one chunk of zeros and its output checked,
+    before the replay is filled."""
+    if not isinstance(config, StreamConfig):
+        raise TypeError(f"config must be a jaml.stream.StreamConfig, got a "
+                        f"{type(config).__name__}: make one with stream.for_env(env, learner) "
+                        "and suite.scaled(config, scale)")
+    if not callable(encode):
+        raise TypeError(f"encode must be a function (frames, actions) -> latents [E, Z], got a "
+                        f"{type(encode).__name__}")
+    stream = build(config)
+    probe = (jnp.zeros((config.num_envs, stream.seq_len, *FRAME_SHAPE), jnp.uint8),
+             jnp.zeros((config.num_envs, stream.seq_len, stream.env.action_size), jnp.float32))
+    _checked(encode(*probe), config.num_envs, stream.seq_len, "a chunk of zero frames")
     stream, state, key, pi_rand_key = _prepare(config, state)
     chunks = _chunks(stream, state, key, pi_rand_key)
-    latents = {k: np.concatenate([np.asarray(encode(jnp.asarray(c.frames),
-                                                    jnp.asarray(c.actions))) for c in cs])
-               for k, cs in chunks.items()}
+    width = None
+    latents = {}
+    for k, cs in chunks.items():
+        parts = []
+        for c in cs:
+            parts.append(_checked(encode(jnp.asarray(c.frames), jnp.asarray(c.actions)),
+                                  len(c.frames), stream.seq_len, f"the {k} set", width))
+            width = parts[-1].shape[1]
+        latents[k] = np.concatenate(parts)
     sets = {k: _test_set(stream, cs) for k, cs in chunks.items()}
     tests = {k: (latents[k], sets[k].states) for k in sets if k != "train"}
     k_reg = jax.random.split(key, 3)[2]
@@ -150,21 +189,86 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
     rand = sets["pi_rand"]
     inputs = analysis.input_fingerprints(stream.hist, jnp.asarray(rand.frames),
                                          jnp.asarray(rand.actions), actions_seen)
-    return {
+    exact, trimmed, left_out = evaluation.distortion_trimmed(
+        latents["pi_rand"], rand.states[:, analysis.distortion_columns(stream)], inputs=inputs)
+    held_out = alignment.RegressorConfig().split(len(latents["train"]))
+    baseline = analysis._constant_levels(stream, sets["train"].states,
+                                         {k: s for k, (_, s) in tests.items()})
+    report = {
         "errors": {k: np.asarray(v).tolist() for k, v in errors.items()},
-        "baseline": analysis._constant_levels(stream, sets["train"].states,
-                                              {k: s for k, (_, s) in tests.items()}),
-        "distortion": float(evaluation.distortion(
-            latents["pi_rand"], rand.states[:, analysis.distortion_columns(stream)],
-            inputs=inputs)),
+        "baseline": baseline,
+        "distortion": exact,
+        "distortion_trimmed": {"value": trimmed, "left_out": left_out},
         "irregularity": {"replay": analysis.irregularity(stream, latents["train"],
                                                          sets["train"].states),
                          "pi_rand": analysis.irregularity(stream, latents["pi_rand"],
                                                           rand.states)},
-        "linear": linear_probe(latents["train"], sets["train"].states, tests,
+        "linear": linear_probe(latents["train"][held_out:], sets["train"].states[held_out:],
+                               {**tests, "validation": (latents["train"][:held_out],
+                                                        sets["train"].states[:held_out])},
                                normalize=stream.config.eval.regressor_normalize),
         "error_names": analysis.error_names(stream),
+        "validation_split": config.eval.validation_split,
+        "scale": scale_of(config),
     }
+    if report["scale"] == "smoke":
+        report["note"] = SMOKE_NOTE
+    if references:
+        pixels = {k: _pixels(stream, s) for k, s in sets.items()}
+        row = analysis.reference_rows(
+            stream, pixels["train"][None], sets["train"].states[None],
+            {k: (pixels[k][None], s[None]) for k, (_, s) in tests.items()}, [seed])[0]
+        report["references"] = {"constant": baseline, **row}
+    return report
+
+
+# What the smoke scale's reports and `jaml suite --scale smoke` say beside their numbers.
+SMOKE_NOTE = ("smoke scale: for plumbing only, its sets are too small for its numbers to rank "
+              "encoders (use the small scale, --scale small)")
+
+
+def scale_of(config: StreamConfig) -> str | None:
+    """The name of the `SCALES` entry whose sizes `config` has (None: none, or the paper's
+    defaults changed otherwise)."""
+    for name, sizes in SCALES.items():
+        if sizes and config == config.with_overrides({k: sizes[k] for k in _SET_SIZES}):
+            return name
+    return None
+
+
+def _pixels(stream: Stream, test_set: TestSet) -> np.ndarray:
+    """uint8 [N, P]: each sequence's last input frame, flattened (the pixel references')."""
+    frames = test_set.frames[:, stream.hist - 1]
+    return frames.reshape(len(frames), -1)
+
+
+def _checked(latents, rows: int, seq_len: int, where: str, width: int | None = None
+             ) -> np.ndarray:
+    """`latents` as a float [rows, Z] host array, or a one-line ValueError naming its shape
+    and the fix."""
+    try:
+        out = np.asarray(latents)
+    except Exception as error:  # a tuple of arrays, a dict, ...
+        raise ValueError(f"encode returned a {type(latents).__name__} on {where}, which is not "
+                         f"an array ({error}); return latents [E, Z] = [{rows}, Z]") from None
+    if out.dtype == object:
+        raise ValueError(f"encode returned a {type(latents).__name__} on {where}, not an array "
+                         f"of numbers; return latents [E, Z] = [{rows}, Z]")
+    if out.ndim != 2 or out.shape[0] != rows:
+        raise ValueError(f"encode returned shape {out.shape} on {where} of {rows} sequences of "
+                         f"{seq_len} frames; return one latent vector per sequence, [E, Z] = "
+                         f"[{rows}, Z] (e.g. reshape to ({rows}, -1))")
+    if not (np.issubdtype(out.dtype, np.floating) or np.issubdtype(out.dtype, np.integer)):
+        raise ValueError(f"encode returned dtype {out.dtype} (shape {out.shape}) on {where}; "
+                         "return numbers, e.g. float32 latents [E, Z]")
+    if width is not None and out.shape[1] != width:
+        raise ValueError(f"encode returned shape {out.shape} on {where}, width {out.shape[1]} "
+                         f"after {width} on an earlier chunk; return the same Z every call")
+    bad = ~np.isfinite(out)
+    if bad.any():
+        raise ValueError(f"encode returned {int(bad.sum())} NaN or inf entries in its output "
+                         f"of shape {out.shape} on {where}; return finite latents")
+    return out.astype(np.float32)
 
 
 def linear_probe(latents_train, states_train, tests: dict, normalize: bool = True) -> dict:

@@ -1,5 +1,6 @@
 """jaml.suite: the runs' test sets and analysis for an encoder of one's own."""
 
+import hashlib
 import json
 import time
 
@@ -8,9 +9,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaml import stream, suite
+from jaml import evaluation, stream, suite
 from jaml.cli import main
+from jaml.evaluation import alignment
 from jaml.stream import analysis
+from jaml.stream import replay as replay_lib
 
 # The API's numbers and the analysis' own come from two programs: they agree to float rounding
 # (3e-5 after the regressor's fit with the suite's faster-compiling emitters, tests/conftest.py;
@@ -40,14 +43,107 @@ def test_the_apis_numbers_equal_the_streams_own_analysis(run):
         return s.learner.encode(state.learner.variables, frames, actions)
 
     api = suite.evaluate(encode, config, state, actions_seen=s.learner.config.actions_seen)
-    assert set(api["errors"]) == set(own["errors"]) == {"pi_rand", "pi_curr", "validation"}
+    keys = ["pi_rand", "pi_curr", "validation"]  # every row of the report: these, in order
+    assert list(api["errors"]) == list(own["errors"]) == list(api["baseline"]) == keys
+    assert list(api["linear"]["errors"]) == list(api["linear"]["r2"]) == keys
     for name in own["errors"]:
         np.testing.assert_allclose(api["errors"][name], own["errors"][name], rtol=RTOL,
                                    atol=1e-6)
     assert api["baseline"] == own["baseline"]
     np.testing.assert_allclose(api["distortion"], own["distortion"], rtol=RTOL)
+    assert api["distortion_trimmed"]["left_out"] == own["distortion_trimmed"]["left_out"]
     assert api["irregularity"] == pytest.approx(own["irregularity"], rel=RTOL)
     assert api["error_names"] == list(s.env.ld_state_names)
+    assert api["validation_split"] == own["validation_split"] == "slots"
+    assert api["scale"] == "smoke" and api["note"] == suite.SMOKE_NOTE
+
+
+def test_the_reference_rows_are_the_runs_own_and_the_floor_is_below_the_ceiling(run):
+    """`suite.evaluate`'s reference rows equal those the stream's analysis computes on its own
+    sets (`analysis.evaluate(references=True)`), share the report's keys, and the true state
+    (the floor) scores below the constant predictor (the ceiling) on every set."""
+    config, s, state = run
+    _, k_eval, pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
+    own = analysis.evaluate(s, state, jax.random.fold_in(k_eval, int(state.epoch)), pi_rand_key,
+                            references=True)["references"]
+
+    def encode(frames, actions):
+        return s.learner.encode(state.learner.variables, frames, actions)
+
+    api = suite.evaluate(encode, config, state)["references"]
+    assert list(api) == ["constant", "true_state", "pca", "random_projection"] == list(own)
+    for row, by_set in own.items():
+        assert list(api[row]) == ["pi_rand", "pi_curr", "validation"]
+        for name, values in by_set.items():
+            np.testing.assert_allclose(api[row][name], values, rtol=RTOL, atol=1e-6,
+                                       err_msg=f"{row} {name}")
+    for name in ("pi_rand", "pi_curr", "validation"):
+        assert np.mean(api["true_state"][name]) < np.mean(api["constant"][name]), name
+
+
+def _frame_hash(frames) -> np.ndarray:
+    """float32 [N, 8]: eight bytes of SHA-256 of each frame, over 255: no state information a
+    regressor can use beyond telling equal frames apart."""
+    return np.asarray([np.frombuffer(hashlib.sha256(f.tobytes()).digest()[:8], np.uint8)
+                       for f in np.asarray(frames)], np.float32) / 255.0
+
+
+def test_held_out_rows_share_no_column_and_a_frame_hash_no_longer_beats_the_constant(run):
+    """The suite's training set: its leading 30 % (the regressor's held-out rows) and the rest
+    come from different replay columns. A frame-hash encoder on 256 rows of the smoke replay
+    (64 distinct frames), fit 2,000 steps: drawn by slot its validation error is the constant's
+    level; drawn as the reference draws them (leading rows of one draw, which repeat the fit
+    rows' frames) it is far below, the leak this split removes."""
+    config, s, state = run
+    train = suite.test_sets(config, state)["train"]
+    held = alignment.RegressorConfig().split(len(train.states))
+    columns = [{tuple(np.round(row.ravel(), 6)) for row in part}
+               for part in (train.ld[:held], train.ld[held:])]
+    assert held > 0 and not columns[0] & columns[1]
+    rows = 256
+    n_val = alignment.RegressorConfig().split(rows)
+    key = jax.random.PRNGKey(1)
+    ratios = {}
+    for split in ("slots", "leading"):
+        if split == "slots":
+            seqs = replay_lib.sample_split(state.replay, key, jnp.arange(rows) < n_val,
+                                           s.seq_len, 0.3)
+        else:
+            seqs = replay_lib.sample(state.replay, key, rows, s.seq_len)
+        latents = _frame_hash(seqs.frames[:, s.hist - 1])
+        states = np.asarray(seqs.ld[:, s.hist - 1])
+        errors = evaluation.alignment_errors(latents, states, {"t": (latents[:8], states[:8])},
+                                             num_iterations=2000)
+        constant = evaluation.constant_errors(states, {"v": states[:n_val]})["v"]
+        ratios[split] = float(np.mean(np.asarray(errors["validation"]) / constant))
+    assert ratios["slots"] > 0.9 and ratios["leading"] < 0.7, ratios
+
+
+def test_evaluate_checks_its_config_and_the_encoders_output_before_filling_the_replay(
+        run, monkeypatch):
+    """Wrong input is refused by one-line errors naming the output's shape and the fix, before
+    the replay is filled (`_prepare` is not reached)."""
+    config = run[0]
+
+    def never(*args):
+        raise AssertionError("reached the expensive part")
+
+    monkeypatch.setattr(suite, "_prepare", never)
+    with pytest.raises(TypeError, match=r"config must be a jaml\.stream\.StreamConfig, got a dict"):
+        suite.evaluate(lambda f, a: f, config.to_dict())
+    e = config.num_envs
+    cases = [
+        (lambda f, a: jnp.zeros((len(f), f.shape[1], 3)),
+         rf"encode returned shape \({e}, 1, 3\).*\[E, Z\] = \[{e}, Z\] \(e.g. reshape"),
+        (lambda f, a: jnp.zeros((3, 4)), rf"shape \(3, 4\).*of {e} sequences"),
+        (lambda f, a: jnp.full((len(f), 4), jnp.nan), r"2?\d+ NaN or inf .*shape \(\d+, 4\)"),
+        (lambda f, a: jnp.zeros((len(f), 4), bool), r"dtype bool .*return numbers"),
+        (lambda f, a: {"z": f}, r"encode returned a dict"),
+    ]
+    for encode, message in cases:
+        with pytest.raises(ValueError, match=message) as caught:
+            suite.evaluate(encode, config)
+        assert "\n" not in str(caught.value)
 
 
 # ~130 s on two cores even with the fixture's programs (the whole run path: checkpoints,
@@ -103,20 +199,58 @@ def test_linear_probe_recovers_an_affine_encoding_exactly():
     assert max(noise["r2"]["test"]) < 0.3
 
 
-def test_readme_encoder_snippet_runs_as_written(run):
-    """README's 'your encoder' snippet, as written (its own smoke run, filled inside `suite`):
-    in this module, whose `run` has the snippet's config, so its programs are compiled once."""
+def _run_encoder_snippet(scale: str | None = None) -> dict:
+    """README's 'your encoder' snippet executed (its own run, filled inside `suite`), at
+    `scale` in place of the one it names; its namespace."""
     from tests.test_readme import snippet
 
+    code = snippet("encoder")
+    assert '"small")' in code
+    if scale is not None:
+        code = code.replace('"small")', f'"{scale}")', 1)
     namespace = {}
-    exec(compile(snippet("encoder"), "README:encoder", "exec"), namespace)
-    report, sets = namespace["report"], namespace["sets"]
-    assert namespace["config"] == run[0]  # the fixture's config: the programs it compiled
-    assert set(sets) == {"train", "pi_rand", "pi_curr"}
+    exec(compile(code, "README:encoder", "exec"), namespace)
+    return namespace
+
+
+def _check_snippet(namespace: dict, printed: str) -> None:
+    report = namespace["report"]
     assert len(report["errors"]["pi_rand"]) == len(report["error_names"]) == 4
     assert np.all(np.isfinite(report["errors"]["pi_rand"]))
-    assert np.isfinite(report["distortion"])
-    assert set(report["linear"]["r2"]) == {"pi_rand", "pi_curr"}
+    assert set(report["linear"]["r2"]) == {"pi_rand", "pi_curr", "validation"}
+    lines = printed.strip().splitlines()
+    assert [line.split(":")[0] for line in lines] == report["error_names"]
+    assert all("(true state " in line and ", constant " in line for line in lines)
+
+
+def test_readme_encoder_snippet_runs_at_the_smoke_scale(run, capsys):
+    """README's snippet with "smoke" for its "small" (the fixture's config: its programs are
+    compiled once in this module); as written, at "small", it is the slow test below."""
+    namespace = _run_encoder_snippet("smoke")
+    assert namespace["config"] == run[0]
+    _check_snippet(namespace, capsys.readouterr().out)
+
+
+# Minutes on two cores: the small scale's fill, sets and four regressor fits.
+@pytest.mark.slow
+def test_readme_encoder_snippet_runs_as_written_and_ranks_encoders(capsys):
+    """As written, at "small": the snippet runs, and the report orders a true state, the pixels'
+    PCA and a frame-hash encoder (no information) on π_rand and validation (docs/usage.md,
+    "Small runs", for three seeds)."""
+    namespace = _run_encoder_snippet()
+    _check_snippet(namespace, capsys.readouterr().out)
+    config = namespace["config"]
+    assert suite.scale_of(config) == "small" and "note" not in namespace["report"]
+    noise = suite.evaluate(lambda frames, actions: _frame_hash(frames[:, -1]), config)
+    refs = noise["references"]
+    for name in ("pi_rand", "validation"):
+        level = np.asarray(refs["constant"][name])
+
+        def rel(errors, level=level):
+            return float(np.mean(np.asarray(errors) / level))
+
+        truth, pca = rel(refs["true_state"][name]), rel(refs["pca"][name])
+        assert truth < 0.5 and truth < pca < rel(noise["errors"][name]), name
 
 
 def test_own_learner_trains_on_the_stream_with_every_analysis(tmp_path, capsys):
@@ -136,4 +270,32 @@ def test_own_learner_trains_on_the_stream_with_every_analysis(tmp_path, capsys):
     trained = [m for m in metrics if m["learner/training"] == 1.0]
     assert trained and all(jnp.isfinite(m["learner/loss"]) for m in trained)
     assert (out / "alignment.png").is_file() and (out / "recon" / "epoch_000004.png").is_file()
-    assert f"CartPole {spec} (ppo): finished at epoch 4" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert f"CartPole {spec} (ppo): finished at epoch 4" in printed
+    # The reference rows of the first analysis under each test set's errors, and the smoke
+    # scale's note, on screen and in the summary.
+    refs = summary["references"]
+    assert refs["epoch"] == 2 and refs["validation_split"] == "slots"
+    assert list(refs)[2:] == ["constant", "true_state", "pca", "random_projection"]
+    for row in ("constant", "true_state", "pca", "random_projection"):
+        assert f"    {row} (epoch 2): theta=" in printed
+    assert summary["scale"] == "smoke" and summary["note"] == suite.SMOKE_NOTE
+    assert printed.rstrip().endswith(f"note: {suite.SMOKE_NOTE}")
+
+
+def test_the_small_scale_is_a_named_scale_of_the_command_line():
+    """`jaml suite --scale small` gets `SCALES["small"]`; `scale_of` names a config's scale by
+    its set sizes (the smoke scale's note hangs on it) and no other config."""
+    from jaml import cli
+
+    parsed = cli.parse(["suite", "--env", "CartPole", "--learner", "VAE_rpl", "--out", "x",
+                        "--scale", "small"]).command.stream_config()
+    config = suite.scaled(stream.for_env("CartPole", "VAE_rpl"), "small")
+    assert parsed == config
+    assert (config.num_envs, config.replay.slots, config.eval.train, config.eval.rand,
+            config.eval.regressor_iterations) == (16, 64, 1024, 1024, 2000)
+    assert suite.scale_of(config) == "small"
+    assert suite.scale_of(config.with_overrides({"epochs": 20})) == "small"  # not a set size
+    assert suite.scale_of(config.with_overrides({"eval.train": 512})) is None
+    assert suite.scale_of(stream.for_env("CartPole", "VAE_rpl")) is None
+    assert suite.scale_of(suite.scaled(stream.for_env("Ant", "PRED"), "smoke")) == "smoke"

@@ -19,6 +19,7 @@ import numpy as np
 from envs_mjx.base import State
 from jaml import evaluation
 from jaml.evaluation import alignment, rotation
+from jaml.evaluation import references as references_lib
 from jaml.stream import collect
 from jaml.stream import replay as replay_lib
 from jaml.stream.loop import Stream, StreamState
@@ -28,11 +29,18 @@ from jaml.stream.programs import jitted
 def encoded_replay(stream: Stream, states: StreamState, keys: jax.Array, num: int,
                    store: list | None = None):
     """(latents [R, N, Z], LD targets [R, N, D]) of N ≈ num sequences sampled from each of R
-    stacked runs' replays (keys [R]). `store`: a list that gets each chunk's sequences (host
-    `Columns` [R, E, L]; `jaml.suite`)."""
+    stacked runs' replays (keys [R]), the regressor's training set: with
+    `eval.validation_split` "slots" its leading rows (the regressor's held-out 30 %) come from
+    other replay columns than the rest (`replay.sample_split`). `store`: a list that gets each
+    chunk's sequences (host `Columns` [R, E, L]; `jaml.suite`)."""
     n = _chunks(num, stream.config.num_envs)
     chunks = jax.vmap(lambda k: jax.random.split(k, n))(keys)
-    return _map_chunks(_replay_chunk, stream, states, None, chunks, store=store)
+    carry = None
+    if stream.config.eval.validation_split == "slots":
+        rows = np.arange(n * stream.config.num_envs).reshape(n, -1)
+        held_out = rows < alignment.RegressorConfig().split(rows.size)
+        carry = (jnp.asarray(held_out), jnp.zeros((), jnp.int32))
+    return _map_chunks(_replay_chunk, stream, states, carry, chunks, store=store)
 
 
 def encoded_rollouts(stream: Stream, states: StreamState, keys: jax.Array, num: int,
@@ -134,22 +142,29 @@ def _part(seconds: dict | None, name: str, fn, *args, **kwargs):
 
 
 def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Array, *,
-             seconds: dict | None = None, pi_rand_set: PiRandSet | None = None) -> dict:
+             seconds: dict | None = None, pi_rand_set: PiRandSet | None = None,
+             references: bool = False) -> dict:
     """`evaluate_runs` of one run (R = 1): its report."""
     return evaluate_runs(stream, jax.tree.map(lambda x: x[None], s), key[None],
                          pi_rand_key[None], seconds=seconds,
-                         pi_rand_sets=None if pi_rand_set is None else [pi_rand_set])[0]
+                         pi_rand_sets=None if pi_rand_set is None else [pi_rand_set],
+                         references=references)[0]
 
 
 def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
                   pi_rand_keys: jax.Array, *, seconds: dict | None = None,
-                  pi_rand_sets: list[PiRandSet] | None = None) -> list[dict]:
+                  pi_rand_sets: list[PiRandSet] | None = None,
+                  references: bool = False) -> list[dict]:
     """Per run of R stacked runs (keys [R] and pi_rand_keys [R] raw keys): alignment errors
     [D + J] (`error_names`) on π_rand (and π_curr under PPO), the held-out validation error,
-    a latent-free constant's errors ("baseline") and the distortion of the π_rand latents, as
-    host-side numbers. `seconds`: a dict that gets each part's wall time added (train_set,
-    pi_rand, pi_curr, regressor), the R runs' together. `pi_rand_sets`: one per run, its kept
-    π_rand sequences (read when every run's holds its key, else all rolled out and kept).
+    a latent-free constant's errors ("baseline", the same keys) and the distortion of the
+    π_rand latents (exact, and trimmed of collapsed pairs), as host-side numbers, with the
+    validation split used ("validation_split"). `seconds`: a dict that gets each part's wall
+    time added (train_set, pi_rand, pi_curr, regressor, references), the R runs' together.
+    `pi_rand_sets`: one per run, its kept π_rand sequences (read when every run's holds its
+    key, else all rolled out and kept). `references`: also the reference rows on the same sets
+    and regressor ("references", `reference_rows`): three more fits, so a run asks for them
+    once, not at every analysis.
 
     On a GPU the analysis is latency bound, so one call for R runs costs about what one run
     costs: the replay samplers, the rollouts and the regressor fits are vmapped over the runs;
@@ -157,28 +172,80 @@ def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
     cfg = stream.config
     split = jax.vmap(lambda k: jax.random.split(k, 3))(keys)
     k_train, k_curr, k_reg = split[:, 0], split[:, 1], split[:, 2]
-    train = _part(seconds, "train_set", encoded_replay, stream, states, k_train, cfg.eval.train)
+    # With `references`, the sets' sequences kept on the host for the pixel references.
+    stored = {"train": [], "pi_rand": [], "pi_curr": []} if references else {}
+    train = _part(seconds, "train_set", encoded_replay, stream, states, k_train, cfg.eval.train,
+                  store=stored.get("train"))
     lat, st, inputs = _part(seconds, "pi_rand", encoded_rollouts, stream, states, pi_rand_keys,
-                            cfg.eval.rand, random=True, fingerprints=True, kept=pi_rand_sets)
+                            cfg.eval.rand, random=True, fingerprints=True, kept=pi_rand_sets,
+                            **({"store": stored["pi_rand"]} if references and not pi_rand_sets
+                               else {}))
     tests = {"pi_rand": (lat, st)}
     if cfg.policy == "ppo" and cfg.eval.curr > 0:
         tests["pi_curr"] = _part(seconds, "pi_curr", encoded_rollouts, stream, states, k_curr,
-                                 cfg.eval.curr, random=False)
-    seeds = jax.vmap(lambda k: jax.random.randint(k, (), 0, 2**31 - 1))(k_reg)
+                                 cfg.eval.curr, random=False,
+                                 **({"store": stored["pi_curr"]} if references else {}))
+    seeds = np.asarray(jax.vmap(lambda k: jax.random.randint(k, (), 0, 2**31 - 1))(k_reg))
     errors = _part(seconds, "regressor", alignment.alignment_errors_runs,
-                   *train, tests, seeds=np.asarray(seeds).tolist(), **_regressor_options(stream))
+                   *train, tests, seeds=seeds.tolist(), **_regressor_options(stream))
     errors = {k: np.asarray(v) for k, v in errors.items()}
     train_states = np.asarray(train[1])
     test_states = {k: np.asarray(t) for k, (_, t) in tests.items()}
     columns = distortion_columns(stream)
-    return [{
-        "errors": {k: v[r].tolist() for k, v in errors.items()},
-        "baseline": _constant_levels(stream, train_states[r],
-                                     {k: t[r] for k, t in test_states.items()}),
-        "distortion": float(evaluation.distortion(lat[r], st[r][:, columns], inputs=inputs[r])),
-        "irregularity": {"replay": irregularity(stream, train[0][r], train_states[r]),
-                         "pi_rand": irregularity(stream, lat[r], st[r])},
-    } for r in range(len(seeds))]
+    reports = []
+    for r in range(len(seeds)):
+        exact, trimmed, left_out = evaluation.distortion_trimmed(lat[r], st[r][:, columns],
+                                                                 inputs=inputs[r])
+        reports.append({
+            "errors": {k: v[r].tolist() for k, v in errors.items()},
+            "baseline": _constant_levels(stream, train_states[r],
+                                         {k: t[r] for k, t in test_states.items()}),
+            "distortion": exact,
+            "distortion_trimmed": {"value": trimmed, "left_out": left_out},
+            "irregularity": {"replay": irregularity(stream, train[0][r], train_states[r]),
+                             "pi_rand": irregularity(stream, lat[r], st[r])},
+            "validation_split": cfg.eval.validation_split,
+        })
+    if references:
+        if pi_rand_sets:  # rolled out into the kept sets, or read from them
+            stored["pi_rand"] = [jax.tree.map(lambda *x: np.stack(x), *runs)
+                                 for runs in zip(*(k.chunks for k in pi_rand_sets), strict=True)]
+        frames = {k: _last_input_frames(stream, chunks) for k, chunks in stored.items() if chunks}
+        rows = _part(seconds, "references", reference_rows, stream, frames["train"],
+                     train_states, {k: (frames[k], test_states[k]) for k in tests}, seeds)
+        for report, row in zip(reports, rows, strict=True):
+            report["references"] = {"constant": report["baseline"], **row}
+    return reports
+
+
+def _last_input_frames(stream: Stream, chunks: list) -> np.ndarray:
+    """uint8 [R, N, P]: each sequence's last input frame (`hist`), flattened, from host chunks
+    of `Columns` [R, E, L]."""
+    frames = np.concatenate([np.asarray(c.frames[:, :, stream.hist - 1]) for c in chunks], 1)
+    return frames.reshape(*frames.shape[:2], -1)
+
+
+def reference_rows(stream: Stream, train_pixels, train_states, tests: dict, seeds) -> list[dict]:
+    """Per run of R: {reference: {test set and "validation": [D + J] errors}} for
+    `references.NAMES`, by the analysis's regressor with the run's seed on the run's rows:
+    train_pixels uint8 [R, N, P], train_states [R, N, D], tests {name: (pixels [R, Nt, P],
+    states [R, Nt, D])}, seeds [R]. The 3·R fits are one vmapped call."""
+    names = references_lib.NAMES
+    key = jax.random.key(0)  # the same projections for every run
+    per_run = [references_lib.reference_latents(
+        train_pixels[r], train_states[r], {k: (px[r], st[r]) for k, (px, st) in tests.items()},
+        key) for r in range(len(seeds))]
+    order = [(r, n) for r in range(len(seeds)) for n in names]
+    errors = alignment.alignment_errors_runs(
+        np.stack([per_run[r][n][0] for r, n in order]),
+        np.stack([train_states[r] for r, _ in order]),
+        {k: (np.stack([per_run[r][n][1][k] for r, n in order]),
+             np.stack([tests[k][1][r] for r, _ in order])) for k in tests},
+        seeds=[int(seeds[r]) for r, _ in order], **_regressor_options(stream))
+    rows = [{} for _ in seeds]
+    for i, (r, n) in enumerate(order):
+        rows[r][n] = {k: np.asarray(v[i]).tolist() for k, v in errors.items()}
+    return rows
 
 
 def irregularity(stream: Stream, latents, states) -> float | None:
@@ -194,9 +261,17 @@ def irregularity(stream: Stream, latents, states) -> float | None:
 
 
 def _constant_levels(stream: Stream, train_states, test_states: dict) -> dict:
-    """{test set: [D + J] list}: a latent-free constant's errors, in the regressor's units."""
-    levels = evaluation.constant_errors(train_states, test_states, **_regressor_options(stream))
-    return {k: v.tolist() for k, v in levels.items()}
+    """{test set, then "validation": [D + J] list}: a latent-free constant's errors, in the
+    regressor's units; "validation" on the held-out training rows, as the errors'."""
+    options = _regressor_options(stream)
+    held_out = alignment.RegressorConfig(**options).split(len(train_states))
+    levels = evaluation.constant_errors(train_states, test_states, **options)
+    levels = {k: v.tolist() for k, v in levels.items()}
+    width = len(next(iter(levels.values())))
+    levels["validation"] = (evaluation.constant_errors(
+        train_states, {"v": np.asarray(train_states)[:held_out]}, **options)["v"].tolist()
+        if held_out else [float("nan")] * width)
+    return levels
 
 
 def distortion_columns(stream: Stream) -> np.ndarray:
@@ -299,11 +374,21 @@ def _encode(stream: Stream, variables, seqs: replay_lib.Columns, fingerprints: b
 
 @jitted(static_argnums=0)
 def _replay_chunk(stream: Stream, states: StreamState, carry, keys):
-    """carry unchanged → one replay sample of `num_envs` sequences per run (keys [R])."""
-    def one(s, key):
-        return replay_lib.sample(s.replay, key, stream.config.num_envs, stream.seq_len)
+    """One replay sample of `num_envs` sequences per run (keys [R]). carry None (the leading
+    split: every row from every column), or (held-out rows [C, E], chunk index c): row e of
+    chunk c from the held-out columns where marked, else from the others; c advances."""
+    if carry is None:
+        def one(s, key):
+            return replay_lib.sample(s.replay, key, stream.config.num_envs, stream.seq_len)
 
-    return carry, jax.vmap(one)(states, keys)
+        return carry, jax.vmap(one)(states, keys)
+    held_out, c = carry
+    fraction = alignment.RegressorConfig().validation_fraction
+
+    def split(s, key):
+        return replay_lib.sample_split(s.replay, key, held_out[c], stream.seq_len, fraction)
+
+    return (held_out, c + 1), jax.vmap(split)(states, keys)
 
 
 @jitted(static_argnums=0)

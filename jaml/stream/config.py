@@ -16,12 +16,14 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, Literal
 
 from envs_mjx import config as envs_config
 from jaml.learners import config as learners_config
 
 POLICIES = ("ppo", "random")
+# How the alignment regressor's held-out rows are drawn (`EvalConfig.validation_split`).
+VALIDATION_SPLITS = ("slots", "leading")
 # The reference's replay size in columns (suite_reference.md §3).
 REFERENCE_REPLAY_COLUMNS = 5000
 # The share of replay slots kept from the initial policy, by learner (reference §3): the paper's
@@ -140,6 +142,11 @@ class EvalConfig:
       its rotation blocks are fit and scored by the principal-axis error of R_trueᵀR̂.
     distortion_dims: LD-state names whose values are τ^true in the distortion ρ (paper eq. 5;
       the incline's dynamic state, position and velocity); empty means all of them.
+    validation_split: how the regressor's held-out 30 % of the training rows are drawn:
+      "slots" from replay columns whose frames no fit row shows (`replay.sample_split`), so
+      the validation error is not the fit's error on rows it saw; "leading" as the reference
+      does, the leading rows of one draw from every column (with a small replay they repeat
+      fit rows' frames). Records written before the choice existed read as "leading".
     """
 
     every: int = 100
@@ -150,10 +157,14 @@ class EvalConfig:
     regressor_iterations: int = 10_000
     regressor_normalize: bool = True
     distortion_dims: tuple[str, ...] = ()
+    validation_split: Literal["slots", "leading"] = "slots"
 
     def __post_init__(self):
         problems = _below(self, ("every", "train", "rand", "regressor_iterations"), "eval.")
         problems += _below(self, ("curr", "transient"), "eval.", at_least=0)
+        if self.validation_split not in VALIDATION_SPLITS:
+            problems.append(f"eval.validation_split must be one of {VALIDATION_SPLITS}, got "
+                            f"{self.validation_split!r}")
         if problems:
             raise ValueError("; ".join(problems))
 
@@ -302,7 +313,8 @@ class StreamConfig:
         """The config a `to_dict` or `record` describes: a run's config.json, or one written
         before the tree (flat fields, `learner_overrides` / `env_overrides`, and maybe their
         configs under "resolved"), read as the run it was. Fields a record lacks (new in the
-        code) take their defaults, the learner's `LEGACY_LEARNER_FIELDS` the values it ran with;
+        code) take their defaults, the learner's `LEGACY_LEARNER_FIELDS` and the eval's
+        `LEGACY_EVAL_FIELDS` the values it ran with;
         fields of the learner's and env's configs that the code no
         longer has are dropped."""
         d = _migrated(d)
@@ -323,6 +335,9 @@ class StreamConfig:
 # encoder blind to the action into the first predicted frame.
 LEGACY_LEARNER_FIELDS = {"compute_dtype": "float32", "activation_dtype": "float32",
                          "current_action": "hidden"}
+# Eval fields added after runs were first recorded, at the values those runs used: the
+# regressor's held-out rows the leading rows of one replay draw.
+LEGACY_EVAL_FIELDS = {"validation_split": "leading"}
 
 # The flat fields of records written before the tree → their paths in it.
 FLAT_FIELDS = {
@@ -351,6 +366,7 @@ def _migrated(d: dict[str, Any]) -> dict[str, Any]:
         d["learner_config"] = resolved.get("learner", {"ld_dim": None, **learner_overrides})
     if env_overrides is not None or "env" in resolved:
         d["env_config"] = resolved.get("env", env_overrides)
+    d["eval"] = LEGACY_EVAL_FIELDS | d.get("eval", {})
     return d
 
 

@@ -263,11 +263,13 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
         runs = [r for _, r in members]
         parts: dict[str, float] = {}
         kept = [r.pi_rand_set for r in runs]
+        # The reference rows at a run's first analysis in this call only: three more fits.
         evaluated = analysis.evaluate_runs(stream, device_states,
                                            jnp.stack([r.eval_key() for r in runs]),
                                            jnp.stack([r.pi_rand_key for r in runs]),
                                            seconds=parts,
-                                           pi_rand_sets=None if None in kept else kept)
+                                           pi_rand_sets=None if None in kept else kept,
+                                           references=any(r.references is None for r in runs))
         share = (time.perf_counter() - tic) / len(members)
         for (i, r), report in zip(members, evaluated, strict=True):
             r.seconds["analysis"] += share

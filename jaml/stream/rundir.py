@@ -169,6 +169,9 @@ class RunDir:
         # The analysis phase by part (`analysis.evaluate`'s, then this run's records and
         # reconstructions; figures are drawn in the background): where its time goes.
         self.analysis_parts: dict[str, float] = {}
+        # The reference rows (`analysis.reference_rows`, the constant's beside them) of this
+        # call's first analysis, with its epoch: summary.json's "references".
+        self.references: dict | None = None
 
     def eval_key(self) -> jax.Array:
         """The analysis key of the current epoch."""
@@ -179,6 +182,9 @@ class RunDir:
         """Records, figures and (see `checkpoint_due`) an atomic checkpoint at the current
         epoch, from this run's `analysis.evaluate_runs` report and its error names (the driver,
         `jaml.stream.run`, analyses the runs trained together)."""
+        if "references" in report:
+            self.references = {"epoch": self.epoch, "validation_split":
+                               report["validation_split"], **report["references"]}
         with timed(self.seconds, "analysis"), timed(self.analysis_parts, "records"):
             records = _records(stream, names, self.epoch, report, seed=self.config.seed)
             self.history += records
@@ -216,6 +222,8 @@ class RunDir:
             "checkpoint_epoch": self.manager.latest_step(),
             "resumed_from": self.resumed_from,
             "final": [r for r in self.history if r["step"] == last],
+            "references": self.references,
+            **_scale(self.config),
             **({"error": self.error} if self.error is not None else {}),
         }
 
@@ -239,11 +247,24 @@ def _records(stream: Stream, names: list[str], epoch: int, report: dict, *,
     # The held-out replay rows' error, for choices made without the test sets, and what a latent
     # with no information scores on each test set's rows (`evaluation.constant_errors`).
     validation = dict(zip(names, report["errors"]["validation"], strict=True))
+    trimmed = report.get("distortion_trimmed") or {}
     records = [r | {"validation": validation,
                     "baseline": dict(zip(names, report["baseline"][r["test_set"]], strict=True)),
-                    "irregularity": report.get("irregularity")}
+                    "irregularity": report.get("irregularity"),
+                    "distortion_trimmed": trimmed.get("value"),
+                    "distortion_left_out": trimmed.get("left_out"),
+                    "validation_split": report.get("validation_split")}
                for r in records]
     return records
+
+
+def _scale(config: StreamConfig) -> dict:
+    """{"scale": the `jaml.suite.SCALES` entry whose set sizes the run has (`suite.scale_of`)},
+    and at the smoke scale a "note" that its numbers do not rank encoders."""
+    from jaml import suite  # here: jaml.suite imports the stream
+
+    scale = suite.scale_of(config)
+    return {"scale": scale, **({"note": suite.SMOKE_NOTE} if scale == "smoke" else {})}
 
 
 def _figures(history: list[dict], out: Path) -> None:

@@ -132,13 +132,14 @@ def _fake_stream(monkeypatch, env_name, **changes):
         "eval.regressor_iterations": 30, "ppo.num_minibatches": 4, **changes})
     fake = types.SimpleNamespace(config=config, env=env, seq_len=1)
 
-    def one(stream_, s, key, num, random=None, fingerprints=False, kept=None):
+    def one(stream_, s, key, num, random=None, fingerprints=False, kept=None, store=None):
         sets = _synthetic(env, key, num)
         if fingerprints:  # every input distinct
             sets += (np.arange(num, dtype=np.uint32)[:, None],)
         return sets
 
-    def runs(stream_, states, keys, num, random=None, fingerprints=False, kept=None):
+    def runs(stream_, states, keys, num, random=None, fingerprints=False, kept=None,
+             store=None):
         sets = [one(stream_, None, k, num, fingerprints=fingerprints) for k in keys]
         return tuple(np.stack(x) for x in zip(*sets, strict=True))
 
@@ -186,19 +187,18 @@ def test_rearrange_rotation_blocks_are_scored_by_their_principal_axis(monkeypatc
         np.testing.assert_allclose(errors[len(names):], by_block, rtol=1e-4, err_msg=test_set)
         np.testing.assert_allclose(errors[:len(names)], np.abs(pred - ld).mean(axis=0),
                                    rtol=1e-4, atol=1e-6, err_msg=test_set)
-        if test_set != "validation":
-            # The latent-free level on the same rows: the fit rows' median (the last 40 of 56),
-            # blocks scored by the same principal-axis error.
-            constant = np.median(train[1][16:], axis=0)
-            baseline = np.asarray(report["baseline"][test_set])
-            np.testing.assert_allclose(baseline[:len(names)], np.abs(constant - ld).mean(axis=0),
-                                       rtol=1e-5, atol=1e-6, err_msg=test_set)
-            const_blocks = np.broadcast_to(constant, ld.shape)
-            np.testing.assert_allclose(baseline[len(names):], [float(np.mean(
-                rotation.principal_axis_error(ld[:, s:s + 9].reshape(-1, 3, 3),
-                                              const_blocks[:, s:s + 9].reshape(-1, 3, 3))))
-                for s in starts], rtol=1e-5, err_msg=test_set)
-    assert list(report["baseline"]) == ["pi_rand", "pi_curr"]
+        # The latent-free level on the same rows: the fit rows' median (the last 40 of 56),
+        # blocks scored by the same principal-axis error.
+        constant = np.median(train[1][16:], axis=0)
+        baseline = np.asarray(report["baseline"][test_set])
+        np.testing.assert_allclose(baseline[:len(names)], np.abs(constant - ld).mean(axis=0),
+                                   rtol=1e-5, atol=1e-6, err_msg=test_set)
+        const_blocks = np.broadcast_to(constant, ld.shape)
+        np.testing.assert_allclose(baseline[len(names):], [float(np.mean(
+            rotation.principal_axis_error(ld[:, s:s + 9].reshape(-1, 3, 3),
+                                          const_blocks[:, s:s + 9].reshape(-1, 3, 3))))
+            for s in starts], rtol=1e-5, err_msg=test_set)
+    assert list(report["baseline"]) == ["pi_rand", "pi_curr", "validation"]
     # The records: the LD entries, then objK_rotation.
     records = evaluation.history_records(6, "VAE_rpl", {"pi_rand": report["errors"]["pi_rand"]},
                                          analysis.error_names(fake))
@@ -249,11 +249,10 @@ def test_other_domains_are_analysed_as_before(monkeypatch):
         np.testing.assert_allclose(report["errors"][test_set],
                                    np.abs(_predict(regressor.params, lat) - target).mean(axis=0),
                                    rtol=1e-4, atol=1e-5, err_msg=test_set)
-        if test_set != "validation":
-            np.testing.assert_allclose(report["baseline"][test_set],
-                                       np.abs(np.median(fit, axis=0) - ld).mean(axis=0) / std,
-                                       rtol=1e-5, atol=1e-6, err_msg=test_set)
-    assert list(report["baseline"]) == ["pi_rand", "pi_curr"]
+        np.testing.assert_allclose(report["baseline"][test_set],
+                                   np.abs(np.median(fit, axis=0) - ld).mean(axis=0) / std,
+                                   rtol=1e-5, atol=1e-6, err_msg=test_set)
+    assert list(report["baseline"]) == ["pi_rand", "pi_curr", "validation"]
     # The released code's distortion on the π_rand and replay rows, as `evaluation` scores them.
     names = fake.env.ld_state_names
     for part, (lat, ld) in (("pi_rand", _synthetic(fake.env, pi_rand_key, 16)),

@@ -13,7 +13,13 @@ from jaml import stream
 from jaml.learners import config as learners_config
 from jaml.learners.config import ALL_LEARNERS
 from jaml.stream import run as run_lib
-from jaml.stream.config import DOMAINS, FLAT_FIELDS, LEGACY_LEARNER_FIELDS, changed_fields
+from jaml.stream.config import (
+    DOMAINS,
+    FLAT_FIELDS,
+    LEGACY_EVAL_FIELDS,
+    LEGACY_LEARNER_FIELDS,
+    changed_fields,
+)
 from tests.stream.test_loop import tiny
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
@@ -150,11 +156,13 @@ def _old_record(config: stream.StreamConfig) -> dict:
 
 
 def test_a_run_records_its_resolved_config_and_resumes_from_an_older_record(tmp_path):
-    # An older record lacks the learner fields added since (LEGACY_LEARNER_FIELDS): it ran
-    # float32 with the encoder blind to the current action, so only such a config resumes it.
+    # An older record lacks the learner and eval fields added since (LEGACY_LEARNER_FIELDS,
+    # LEGACY_EVAL_FIELDS): it ran float32 with the encoder blind to the current action and the
+    # regressor's held-out rows the leading ones, so only such a config resumes it.
     today = tiny()
-    config = today.with_overrides({f"learner_config.{k}": v
-                                   for k, v in LEGACY_LEARNER_FIELDS.items()})
+    config = today.with_overrides({
+        **{f"learner_config.{k}": v for k, v in LEGACY_LEARNER_FIELDS.items()},
+        **{f"eval.{k}": v for k, v in LEGACY_EVAL_FIELDS.items()}})
     old = tmp_path / "old"
     old.mkdir()
     record = _old_record(today)  # as older runs wrote it: none of those fields
@@ -214,7 +222,9 @@ def test_a_run_records_its_tree_whole_and_resume_checks_it(tmp_path):
 
 
 def test_a_record_with_the_flat_form_and_resolved_configs_reads_as_its_run(tmp_path):
-    config = tiny("PRED", {"learner_config.hist": 2, "learner_config.pred": 2})
+    # The regressor's held-out rows as such runs drew them (LEGACY_EVAL_FIELDS).
+    config = tiny("PRED", {"learner_config.hist": 2, "learner_config.pred": 2,
+                           "eval.validation_split": "leading"})
     ld_dim = 4
     old = _old_record(config) | {"resolved": {
         "learner": _fields(config.resolved(ld_dim).learner_config) | {"gone": 1},
@@ -265,6 +275,9 @@ def test_every_committed_stream_run_config_reads_back():
             got = config.to_dict()
             learner, written = got["learner_config"], recorded["learner_config"]
             assert all(learner.pop(k) == defaults[k] for k in learner.keys() - written.keys())
+            evaluated, written = got["eval"], recorded["eval"]  # eval fields new since: legacy
+            assert all(evaluated.pop(k) == LEGACY_EVAL_FIELDS[k]
+                       for k in evaluated.keys() - written.keys())
             assert got == recorded, path
             continue
         # An older record: its flat fields as written, its learner's and env's configs with

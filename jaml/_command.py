@@ -11,7 +11,7 @@ import io
 import logging
 import os
 import re
-import signal
+import shlex
 import sys
 import threading
 import traceback
@@ -21,6 +21,8 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import tyro
+
+from jaml import _interrupts
 
 
 def _import_mjx_quietly() -> list[str]:
@@ -279,7 +281,7 @@ def main(argv, commands: Callable[[list[str]], dict[str, type]], description: st
         logging.getLogger("absl").setLevel(logging.ERROR)
     use_compilation_cache()
     try:
-        with _sigterm_as_interrupt():
+        with _interrupts.as_interrupt():
             return args.command.run()
     except Exception as error:  # every failure one line; the traceback with --debug
         if args.debug:
@@ -291,9 +293,14 @@ def main(argv, commands: Callable[[list[str]], dict[str, type]], description: st
     except KeyboardInterrupt:
         if args.debug:
             traceback.print_exc()
-        print("jaml: interrupted; run directories keep their last checkpoint and summary, and "
-              "the same command resumes", file=sys.stderr)
+        print(f"jaml: interrupted; resume with: {resume_command(argv)}", file=sys.stderr)
         return 130
+
+
+def resume_command(argv: list[str]) -> str:
+    """The command line that resumes an interrupted command: the same one (a run directory
+    resumes from its last checkpoint), shell-quoted."""
+    return shlex.join(["jaml", *argv])
 
 
 def error_line(error: BaseException) -> str:
@@ -303,24 +310,3 @@ def error_line(error: BaseException) -> str:
     if not isinstance(error, ValueError | TypeError | FileNotFoundError | RuntimeError):
         text = f"{type(error).__name__}: {text}"
     return text if len(text) <= 400 else text[:399] + "…"
-
-
-@contextlib.contextmanager
-def _sigterm_as_interrupt():
-    """SIGTERM (`timeout`, a batch scheduler's preemption) raises KeyboardInterrupt like Ctrl-C,
-    so runs unwind through their `finally` blocks and write their summaries instead of dying
-    mid-epoch. Only the main thread can install handlers; elsewhere this does nothing."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def interrupt(signum, frame):
-        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
-
-    previous = signal.signal(signal.SIGTERM, interrupt)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-

@@ -2,7 +2,8 @@
 built on them): its config check, atomic JSON, and the append-only logs cut back on resume.
 
     OUT/config.json     the resolved configuration (a stream run's: its learner's and env's
-                        configs too); a different one in the same OUT is refused
+                        configs too); a different one in the same OUT is refused, and so is
+                        an OUT that holds other files but no config.json (not a jaml run)
     OUT/.lock           held (flock) by the process training the run; a second one is refused
     OUT/metrics.jsonl   one JSON record per logged step, cut back to the checkpoint on resume
     OUT/tensorboard/    the same scalars for TensorBoard
@@ -50,14 +51,24 @@ class RunInUse(RuntimeError):
     """Another process holds the run directory (see `lock`)."""
 
 
+class RunDirUnwritable(ValueError):
+    """The run directory cannot be created or written (see `lock`)."""
+
+
 def lock(out: Path):
     """An exclusive claim on the run directory `out` for as long as the returned file stays
     open (close it to release; the kernel releases it when the process dies, so a killed run
     leaves no stale lock). Two processes training one directory would interleave its
-    checkpoints and logs; the second is refused with `RunInUse`, naming the holder."""
+    checkpoints and logs; the second is refused with `RunInUse`, naming the holder. A directory
+    that cannot be created or written raises `RunDirUnwritable`, saying where and why; one that
+    is not a jaml run (`claim`) is refused before the lock file is written into it."""
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    handle = (out / ".lock").open("a+")
+    _refuse_foreign(out)  # before the lock file is written into someone else's folder
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        handle = (out / ".lock").open("a+")
+    except OSError as error:
+        raise RunDirUnwritable(_unwritable(out, error)) from None
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
@@ -73,6 +84,34 @@ def lock(out: Path):
     return handle
 
 
+def _unwritable(out: Path, error: OSError) -> str:
+    """Why `out` cannot be a run directory, in one line: the nearest folder that exists and
+    what the system said (creating a folder under /proc says "No such file or directory" of a
+    folder that exists, so the bare message misleads)."""
+    parent = next((p for p in (out, *out.parents) if p.exists()), None)
+    where = "" if parent is None or parent == out else f" (under {parent}, which exists)"
+    reason = error.strerror or type(error).__name__
+    return (f"--out {out} cannot be written: {reason}{where}; choose a directory you can "
+            "write")
+
+
+# Files a driver writes into a run directory before the run claims it (the penalty record of
+# `jaml.experiments.fig9`), and the lock `lock` creates: a directory holding only these is new.
+SIDECARS = frozenset({".lock", "penalty.json"})
+
+
+def _refuse_foreign(out: Path) -> None:
+    """Raise ValueError when `out` holds files but no config.json: a folder that is not a jaml
+    run, whose files the run's would be mixed into."""
+    if not out.is_dir() or (out / "config.json").exists():
+        return
+    foreign = sorted(p.name for p in out.iterdir() if p.name not in SIDECARS)
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (", …" if len(foreign) > 3 else "")
+        raise ValueError(f"{out} is not empty ({shown}) and holds no jaml run (no "
+                         "config.json); choose a new or empty --out")
+
+
 def claim(out: Path, resolved: dict, same: Callable[[dict], bool] | None = None,
           differences: Callable[[dict], str] | None = None) -> bool:
     """Make `out` the directory of the run that `resolved` (JSON-ready) describes: created if
@@ -81,12 +120,19 @@ def claim(out: Path, resolved: dict, same: Callable[[dict], bool] | None = None,
     Raises ValueError when `out` holds a run with another configuration (`same(recorded)` is
     False; default: the recorded JSON differs from `resolved`), so that resuming never mixes
     two runs' checkpoints and logs; `differences(recorded)` names what differs, in the
-    message."""
+    message. Also when `out` holds files but no config.json (a folder that is not a jaml run:
+    the run's files would be mixed into it), or a config.json that cannot be read."""
     config_path = Path(out) / "config.json"
     resuming = config_path.exists()
     same = (lambda recorded: recorded == resolved) if same is None else same
-    recorded = json.loads(config_path.read_text()) if resuming else None
-    if resuming and not same(recorded):
+    _refuse_foreign(Path(out))
+    recorded = _read_config(config_path) if resuming else None
+    try:
+        matches = resuming and same(recorded)
+    except (TypeError, KeyError, ValueError, AttributeError) as error:
+        raise ValueError(f"{config_path} does not describe a run this jaml can read "
+                         f"({type(error).__name__}: {error}); choose a new --out") from None
+    if resuming and not matches:
         what = "" if differences is None else f": {differences(recorded)}"
         raise ValueError(f"{out} holds a run with a different configuration ({config_path}"
                          f"{what}); resume with the same options or choose a new --out")
@@ -95,12 +141,38 @@ def claim(out: Path, resolved: dict, same: Callable[[dict], bool] | None = None,
     return resuming
 
 
+def _read_config(path: Path) -> dict:
+    """A run's config.json; a damaged one is a one-line error naming the file."""
+    try:
+        recorded = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path} is not valid JSON ({error}); restore it or choose a new "
+                         "--out") from None
+    if not isinstance(recorded, dict):
+        raise ValueError(f"{path} holds a {type(recorded).__name__}, not a run's config; "
+                         "restore it or choose a new --out")
+    return recorded
+
+
 def truncate_jsonl(path: Path, keep: Callable[[dict], bool]) -> list[dict]:
     """Keep the records of a JSON-lines file for which keep(record) holds (atomically); returns
-    them ([] when the file does not exist)."""
+    them ([] when the file does not exist). An unterminated last line (a write cut short by a
+    killed process) is dropped; any other line that is not JSON is an error naming the line."""
     if not path.exists():
         return []
-    records = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    text = path.read_text()
+    lines = text.splitlines()
+    records = []
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError as error:
+            if number == len(lines) and not text.endswith("\n"):
+                break
+            raise ValueError(f"{path}:{number} is not valid JSON ({error}); remove that line "
+                             "or choose a new --out") from None
     kept = [r for r in records if keep(r)]
     write_text(path, "".join(json.dumps(r) + "\n" for r in kept))
     return kept

@@ -219,9 +219,11 @@ def test_sigterm_unwinds_like_ctrl_c_and_says_how_to_resume(monkeypatch, capsys)
 
     monkeypatch.setattr(cli.Relations, "run", killed)
     before = signal.getsignal(signal.SIGTERM)
-    assert cli.main(["relations", "--source", "ellipse", "--out", "unused"]) == 130
+    assert cli.main(["relations", "--source", "ellipse", "--out", "unused dir"]) == 130
     assert unwound == [True] and signal.getsignal(signal.SIGTERM) is before
-    assert "interrupted" in capsys.readouterr().err
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["jaml: interrupted; resume with: jaml relations --source ellipse --out "
+                   "'unused dir'"]
 
 
 def test_relations_fit_a_csv_with_a_header(tmp_path, capsys):

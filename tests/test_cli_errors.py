@@ -1,5 +1,6 @@
 """Every CLI failure one line naming the problem and the fix; flags' help says what they do."""
 
+import os
 import time
 import warnings
 
@@ -99,3 +100,34 @@ def test_an_infinite_distortion_says_how_many_pairs_collapsed():
         assert evaluation.distortion(latents, states, num_pairs=50, seed=1) == float("inf")
     (w,) = [w for w in caught if w.category is CollapsedPairsWarning]
     assert f"{collapsed} of {int(np.asarray(valid).sum())} pairs" in str(w.message)
+
+
+def test_an_unrelated_non_empty_out_is_refused_in_one_line(tmp_path, capsys):
+    """A folder of someone else's files is not made a run directory (its files would be mixed
+    with the run's)."""
+    out = tmp_path / "photos"
+    out.mkdir()
+    (out / "holiday.jpg").write_bytes(b"")
+    assert main([*_SUITE, "--out", str(out)]) == 2
+    line = _one_error_line(capsys)
+    assert "is not empty (holiday.jpg) and holds no jaml run" in line and "--out" in line
+    assert [p.name for p in out.iterdir()] == ["holiday.jpg"]  # left as it was
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="Linux's /proc")
+def test_an_unwritable_out_says_it_cannot_be_written(capsys):
+    """/proc takes no new folders: mkdir there says "No such file or directory" of a folder
+    that exists; the line says the path cannot be written, and under which folder."""
+    assert main([*_SUITE, "--out", "/proc/jaml-run"]) == 2
+    line = _one_error_line(capsys)
+    assert "--out /proc/jaml-run cannot be written" in line and "(under /proc" in line
+    assert "choose a directory you can write" in line
+
+
+def test_a_corrupt_config_json_is_one_line_naming_the_file(tmp_path, capsys):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "config.json").write_text('{"env": "CartPole", "learner"')  # cut short
+    assert main([*_SUITE, "--out", str(out)]) == 2
+    line = _one_error_line(capsys)
+    assert f"{out / 'config.json'} is not valid JSON" in line and "--out" in line

@@ -66,3 +66,66 @@ def test_a_process_that_dies_releases_its_lock(tmp_path):
         holder.kill()
         holder.wait()
     _rundir.lock(out).close()  # the kernel released it with the process
+
+
+def test_claim_refuses_a_folder_of_other_files_but_not_the_runs_own(tmp_path):
+    """A folder with files but no config.json is not a run: refused, left as it was. The lock
+    and a driver's penalty record (`SIDECARS`) do not count."""
+    other = tmp_path / "other"
+    other.mkdir()
+    for name in ("a.txt", "b.txt", "c.txt", "d"):
+        (other / name).write_text("")
+    with pytest.raises(ValueError, match=r"is not empty \(a\.txt, b\.txt, c\.txt, …\) and "
+                                         r"holds no jaml run"):
+        _rundir.claim(other, {"lr": 1})
+    assert not (other / "config.json").exists()
+    mine = tmp_path / "mine"
+    _rundir.lock(mine).close()
+    (mine / "penalty.json").write_text("{}")
+    assert _rundir.claim(mine, {"lr": 1}) is False
+
+
+@pytest.mark.parametrize("text, message", [
+    ('{"lr": 1', "is not valid JSON"),
+    ("[1, 2]", "holds a list, not a run's config"),
+])
+def test_a_damaged_config_json_is_named(tmp_path, text, message):
+    (tmp_path / "config.json").write_text(text)
+    with pytest.raises(ValueError, match=f"{tmp_path / 'config.json'} {message}"):
+        _rundir.claim(tmp_path, {"lr": 1})
+
+
+def test_a_config_json_the_reader_cannot_use_is_named(tmp_path):
+    (tmp_path / "config.json").write_text('{"lr": 1}')
+
+    def same(recorded):
+        return recorded["widths"] == [8]  # a record of another format
+
+    with pytest.raises(ValueError, match=r"config\.json does not describe a run this jaml can "
+                                         r"read \(KeyError: 'widths'\)"):
+        _rundir.claim(tmp_path, {"lr": 1}, same)
+
+
+def test_an_unwritable_out_names_the_path_and_why(tmp_path, monkeypatch):
+    """Run as root, permissions do not refuse a folder: the error is simulated."""
+    out = tmp_path / "locked" / "run"
+
+    def refuse(self, *args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(self))
+
+    monkeypatch.setattr(_rundir.Path, "mkdir", refuse)
+    with pytest.raises(_rundir.RunDirUnwritable,
+                       match=rf"--out {out} cannot be written: Permission denied \(under "
+                             rf"{tmp_path}, which exists\); choose a directory you can write"):
+        _rundir.lock(out)
+    assert issubclass(_rundir.RunDirUnwritable, ValueError)  # one line on the command line
+
+
+def test_a_jsonl_cut_by_a_kill_loses_its_last_line_and_a_damaged_line_is_named(tmp_path):
+    path = tmp_path / "metrics.jsonl"
+    path.write_text('{"epoch": 1}\n{"epoch": 2}\n{"epo')  # the last write cut short
+    assert _rundir.truncate_jsonl(path, lambda r: True) == [{"epoch": 1}, {"epoch": 2}]
+    assert path.read_text() == '{"epoch": 1}\n{"epoch": 2}\n'
+    path.write_text('{"epoch": 1}\nnot json\n{"epoch": 3}\n')
+    with pytest.raises(ValueError, match=rf"{path}:2 is not valid JSON"):
+        _rundir.truncate_jsonl(path, lambda r: True)

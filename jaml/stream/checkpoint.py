@@ -17,6 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
+from jaml import _interrupts
+
 FORMAT = 2
 
 
@@ -44,8 +46,12 @@ def named(state) -> dict[str, jax.Array]:
 
 
 def save(mgr: ocp.CheckpointManager, step: int, state) -> None:
-    mgr.save(step, args=ocp.args.StandardSave(named(state)))
-    mgr.wait_until_finished()
+    """Write `state` as step `step` and wait until it is finalised. Ctrl-C or SIGTERM during
+    the write takes effect once it is done (`_interrupts.held`): a checkpoint is whole or
+    absent, and the interrupted run's summary names it."""
+    with _interrupts.held():
+        mgr.save(step, args=ocp.args.StandardSave(named(state)))
+        mgr.wait_until_finished()
 
 
 class CheckpointUnreadable(ValueError):

@@ -129,8 +129,10 @@ class ReplayConfig:
 class EvalConfig:
     """The alignment analyses and their regressor (reference §5).
 
-    every: epochs between alignment analyses and checkpoints (the first analysis runs when the
-      replay is full and the learner starts).
+    every: epochs between alignment analyses and checkpoints, counted from the first analysis,
+      which runs when the replay is full and the learner starts (the reference counts its
+      epochs from there): with 2 fill epochs, every 50 analyses at epochs 2, 52, 102, …, the
+      learner's 0th, 50th, 100th, and at the last epoch.
     train: sequences in the regressor's training set, sampled from the replay.
     rand: sequences in the π_rand test set (random policy, the same set at every analysis).
     curr: sequences in the π_curr test set (current policy; PPO runs only).

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
+from jaml import _interrupts
 from jaml.stream import analysis
 from jaml.stream.config import StreamConfig
 from jaml.stream.executor import (
@@ -119,6 +120,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     analysis_seconds = 0.0
     try:
         while True:
+            _interrupts.raise_if_pending()  # a Ctrl-C that a callback swallowed (gc, JAX)
             for r in runs:
                 if r.status == "running" and not r.targets:
                     r.status = "finished"
@@ -191,6 +193,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                      "loss": _last_finite(metrics["learner/loss"][:, 0])}
             bar.set_postfix({k: f"{v:.4g}" for k, v in shown.items() if np.isfinite(v)})
     except KeyboardInterrupt:
+        _interrupts.delivered()
         for r in runs:
             r.status = "interrupted" if r.status == "running" else r.status
         raise

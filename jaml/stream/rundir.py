@@ -6,6 +6,7 @@ The directory's files and the resume rules are listed in docs/stream.md, "Run di
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import time
@@ -31,20 +32,44 @@ def claim_run(out: Path, config: StreamConfig, stream: Stream | None = None) -> 
     learner's ld_dim the `stream`'s env's (`StreamConfig.record`). A recorded run is this one
     when its tree (`StreamConfig.from_dict`: older records read as the runs they were) resolves
     to this one; the learner's ld_dim, the env's, is not compared (a record written without the
-    stream lacks it). A refusal names the fields that differ."""
+    stream lacks it). A learner of your own (MODULE:FACTORY) is recorded by the config its
+    factory gave (`_own_learner_config`), compared when both records have it. A refusal names
+    the fields that differ."""
     ld_dim = None if stream is None else len(stream.env.ld_state_names)
     now = config.env_free()
+    record = config.record(ld_dim)
+    own = _own_learner_config(config, stream)
+    if own is not None:
+        record["learner_config"] = own
 
     def same(recorded: dict) -> bool:
-        return StreamConfig.from_dict(recorded).env_free() == now
+        then = recorded.get("learner_config")
+        own_differs = own is not None and then is not None and then != own
+        return StreamConfig.from_dict(recorded).env_free() == now and not own_differs
 
     def differences(recorded: dict) -> str:
         then = StreamConfig.from_dict(recorded).env_free()
         was = changed_fields(then, now)
-        return ", ".join(f"{path} {was[path]!r} recorded, {value!r} now"
-                         for path, value in changed_fields(now, then).items())
+        named = [f"{path} {was[path]!r} recorded, {value!r} now"
+                 for path, value in changed_fields(now, then).items()]
+        before = recorded.get("learner_config")
+        if own is not None and before is not None and before != own:
+            named += [f"learner_config.{k} {before.get(k)!r} recorded, {own.get(k)!r} now"
+                      for k in sorted(set(own) | set(before)) if own.get(k) != before.get(k)]
+        return ", ".join(named)
 
-    return claim(out, config.record(ld_dim), same, differences)
+    return claim(out, record, same, differences)
+
+
+def _own_learner_config(config: StreamConfig, stream: Stream | None) -> dict | None:
+    """A learner of your own's config as its factory built it (JSON-ready, with its class as
+    "type"), for config.json; None for a registry learner (its config is in the tree) or
+    without the stream."""
+    if stream is None or config.learner_config is not None:
+        return None
+    own = stream.learner.config
+    fields = json.loads(json.dumps(dataclasses.asdict(own), default=str))
+    return {"type": f"{type(own).__module__}.{type(own).__qualname__}", **fields}
 
 
 def analysis_epochs(config: StreamConfig) -> list[int]:
@@ -211,8 +236,10 @@ class RunDir:
             checkpoint.save(self.manager, self.epoch, state)
 
     def summary(self) -> dict:
-        """summary.json's record of this call so far."""
+        """summary.json's record of this call so far; its checkpoint the newest on disk (read
+        again: a save that an interrupt cut short may still have been finalised)."""
         last = max((h["step"] for h in self.history), default=-1)
+        self.manager.reload()
         return {
             "status": self.status,
             "epoch": self.epoch,

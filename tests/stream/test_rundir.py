@@ -38,3 +38,41 @@ def test_figures_are_drawn_in_the_background_from_each_runs_newest_history(monke
     failing.wait()
     with pytest.raises(ZeroDivisionError):
         failing.check()
+
+
+def test_a_learner_of_your_own_is_recorded_by_its_factorys_config(tmp_path):
+    """config.json holds the config the factory built (not null), its class as "type"; a
+    resume whose factory builds another config is refused, naming the field."""
+    import json
+    from types import SimpleNamespace
+
+    from jaml import stream
+    from jaml.learners.learner import SingleFrameConfig
+
+    config = stream.for_env("CartPole", "tests.stream.test_own_learner:make_tiny")
+    assert config.learner_config is None
+
+    def built(latent_dim):
+        own = SingleFrameConfig(ld_dim=4, latent_dim=latent_dim, learning_rate=1e-3)
+        return SimpleNamespace(env=SimpleNamespace(ld_state_names=("a", "b", "c", "d")),
+                               learner=SimpleNamespace(config=own))
+
+    assert rundir.claim_run(tmp_path, config, built(6)) is False
+    recorded = json.loads((tmp_path / "config.json").read_text())["learner_config"]
+    assert recorded["type"] == "jaml.learners.config.SingleFrameConfig"
+    assert recorded["latent_dim"] == 6 and recorded["ld_dim"] == 4
+    assert rundir.claim_run(tmp_path, config, built(6)) is True
+    with pytest.raises(ValueError, match=r"learner_config\.latent_dim 6 recorded, 8 now"):
+        rundir.claim_run(tmp_path, config, built(8))
+
+
+def test_analyses_fall_every_eval_every_epochs_from_the_full_replay_and_the_docs_say_so():
+    """The epochs count the replay's filling; the analyses are the reference's, counted from
+    the full replay (with 2 fill epochs, every 50: 2, 52, 102); the option's help says so."""
+    from jaml import _command, stream
+
+    config = stream.for_env("CartPole", "VAE_rpl", {"num_envs": 8, "replay.slots": 16,
+                                                    "epochs": 160, "eval.every": 50})
+    assert config.fill_epochs == 2
+    assert rundir.analysis_epochs(config) == [2, 52, 102, 152, 160]
+    assert "2, 52, 102" in _command.field_docs(stream.EvalConfig)["every"]

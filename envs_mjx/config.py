@@ -28,7 +28,8 @@ class EnvConfig:
       those domains default to None and follow an overridden episode_length.
     n_frames: physics substeps per action.
     pixels: "auto" uses `envs_mjx.render` when importable and otherwise a zero placeholder with a
-      warning; "required" raises if the renderer is missing; "off" is the placeholder, silently.
+      warning; "required" raises if the renderer is missing; "off" is the placeholder, silently:
+      give it to train on the LD state (Brax's PPO), which otherwise renders unread frames.
     image_size: side of the square image, in pixels.
     family (a class constant, one of FAMILIES): the domain's family.
     """
@@ -78,8 +79,26 @@ class BenchmarkConfig(EnvConfig):
     reset_noise: float = 0.1
 
 
+# CartPole's conventions (`CartPoleConfig.conventions`): the reference's, or Gymnasium's
+# CartPole-v1 values for the fields still at the reference's (`GYMNASIUM_CARTPOLE`).
+CONVENTIONS = ("reference", "gymnasium")
+# Gymnasium's CartPole-v1: 500 steps, reward 1 a step, the episode ends at |x| > 2.4 m.
+GYMNASIUM_CARTPOLE = {"episode_length": 500, "reward_scale": 1.0, "x_threshold": 2.4}
+
+
 @dataclasses.dataclass(frozen=True)
 class CartPoleConfig(BenchmarkConfig):
+    """CartPole's options. By default the reference's episode (200 steps, the episode's reward
+    scaled to ≤ 1: 1/200 a step) and limits (|x| ≤ 0.4 m, |θ| ≤ 12°).
+
+    conventions: "reference", or "gymnasium" for Gymnasium's CartPole-v1 where a field is
+      still at the reference's value: 500 steps, reward 1 a step, |x| ≤ 2.4 m (the cart leaves
+      the 64×64 frame beyond about ±1.15 m). The physics stay the reference's (its slowly
+      falling pole) and so do the actions (continuous; `action_mode`).
+    action_mode: "sign" (the reference's ±10 N) or "linear" (10 N · a).
+    x_threshold, theta_threshold: the episode ends when |x| (m) or |θ| (rad) exceeds them.
+    """
+
     family: typing.ClassVar[str] = "pendulum"
     episode_length: int | None = 200
     n_frames: int = 1
@@ -87,6 +106,18 @@ class CartPoleConfig(BenchmarkConfig):
     reset_noise: float = 0.05
     x_threshold: float = 0.4
     theta_threshold: float = 12.0 * 3.141592653589793 / 180.0
+    conventions: str = "reference"
+
+    def __post_init__(self):
+        if self.conventions not in CONVENTIONS:
+            raise ValueError(f"CartPoleConfig: conventions must be one of {CONVENTIONS}, got "
+                             f"{self.conventions!r}")
+        if self.conventions == "gymnasium":
+            reference = {"episode_length": 200, "reward_scale": None, "x_threshold": 0.4}
+            for name, value in GYMNASIUM_CARTPOLE.items():
+                if getattr(self, name) == reference[name]:
+                    object.__setattr__(self, name, value)
+        super().__post_init__()
 
 
 @dataclasses.dataclass(frozen=True)

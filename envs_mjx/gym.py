@@ -8,8 +8,11 @@ The version changes when a domain's dynamics, observations or rewards change.
 
 `num_envs=None` gives a `gymnasium.Env` (`MjxGymEnv`), `num_envs=N` a `gymnasium.vector.VectorEnv`
 (`MjxVectorEnv`) stepping N envs in one jitted, vmapped call. Observations are the uint8
-[S, S, 3] frames (`state.pixels`); actions are float32 in [-1, 1]; `info["ld_state"]` is the true
-low-dimensional state (float32 [D] or [N, D]), named by `info["ld_state_names"]`.
+[S, S, 3] frames (`state.pixels`); with `observation="dict"`, a Dict of those frames ("pixels")
+and the true low-dimensional state ("ld_state", float32 [D]), for agents that read both. Actions
+are float32 in [-1, 1]; `info["ld_state"]` is the LD state either way (float32 [D] or [N, D]),
+named by `info["ld_state_names"]`. `metadata["render_fps"]` is the env's steps per simulated
+second (1 / `env.dt`).
 
 PRNG keys are explicit: `reset(seed=s)` sets the key to `jax.random.PRNGKey(s)` (the constructor's
 `seed` when the first reset has none); every reset then does `key, sub = jax.random.split(key)` and
@@ -48,28 +51,37 @@ from envs_mjx.registry import ALL_ENVS, make
 GYM_IDS: dict[str, str] = {name: f"jaml/{name}-v0" for name in ALL_ENVS}
 
 
-def to_gymnasium(name: str, num_envs: int | None, seed: int = 0, **overrides):
+# What an observation is (`to_gymnasium`'s `observation`): the frames, or a Dict of the frames
+# and the LD state.
+OBSERVATIONS = ("pixels", "dict")
+
+
+def to_gymnasium(name: str, num_envs: int | None, seed: int = 0, observation: str = "pixels",
+                 **overrides):
     """The named domain (`envs_mjx.make(name, **overrides)`) as a Gymnasium env.
 
     `num_envs=None`: a single `gymnasium.Env`; an int: a `gymnasium.vector.VectorEnv` of that many
     envs with NEXT_STEP autoreset. `seed` seeds the PRNG key until `reset(seed=...)` replaces it.
+    `observation`: "pixels" (the frames) or "dict" (frames and LD state, `OBSERVATIONS`).
     """
     env = make(name, **overrides)
     if num_envs is None:
-        return MjxGymEnv(env, seed=seed)
-    return MjxVectorEnv(env, num_envs, seed=seed)
+        return MjxGymEnv(env, seed=seed, observation=observation)
+    return MjxVectorEnv(env, num_envs, seed=seed, observation=observation)
 
 
-def _single(name: str, seed: int = 0, render_mode: str | None = None, **overrides):
-    """gym.make's entry point: `to_gymnasium(name, None, seed, **overrides)`."""
-    return MjxGymEnv(make(name, **overrides), seed=seed, render_mode=render_mode)
+def _single(name: str, seed: int = 0, render_mode: str | None = None,
+            observation: str = "pixels", **overrides):
+    """gym.make's entry point: `to_gymnasium(name, None, seed, observation, **overrides)`."""
+    return MjxGymEnv(make(name, **overrides), seed=seed, render_mode=render_mode,
+                     observation=observation)
 
 
 def _vector(name: str, num_envs: int, seed: int = 0, render_mode: str | None = None,
-            **overrides):
-    """gym.make_vec's entry point: `to_gymnasium(name, num_envs, seed, **overrides)`."""
+            observation: str = "pixels", **overrides):
+    """gym.make_vec's entry point: `to_gymnasium(name, num_envs, seed, observation, ...)`."""
     del render_mode  # the vector env renders no window; frames are its observations
-    return MjxVectorEnv(make(name, **overrides), num_envs, seed=seed)
+    return MjxVectorEnv(make(name, **overrides), num_envs, seed=seed, observation=observation)
 
 
 def register_envs() -> None:
@@ -80,11 +92,22 @@ def register_envs() -> None:
                                vector_entry_point=functools.partial(_vector, name))
 
 
-def _spaces(env: Env) -> tuple[spaces.Box, spaces.Box]:
+def _spaces(env: Env, observation: str) -> tuple[spaces.Space, spaces.Box]:
+    """(observation space, action space) of one env."""
+    if observation not in OBSERVATIONS:
+        raise ValueError(f"observation must be one of {OBSERVATIONS}, got {observation!r}")
     size = int(env.config.image_size)
     obs = spaces.Box(0, 255, (size, size, 3), np.uint8)
+    if observation == "dict":
+        ld = spaces.Box(-np.inf, np.inf, (len(env.ld_state_names),), np.float32)
+        obs = spaces.Dict({"pixels": obs, "ld_state": ld})
     act = spaces.Box(-1.0, 1.0, (env.action_size,), np.float32)
     return obs, act
+
+
+def _metadata(env: Env) -> dict[str, Any]:
+    """Gymnasium's metadata: frames (rgb_array) at the env's rate, 1 / dt steps a second."""
+    return {"render_modes": ["rgb_array"], "render_fps": round(1.0 / env.dt)}
 
 
 class _Packing:
@@ -163,8 +186,11 @@ class _KeyedState:
         self._state = packed
         self._frames, self._floats = self._report.decode(reported)
 
-    def _obs_info(self) -> tuple[np.ndarray, dict[str, Any]]:
-        info = {"ld_state": self._floats[..., :-3], "ld_state_names": self.env.ld_state_names}
+    def _obs_info(self) -> tuple[np.ndarray | dict[str, np.ndarray], dict[str, Any]]:
+        ld = self._floats[..., :-3]
+        info = {"ld_state": ld, "ld_state_names": self.env.ld_state_names}
+        if self._observation == "dict":
+            return {"pixels": self._frames, "ld_state": ld.copy()}, info
         return self._frames, info
 
     def _compile(self, env: Env, reset, step, example) -> None:
@@ -195,9 +221,12 @@ class MjxGymEnv(_KeyedState, gymnasium.Env):
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"]}  # noqa: RUF012
 
-    def __init__(self, env: Env, seed: int = 0, render_mode: str | None = None):
+    def __init__(self, env: Env, seed: int = 0, render_mode: str | None = None,
+                 observation: str = "pixels"):
         self.env = env
-        self.observation_space, self.action_space = _spaces(env)
+        self.observation_space, self.action_space = _spaces(env, observation)
+        self._observation = observation
+        self.metadata = _metadata(env)
         self.render_mode = render_mode
         self._key = jax.random.PRNGKey(seed)
         self._compile(env, env.reset, lambda state, action: (env.step(state, action),),
@@ -232,13 +261,14 @@ class MjxVectorEnv(_KeyedState, VectorEnv):
     few envs (docs/notes/envs.md).
     """
 
-    def __init__(self, env: Env, num_envs: int, seed: int = 0):
+    def __init__(self, env: Env, num_envs: int, seed: int = 0, observation: str = "pixels"):
         self.env = env
         self.num_envs = int(num_envs)
-        self.single_observation_space, self.single_action_space = _spaces(env)
+        self.single_observation_space, self.single_action_space = _spaces(env, observation)
+        self._observation = observation
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self.metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP}
+        self.metadata = {**_metadata(env), "autoreset_mode": AutoresetMode.NEXT_STEP}
         self.render_mode = None
         self._key = jax.random.PRNGKey(seed)
         self._autoreset = np.zeros(self.num_envs, bool)

@@ -74,7 +74,7 @@ def field_docs(cls: type) -> dict[str, str]:
 def _choices() -> dict[tuple[str, str], tuple[str, ...]]:
     """(class name, field) → its valid values, for `str` fields whose set is fixed elsewhere
     (registries, validation in __post_init__). Their modules import neither JAX nor MuJoCo."""
-    from envs_mjx.config import ARMS, PHYSICS, PIXELS
+    from envs_mjx.config import ARMS, CONVENTIONS, PHYSICS, PIXELS
     from jaml.learners.config import COMPUTE_DTYPE_NAMES, CURRENT_ACTIONS, FRAME_NLLS, KL_FORMS
     from jaml.stream.config import POLICIES
 
@@ -88,6 +88,7 @@ def _choices() -> dict[tuple[str, str], tuple[str, ...]]:
         ("LearnerConfig", "current_action"): CURRENT_ACTIONS,
         ("LearnerConfig", "kl_form"): KL_FORMS,
         ("EnvConfig", "pixels"): PIXELS,
+        ("CartPoleConfig", "conventions"): CONVENTIONS,
     }
 
 

@@ -131,3 +131,12 @@ def test_a_corrupt_config_json_is_one_line_naming_the_file(tmp_path, capsys):
     assert main([*_SUITE, "--out", str(out)]) == 2
     line = _one_error_line(capsys)
     assert f"{out / 'config.json'} is not valid JSON" in line and "--out" in line
+
+
+def test_cartpoles_conventions_are_a_choice_on_the_command_line(capsys):
+    with pytest.raises(SystemExit):
+        main(["envs", "show", "--env", "CartPole", "--env-config.conventions", "gym"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("jaml envs: error: invalid choice 'gym' for "
+                                                "argument '--env-config.conventions'")
+    assert "('reference', 'gymnasium')" in err[0]

@@ -4,8 +4,11 @@ Action: a continuous a in [-1, 1] (Brax convention) stands in for the reference'
 With `action_mode="sign"` (default, the reference's bang-bang control) the force is
 10 N * sign(a): a > 0 is the reference's action 1 (+10 N), a < 0 its action 0 (-10 N); a == 0
 exactly gives no force. With `action_mode="linear"` the force is 10 N * clip(a, -1, 1).
-LD state: [theta, theta_dot, x, x_dot]. Done when |x| > 0.4 m or |theta| > 12 degrees; reward 1
-per step (times reward_scale). Reset: all four state entries ~U(+-0.05).
+LD state: [theta, theta_dot, x, x_dot]. Done when |x| > 0.4 m or |theta| > 12 degrees; reward
+1/200 a step (the reference's: 1 per step divided by the 200-step episode), so an episode's
+return is at most 1. `conventions="gymnasium"` takes Gymnasium's CartPole-v1 values instead
+(500 steps, reward 1 a step, |x| ≤ 2.4 m; `CartPoleConfig`). Reset: all four state entries
+~U(+-0.05).
 Multicolor: cart = scheme's base colour, pole = its pole colour; otherwise yellow cart, blue pole.
 """
 

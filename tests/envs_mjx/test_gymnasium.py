@@ -231,3 +231,76 @@ def test_load_is_playground_style_default_config_plus_overrides():
     assert env.config.n_frames == config.n_frames
     with pytest.raises(ValueError, match="needs a"):
         envs_mjx.load("CartPole", envs_mjx.default_config("HalfCheetah"))
+
+
+def test_metadata_gives_the_render_rate_of_the_envs_steps(single, vec):
+    """CartPole steps 0.02 s of simulated time: 50 frames a second."""
+    assert single.unwrapped.env.dt == pytest.approx(0.02)
+    assert single.metadata["render_fps"] == 50 and vec.metadata["render_fps"] == 50
+    assert single.metadata["render_modes"] == ["rgb_array"]
+    assert vec.metadata["autoreset_mode"] == AutoresetMode.NEXT_STEP
+
+
+def test_a_dict_observation_holds_the_ld_state_beside_the_pixels():
+    """observation="dict": Dict(pixels, ld_state), passing Gymnasium's checker; its LD state is
+    info's, single and vector; a bad choice is named."""
+    env = gymnasium.make("jaml/CartPole-v0", observation="dict", pixels="off")
+    space = env.observation_space
+    assert isinstance(space, gymnasium.spaces.Dict) and set(space) == {"pixels", "ld_state"}
+    assert space["ld_state"].shape == (4,) and space["ld_state"].dtype == np.float32
+    check_env(env.unwrapped, skip_render_check=True)
+    obs, info = env.reset(seed=3)
+    np.testing.assert_array_equal(obs["ld_state"], info["ld_state"])
+    obs, *_, info = env.step(np.array([0.5], np.float32))
+    assert obs in space and obs["pixels"].shape == (64, 64, 3)
+    np.testing.assert_array_equal(obs["ld_state"], info["ld_state"])
+    vec = envs_mjx.to_gymnasium("CartPole", 2, observation="dict", pixels="off")
+    obs, info = vec.reset(seed=3)
+    assert obs["ld_state"].shape == (2, 4) and obs in vec.observation_space
+    np.testing.assert_array_equal(obs["ld_state"], info["ld_state"])
+    with pytest.raises(ValueError, match=r"observation must be one of \('pixels', 'dict'\)"):
+        envs_mjx.to_gymnasium("CartPole", None, observation="state", pixels="off")
+
+
+def test_cartpole_keeps_the_references_reward_and_limits_or_takes_gymnasiums():
+    """By default 200 steps at 1/200 a step, |x| ≤ 0.4 m; conventions="gymnasium" gives
+    CartPole-v1's 500 steps, reward 1, |x| ≤ 2.4 m, except where a field is given."""
+    reference = envs_mjx.default_config("CartPole")
+    assert (reference.episode_length, reference.reward_multiplier, reference.x_threshold) == (
+        200, 1 / 200, 0.4)
+    assert reference.theta_threshold == pytest.approx(np.deg2rad(12))
+    gym_like = envs_mjx.make("CartPole", conventions="gymnasium", pixels="off").config
+    assert (gym_like.episode_length, gym_like.reward_multiplier, gym_like.x_threshold) == (
+        500, 1.0, 2.4)
+    assert gym_like.theta_threshold == reference.theta_threshold
+    mine = envs_mjx.make("CartPole", conventions="gymnasium", episode_length=300, pixels="off")
+    assert mine.config.episode_length == 300 and mine.config.reward_multiplier == 1.0
+    with pytest.raises(ValueError, match=r"conventions must be one of \('reference', "
+                                         r"'gymnasium'\), got 'gym'"):
+        envs_mjx.make("CartPole", conventions="gym")
+
+
+def test_cartpole_under_gymnasiums_conventions_pays_1_a_step_and_allows_a_wider_track():
+    """The step's reward and termination, stepped (not just the config): x = 0.5 m ends the
+    reference's episode and not Gymnasium's."""
+    rewards, dones = {}, {}
+    for conventions in ("reference", "gymnasium"):
+        env = envs_mjx.make("CartPole", conventions=conventions, pixels="off")
+        state = env.reset(jax.random.PRNGKey(0))
+        data = state.pipeline_state
+        state = state.replace(pipeline_state=data.replace(qpos=data.qpos.at[0].set(0.5)))
+        state = env.step(state, np.zeros(1, np.float32))
+        rewards[conventions], dones[conventions] = float(state.reward), float(state.done)
+    assert rewards == {"reference": pytest.approx(1 / 200), "gymnasium": 1.0}
+    assert dones == {"reference": 1.0, "gymnasium": 0.0}
+
+
+def test_brax_registry_builds_the_named_domain_with_its_overrides():
+    import brax.envs
+
+    from envs_mjx.brax_envs import BRAX_NAMES
+
+    assert set(BRAX_NAMES) == set(envs_mjx.ALL_ENVS)
+    env = brax.envs.get_environment("jaml/CartPole", pixels="off", conventions="gymnasium")
+    assert type(env) is type(envs_mjx.make("CartPole", pixels="off"))
+    assert env.config.pixels == "off" and env.config.episode_length == 500

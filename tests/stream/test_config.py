@@ -278,6 +278,10 @@ def test_every_committed_stream_run_config_reads_back():
             evaluated, written = got["eval"], recorded["eval"]  # eval fields new since: legacy
             assert all(evaluated.pop(k) == LEGACY_EVAL_FIELDS[k]
                        for k in evaluated.keys() - written.keys())
+            # Env fields new since (CartPole's conventions): at their defaults.
+            env, written = got["env_config"], recorded["env_config"]
+            env_defaults = {f.name: f.default for f in dataclasses.fields(config.env_config)}
+            assert all(env.pop(k) == env_defaults[k] for k in env.keys() - written.keys())
             assert got == recorded, path
             continue
         # An older record: its flat fields as written, its learner's and env's configs with

@@ -16,14 +16,15 @@ endif
 
 install: $(STAMP)
 
-# Reinstall only when the dependency pins change: the stamp makes `make install` idempotent.
+# Reinstall only when the requirements or their pins change: the stamp makes `make install`
+# idempotent. pyproject.toml holds ranges; constraints.txt the exact versions installed here.
 # pip installs without compiling the bytecode (one file at a time, half its time on two cores),
 # then compileall writes it on every core: the machines here set PYTHONDONTWRITEBYTECODE, so
 # without it every test process would compile jax and MJX from source as it imports them.
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet --no-compile -e '.[$(EXTRAS)]'
+	$(BIN)/python -m pip install --quiet --no-compile -c constraints.txt -e '.[$(EXTRAS)]'
 	$(BIN)/python -m compileall -q -j 0 $$($(BIN)/python -c 'import sysconfig; print(sysconfig.get_path("purelib"))') >/dev/null
 	touch $(sort $(STAMP) $(VENV)/.installed)
 
@@ -43,7 +44,7 @@ lint: $(STAMP)
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
 
 bench: $(STAMP)
-	$(BIN)/python -m pip install --quiet -e '.[bench]'
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[bench]'
 	$(BIN)/python benchmarks/relations_fit.py
 
 clean:

@@ -39,6 +39,49 @@ def test_license_is_apache_and_citation_names_the_paper():
     assert "Antonova" in cff and "Hofmann" in cff
 
 
+def _pins() -> dict[str, str]:
+    """constraints.txt: canonical name → the exact version `make install` installs."""
+    from packaging.utils import canonicalize_name
+
+    pins = {}
+    for line in (ROOT / "constraints.txt").read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        if line:
+            name, _, version = line.partition("==")
+            assert version, f"constraints.txt: {line!r} is not NAME==VERSION"
+            pins[canonicalize_name(name)] = version
+    return pins
+
+
+def test_requirements_are_ranges_that_admit_the_pins_and_a_gpu_hosts_jax_0_11_2():
+    """The wheel installs into an environment with its own JAX: every requirement (extras
+    included) is a range, not a pin, and admits the version constraints.txt pins; jax and
+    jaxlib admit 0.11.2 (a GPU host's jax[cuda13]) and 0.10.2 (the pins), and so does the
+    `cuda` extra; `make install` installs with the constraints."""
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+
+    project, pins = _pyproject()["project"], _pins()
+    extras = project["optional-dependencies"]
+    requirements = [Requirement(r) for r in project["dependencies"]]
+    requirements += [Requirement(r) for group in extras.values() for r in group]
+    for r in requirements:
+        name = canonicalize_name(r.name)
+        assert name in pins, f"{r} has no pin in constraints.txt"
+        assert r.specifier.contains(pins[name]), f"{r} does not admit the pin {pins[name]}"
+        assert not any(s.operator in ("==", "===") for s in r.specifier), f"{r} is a pin"
+    by_name = {canonicalize_name(r.name): r for r in map(Requirement, project["dependencies"])}
+    (cuda,) = map(Requirement, extras["cuda"])
+    assert cuda.name == "jax" and cuda.extras == {"cuda12"}
+    for r in (by_name["jax"], by_name["jaxlib"], cuda):
+        assert r.specifier.contains("0.11.2") and r.specifier.contains("0.10.2"), r
+    assert cuda.specifier == by_name["jax"].specifier
+    assert pins["jax"] == pins["jaxlib"]
+    makefile = (ROOT / "Makefile").read_text()
+    assert "-c constraints.txt -e '.[$(EXTRAS)]'" in makefile
+    assert "$(STAMP): pyproject.toml constraints.txt" in makefile
+
+
 _OUTSIDE = """
 import hashlib, jax, numpy as np, envs_mjx, jaml
 from envs_mjx.domains._assets import ASSETS

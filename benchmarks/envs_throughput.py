@@ -32,9 +32,9 @@
 Compile time (first call: trace + XLA compile + one run) and PyBullet's scene loading are
 reported apart from steady state.
 
-Quoted anchors are kept in their own column (`quoted_…`), never divided into: perf_anchors.md
-§2, "[2-core]" rows, 1 core, pybullet 3.2.7, PyBullet TinyRenderer 64x64 + stepSimulation,
-cartpole 698 frames/s (quoted, not measured here).
+Quoted anchors are kept in their own column (`quoted_…`), never divided into:
+docs/reference/perf_anchors.md §2, "[2-core]" rows, 1 core, pybullet 3.2.7, PyBullet TinyRenderer
+64x64 + stepSimulation, cartpole 698 frames/s (quoted, not measured here).
 
 Run from the repo root: PYTHONPATH=. python benchmarks/envs_throughput.py [--quick]
 [--envs CartPole Ant RearrangeGeom:arm=franka] [--pixel-batches 1024 4096]
@@ -61,9 +61,9 @@ from benchmarks.harness import block, measure, parse_env, record, usable_cores
 from benchmarks.peers import pybullet_envs
 from envs_mjx.compile import CPU_COMPILER_OPTIONS
 
-# Quoted, not measured: perf_anchors.md §2 [2-core], pybullet 3.2.7, 1 core.
-QUOTED_FPS = {"CartPole": (698.0, "perf_anchors.md §2 [2-core]: PyBullet TinyRenderer 64x64 + "
-                                  "stepSimulation, cartpole.urdf, 1 core")}
+# Quoted, not measured: docs/reference/perf_anchors.md §2 [2-core], pybullet 3.2.7, 1 core.
+QUOTED_FPS = {"CartPole": (698.0, "docs/reference/perf_anchors.md §2 [2-core]: PyBullet "
+                                  "TinyRenderer 64x64 + stepSimulation, cartpole.urdf, 1 core")}
 
 
 def _random_actions(key, steps, batch, size):
@@ -252,7 +252,7 @@ SIDE_NOTE = (
     "benchmarks/peers/pybullet_envs.py (PyBullet 3.2.7 + TinyRenderer 64x64, one worker process "
     "per such core). ratio_jaml_over_pybullet divides the two "
     "medians; ratio_min / ratio_max are the extreme per-round ratios. The quoted_ columns are "
-    "anchors quoted from perf_anchors.md, not measured here and not divided into."
+    "anchors quoted from docs/reference/perf_anchors.md, not measured here and not divided into."
 )
 
 

@@ -32,7 +32,7 @@ from jaml.relations.data import prepare
 from jaml.relations.networks import Relation
 from jaml.relations.training import relation_trainer
 
-# Steps the reference took on the ellipse (aml_reference.md §9a: g1 7,875, g2 47,321).
+# Steps the reference took on the ellipse (docs/reference/aml.md §9a: g1 7,875, g2 47,321).
 REFERENCE_STEPS = 7_875 + 47_321
 CHUNK = 500
 

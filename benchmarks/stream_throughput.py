@@ -5,7 +5,7 @@ compiled program, the runs vmapped and, with several devices, split across them.
 per (env, learner, R), each timed as the median of blocked repeats of a block of `--epochs`
 epochs (the state carried from call to call, as in a run):
   stream  — `Stream.act` of every run: physics + rendering + policy + PPO update + replay insert
-            (the frame stream, perf_anchors S3);
+            (the frame stream, docs/reference/perf_anchors.md §3, S3);
   loop    — whole epochs (`run_stacked_epochs`): the stream plus `learner_steps` learner
             updates on replay batches; env frames/s collected, learner frames/s trained and
             epochs/s, all aggregated over the R runs;
@@ -15,7 +15,7 @@ epochs (the state carried from call to call, as in a run):
             part (train_set, pi_rand, pi_curr, regressor) the median over the repeats.
 The peer of a row is the same code at R = 1 in the same run (`speedup_vs_one_run`): the loop
 before runs were stacked. There is no peer for the whole loop from the paper's PyBullet +
-PyTorch stack here; its anchors are in `reference/perf_anchors.md`.
+PyTorch stack here; its anchors are in `docs/reference/perf_anchors.md`.
 
     python benchmarks/stream_throughput.py --runs 1 6 12             # GPU, paper's 64 envs
     python benchmarks/stream_throughput.py --quick --no-record       # tiny CPU smoke run

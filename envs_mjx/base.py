@@ -138,7 +138,7 @@ def contact_flags(data: mjx.Data, floor_geom: int, geoms: np.ndarray) -> jax.Arr
 
 
 # "orientation": rotation-matrix entries (Rearrange's objects), scored by the reference's
-# rotation error (suite_reference.md §5), not by L1 like positions.
+# rotation error (docs/reference/suite.md §5), not by L1 like positions.
 LD_GROUPS = ("position", "velocity", "contact", "orientation", "other")
 
 
@@ -430,8 +430,8 @@ class Env(brax_base.Env):
         return rgba
 
 
-# The suite's colour schemes (suite_reference.md §1: four): rows are schemes, columns are the slots
-# (base, pole, pole2, pole3), RGB in [0, 1].
+# The suite's colour schemes (docs/reference/suite.md §1: four): rows are schemes, columns are the
+# slots (base, pole, pole2, pole3), RGB in [0, 1].
 COLOUR_SCHEMES = np.array(
     [
         [[1, 1, 0], [0, 0, 1], [1, 0, 0], [0.8, 0.8, 0.8]],

@@ -187,7 +187,7 @@ PHYSICS = ("mjx", "c")
 
 @dataclasses.dataclass(frozen=True)
 class RearrangeConfig(EnvConfig):
-    """The Rearrange domains' options (suite_reference.md §1-2).
+    """The Rearrange domains' options (docs/reference/suite.md §1-2).
 
     arm: "reacher" (the reference's 2-link arm, 2 torques) or "franka" (a Franka Panda, 7
       torques with gravity compensation).

@@ -45,7 +45,7 @@ MISSING = (
     "folder holding it)"
 )
 SOURCES = ("Ellipse", "ConservativeBlock45Incline1D")
-# τ order. Their block rows are state-major (s0, s1, v0, v1) (aml_reference.md §6), jaml's are
+# τ order. Their block rows are state-major (s0, s1, v0, v1) (docs/reference/aml.md §6), jaml's are
 # time-major (s0, v0, s1, v1): reference τ = jaml τ[..., JAML_TO_REFERENCE[source]].
 JAML_TO_REFERENCE = {"Ellipse": (0, 1, 2), "ConservativeBlock45Incline1D": (0, 2, 1, 3)}
 DATA_STREAM = 0x616D6C  # the data RNG's seed is (torch seed, this): not the torch stream

@@ -1,4 +1,5 @@
-"""The PyTorch AML reference's training step, restated from aml_reference.md §1–§3 (not copied).
+"""The PyTorch AML reference's training step, restated (not copied) from docs/reference/aml.md
+§1–§3.
 
 One step = fresh numpy batches (ellipse on-manifold rows, uniform box off-manifold rows, as the
 reference draws them), g_k forward, per-row input gradients of the batch mean via

@@ -2,7 +2,7 @@
 a 64x64 TinyRenderer frame after every step, one process per core.
 
 The scenes are restated from pybullet_envs 3.2.7 and the bulb Aux wrappers as
-suite_reference.md §2 describes them (not copied; pybullet_envs itself needs the old `gym`):
+docs/reference/suite.md §2 describes them (not copied; pybullet_envs itself needs the old `gym`):
 
 CartPole          pybullet_data `cartpole.urdf`, as `CartPoleBulletEnv`: no damping, velocity
                   motors off, gravity 9.8, dt 0.02, one stepSimulation per action; +-10 N on the
@@ -16,11 +16,11 @@ HalfCheetah, Ant  `mjcf/half_cheetah.xml` / `ant.xml` on `plane_stadium.sdf` (fr
                   iterations, ERP 0.9; torque power*100*clip(a) per joint (power 0.9 / 2.5);
                   camera tracking (mean part x, mean part y, torso z), dist 3, pitch -30.
 
-RearrangeGeom     bulb's ReacherRearrangeEnv, Geom objects of version 0 (suite_reference.md §1-2,
-                  §6; envs_mjx/domains/rearrange.py): pybullet_data `plane.urdf` coloured black;
-                  the reacher restated in the structure of bulb's reacher.xml and loaded through
-                  loadMJCF (capsules, masses 2 / 2 / 1, inertia from the geometry, no damping;
-                  only the hand's cross-bar and fingers collide, as there); the tray of
+RearrangeGeom     bulb's ReacherRearrangeEnv, Geom objects of version 0 (docs/reference/suite.md
+                  §1-2, §6; envs_mjx/domains/rearrange.py): pybullet_data `plane.urdf` coloured
+                  black; the reacher restated in the structure of bulb's reacher.xml and loaded
+                  through loadMJCF (capsules, masses 2 / 2 / 1, inertia from the geometry, no
+                  damping; only the hand's cross-bar and fingers collide, as there); the tray of
                   borders*.urdf at scale 0.8 (four wall boxes 0.04 x 0.84 x 0.08 colliding with
                   restitution 1 and friction 1, three visual floor panels 4 mm thick); a blue
                   cylinder (r 0.03, 0.13, 0.2 kg), magenta cube (0.05 x 0.10 x 0.15, 0.05 kg,
@@ -43,7 +43,7 @@ RearrangeGeom     bulb's ReacherRearrangeEnv, Geom objects of version 0 (suite_r
                   bounces, its shoulder and elbow capsules push objects too, and its batch holds
                   versions 0-3 (i mod 4; same shapes, other colours and tray textures).
 RearrangeGeom:arm=franka
-                  bulb's FrankaRearrangeEnv (suite_reference.md §2 "Rearrange-Franka"; jaml's
+                  bulb's FrankaRearrangeEnv (docs/reference/suite.md §2 "Rearrange-Franka"; jaml's
                   RearrangeGeom with arm="franka"): the scene above (tray, version 0's objects,
                   timing, the 4-repeat step with its early stop, reset structure) with a Panda in
                   place of the reacher: pybullet_data's franka_panda/panda.urdf, fixed base at
@@ -133,14 +133,14 @@ import numpy as np
 from benchmarks.harness import parse_env
 
 RES = 64
-# The reference's Clr colour schemes (suite_reference.md §1): base, pole, pole2, pole3 RGBA.
+# The reference's Clr colour schemes (docs/reference/suite.md §1): base, pole, pole2, pole3 RGBA.
 SCHEMES = (
     ((1, 1, 0, 1), (0, 0, 1, 1), (1, 0, 0, 1), (0.8, 0.8, 0.8, 1)),
     ((0, 1, 1, 1), (0, 0, 0, 1), (0, 0, 1, 1), (0.7, 0, 0.7, 1)),
     ((1, 0, 1, 1), (0, 1, 0, 1), (1, 1, 0, 1), (0.7, 0, 0, 1)),
     ((0, 0, 1, 1), (1, 0, 0, 1), (0, 0, 0, 1), (0, 0.8, 0.8, 1)),
 )
-# Rearrange-Reacher's reacher, restated from suite_reference.md §2 ("Rearrange-Reacher") in the
+# Rearrange-Reacher's reacher, restated from docs/reference/suite.md §2 ("Rearrange-Reacher") in the
 # structure of bulb's reacher.xml, which the reference loaded through loadMJCF: links are capsules,
 # only the hand's cross-bar and fingers collide (contype 1), pybullet takes the inertia from the
 # geometry (the XML's diagonal inertia is ignored), no damping.
@@ -176,7 +176,7 @@ REACHER_MJCF = """<mujoco model="reacher">
  </worldbody>
 </mujoco>
 """
-# Rearrange-Franka (suite_reference.md §2): torque limits (N m), the rest pose the reset's IK
+# Rearrange-Franka (docs/reference/suite.md §2): torque limits (N m), the rest pose the reset's IK
 # starts from, and the joint limits the arm is hard-reset to. The limits are jaml's
 # (assets/rearrange_franka.xml: panda_description's soft limits, the `safety_controller` values
 # of pybullet_data's panda.urdf, whose <limit> tags hold the wider hardware range).
@@ -409,7 +409,7 @@ class Ant(Walker):
 
 class RearrangeGeom(Scene):
     """Rearrange-Reacher with the Geom objects of version 0, as bulb's ReacherRearrangeEnv
-    (suite_reference.md §1-2) and envs_mjx/domains/rearrange.py build it."""
+    (docs/reference/suite.md §1-2) and envs_mjx/domains/rearrange.py build it."""
 
     action_size = 2
     cam_dist, cam_yaw, cam_pitch = 0.40, 90.0, -89.0
@@ -561,7 +561,7 @@ class RearrangeGeom(Scene):
 
 
 class RearrangeGeomFranka(RearrangeGeom):
-    """Rearrange-Franka with the Geom objects of version 0 (suite_reference.md §2
+    """Rearrange-Franka with the Geom objects of version 0 (docs/reference/suite.md §2
     "Rearrange-Franka"; envs_mjx/domains/rearrange.py with arm="franka"): the reacher scene's
     tray, objects, timing and reset structure with pybullet_data's Panda in place of the reacher.
     """

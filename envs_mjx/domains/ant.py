@@ -1,4 +1,4 @@
-"""Ant (suite_reference.md §2): a four-legged walker; LD state and reward in `locomotion`.
+"""Ant (docs/reference/suite.md §2): a four-legged walker; LD state and reward in `locomotion`.
 
 Action a in [-1, 1]^8 in joint order (hip_1, ankle_1, ..., hip_4, ankle_4): 250 N m * clip(a).
 LD state: 8 + 16 + 4 = 28 entries; contact flags for the four feet (front_left, front_right,

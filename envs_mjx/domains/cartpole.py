@@ -1,4 +1,4 @@
-"""CartPole (suite_reference.md §2): a pole on a cart, pushed by a +-10 N slider force.
+"""CartPole (docs/reference/suite.md §2): a pole on a cart, pushed by a +-10 N slider force.
 
 Action: a continuous a in [-1, 1] (Brax convention) stands in for the reference's Discrete(2).
 With `action_mode="sign"` (default, the reference's bang-bang control) the force is

@@ -1,4 +1,4 @@
-"""HalfCheetah (suite_reference.md §2): a planar runner; LD state and reward in `locomotion`.
+"""HalfCheetah (docs/reference/suite.md §2): a planar runner; LD state and reward in `locomotion`.
 
 Action a in [-1, 1]^6 (bthigh, bshin, bfoot, fthigh, fshin, ffoot): torques
 0.9 x (120, 90, 60, 140, 60, 30) N m * clip(a). LD state: 8 + 12 + 6 = 26 entries; contact flags

@@ -1,4 +1,4 @@
-"""Geom-on-incline (suite_reference.md §1 "Geom-/YCB-on-incline", §2 "BlockOnIncline", §6).
+"""Geom-on-incline (docs/reference/suite.md §1 "Geom-/YCB-on-incline", §2 "BlockOnIncline", §6).
 
 One object (a block, or a cylinder variant) slides on a 4 m plank tilted about +y by theta, so the
 surface through (0, 0, 0.55) runs downhill along +x. Every reset draws, per env:

@@ -1,4 +1,4 @@
-"""InvertedPendulum (suite_reference.md §2): balance a capsule pole on a cart.
+"""InvertedPendulum (docs/reference/suite.md §2): balance a capsule pole on a cart.
 
 Action a in [-1, 1]: force 100 N * clip(a). LD state: [x, x_dot, cos theta, sin theta,
 theta_dot]. Done when |theta| > 0.2 rad; reward 1 per step (times reward_scale). Reset:

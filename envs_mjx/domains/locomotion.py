@@ -1,5 +1,5 @@
 """Shared machinery of the locomotion domains (HalfCheetah, Ant): the pybullet walker LD state,
-reward and resets of suite_reference.md §2.
+reward and resets of docs/reference/suite.md §2.
 
 LD state (8 + 2J + F entries, clipped to +-5):
   [z - z0, sin(angle_to_target), cos(angle_to_target), 0.3 vx, 0.3 vy, 0.3 vz, roll, pitch],

@@ -1,5 +1,5 @@
 """Mesh-on-incline: GeomOnIncline with textured object meshes on an image-textured plank and
-ground, standing in for the paper's YCB-on-incline (suite_reference.md §1, §6).
+ground, standing in for the paper's YCB-on-incline (docs/reference/suite.md §1, §6).
 
 Objects. The paper slid textured YCB scans down the plank; those cannot be fetched here, so the
 shipped objects are textured meshes from two PyPI wheels (assets/PROVENANCE.md): pybullet_data's
@@ -68,7 +68,7 @@ from envs_mjx.domains.incline import (
 from envs_mjx.domains.mesh_object import load_object
 
 # Longest side (m) at the incline's scale: the reference's YCB objects at 2.5x measured
-# 0.26-0.38 m (sugar box 0.38, chef can 0.33, soup can 0.31; suite_reference.md §6).
+# 0.26-0.38 m (sugar box 0.38, chef can 0.33, soup can 0.31; docs/reference/suite.md §6).
 OBJECT_SIZES = {
     "duck": 0.3,
     "domino": 0.3,

@@ -1,4 +1,4 @@
-"""Rearrange (suite_reference.md §1-2 "Rearrange", "Rearrange-Reacher", "Rearrange-Franka", §6):
+"""Rearrange (docs/reference/suite.md §1-2 "Rearrange", "Rearrange-Reacher", "-Franka", §6):
 four free objects in a walled tray, pushed by a 2-link reacher or a Franka Panda.
 
 `envs_mjx.make("RearrangeGeom" | "RearrangeYCB", arm="reacher" | "franka", version=...)`.

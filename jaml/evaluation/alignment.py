@@ -1,6 +1,6 @@
 """Latent–state alignment (paper §2.1, Fig. 2): test error of an MLP regressor latents → LD state.
 
-A fresh regressor per analysis, as in the reference suite (`reference/suite_reference.md` §5);
+A fresh regressor per analysis, as in the reference suite (`docs/reference/suite.md` §5);
 its architecture, training, units, rotation blocks and deviations are tabled in
 docs/evaluation.md. Shapes: N rows, Z latent width, D LD-state width, J rotation blocks.
 """

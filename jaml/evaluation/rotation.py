@@ -1,4 +1,4 @@
-"""Rotation-block errors for objects in an LD state (suite_reference §5): M = R_trueᵀ R̂.
+"""Rotation-block errors for objects in an LD state (docs/reference/suite.md §5): M = R_trueᵀ R̂.
 
 The Rearrange LD states hold per object a normalised position (3) and the 9 row-major entries of
 its rotation matrix. The reference scores a predicted block R̂ by its principal axis only (YCB

@@ -29,9 +29,9 @@ training (bounding boxes not tight)."
     python -m jaml.experiments.fig3 --out runs/fig3 --variants SPAIR_4x4 --stop-after 100
     python -m jaml.experiments.fig3 --out runs/fig3 --report-only       # report from the runs
 
-Settings are the reference's for Rearrange (suite_reference §3–5; `REARRANGE`, `_runs.Sizes`,
-`FRAMES_PER_BATCH` below, listed in docs/results/fig3.md). The paper does not give Fig. 3's
-training length; the default is 300 epochs (222 of them training), analysed every 50.
+Settings are the reference's for Rearrange (docs/reference/suite.md §3–5; `REARRANGE`,
+`_runs.Sizes`, `FRAMES_PER_BATCH` below, listed in docs/results/fig3.md). The paper does not give
+Fig. 3's training length; the default is 300 epochs (222 of them training), analysed every 50.
 
 The variants share nothing, so on one GPU they can run as parallel processes (more throughput
 than one process; docs/notes/experiments.md), then one call writes the report:
@@ -447,8 +447,8 @@ def plot(runs: dict[str, list[list[dict]]], panels: dict[str, list[str]], path: 
     records = sorted((r for hs in runs.values() for h in hs for r in h),
                      key=lambda r: r["test_set"] != "pi_curr")
     fig = plots.plot_alignment(records, path, groups=panels)
-    # Rearrange targets are not z-scored (reference §5): the errors are in the LD state's units,
-    # orientation's the principal-axis error.
+    # Rearrange targets are not z-scored (docs/reference/suite.md §5): the errors are in the LD
+    # state's units, orientation's the principal-axis error.
     for ax in fig.axes:
         ax.set_xlabel("epoch")
         if ax.get_ylabel():

@@ -1,7 +1,7 @@
 """Paper Fig. 9: relations learned on Geom-on-incline imposed on PRED trained on MeshOnIncline.
 
 The sim-to-sim transfer of paper §5, under one of two recipes (`RECIPES`, docs/transfer.md):
-"reference", the released code's mechanism (fig9_reference.md), and "ours", the paper's loss
+"reference", the released code's mechanism (docs/reference/fig9.md), and "ours", the paper's loss
 with our earlier choices. Steps, each resumable in OUT:
   1. OUT/relations/{trnsv,syz}: AML relations on "geom-on-incline" LD transitions
      τ = (theta, s0, v0, a0, s1, v1), with transversality (AML_trnsv) and with restricted
@@ -108,7 +108,7 @@ class Recipe:
     scale: dict
 
 
-# "reference": the released code (fig9_reference.md §2–3), in its float32 (the learners' GPU
+# "reference": the released code (docs/reference/fig9.md §2–3), in its float32 (the learners' GPU
 # default is bfloat16, `LearnerConfig.compute_dtype`). Its loss averages the likelihood and
 # the KL over the S = 2 decoded steps; ours sums them, S times the reference's loss. Adam does
 # not see a loss's scale, so its 1e3 × hinge and 10 × (mean NLL of ok rows, per frame) are, in

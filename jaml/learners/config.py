@@ -43,7 +43,7 @@ def _jax_dtype(name: str):
 
 @dataclasses.dataclass(frozen=True)
 class LearnerConfig:
-    """What every learner shares; defaults reproduce the reference (suite_reference.md §4).
+    """What every learner shares; defaults reproduce the reference (docs/reference/suite.md §4).
 
     ld_dim: size D of the true low-dimensional state; the per-step latent defaults to 2·D. None
       in a run's config until it is resolved: the stream sets it to its env's LD-state size.

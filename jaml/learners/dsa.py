@@ -1,4 +1,5 @@
-"""DSA (Li & Mandt 2018; reference §4): a static latent f per sequence and a dynamic z_t per step.
+"""DSA (Li & Mandt 2018; docs/reference/suite.md §4): a static latent f per sequence, a dynamic z_t
+per step.
 
 q(f | half the frames) via an LSTM, q(z_t | f, x, a) via bi-LSTM → RNN, learned priors p(f) and
 p(z_t | z_{t−1}, f, a_t), decoder p(x_t | f, z_t). Shapes: B batch, T time, F static size,

@@ -1,4 +1,5 @@
-"""ELBO pieces (paper §4 eq. 4, reference §4): Gaussian KLs, reparameterised samples, likelihood.
+"""ELBO pieces (paper §4 eq. 4, docs/reference/suite.md §4): Gaussian KLs, reparameterised
+samples, likelihood.
 
 Shapes: B batch, T time, H, W, C image, Z latent. Every function maps over leading axes.
 """
@@ -73,7 +74,8 @@ def gaussian_kl(mu_q, logvar_q, mu_p, logvar_p) -> jax.Array:
 
 
 def gaussian_loglik(x: jax.Array, x_hat: jax.Array) -> jax.Array:
-    """[...]: log p(x | x̂) = −½ Σ_{H,W,C} (x − x̂)² for x, x̂ [..., H, W, C] (reference §4).
+    """[...]: log p(x | x̂) = −½ Σ_{H,W,C} (x − x̂)² for x, x̂ [..., H, W, C]
+    (docs/reference/suite.md §4).
 
     A unit-variance Gaussian without its constant −½ HWC log 2π, which carries no gradient.
     """

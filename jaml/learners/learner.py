@@ -114,8 +114,9 @@ class Learner:
         x, a = self.check_batch(frames, actions)
         out, updates = self.module.apply(variables, x, a, key, train=True, mutable=["batch_stats"])
         steps = out.recon.shape[1]
-        # Unit-variance Gaussian log-likelihood of the decoded frames (reference §4), summed over
-        # them as in the paper's ELBO, or averaged as in the reference code (`frame_nll`).
+        # Unit-variance Gaussian log-likelihood of the decoded frames (docs/reference/suite.md §4),
+        # summed over them as in the paper's ELBO, or averaged as in the reference code
+        # (`frame_nll`).
         loglik = elbo.gaussian_loglik(x[:, x.shape[1] - steps :], out.recon)  # [B, S]
         nll = -(jnp.sum if self.config.frame_nll == "sum" else jnp.mean)(loglik, axis=1)
         kl = sum(self.kl_weights[k] * v for k, v in out.kl.items())

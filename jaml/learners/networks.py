@@ -1,4 +1,5 @@
-"""The shared networks (reference §4): conv encoder, deconv decoder, MLP/RNN trunks, Gaussian heads.
+"""The shared networks (docs/reference/suite.md §4): conv encoder, deconv decoder, MLP/RNN
+trunks, Gaussian heads.
 
 Shapes: N frames (B·T flattened), B batch, T time, F conv feature, Z latent.
 """

@@ -41,7 +41,7 @@ MIN_VALID_FRACTION = 0.75
 # The source's own options; every other keyword of `make` is an env config override.
 SOURCE_OPTIONS = ("action_range", "rollout_steps", "pool_size", "drop_clipped", "units", "name")
 # "env": the domain's normalised LD units (module docstring). "reference": the released code's
-# source rows (fig9_reference.md §4): position as the distance travelled from where the episode
+# source rows (docs/reference/fig9.md §4): position as the distance travelled from where the episode
 # began (its object is dropped there; ours starts at rest on the plank) ÷ 1.27 m, velocity as
 # the unsigned speed ÷ 3.1 m/s, the action as the force in N (±2).
 UNITS = ("env", "reference")

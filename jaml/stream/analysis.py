@@ -1,4 +1,5 @@
-"""The periodic analysis of a run (reference §5): alignment of its latents with the true state.
+"""The periodic analysis of a run (docs/reference/suite.md §5): alignment of its latents with
+the true state.
 
 What is encoded, fit and reported (π_rand, π_curr, rotation blocks): docs/stream.md,
 "Analysis"; beside each error, a constant prediction's (the training targets' median,
@@ -48,7 +49,7 @@ def encoded_rollouts(stream: Stream, states: StreamState, keys: jax.Array, num: 
                      kept: list[PiRandSet] | None = None, store: list | None = None):
     """(latents, LD targets) [R, N, ...] of sequences cut from fresh rollouts of R stacked runs
     (keys [R]): reset, `eval.transient` steps, then consecutive L-step rollouts per env
-    (reference §5, start t = 0); with `fingerprints`, also each sequence's
+    (docs/reference/suite.md §5, start t = 0); with `fingerprints`, also each sequence's
     `input_fingerprints` [R, N, 2] (for the distortion). `kept` (π_rand only, one `PiRandSet`
     per run): the sequences are read from them when every one holds its run's key, else rolled
     out and stored in them. `store`: as `encoded_replay`'s (not with `kept`)."""

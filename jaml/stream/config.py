@@ -2,7 +2,7 @@
 replay (`ReplayConfig`), analyses (`EvalConfig`), policy (`PPOConfig`), env (its
 `envs_mjx.config.EnvConfig`) and learner (its `jaml.learners.config.LearnerConfig`).
 
-Defaults follow the reference suite (suite_reference.md §3, §5) where they are not sizes; the
+Defaults follow the reference suite (docs/reference/suite.md §3, §5) where they are not sizes; the
 sizes of the paper (5000 replay columns, 10 000-row regressor sets, 100 000 epochs) are fields,
 and `for_env` fills the per-domain ones from the domain family's `DomainDefaults` (rollout
 length, learner steps per epoch, PPO network, sequence-learner window). Options given as text
@@ -24,10 +24,11 @@ from jaml.learners import config as learners_config
 POLICIES = ("ppo", "random")
 # How the alignment regressor's held-out rows are drawn (`EvalConfig.validation_split`).
 VALIDATION_SPLITS = ("slots", "leading")
-# The reference's replay size in columns (suite_reference.md §3).
+# The reference's replay size in columns (docs/reference/suite.md §3).
 REFERENCE_REPLAY_COLUMNS = 5000
-# The share of replay slots kept from the initial policy, by learner (reference §3): the paper's
-# replay keeps half for every learner but VAE_v0, whose only difference from VAE_rpl it is.
+# The share of replay slots kept from the initial policy, by learner (docs/reference/suite.md §3):
+# the paper's replay keeps half for every learner but VAE_v0, whose only difference from VAE_rpl
+# it is.
 REPLAY_KEEP_FRACTION = {"VAE_v0": 0.0}
 DEFAULT_REPLAY_KEEP_FRACTION = 0.5
 # The key under which records written before the typed tree held the learner's and env's
@@ -94,7 +95,7 @@ class PPOConfig:
 
 @dataclasses.dataclass(frozen=True)
 class ReplayConfig:
-    """The frame replay (reference §3).
+    """The frame replay (docs/reference/suite.md §3).
 
     slots: replay columns, a multiple of num_envs; None: the reference's 5000 rounded down to a
       multiple of num_envs (4992 at 64 envs), filled in by `resolved`.
@@ -127,7 +128,7 @@ class ReplayConfig:
 
 @dataclasses.dataclass(frozen=True)
 class EvalConfig:
-    """The alignment analyses and their regressor (reference §5).
+    """The alignment analyses and their regressor (docs/reference/suite.md §5).
 
     every: epochs between alignment analyses and checkpoints, counted from the first analysis,
       which runs when the replay is full and the learner starts (the reference counts its
@@ -140,8 +141,8 @@ class EvalConfig:
     regressor_iterations: alignment regressor steps (reference 10 000).
     regressor_normalize: z-score the regressor's targets (errors in training-std units, the
       benchmark envs); False for the domains whose LD state is already in a fixed range
-      (Incline, Rearrange, reference §5), errors then in those units. Rearrange needs False:
-      its rotation blocks are fit and scored by the principal-axis error of R_trueᵀR̂.
+      (Incline, Rearrange, docs/reference/suite.md §5), errors then in those units. Rearrange
+      needs False: its rotation blocks are fit and scored by the principal-axis error of R_trueᵀR̂.
     distortion_dims: LD-state names whose values are τ^true in the distortion ρ (paper eq. 5;
       the incline's dynamic state, position and velocity); empty means all of them.
     validation_split: how the regressor's held-out 30 % of the training rows are drawn:
@@ -272,7 +273,7 @@ class StreamConfig:
 
     @property
     def fill_epochs(self) -> int:
-        """Epochs until the replay is full and the learner starts (reference §3)."""
+        """Epochs until the replay is full and the learner starts (docs/reference/suite.md §3)."""
         return self.resolved().replay.slots // self.num_envs
 
     def resolved(self, ld_dim: int | None = None) -> StreamConfig:

@@ -5,8 +5,9 @@ One epoch, a pure function of `StreamState`:
      uniform random actions), rendering a 64×64 frame per step;
   2. PPO updates on that rollout;
   3. the rollout's columns go into the replay;
-  4. once the replay is full (reference §3), the learner takes `learner_steps` gradient steps,
-     each on `frames_per_batch // L` sequences of L frames sampled from the replay.
+  4. once the replay is full (docs/reference/suite.md §3), the learner takes `learner_steps`
+     gradient steps, each on `frames_per_batch // L` sequences of L frames sampled from the
+     replay.
 Several independent runs of one Stream (configs that differ only in their seeds) stack along a
 leading runs axis R and `Stream.epochs` vmaps the epoch over them; how epochs are executed
 (host loop, device blocks, several devices) is `jaml.stream.executor`'s, the periodic analysis
@@ -283,7 +284,7 @@ def make(config: StreamConfig, latent_penalty=None) -> Stream:
     if config.eval.regressor_normalize and rotation.ld_blocks(env.ld_state_names,
                                                               env.ld_state_groups)[0]:
         problems.append(f"{config.env}'s rotation blocks are scored on the LD state as is "
-                        "(reference §5): set eval.regressor_normalize=False")
+                        "(docs/reference/suite.md §5): set eval.regressor_normalize=False")
     column = config.rollout_len + 1
     if learner.seq_len > column:
         problems.append(

@@ -1,4 +1,4 @@
-"""PPO on the true LD state, assembled from Brax's PPO pieces (reference §3 settings).
+"""PPO on the true LD state, assembled from Brax's PPO pieces (docs/reference/suite.md §3 settings).
 
 Brax supplies the networks (`ppo.networks.make_ppo_networks`, tanh-normal policy), the loss
 (`ppo.losses.compute_ppo_loss`), acting (`acting.actor_step`, in `jaml.stream.collect`) and the

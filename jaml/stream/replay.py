@@ -1,4 +1,5 @@
-"""The on-device replay of frame columns that keeps its initial fraction (reference §3, VAE_rpl).
+"""The on-device replay of frame columns that keeps its initial fraction
+(docs/reference/suite.md §3, VAE_rpl).
 
 A column is `column_len` consecutive steps of one env: frames, the actions executed after them,
 the true LD states and a flag for frames that begin an episode. The replay fills its slots in

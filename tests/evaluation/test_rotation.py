@@ -1,5 +1,6 @@
-"""Rotation-block error (suite_reference §5) against hand-computed rotations, the Rearrange block
-layout, the reference's regressor loss, and a regressor fitted with rotation blocks."""
+"""Rotation-block error (docs/reference/suite.md §5) against hand-computed rotations, the
+Rearrange block layout, the reference's regressor loss, and a regressor fitted with rotation
+blocks."""
 
 import math
 

@@ -253,7 +253,7 @@ def test_a_method_without_relations_neither_fits_them_nor_runs_the_pilot(tmp_pat
 
 
 def test_the_reference_recipe_and_its_controls():
-    """The released code's settings (fig9_reference.md §2–3) reach the configs; the controls
+    """The released code's settings (docs/reference/fig9.md §2–3) reach the configs; the controls
     impose no penalty but keep the ok-row term, with the relations' rows or random ones."""
     ref = fig9.RECIPES["reference"]
     pred = fig9._config("PRED", 0, ref)

@@ -152,7 +152,7 @@ def test_overrides_and_pool():
 
 
 def test_reference_units_are_the_released_codes_rows_of_the_same_steps(drawn):
-    """units="reference" (fig9_reference.md §4) on the same key: the same steps (same picks),
+    """units="reference" (docs/reference/fig9.md §4) on the same key: the same steps (same picks),
     θ as is, unsigned speed, the force in N, and the distance from the episode's start, which
     lies in the reset range U(0.05, 0.15) m: s_env − s_ref is that start (or s_env + s_ref for
     an object pushed uphill past it)."""

@@ -1,7 +1,7 @@
 """End-to-end learning: Algorithm 1 recovers the known relations of the analytic and block domains.
 
-Stochastic training; thresholds are loose bounds from aml_reference.md §12 and the issue, checked
-on fresh data never seen in training.
+Stochastic training; thresholds are loose bounds from docs/reference/aml.md §12 and the issue,
+checked on fresh data never seen in training.
 """
 
 import contextlib

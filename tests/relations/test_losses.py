@@ -1,4 +1,5 @@
-"""Loss terms, networks and the stopping rule on hand-computed values (aml_reference.md §12)."""
+"""Loss terms, networks and the stopping rule on hand-computed values
+(docs/reference/aml.md §12)."""
 
 import math
 

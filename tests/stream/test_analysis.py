@@ -1,8 +1,8 @@
 """Stacked analysis: R runs analysed by one `evaluate_runs` call must each get what `evaluate`
 gives that run alone (the same keys: the same replay rows, rollouts and regressor fit).
 Rearrange's rotation blocks: the report's objK_rotation entries are the principal-axis errors of
-the regressor's predictions (reference §5), the same on both paths; other domains' reports are
-what the analysis gave before rotation blocks existed.
+the regressor's predictions (docs/reference/suite.md §5), the same on both paths; other domains'
+reports are what the analysis gave before rotation blocks existed.
 
 The regressor checks run by default (≈ 45 s on 2 shared cores, mostly compilation); the
 rotation-block tests use synthetic encodings shaped like RearrangeGeom's (53-entry LD state)

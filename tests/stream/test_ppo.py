@@ -60,7 +60,7 @@ def test_ppo_config_rejects_bad_values():
 
 
 def test_ppo_config_defaults_are_the_reference_settings():
-    """suite_reference.md §3 (pytorch-a2c-ppo-acktr on the pendulums)."""
+    """docs/reference/suite.md §3 (pytorch-a2c-ppo-acktr on the pendulums)."""
     c = ppo_lib.PPOConfig()
     assert (c.learning_rate, c.lr_decay, c.discounting, c.gae_lambda) == (1e-4, True, 0.99, 1.0)
     assert (c.clipping_epsilon, c.vf_coefficient, c.entropy_cost, c.max_grad_norm) == (

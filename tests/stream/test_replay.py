@@ -1,4 +1,5 @@
-"""The replay against the reference's rules (suite_reference.md §3), checked with plain loops."""
+"""The replay against the reference's rules (docs/reference/suite.md §3), checked with plain
+loops."""
 
 import jax
 import jax.numpy as jnp

@@ -5,7 +5,7 @@ hashed from the frame's bytes), each as the mean over the LD dimensions of its M
 the constant predictor's, on π_rand and validation; and the wall time of the call, compilation
 included (a fresh process per scale: run it once per scale).
 
-    python benchmarks/suite_scales.py --scale small --seeds 0 1 2
+    python benchmarks/suite_scales.py --scale small --seeds 0 1 2 [--validation-split leading]
 """
 
 from __future__ import annotations
@@ -51,9 +51,11 @@ def main() -> None:
     parser.add_argument("--scale", default="small")
     parser.add_argument("--env", default="CartPole")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--validation-split", default="slots", choices=("slots", "leading"))
     args = parser.parse_args()
     for seed in args.seeds:
-        config = suite.scaled(stream.for_env(args.env, "VAE_rpl", {"seed": seed}), args.scale)
+        config = suite.scaled(stream.for_env(args.env, "VAE_rpl", {
+            "seed": seed, "eval.validation_split": args.validation_split}), args.scale)
         tic = time.perf_counter()
         report = suite.evaluate(frame_hash, config)
         seconds = time.perf_counter() - tic

@@ -173,8 +173,9 @@ def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
     cfg = stream.config
     split = jax.vmap(lambda k: jax.random.split(k, 3))(keys)
     k_train, k_curr, k_reg = split[:, 0], split[:, 1], split[:, 2]
-    # With `references`, the sets' sequences kept on the host for the pixel references.
-    stored = {"train": [], "pi_rand": [], "pi_curr": []} if references else {}
+    # With `references`, the sets' last input frames kept on the host for the pixel references.
+    stored = {k: _LastInputFrames(stream.hist) for k in ("train", "pi_rand", "pi_curr")
+              } if references else {}
     train = _part(seconds, "train_set", encoded_replay, stream, states, k_train, cfg.eval.train,
                   store=stored.get("train"))
     lat, st, inputs = _part(seconds, "pi_rand", encoded_rollouts, stream, states, pi_rand_keys,
@@ -209,21 +210,31 @@ def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
         })
     if references:
         if pi_rand_sets:  # rolled out into the kept sets, or read from them
-            stored["pi_rand"] = [jax.tree.map(lambda *x: np.stack(x), *runs)
-                                 for runs in zip(*(k.chunks for k in pi_rand_sets), strict=True)]
-        frames = {k: _last_input_frames(stream, chunks) for k, chunks in stored.items() if chunks}
-        rows = _part(seconds, "references", reference_rows, stream, frames["train"],
-                     train_states, {k: (frames[k], test_states[k]) for k in tests}, seeds)
+            for runs in zip(*(k.chunks for k in pi_rand_sets), strict=True):
+                stored["pi_rand"].append(jax.tree.map(lambda *x: np.stack(x), *runs))
+        rows = _part(seconds, "references", reference_rows, stream, stored["train"].pixels(),
+                     train_states, {k: (stored[k].pixels(), test_states[k]) for k in tests},
+                     seeds)
         for report, row in zip(reports, rows, strict=True):
             report["references"] = {"constant": report["baseline"], **row}
     return reports
 
 
-def _last_input_frames(stream: Stream, chunks: list) -> np.ndarray:
-    """uint8 [R, N, P]: each sequence's last input frame (`hist`), flattened, from host chunks
-    of `Columns` [R, E, L]."""
-    frames = np.concatenate([np.asarray(c.frames[:, :, stream.hist - 1]) for c in chunks], 1)
-    return frames.reshape(*frames.shape[:2], -1)
+class _LastInputFrames(list):
+    """A samplers' `store` that keeps of each chunk (`Columns` [R, E, L]) only its sequences'
+    last input frames (`hist`), flattened: the pixel references' inputs, a 1/L of the chunk."""
+
+    def __init__(self, hist: int):
+        super().__init__()
+        self.hist = hist
+
+    def append(self, seqs) -> None:
+        frames = np.asarray(seqs.frames[:, :, self.hist - 1])
+        super().append(frames.reshape(*frames.shape[:2], -1))
+
+    def pixels(self) -> np.ndarray:
+        """uint8 [R, N, P]: the chunks' frames in order."""
+        return np.concatenate(self, axis=1)
 
 
 def reference_rows(stream: Stream, train_pixels, train_states, tests: dict, seeds) -> list[dict]:

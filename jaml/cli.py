@@ -161,14 +161,18 @@ def _print_errors(summary: dict) -> None:
     predictor, the ceiling; the true state, the floor; raw pixels' PCA and random projection),
     and at the smoke scale the note that its numbers do not rank encoders."""
     refs = summary.get("references") or {}
-    for r in summary["final"]:
-        names = list(r["errors"])
-        print(f"  {r['test_set']}: " + " ".join(f"{k}={v:.3f}" for k, v in r["errors"].items()))
+    final = summary["final"]
+    rows = [(r["test_set"], r["errors"]) for r in final]
+    if final and final[0].get("validation"):  # the held-out replay rows, the same for each
+        rows.append((f"validation ({final[0].get('validation_split') or 'leading'} split)",
+                     final[0]["validation"]))
+    for label, errors in rows:
+        print(f"  {label}: " + " ".join(f"{k}={v:.3f}" for k, v in errors.items()))
         for ref in ("constant", "true_state", "pca", "random_projection"):
-            values = (refs.get(ref) or {}).get(r["test_set"])
+            values = (refs.get(ref) or {}).get(label.split(" ")[0])
             if values is not None:
                 print(f"    {ref} (epoch {refs['epoch']}): " + " ".join(
-                    f"{k}={v:.3f}" for k, v in zip(names, values, strict=False)))
+                    f"{k}={v:.3f}" for k, v in zip(errors, values, strict=False)))
     if summary.get("note"):
         print(f"  note: {summary['note']}")
 

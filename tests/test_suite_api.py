@@ -278,7 +278,8 @@ def test_own_learner_trains_on_the_stream_with_every_analysis(tmp_path, capsys):
     assert refs["epoch"] == 2 and refs["validation_split"] == "slots"
     assert list(refs)[2:] == ["constant", "true_state", "pca", "random_projection"]
     for row in ("constant", "true_state", "pca", "random_projection"):
-        assert f"    {row} (epoch 2): theta=" in printed
+        assert printed.count(f"    {row} (epoch 2): theta=") == 3  # π_rand, π_curr, validation
+    assert "  validation (slots split): theta=" in printed
     assert summary["scale"] == "smoke" and summary["note"] == suite.SMOKE_NOTE
     assert printed.rstrip().endswith(f"note: {suite.SMOKE_NOTE}")
 

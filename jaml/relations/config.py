@@ -20,7 +20,7 @@ OBJECTIVES: tuple[str, ...] = get_args(Objective)
 # Fields added after runs were recorded, with the values that reproduce what those runs did
 # (no mining, no refinement, every one of max_relations trained).
 LEGACY_FIELDS = {"mined_weight": 0.0, "refine_rounds": 0, "stop_when_complete": False,
-                 "codimension": None}
+                 "codimension": None, "premine": False}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,6 +63,12 @@ class Config:
       mine_points: box points projected per mining round (and the capacity of the mined pool).
       refine_rounds: after g_k stops, at most this many rounds of {project onto
         {g_1 = … = g_k = 0}, mine the points landing away from the data, train g_k on}.
+      premine: before the codimension-th relation trains (transversality), mine the earlier
+        relations' zero set (box points projected onto it, kept where they land away from the
+        data): g_k is trained from its first step not to vanish there. If it then separates
+        less than `separation_ratio`, it is trained again without them.
+      premine_clip: while g_k trains on pre-mined rows, their term is bounded by this × the
+        first term (elsewhere 2×, like the paper's other terms).
       codimension: D minus the data manifold's dimension; None estimates it by local PCA.
         Mining and refining start at the codimension-th relation (before it, the intersection
         is meant to be larger than the data).
@@ -98,6 +104,9 @@ class Config:
     mined_weight: float = 1.0
     mine_points: int = 512
     refine_rounds: int = 2
+    premine: bool = True
+    premine_clip: float = 20.0
+    cut_beyond_codim: bool = False
     codimension: int | None = None
     stop_when_complete: bool = True
     pretrain_steps: int = 2_000
@@ -139,7 +148,8 @@ class Config:
                 problems.append(f"{name} must be None or a positive integer, got {value!r}")
         if isinstance(self.batch_size, int) and self.batch_size < 2:
             problems.append(f"batch_size must be at least 2, got {self.batch_size}")
-        positive_floats = ("learning_rate", "syzygy_learning_rate", "separation_ratio", "tolerance")
+        positive_floats = ("learning_rate", "syzygy_learning_rate", "separation_ratio", "tolerance",
+                           "premine_clip")
         for name in positive_floats:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):

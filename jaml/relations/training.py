@@ -28,6 +28,7 @@ from jaml.relations.data import Batches, prepare
 from jaml.relations.geometry import codimension
 from jaml.relations.loop import (
     CAPPED,
+    CONVERGED,
     LOOP_COMPILER_OPTIONS,
     NONFINITE,
     ONCE_COMPILER_OPTIONS,
@@ -75,6 +76,8 @@ class RelationSummary:
 
 Callback = Callable[[str, int, dict], None]  # (phase, relation index, metrics)
 
+MINED_CLIP = 2.0  # the mined term at most this × the first term, like the paper's other terms
+
 
 def _frozen_relations(rs: RelationSet):
     return [rs.relation(j) for j in range(rs.num_relations)]
@@ -83,6 +86,7 @@ def _frozen_relations(rs: RelationSet):
 def _relation_objective(
     cfg: Config, module: Relation, earlier_modules: Sequence[Relation], num_syz: int,
     with_mined: bool = True,
+    clip: float = MINED_CLIP,
 ):
     """The per-step loss of g_k: (params, frozen syzygy params, frozen g_j params, batches) →
     (loss, aux). The frozen relations' parameters are arguments, not constants, so the compiled
@@ -116,7 +120,7 @@ def _relation_objective(
         converged = cfg.separation_ratio * on_stat < jnp.mean(jnp.abs(y_off))
         if with_mined:
             mined_term, cleared = _mined_term(cfg, g(mined[:, :-1]), mined[:, -1], on_stat,
-                                              first)
+                                              first, clip)
             has_pool = pool_count > 0
             mined_term = jnp.where(has_pool, mined_term, 0.0)
             loss = loss + cfg.mined_weight * mined_term
@@ -162,7 +166,7 @@ def _relation_objective(
     return objective
 
 
-def _mined_term(cfg: Config, y_mined, distance, on_stat, first):
+def _mined_term(cfg: Config, y_mined, distance, on_stat, first, clip: float = MINED_CLIP):
     """(loss term, share of rows cleared) on mined rows: points of the intersection so far
     away from the data, where g_k must not vanish or the intersection keeps a spurious part.
 
@@ -174,7 +178,7 @@ def _mined_term(cfg: Config, y_mined, distance, on_stat, first):
     """
     level = cfg.separation_ratio * on_stat * distance
     y_mined = jnp.abs(y_mined)
-    term = losses.clip_to(jnp.mean(losses.mined_hinge(y_mined, level)), first)
+    term = losses.clip_to(jnp.mean(losses.mined_hinge(y_mined, level)), first, clip)
     return term, jnp.mean(y_mined >= 0.5 * level)
 
 
@@ -189,6 +193,7 @@ def relation_trainer(
     thickening: float = 0.0,
     pool=None,
     with_mined: bool = True,
+    clip: float = MINED_CLIP,
 ):
     """The compiled training loop of g_{K+1} given frozen `rs`: (chunk, initial state, args).
 
@@ -200,7 +205,7 @@ def relation_trainer(
     module = Relation(relation_width(k, cfg.base_width, cfg.max_width), cfg.depth)
     earlier = [Relation(w, rs.depth) for w in rs.widths]
     num_syz = 0 if syz_params is None else int(jax.tree.leaves(syz_params)[0].shape[0])
-    objective = _relation_objective(cfg, module, earlier, num_syz, with_mined)
+    objective = _relation_objective(cfg, module, earlier, num_syz, with_mined, clip)
     optimizer = optax.adam(cfg.learning_rate)
 
     if pool is None:
@@ -271,6 +276,18 @@ def mine(cfg: Config, rs: RelationSet, batches: Batches, key, within: float, poo
     return (padded, len(rows)), land
 
 
+def _premines(cfg: Config, k: int, codim: int) -> bool:
+    """Whether g_{k+1} first trains on rows mined from the earlier relations' zero set: it is
+    the codimension-th relation of a transversality fit with mining on."""
+    return (cfg.premine and cfg.mined_weight > 0 and cfg.independence == "transversality"
+            and k > 0 and k + 1 == codim)
+
+
+def _clip(cfg: Config, k: int, codim: int) -> float:
+    """The mined term's bound (× the first term) in g_{k+1}'s first training loop."""
+    return cfg.premine_clip if _premines(cfg, k, codim) else MINED_CLIP
+
+
 def _with_mined(cfg: Config, k: int, codim: int) -> bool:
     """Whether g_{k+1}'s loop carries the mined-rows term: mining is on, and g_{k+1} is at or
     beyond the data's codimension (before it, the intersection is meant to exceed the data)."""
@@ -294,6 +311,7 @@ def _fit_relation(
     budget: int | None = None,
     programs: dict | None = None,
     codim: int = 1,
+    clip: float = MINED_CLIP,
 ):
     """Train g_{K+1} until its stopping rule holds or it has taken `max_steps` (or `budget`)
     steps; returns its loop state, `step` counting the steps taken here.
@@ -305,12 +323,12 @@ def _fit_relation(
     k = rs.num_relations
     chunk, state, args = relation_trainer(
         cfg, batches, rs, params, key, max_steps, syz_params, thickening, pool,
-        with_mined=_with_mined(cfg, rs.num_relations, codim),
+        with_mined=_with_mined(cfg, rs.num_relations, codim), clip=clip,
     )
     if compiled is not None:  # the same loop, compiled ahead of time by `_compile_ahead`
         chunk = compiled
     if programs is not None and syz_params is None:
-        chunk = programs.setdefault(k, chunk)
+        chunk = programs.setdefault((k, clip), chunk)
     start = 0
     if budget is not None:
         start = max(max_steps - budget, 0)
@@ -551,7 +569,7 @@ def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, 
     next_params = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), next_params)
     chunk, state, args = relation_trainer(
         cfg, batches, stand_in, next_params, jax.random.key(0), cfg.max_steps,
-        with_mined=_with_mined(cfg, k_next, codim),
+        with_mined=_with_mined(cfg, k_next, codim), clip=_clip(cfg, k_next, codim),
     )
     return {k_next: pool.submit(chunk.lower(state, args).compile, LOOP_COMPILER_OPTIONS)}
 
@@ -587,7 +605,7 @@ class _Fitted(NamedTuple):
 
 
 def _refine(cfg, batches, rs, module, width, fitted: _Fitted, within, codim, programs,
-            callback, k_train, k_mine, k_eval):
+            callback, k_train, k_mine, k_eval, pool=None, clip: float = MINED_CLIP):
     """Where the intersection with g_k has parts away from the data, train g_k on, pushed off
     the points that landed there (and those mined before), for up to `refine_rounds` rounds.
     A round is kept only if more projected points then land on the data and g_k still
@@ -598,7 +616,7 @@ def _refine(cfg, batches, rs, module, width, fitted: _Fitted, within, codim, pro
     its budget.
     """
     k = rs.num_relations
-    pool, land = mine(cfg, fitted.grown, batches, jax.random.fold_in(k_mine, 1), within)
+    pool, land = mine(cfg, fitted.grown, batches, jax.random.fold_in(k_mine, 1), within, pool)
     kept, spent = 0, 0
     for r in range(cfg.refine_rounds if cfg.mined_weight > 0 else 0):
         if land["spurious"] <= COMPLETE:
@@ -609,7 +627,7 @@ def _refine(cfg, batches, rs, module, width, fitted: _Fitted, within, codim, pro
                                 jax.random.fold_in(k_train, 100 + r), cfg.max_steps,
                                 callback=callback, phase="refine", pool=pool,
                                 budget=max(cfg.max_steps // REFINE_SHARE, 1),
-                                programs=programs, codim=codim)
+                                programs=programs, codim=codim, clip=clip)
         spent += int(refined.step)
         if int(refined.status) == NONFINITE:
             break
@@ -653,6 +671,20 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
         # from the data are spurious, and g_k is refined not to vanish there (below).
         completing = k + 1 >= codim
         compiled = ahead.pop(k, None)
+
+        def plain_fit(params, rs=rs, k_train=k_train):  # g_k the paper's way, no mined rows
+            return _fit_relation(cfg, batches, rs, params, k_train, cfg.max_steps,
+                                 callback=callback, programs=programs, codim=codim)
+
+        premined, clip = None, MINED_CLIP
+        if _premines(cfg, k, codim):
+            if resuming:  # the mined rows are not kept: go on the paper's way
+                compiled = None
+            else:
+                premined, _ = mine(cfg, rs, batches, jax.random.fold_in(k_mine, 0), within)
+                clip = cfg.premine_clip
+                log.info("relation %d: %d points of the earlier relations' zero set away from "
+                         "the data mined before training", k + 1, premined[1])
         state = _fit_relation(
             cfg,
             batches,
@@ -665,6 +697,8 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             partial=partial,
             programs=programs,
             codim=codim,
+            pool=premined,
+            clip=clip,
         )
         steps, status, rounds = int(state.step), int(state.status), []
         if cfg.independence == "syzygy" and k > 0 and status != NONFINITE:
@@ -712,6 +746,13 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
                 status = int(state.status)
                 if status == NONFINITE:
                     break
+        if premined is not None and status == NONFINITE:
+            log.info("relation %d: its loss became non-finite on mined rows; trained again "
+                     "without them", k + 1)
+            premined, clip = None, MINED_CLIP
+            state = plain_fit(params)
+            steps += int(state.step)
+            status = int(state.status)
         if status == NONFINITE:
             log.error(
                 "relation %d: loss became non-finite at step %d; stopping with the %d "
@@ -728,9 +769,33 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             fitted = _Fitted(state, grown, on_mean, off_mean, status)
             fitted, land, refined_rounds, spent = _refine(
                 cfg, batches, rs, module, width, fitted, within, codim, programs, callback,
-                k_train, k_mine, k_eval)
-            state, grown, on_mean, off_mean, status = fitted
+                k_train, k_mine, k_eval, premined, clip)
             steps += spent
+            if premined is not None and fitted.ratio < cfg.separation_ratio:
+                # Pushed off the earlier zero set, g_k no longer separates on- from off-rows
+                # (rows mined "away from the data" can lie on it where the data are sparse):
+                # trained again the paper's way, then refined.
+                log.info("relation %d: trained on mined rows it separates only %.1fx; trained "
+                         "again without them", k + 1, fitted.ratio)
+                premined, state = None, plain_fit(params)
+                steps += int(state.step)
+                if int(state.status) == NONFINITE:
+                    log.error("relation %d: loss became non-finite at step %d; stopping with "
+                              "the %d relations learned so far", k + 1, steps, rs.num_relations)
+                    break
+                grown, on_mean, off_mean = _grow(cfg, batches, rs, module, state.params, width,
+                                                 k_eval)
+                fitted = _Fitted(state, grown, on_mean, off_mean, int(state.status))
+                fitted, land, refined_rounds, spent = _refine(
+                    cfg, batches, rs, module, width, fitted, within, codim, programs, callback,
+                    k_train, k_mine, k_eval)
+                steps += spent
+            state, grown, on_mean, off_mean, status = fitted
+            if premined is not None and status == CAPPED and fitted.ratio >= \
+                    cfg.separation_ratio:
+                # Its loop also waits for the mined rows to clear, which is jaml's target, not
+                # Algorithm 1's rule: that rule (off/on ≥ separation_ratio) holds, so it is done.
+                status = CONVERGED
         summary = RelationSummary(
             index=k + 1,
             width=width,

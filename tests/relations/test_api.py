@@ -213,3 +213,20 @@ def test_a_checkpoint_loads_where_its_devices_do_not_exist(tiny_set, tmp_path):
     subprocess.run([sys.executable, "-c", script, str(tmp_path / "rs"), str(tmp_path / "m.npy")],
                    check=True, env=env, capture_output=True)
     np.testing.assert_array_equal(np.load(tmp_path / "m.npy"), rs.on_means)
+
+
+def test_only_the_codimension_th_transversal_relation_trains_on_premined_rows():
+    """Pre-mining needs earlier relations to mine (k > 0), happens once at the data's
+    codimension, not in syzygy mode, not with mining off; records that predate it read as
+    what they ran (no pre-mining)."""
+    from jaml.relations.training import MINED_CLIP, _clip, _premines
+
+    cfg = relations.Config()
+    assert [_premines(cfg, k, 2) for k in range(4)] == [False, True, False, False]
+    assert not _premines(cfg, 0, 1)  # g1 has no earlier zero set to mine
+    assert not _premines(relations.Config(independence="syzygy"), 1, 2)
+    assert not _premines(relations.Config(mined_weight=0.0), 1, 2)
+    assert not _premines(relations.Config(premine=False), 1, 2)
+    assert _clip(cfg, 1, 2) == cfg.premine_clip and _clip(cfg, 2, 2) == MINED_CLIP
+    old = relations.Config.from_record({"max_relations": 2, "mined_weight": 1.0})
+    assert old.premine is False and old.mined_weight == 1.0

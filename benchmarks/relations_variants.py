@@ -1,0 +1,95 @@
+"""Config variants of `relations.fit` side by side on 8 seeds, one single-threaded process a run.
+
+A quick screen beside `relations_quality.py` (which runs the authors' code too): each run fits
+the ellipse or the 45° block with `relations.Config(seed=s, **variant)` and measures where 512
+uniform box points land under `relations.project` at its defaults (distance to a 200,000-row
+sample of the true manifold, share within 0.05), the Jacobian's rank ≥ 2 share on the data and
+the quality report's statuses and off/on ratios. One JSON line per run on stdout.
+
+    python3 benchmarks/relations_variants.py paper,defaults --jobs 16
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+VARIANTS = {  # name: (source, Config fields beside the seed)
+    "ellipse-before": ("ellipse", {"max_relations": 2, "premine": False}),
+    "ellipse-defaults": ("ellipse", {"max_relations": 2}),
+    "block-before": ("block45", {"max_relations": 2, "premine": False}),
+    "block-defaults": ("block45", {"max_relations": 2}),
+    "ellipse-auto": ("ellipse", {}),
+}
+THREADS = {"JAX_PLATFORMS": "cpu", "OMP_NUM_THREADS": "1",
+           "XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"}
+
+
+def one(source_name: str, seed: int, fields: dict) -> dict:
+    """Fit and measure one run (in this process)."""
+    import jax
+    import numpy as np
+    from scipy.spatial import cKDTree
+
+    from jaml import relations, sources
+
+    source = sources.make(source_name)
+    started = time.perf_counter()
+    rs = relations.fit(source, relations.Config(seed=seed, **fields))
+    fit_s = time.perf_counter() - started
+    dense = np.asarray(source.sample(jax.random.key(99), 200_000))
+    low, high = dense.min(0), dense.max(0)
+    box = np.random.default_rng(seed).uniform(low, high, (512, dense.shape[1]))
+    distance = cKDTree(dense).query(np.asarray(relations.project(rs, box.astype(np.float32))
+                                               .points))[0]
+    ranks, _ = relations.jacobian_ranks(rs, dense[:2048])
+    report = rs.quality.to_dict() if rs.quality is not None else {}
+    return {"seed": seed, "fit_s": fit_s, "relations": rs.num_relations,
+            "landed": float(np.mean(distance < 0.05)), "rank2": float(np.mean(ranks >= 2)),
+            "status": [r["status"] for r in report.get("relations", [])],
+            "off_on": [round(r["ratio"], 1) for r in report.get("relations", [])]}
+
+
+def launch(name: str, seed: int, timeout_s: float) -> dict:
+    source_name, fields = VARIANTS[name]
+    cmd = [sys.executable, __file__, "--worker", json.dumps([source_name, seed, fields])]
+    try:
+        proc = subprocess.run(cmd, env=os.environ | THREADS, capture_output=True, text=True,
+                              timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        return {"variant": name, "seed": seed, "error": f"over {timeout_s:g} s"}
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("{")]
+    if not lines:
+        return {"variant": name, "seed": seed, "error": proc.stderr[-400:]}
+    return {"variant": name, **json.loads(lines[-1])}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("variants", nargs="?", default=",".join(VARIANTS))
+    parser.add_argument("--seeds", type=int, default=8)
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--timeout-s", type=float, default=540.0)
+    parser.add_argument("--worker", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.worker:
+        source_name, seed, fields = json.loads(args.worker)
+        print(json.dumps(one(source_name, seed, fields)))
+        return
+    names = args.variants.split(",")
+    unknown = [n for n in names if n not in VARIANTS]
+    if unknown:
+        parser.error(f"unknown variants {unknown}; choose from {list(VARIANTS)}")
+    runs = [(n, s) for n in names for s in range(args.seeds)]
+    with ThreadPoolExecutor(args.jobs) as pool:
+        for record in pool.map(lambda r: launch(*r, args.timeout_s), runs):
+            print(json.dumps(record), flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -18,6 +18,7 @@ import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 VARIANTS = {  # name: (source, Config fields beside the seed)
     "ellipse-before": ("ellipse", {"max_relations": 2, "premine": False}),
@@ -25,6 +26,8 @@ VARIANTS = {  # name: (source, Config fields beside the seed)
     "block-before": ("block45", {"max_relations": 2, "premine": False}),
     "block-defaults": ("block45", {"max_relations": 2}),
     "ellipse-auto": ("ellipse", {}),
+    "ellipse-premine-12k": ("ellipse", {"max_relations": 2, "premine_steps": 12_500}),
+    "ellipse-premine-25k": ("ellipse", {"max_relations": 2, "premine_steps": 25_000}),
 }
 THREADS = {"JAX_PLATFORMS": "cpu", "OMP_NUM_THREADS": "1",
            "XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"}
@@ -69,14 +72,41 @@ def launch(name: str, seed: int, timeout_s: float) -> dict:
     return {"variant": name, **json.loads(lines[-1])}
 
 
+def plot(records_path: str, variants: list[str], out: str) -> None:
+    """Per-seed landing of `variants` from a records file (one JSON line a run) into `out`."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    lines = Path(records_path).read_text().splitlines()
+    records = [json.loads(line) for line in lines if line.startswith("{")]
+    fig, ax = plt.subplots(figsize=(8, 3.6))
+    for i, item in enumerate(variants):  # "name" or "name=legend label"
+        name, _, label = item.partition("=")
+        rows = sorted((r for r in records if r["variant"] == name), key=lambda r: r["seed"])
+        ax.plot([r["seed"] + 0.08 * (i - len(variants) / 2) for r in rows],
+                [r["landed"] for r in rows], "o", label=label or name)
+    ax.axhline(0.9, color="grey", lw=0.8, ls="--")
+    ax.set(xlabel="seed", ylabel="box points landing within 0.05 of the curve", ylim=(0, 1.02))
+    ax.legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("variants", nargs="?", default=",".join(VARIANTS))
     parser.add_argument("--seeds", type=int, default=8)
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--timeout-s", type=float, default=540.0)
+    parser.add_argument("--plot", nargs=2, metavar=("RECORDS", "PNG"),
+                        help="draw the per-seed landing of the named variants from RECORDS")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.plot:
+        plot(args.plot[0], args.variants.split(","), args.plot[1])
+        return
     if args.worker:
         source_name, seed, fields = json.loads(args.worker)
         print(json.dumps(one(source_name, seed, fields)))

@@ -69,6 +69,8 @@ class Config:
         less than `separation_ratio`, it is trained again without them.
       premine_clip: while g_k trains on pre-mined rows, their term is bounded by this × the
         first term (elsewhere 2×, like the paper's other terms).
+      premine_steps: step budget of that pre-mined training (None ⇒ max_steps): its mined rows
+        rarely all clear, so it usually runs to the budget; less is faster, at some landing.
       codimension: D minus the data manifold's dimension; None estimates it by local PCA.
         Mining and refining start at the codimension-th relation (before it, the intersection
         is meant to be larger than the data).
@@ -106,6 +108,7 @@ class Config:
     refine_rounds: int = 2
     premine: bool = True
     premine_clip: float = 20.0
+    premine_steps: int | None = None
     cut_beyond_codim: bool = False
     codimension: int | None = None
     stop_when_complete: bool = True
@@ -142,7 +145,7 @@ class Config:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 problems.append(f"{name} must be a non-negative integer, got {value!r}")
-        for name in ("syzygy_max_steps", "syzygy_push_steps", "codimension"):
+        for name in ("syzygy_max_steps", "syzygy_push_steps", "codimension", "premine_steps"):
             value = getattr(self, name)
             if value is not None and (not isinstance(value, int) or value < 1):
                 problems.append(f"{name} must be None or a positive integer, got {value!r}")

@@ -699,6 +699,7 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             codim=codim,
             pool=premined,
             clip=clip,
+            budget=cfg.premine_steps if premined is not None else None,
         )
         steps, status, rounds = int(state.step), int(state.status), []
         if cfg.independence == "syzygy" and k > 0 and status != NONFINITE:

@@ -79,10 +79,8 @@ def distortion_coefficients(latents, states, num_pairs: int = DEFAULT_NUM_PAIRS,
     return _coefficients(jnp.asarray(lat), jnp.asarray(st), inputs, i, j)
 
 
-def distortion(latents, states, num_pairs: int = DEFAULT_NUM_PAIRS, seed: int = 0,
-               inputs=None) -> float:
-    """Var(ρ) over `num_pairs` random pairs of distinct points, skipping pairs with τ1 = τ2 and
-    (given `inputs`) pairs whose encoder inputs are equal."""
+def _valid_coefficients(latents, states, num_pairs: int, seed: int, inputs) -> np.ndarray:
+    """ρ (float64) of the valid pairs; at least 2 of them, or a one-line error."""
     rho, valid = distortion_coefficients(latents, states, num_pairs, seed, inputs)
     rho = np.asarray(rho, np.float64)[np.asarray(valid)]
     if rho.size < 2:
@@ -90,6 +88,14 @@ def distortion(latents, states, num_pairs: int = DEFAULT_NUM_PAIRS, seed: int = 
             f"too few non-coincident pairs: {rho.size} of {num_pairs} have τ1 ≠ τ2 (and distinct "
             "inputs); need at least 2"
         )
+    return rho
+
+
+def distortion(latents, states, num_pairs: int = DEFAULT_NUM_PAIRS, seed: int = 0,
+               inputs=None) -> float:
+    """Var(ρ) over `num_pairs` random pairs of distinct points, skipping pairs with τ1 = τ2 and
+    (given `inputs`) pairs whose encoder inputs are equal."""
+    rho = _valid_coefficients(latents, states, num_pairs, seed, inputs)
     if np.isneginf(rho).any():
         warnings.warn(f"distortion is inf: the encoder maps {int(np.isneginf(rho).sum())} of "
                       f"{rho.size} pairs of distinct states (and inputs) to one latent",
@@ -105,13 +111,7 @@ def distortion_trimmed(latents, states, num_pairs: int = DEFAULT_NUM_PAIRS, seed
     with a finite ρ, and how many pairs the trimmed figure leaves out (those with ρ = −∞).
     One collapsed pair makes eq. 5's figure infinite; the trimmed one still says how the
     encoder stretches the other pairs, and the count how far it is from the definition."""
-    rho, valid = distortion_coefficients(latents, states, num_pairs, seed, inputs)
-    rho = np.asarray(rho, np.float64)[np.asarray(valid)]
-    if rho.size < 2:
-        raise ValueError(
-            f"too few non-coincident pairs: {rho.size} of {num_pairs} have τ1 ≠ τ2 (and distinct "
-            "inputs); need at least 2"
-        )
+    rho = _valid_coefficients(latents, states, num_pairs, seed, inputs)
     finite = rho[np.isfinite(rho)]
     left_out = int(rho.size - finite.size)
     trimmed = float(np.var(finite)) if finite.size >= 2 else float("nan")

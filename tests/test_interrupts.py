@@ -36,7 +36,16 @@ def test_a_swallowed_ctrl_c_is_raised_again_where_the_loop_checks():
     assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
 
 
-def test_ctrl_c_during_a_checkpoint_write_waits_for_it(tmp_path, monkeypatch, caplog):
+@pytest.fixture
+def default_sigint():
+    """SIGINT raising KeyboardInterrupt, as in a terminal (pytest-xdist's workers ignore it)."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
+
+
+def test_ctrl_c_during_a_checkpoint_write_waits_for_it(tmp_path, monkeypatch, caplog,
+                                                       default_sigint):
     """The interrupt lands inside Orbax's save: the step is still finalised (the latest on
     disk, the one a summary names), Orbax logs no error, then KeyboardInterrupt is raised."""
     mgr = checkpoint.manager(tmp_path)

@@ -230,3 +230,37 @@ def test_only_the_codimension_th_transversal_relation_trains_on_premined_rows():
     assert _clip(cfg, 1, 2) == cfg.premine_clip and _clip(cfg, 2, 2) == MINED_CLIP
     old = relations.Config.from_record({"max_relations": 2, "mined_weight": 1.0})
     assert old.premine is False and old.mined_weight == 1.0
+
+
+@pytest.mark.parametrize("bad", ["nan", "on_data"])
+def test_a_pre_mined_relation_that_fails_is_trained_again_without_its_rows(bad, monkeypatch,
+                                                                           caplog):
+    """Pre-mined rows that make g2's loss non-finite, or that lie on the data itself (a sparse
+    sample judges "away" loosely) so g2 cannot separate, cost nothing: g2 is trained again the
+    paper's way, and the fit keeps both relations."""
+    import logging
+
+    from jaml.relations import training
+
+    rows = sources.make("ellipse").sample(jax.random.key(0), 512)
+    real_mine = training.mine
+
+    def mine(cfg, rs, batches, key, within, pool=None):
+        if rs.num_relations != 1:  # refinement: as usual
+            return real_mine(cfg, rs, batches, key, within, pool)
+        found = (np.full((cfg.mine_points, 3), np.nan, np.float32) if bad == "nan"
+                 else np.asarray(rows[: cfg.mine_points], np.float32))
+        padded = np.concatenate([found, np.full((cfg.mine_points, 1), 50.0, np.float32)], -1)
+        return (padded, cfg.mine_points), {"landed": 0.0, "spurious": 1.0}
+
+    monkeypatch.setattr(training, "mine", mine)
+    cfg = relations.Config(max_relations=2, max_steps=300, chunk_steps=50, batch_size=64,
+                           eval_batches=2, stop_patience=1, refine_rounds=0, codimension=2,
+                           stop_when_complete=False, mine_points=64)
+    with caplog.at_level(logging.INFO, logger="jaml"):
+        rs = relations.fit(rows, cfg)
+    again = [r.getMessage() for r in caplog.records if "trained again" in r.getMessage()]
+    assert len(again) == 1, [r.getMessage() for r in caplog.records]
+    assert ("non-finite" in again[0]) == (bad == "nan")
+    assert rs.num_relations == 2
+    assert np.isfinite(np.asarray(relations.evaluate(rs, rows[:16]))).all()

@@ -20,7 +20,7 @@ OBJECTIVES: tuple[str, ...] = get_args(Objective)
 # Fields added after runs were recorded, with the values that reproduce what those runs did
 # (no mining, no refinement, every one of max_relations trained).
 LEGACY_FIELDS = {"mined_weight": 0.0, "refine_rounds": 0, "stop_when_complete": False,
-                 "codimension": None, "premine": False}
+                 "codimension": None, "premine": False, "premine_attempts": 1}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,6 +71,9 @@ class Config:
         first term (elsewhere 2×, like the paper's other terms).
       premine_steps: step budget of that pre-mined training (None ⇒ max_steps): its mined rows
         rarely all clear, so it usually runs to the budget; less is faster, at some landing.
+      premine_attempts: pre-mined trainings of that relation at most, each from another
+        initialisation, while more than a tenth of the projected box points land away from the
+        data (or it separates < separation_ratio); the one landing most is kept.
       codimension: D minus the data manifold's dimension; None estimates it by local PCA.
         Mining and refining start at the codimension-th relation (before it, the intersection
         is meant to be larger than the data).
@@ -109,6 +112,7 @@ class Config:
     premine: bool = True
     premine_clip: float = 20.0
     premine_steps: int | None = None
+    premine_attempts: int = 3
     cut_beyond_codim: bool = False
     codimension: int | None = None
     stop_when_complete: bool = True
@@ -136,6 +140,7 @@ class Config:
             "eval_batches",
             "stop_patience",
             "mine_points",
+            "premine_attempts",
         )
         for name in positive_ints:
             value = getattr(self, name)

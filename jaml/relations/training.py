@@ -576,6 +576,7 @@ def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, 
 
 DROP_RATIO = 2.0  # off/on below which a capped relation up to the codimension is dropped
 REFINE_SHARE = 5  # a refinement round's step budget: this fraction of max_steps
+RETRY_SPURIOUS = 0.1  # a pre-mined relation with more box points landing away: tried again
 COMPLETE = 0.02  # at most this share of projected box points on spurious zeros: complete
 CALIBRATION_ROWS = 4096  # training rows `holds`' tolerance is calibrated on
 
@@ -662,7 +663,8 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
         width = relation_width(k, cfg.base_width, cfg.max_width)
         module = Relation(width, cfg.depth)
         init = jax.jit(module.init, compiler_options=ONCE_COMPILER_OPTIONS)
-        params = init(k_init, jnp.zeros((1, batches.dim)))
+        example_tau = jnp.zeros((1, batches.dim))
+        params = init(k_init, example_tau)
         ahead |= _compile_ahead(cfg, batches, rs, params, k + 1, pool, codim)
         resuming = partial is not None and partial.holds(k)
         if priors is not None and k < len(priors) and priors[k] is not None and not resuming:
@@ -772,6 +774,32 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
                 cfg, batches, rs, module, width, fitted, within, codim, programs, callback,
                 k_train, k_mine, k_eval, premined, clip)
             steps += spent
+            attempt = 1
+            while premined is not None and attempt < cfg.premine_attempts and (
+                    fitted.ratio < cfg.separation_ratio or land["spurious"] > RETRY_SPURIOUS):
+                # Where g_k starts decides which surface through the data it settles on: from
+                # another initialisation the intersection may have no spurious part.
+                log.info("relation %d: %.0f%% of projected box points land away from the data "
+                         "(off/on %.1f); pre-mined again from another initialisation", k + 1,
+                         100 * land["spurious"], fitted.ratio)
+                again = _fit_relation(
+                    cfg, batches, rs, init(jax.random.fold_in(k_init, attempt), example_tau),
+                    jax.random.fold_in(k_train, attempt), cfg.max_steps, callback=callback,
+                    programs=programs, codim=codim, pool=premined, clip=clip,
+                    budget=cfg.premine_steps)
+                attempt += 1
+                steps += int(again.step)
+                if int(again.status) == NONFINITE:
+                    continue
+                other = _Fitted(again, *_grow(cfg, batches, rs, module, again.params, width,
+                                              k_eval), int(again.status))
+                other, other_land, other_rounds, spent = _refine(
+                    cfg, batches, rs, module, width, other, within, codim, programs, callback,
+                    k_train, k_mine, k_eval, premined, clip)
+                steps += spent
+                if (other_land["landed"] > land["landed"]
+                        and other.ratio >= min(fitted.ratio, cfg.separation_ratio)):
+                    fitted, land, refined_rounds = other, other_land, other_rounds
             if premined is not None and fitted.ratio < cfg.separation_ratio:
                 # Pushed off the earlier zero set, g_k no longer separates on- from off-rows
                 # (rows mined "away from the data" can lie on it where the data are sparse):

@@ -147,6 +147,9 @@ def test_failing_or_misshapen_sampler_raises():
         ("min_angle", 2.0, "min_angle"),
         ("transversality_weight", -1.0, "transversality_weight"),
         ("syzygies_per_relation", -1, "syzygies_per_relation"),
+        ("premine_attempts", 0, "premine_attempts must be a positive integer"),
+        ("premine_clip", 0.0, "premine_clip must be a positive finite"),
+        ("premine_steps", 0, "premine_steps must be None or a positive integer"),
     ],
 )
 def test_invalid_config_values_raise(field, value, match):
@@ -229,7 +232,7 @@ def test_only_the_codimension_th_transversal_relation_trains_on_premined_rows():
     assert not _premines(relations.Config(premine=False), 1, 2)
     assert _clip(cfg, 1, 2) == cfg.premine_clip and _clip(cfg, 2, 2) == MINED_CLIP
     old = relations.Config.from_record({"max_relations": 2, "mined_weight": 1.0})
-    assert old.premine is False and old.mined_weight == 1.0
+    assert old.premine is False and old.mined_weight == 1.0 and old.premine_attempts == 1
 
 
 @pytest.mark.parametrize("bad", ["nan", "on_data"])

@@ -678,6 +678,14 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             return _fit_relation(cfg, batches, rs, params, k_train, cfg.max_steps,
                                  callback=callback, programs=programs, codim=codim)
 
+        def refine(state, pool=None, clip=MINED_CLIP, rs=rs, module=module, width=width,
+                   keys=(k_train, k_mine, k_eval)):
+            """g_k as trained: its means recorded, then `_refine`d."""
+            grown = _grow(cfg, batches, rs, module, state.params, width, keys[2])
+            return _refine(cfg, batches, rs, module, width,
+                           _Fitted(state, *grown, int(state.status)), within, codim,
+                           programs, callback, *keys, pool, clip)
+
         premined, clip = None, MINED_CLIP
         if _premines(cfg, k, codim):
             if resuming:  # the mined rows are not kept: go on the paper's way
@@ -765,14 +773,13 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
                 rs.num_relations,
             )
             break
-        grown, on_mean, off_mean = _grow(cfg, batches, rs, module, state.params, width, k_eval)
         land, refined_rounds = None, 0
         last = k + 1 == cfg.max_relations  # the final report measures it anyway
-        if completing and (mining or (cfg.stop_when_complete and not last)):
-            fitted = _Fitted(state, grown, on_mean, off_mean, status)
-            fitted, land, refined_rounds, spent = _refine(
-                cfg, batches, rs, module, width, fitted, within, codim, programs, callback,
-                k_train, k_mine, k_eval, premined, clip)
+        if not (completing and (mining or (cfg.stop_when_complete and not last))):
+            grown, on_mean, off_mean = _grow(cfg, batches, rs, module, state.params, width,
+                                             k_eval)
+        else:
+            fitted, land, refined_rounds, spent = refine(state, premined, clip)
             steps += spent
             attempt = 1
             while premined is not None and attempt < cfg.premine_attempts and (
@@ -791,11 +798,7 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
                 steps += int(again.step)
                 if int(again.status) == NONFINITE:
                     continue
-                other = _Fitted(again, *_grow(cfg, batches, rs, module, again.params, width,
-                                              k_eval), int(again.status))
-                other, other_land, other_rounds, spent = _refine(
-                    cfg, batches, rs, module, width, other, within, codim, programs, callback,
-                    k_train, k_mine, k_eval, premined, clip)
+                other, other_land, other_rounds, spent = refine(again, premined, clip)
                 steps += spent
                 if (other_land["landed"] > land["landed"]
                         and other.ratio >= min(fitted.ratio, cfg.separation_ratio)):
@@ -812,12 +815,7 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
                     log.error("relation %d: loss became non-finite at step %d; stopping with "
                               "the %d relations learned so far", k + 1, steps, rs.num_relations)
                     break
-                grown, on_mean, off_mean = _grow(cfg, batches, rs, module, state.params, width,
-                                                 k_eval)
-                fitted = _Fitted(state, grown, on_mean, off_mean, int(state.status))
-                fitted, land, refined_rounds, spent = _refine(
-                    cfg, batches, rs, module, width, fitted, within, codim, programs, callback,
-                    k_train, k_mine, k_eval)
+                fitted, land, refined_rounds, spent = refine(state)
                 steps += spent
             state, grown, on_mean, off_mean, status = fitted
             if premined is not None and status == CAPPED and fitted.ratio >= \

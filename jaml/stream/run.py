@@ -4,7 +4,6 @@
 
 from __future__ import annotations
 
-import logging
 import time
 from pathlib import Path
 
@@ -25,13 +24,18 @@ from jaml.stream.executor import (
     unstack_runs,
 )
 from jaml.stream.loop import Stream, StreamState
-from jaml.stream.rundir import FigureWriter, RunDir, analysis_epochs, checkpoint_due, claim_run
+from jaml.stream.rundir import FigureWriter, RunDir, claim_run, open_runs
+from jaml.stream.schedule import (
+    analysis_epochs,
+    checkpoint_due,
+    in_time,
+    next_block,
+    stop_epoch,
+)
 from jaml.stream.timing import Stopwatch, timed
 
 __all__ = ["DEADLINE_BLOCK", "NonFiniteLoss", "analysis_epochs", "checkpoint_due", "claim_run",
            "run", "run_many"]
-
-log = logging.getLogger("jaml.stream")
 
 
 class NonFiniteLoss(RuntimeError):
@@ -85,6 +89,76 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     JAX spent compiling in it: a call's first block and first analysis compile their programs)
     is not started: every run still going checkpoints where it is and stops ("interrupted").
     Leave a margin for those checkpoints."""
+    outs = _checked(configs, outs, checkpoint_every)
+    stream = build(configs[0], latent_penalty)  # every config problem surfaces before any file
+    figures = FigureWriter()
+    runs = open_runs(stream, configs, outs, figures=figures, final_checkpoint=final_checkpoint,
+                     keep_pi_rand=keep_pi_rand)
+    epochs, analyses = configs[0].epochs, analysis_epochs(configs[0])
+    stops = [stop_epoch(r.epoch, epochs, stop_after) for r in runs]
+    label = f"{configs[0].env} {configs[0].learner}" + (
+        f" ×{len(runs)}" if len(runs) > 1 else "")
+    bar = tqdm(total=epochs * len(runs), initial=sum(r.epoch for r in runs), desc=label,
+               unit="epoch", disable=not progress)
+    stacked = _Stacked(runs)
+    pace = None  # seconds per epoch of the last block, and of the last analysis (deadline)
+    analysis_seconds = 0.0
+    try:
+        while True:
+            _interrupts.raise_if_pending()  # a Ctrl-C that a callback swallowed (gc, JAX)
+            for r, stop in zip(runs, stops, strict=True):
+                r.settle(stop)
+            block = next_block([r.epoch if r.status == "running" else None for r in runs],
+                               stops, analyses, None if deadline is None else DEADLINE_BLOCK)
+            if block is None:
+                break
+            if not in_time(block, _clock(), deadline, pace, analysis_seconds):
+                for i, r in enumerate(runs):  # every run still going stops where it is
+                    if r.status == "running":
+                        r.stop(stacked.state(i))
+                break
+            with Stopwatch() as watch:
+                states, metrics = run_stacked_epochs(stream, stacked.of(block.runs),
+                                                     block.epochs, mesh=mesh)
+                metrics = jax.tree.map(np.asarray, metrics)
+            stacked.states = states
+            pace = watch.steady / block.epochs
+            bar.update(block.epochs * len(block.runs))
+            trained = [(j, runs[i]) for j, i in enumerate(block.runs)
+                       if runs[i].trained({k: v[:, j] for k, v in metrics.items()},
+                                          watch.wall / len(block.runs))]
+            if block.analysis:
+                with Stopwatch() as analysing:
+                    _analyse_together(stream, states, trained, checkpoint_every)
+                analysis_seconds = analysing.steady if trained else analysis_seconds
+            for j, r in trained:  # stopped by `stop_after` between analyses: resumable here
+                if r.epoch == stops[block.runs[j]] < epochs:
+                    r.stop(stacked.state(block.runs[j]))
+            bar.set_postfix(_shown(metrics))
+    except KeyboardInterrupt:
+        _interrupts.delivered()
+        _mark(runs, "interrupted")
+        raise
+    except BaseException:
+        _mark(runs, "failed")
+        raise
+    finally:
+        bar.close()
+        figures.wait()
+        summaries = [r.close() for r in runs]
+    figures.check()  # a figure that failed to draw, after every summary is written
+    return summaries
+
+
+# Epochs between deadline checks: the device loop's block, so no block is split.
+DEADLINE_BLOCK = BLOCK
+_clock = time.monotonic  # what deadlines are read against
+
+
+def _checked(configs: list[StreamConfig], outs: list, checkpoint_every: int | None
+             ) -> list[Path]:
+    """`run_many`'s arguments checked: one out directory per config, each its own, the configs
+    one program; the directories as Paths."""
     if len(configs) != len(outs) or not configs:
         raise ValueError(f"run_many needs one out directory per config, got {len(configs)} "
                          f"configs and {len(outs)} directories")
@@ -98,154 +172,54 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     outs = [Path(o) for o in outs]
     if len(set(outs)) < len(outs):
         raise ValueError(f"two runs share an out directory: {[str(o) for o in outs]}")
-    stream = build(configs[0], latent_penalty)  # every config problem surfaces before any file
-    figures = FigureWriter()
-    runs: list[RunDir] = []
-    try:
-        for c, o in zip(configs, outs, strict=True):
-            runs.append(RunDir(stream, c, o, figures, final_checkpoint, keep_pi_rand))
-    except BaseException:  # one directory refused: the ones opened before it are let go too
-        for r in runs:
-            r.lock.close()
-        raise
-    label = f"{configs[0].env} {configs[0].learner}" + (f" ×{len(runs)}" if len(runs) > 1 else "")
-    bar = tqdm(total=configs[0].epochs * len(runs), initial=sum(r.epoch for r in runs),
-               desc=label, unit="epoch", disable=not progress)
-    budget = {id(r): stop_after for r in runs}
-    # The runs being trained and their stacked states, kept stacked from one analysis to the
-    # next while the group stays the same (the common case: all runs at one epoch).
-    members: list[RunDir] = []
-    states = None
-    pace = None  # seconds per epoch of the last block, and of the last analysis (deadline)
-    analysis_seconds = 0.0
-    try:
-        while True:
-            _interrupts.raise_if_pending()  # a Ctrl-C that a callback swallowed (gc, JAX)
-            for r in runs:
-                if r.status == "running" and not r.targets:
-                    r.status = "finished"
-                if r.status != "running":  # finished, stopped or non-finite: no more analyses
-                    r.pi_rand_set = None  # its host memory, for the runs still going
-            active = [r for r in runs if r.status == "running"]
-            if not active:
-                break
-            epoch = min(r.epoch for r in active)
-            group = [r for r in active if r.epoch == epoch]
-            target = group[0].targets[0]
-            n = target - epoch if stop_after is None else min(target - epoch, budget[id(group[0])])
-            if n == 0:
-                for r in group:
-                    r.status = "interrupted"
-                continue
-            if deadline is not None:
-                n = min(n, DEADLINE_BLOCK)
-                ahead = 0.0 if pace is None else pace * n + (
-                    analysis_seconds if epoch + n == target else 0.0)
-                if _clock() + ahead > deadline:
-                    _stop_in_time(active, members, states)
-                    continue
-            if group != members:
-                if states is not None:
-                    for r, state in zip(members, unstack_runs(states), strict=True):
-                        r.state = state
-                states = stack_runs([r.state for r in group])
-                members = group
-                for r in group:
-                    r.state = None
-            with Stopwatch() as block:
-                states, metrics = run_stacked_epochs(stream, states, n, mesh=mesh)
-                metrics = jax.tree.map(np.asarray, metrics)
-            pace = block.steady / n
-            share = block.wall / len(group)
-            bar.update(n * len(group))
-            due = []  # (index, run) of the runs at an analysis epoch, analysed together
-            for i, r in enumerate(group):
-                mine = {k: v[:, i] for k, v in metrics.items()}
-                r.seconds["epochs"] += share
-                if stop_after is not None:
-                    budget[id(r)] -= n
-                bad = _first_non_finite(mine)
-                if bad is not None:  # this run stops; its stacked state is dropped at the next
-                    # regroup. Its metrics up to the first bad epoch are logged, so the terms
-                    # that went first can be read.
-                    r.logs.epochs(r.epoch, {k: v[:bad + 1] for k, v in mine.items()})
-                    r.status, r.error = "nonfinite", _non_finite_message(r.epoch + bad + 1)
-                    log.error("%s: %s", r.out, r.error)
-                    continue
-                r.logs.epochs(r.epoch, mine)
-                r.epoch += n
-                if r.epoch == target:
-                    r.targets.pop(0)
-                    due.append((i, r))
-            with Stopwatch() as analysing:
-                _analyse_together(stream, states, due, checkpoint_every)
-            if due:
-                analysis_seconds = analysing.steady
-            # A run stopped by `stop_after` between analyses keeps its epochs: checkpointed
-            # here (no analysis), so the next call resumes where this one stopped.
-            for i, r in enumerate(group):
-                if (stop_after is not None and budget[id(r)] == 0 and r.status == "running"
-                        and r.targets and r.manager.latest_step() != r.epoch):
-                    r.save(jax.tree.map(lambda x, i=i: x[i], states))
-            # Only what has a value: no episode ended yet reads "ret=nan", a learner that has
-            # not started "loss=nan".
-            shown = {"ret": _last_finite(metrics["episode_return"][:, 0]),
-                     "loss": _last_finite(metrics["learner/loss"][:, 0])}
-            bar.set_postfix({k: f"{v:.4g}" for k, v in shown.items() if np.isfinite(v)})
-    except KeyboardInterrupt:
-        _interrupts.delivered()
-        for r in runs:
-            r.status = "interrupted" if r.status == "running" else r.status
-        raise
-    except BaseException:
-        for r in runs:
-            r.status = "failed" if r.status == "running" else r.status
-        raise
-    finally:
-        bar.close()
-        figures.wait()
-        summaries = []
-        for r in runs:
-            summaries.append(r.close())
-    figures.check()  # a figure that failed to draw, after every summary is written
-    return summaries
+    return outs
 
 
-# Epochs between deadline checks: the device loop's block, so no block is split.
-DEADLINE_BLOCK = BLOCK
-_clock = time.monotonic  # what deadlines are read against
+class _Stacked:
+    """The stacked states of the runs last trained together (`members`, indices into `runs`),
+    kept stacked from one block to the next while the group stays the same (the common case:
+    all runs at one epoch); the other runs hold theirs in `run.state`."""
+
+    def __init__(self, runs: list[RunDir]):
+        self.runs, self.members, self.states = runs, (), None
+
+    def of(self, members: tuple[int, ...]) -> StreamState:
+        """The stacked states of `members`, regrouped if they are not the last group."""
+        if members != self.members:
+            if self.states is not None:
+                for i, state in zip(self.members, unstack_runs(self.states), strict=True):
+                    self.runs[i].state = state
+            self.states = stack_runs([self.runs[i].state for i in members])
+            self.members = members
+            for i in members:
+                self.runs[i].state = None
+        return self.states
+
+    def state(self, i: int) -> StreamState:
+        """Run i's state, from the stack or its own."""
+        if i not in self.members:
+            return self.runs[i].state
+        j = self.members.index(i)
+        return jax.tree.map(lambda x: x[j], self.states)
 
 
-def _stop_in_time(active: list[RunDir], members: list[RunDir], states) -> None:
-    """The deadline's stop: each active run checkpoints at its epoch (unless its last
-    checkpoint is there) and is marked interrupted. `members` are the runs whose states are
-    stacked in `states`; the others hold theirs in `run.state`."""
-    for r in active:
-        if r.targets and r.manager.latest_step() != r.epoch:
-            if r in members:
-                i = members.index(r)
-                r.save(jax.tree.map(lambda x, i=i: x[i], states))
-            else:
-                r.save(r.state)
-        r.status = "interrupted"
+def _mark(runs: list[RunDir], status: str) -> None:
+    """The runs still going, marked as ended by an exception."""
+    for r in runs:
+        r.status = status if r.status == "running" else r.status
+
+
+def _shown(metrics: dict[str, np.ndarray]) -> dict[str, str]:
+    """The progress bar's figures, the group's first run's: only what has a value (no episode
+    ended yet reads "ret=nan", a learner that has not started "loss=nan")."""
+    shown = {"ret": _last_finite(metrics["episode_return"][:, 0]),
+             "loss": _last_finite(metrics["learner/loss"][:, 0])}
+    return {k: f"{v:.4g}" for k, v in shown.items() if np.isfinite(v)}
 
 
 def _last_finite(values: np.ndarray) -> float:
     finite = values[np.isfinite(values)]
     return float(finite[-1]) if finite.size else float("nan")
-
-
-def _first_non_finite(metrics: dict[str, np.ndarray]) -> int | None:
-    """Index of the first epoch of these whose learner loss is NaN/inf while training, else
-    None (before the replay fills the learner does not train and its loss is NaN by design)."""
-    bad = (metrics["learner/training"] > 0) & ~np.isfinite(metrics["learner/loss"])
-    return int(np.argmax(bad)) if bad.any() else None
-
-
-def _non_finite_message(epoch: int) -> str:
-    return (f"learner loss became non-finite at epoch {epoch}; the run stopped and its last "
-            "good checkpoint is kept (lower the learning rate or check the inputs, then start a "
-            "new --out or resume from the checkpoint)")
 
 
 def _analyse_together(stream: Stream, states: StreamState, due: list,

@@ -21,10 +21,12 @@ from jaml.evaluation import plots
 from jaml.stream import analysis, checkpoint
 from jaml.stream.config import StreamConfig, changed_fields
 from jaml.stream.loop import Stream, StreamState
+from jaml.stream.schedule import checkpoint_due, first_non_finite
 from jaml.stream.timing import timed
 
 # What a run resumed from: the command line shows this logger at INFO (`jaml.cli.main`).
 resume_log = logging.getLogger("jaml.resume")
+log = logging.getLogger("jaml.stream")
 
 
 def claim_run(out: Path, config: StreamConfig, stream: Stream | None = None) -> bool:
@@ -70,26 +72,6 @@ def _own_learner_config(config: StreamConfig, stream: Stream | None) -> dict | N
     own = stream.learner.config
     fields = json.loads(json.dumps(dataclasses.asdict(own), default=str))
     return {"type": f"{type(own).__module__}.{type(own).__qualname__}", **fields}
-
-
-def analysis_epochs(config: StreamConfig) -> list[int]:
-    """Epochs after which the run analyses and checkpoints: when the replay is full (the learner
-    has just started), every `eval.every` epochs after that, and at the end."""
-    first = config.fill_epochs
-    epochs = list(range(first, config.epochs + 1, config.eval.every))
-    if not epochs or epochs[-1] != config.epochs:
-        epochs.append(config.epochs)
-    return epochs
-
-
-def checkpoint_due(epoch: int, last_checkpoint: int | None, every: int | None, *,
-                   last: bool) -> bool:
-    """Whether the analysis at `epoch` also checkpoints: always with `every` None; otherwise
-    once `every` epochs have passed since the last checkpoint (a fresh run's epoch 0 counting
-    as one), and at the run's `last` analysis."""
-    if every is None or last:
-        return True
-    return epoch - (last_checkpoint or 0) >= every
 
 
 def _save_png(path: Path, rows: list[np.ndarray]) -> None:
@@ -186,7 +168,6 @@ class RunDir:
         self.logs = _Logs(out, keep=lambda r: r["epoch"] <= self.epoch)
         self.status = "running"
         self.error: str | None = None  # why a "nonfinite" run stopped
-        self.targets = [t for t in analysis_epochs(config) if t > self.epoch]
         self.started = time.perf_counter()
         # Wall seconds of this call by phase (first calls include compilation); the epochs of
         # runs trained together are shared among them.
@@ -197,6 +178,38 @@ class RunDir:
         # The reference rows (`analysis.reference_rows`, the constant's beside them) of this
         # call's first analysis, with its epoch: summary.json's "references".
         self.references: dict | None = None
+
+    def settle(self, stop: int) -> None:
+        """Finished at the run's last epoch, interrupted at `stop` (this call's); a run that no
+        longer trains lets its kept π_rand sequences go (host memory for the others)."""
+        if self.status == "running" and self.epoch >= self.config.epochs:
+            self.status = "finished"
+        elif self.status == "running" and self.epoch >= stop:
+            self.status = "interrupted"
+        if self.status != "running":
+            self.pi_rand_set = None
+
+    def trained(self, metrics: dict[str, np.ndarray], seconds: float) -> bool:
+        """Logs the epochs just trained (metrics [n] per name) and advances; False, with the
+        run stopped ("nonfinite") and its epochs logged up to the first bad one, where its loss
+        turned non-finite."""
+        self.seconds["epochs"] += seconds
+        bad = first_non_finite(metrics)
+        if bad is not None:  # the terms that went first can be read in metrics.jsonl
+            self.logs.epochs(self.epoch, {k: v[:bad + 1] for k, v in metrics.items()})
+            self.status, self.error = "nonfinite", _non_finite_message(self.epoch + bad + 1)
+            log.error("%s: %s", self.out, self.error)
+            return False
+        self.logs.epochs(self.epoch, metrics)
+        self.epoch += len(next(iter(metrics.values())))
+        return True
+
+    def stop(self, state: StreamState) -> None:
+        """Stops before the run's end: a checkpoint at the current epoch (unless the last one is
+        there), so the next call resumes here; status "interrupted"."""
+        if self.manager.latest_step() != self.epoch:
+            self.save(state)
+        self.status = "interrupted"
 
     def eval_key(self) -> jax.Array:
         """The analysis key of the current epoch."""
@@ -220,7 +233,7 @@ class RunDir:
             self.logs.analysis(self.epoch, records)
             self.figures.submit(self.out, list(self.history))
         if checkpoint_due(self.epoch, self.manager.latest_step(), checkpoint_every,
-                          last=not self.targets and self.final_checkpoint):
+                          last=self.epoch == self.config.epochs and self.final_checkpoint):
             self.save(state)
         # A progress summary (status "running"): a process that dies without reaching `close`
         # (a machine taken back, SIGKILL) still leaves its epoch, phase times and last records.
@@ -261,6 +274,27 @@ class RunDir:
         write_json(self.out / "summary.json", summary)
         self.lock.close()
         return summary
+
+
+def open_runs(stream: Stream, configs: list[StreamConfig], outs: list[Path], **options
+              ) -> list[RunDir]:
+    """A `RunDir` per (config, out), `options` RunDir's; one refused lets the ones opened
+    before it go too."""
+    runs: list[RunDir] = []
+    try:
+        for config, out in zip(configs, outs, strict=True):
+            runs.append(RunDir(stream, config, out, **options))
+    except BaseException:
+        for r in runs:
+            r.lock.close()
+        raise
+    return runs
+
+
+def _non_finite_message(epoch: int) -> str:
+    return (f"learner loss became non-finite at epoch {epoch}; the run stopped and its last "
+            "good checkpoint is kept (lower the learning rate or check the inputs, then start a "
+            "new --out or resume from the checkpoint)")
 
 
 def _records(stream: Stream, names: list[str], epoch: int, report: dict, *,

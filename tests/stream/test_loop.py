@@ -156,36 +156,16 @@ def test_streams_of_other_seeds_share_compiled_code_not_their_seed():
     assert dataclasses.replace(a, train_step=lambda *x: x) != a
 
 
-def test_analysis_epochs_start_when_the_replay_is_full():
-    assert run_lib.analysis_epochs(tiny()) == [2, 4, 6]
-    assert run_lib.analysis_epochs(tiny(epochs=7, overrides={"eval.every": 4})) == [2, 6, 7]
-
-
 def _records(path):
     return [json.loads(line) for line in path.read_text().splitlines()]
 
 
-def test_thinned_checkpoints_fall_on_the_first_analysis_due_and_the_last():
-    """Fig. 2's locomotion schedule: analyses at 78 (replay full), 128, …, 278, 300."""
-    analyses = [78, 128, 178, 228, 278, 300]
-
-    def written(every):
-        last, out = None, []
-        for epoch in analyses:
-            if run_lib.checkpoint_due(epoch, last, every, last=epoch == analyses[-1]):
-                last = epoch
-                out.append(epoch)
-        return out
-
-    assert written(None) == analyses
-    assert written(100) == [128, 228, 300]
-    assert written(50) == analyses
-    assert written(10_000) == [300]
+def test_checkpoint_every_must_be_a_positive_number_of_epochs():
     with pytest.raises(ValueError, match="checkpoint_every must be a positive"):
         run_lib.run_many([tiny()], ["unused"], checkpoint_every=0)
 
 
-@pytest.mark.slow  # a whole run for one option; checkpoint_due's schedule is tested alone
+@pytest.mark.slow  # a whole run for one option; checkpoint_due is tested alone
 def test_without_a_final_checkpoint_a_run_writes_its_records_and_no_checkpoint(tmp_path):
     """--no-final-checkpoint on a machine whose disk goes with the run: the last analysis does
     not force one, so with checkpoints thinned past the run's length none is written."""

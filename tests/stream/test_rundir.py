@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from jaml.stream import rundir
+from jaml.stream import rundir, schedule
 
 
 def test_figures_are_drawn_in_the_background_from_each_runs_newest_history(monkeypatch):
@@ -74,5 +74,5 @@ def test_analyses_fall_every_eval_every_epochs_from_the_full_replay_and_the_docs
     config = stream.for_env("CartPole", "VAE_rpl", {"num_envs": 8, "replay.slots": 16,
                                                     "epochs": 160, "eval.every": 50})
     assert config.fill_epochs == 2
-    assert rundir.analysis_epochs(config) == [2, 52, 102, 152, 160]
+    assert schedule.analysis_epochs(config) == [2, 52, 102, 152, 160]
     assert "2, 52, 102" in _command.field_docs(stream.EvalConfig)["every"]

@@ -28,6 +28,14 @@ VARIANTS = {  # name: (source, Config fields beside the seed)
     "ellipse-auto": ("ellipse", {}),
     "ellipse-premine-12k": ("ellipse", {"max_relations": 2, "premine_steps": 12_500}),
     "ellipse-premine-25k": ("ellipse", {"max_relations": 2, "premine_steps": 25_000}),
+    # Restricted syzygies: the paper's rounds against a frozen f, and f trained alongside g_k.
+    "syz-rounds": ("ellipse", {"max_relations": 3, "independence": "syzygy"}),
+    "syz-joint": ("ellipse", {"max_relations": 3, "independence": "syzygy",
+                              "syzygy_training": "joint"}),
+    "syz-rounds-n05": ("ellipse", {"max_relations": 3, "independence": "syzygy",
+                                   "noise_scale": 0.05}),
+    "syz-joint-n05": ("ellipse", {"max_relations": 3, "independence": "syzygy",
+                                  "syzygy_training": "joint", "noise_scale": 0.05}),
 }
 THREADS = {"JAX_PLATFORMS": "cpu", "OMP_NUM_THREADS": "1",
            "XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"}
@@ -43,7 +51,9 @@ def one(source_name: str, seed: int, fields: dict) -> dict:
 
     source = sources.make(source_name)
     started = time.perf_counter()
-    rs = relations.fit(source, relations.Config(seed=seed, **fields))
+    summaries = []
+    rs = relations.fit(source, relations.Config(seed=seed, **fields),
+                       on_relation=lambda _, summary: summaries.append(summary))
     fit_s = time.perf_counter() - started
     dense = np.asarray(source.sample(jax.random.key(99), 200_000))
     low, high = dense.min(0), dense.max(0)
@@ -54,6 +64,10 @@ def one(source_name: str, seed: int, fields: dict) -> dict:
     report = rs.quality.to_dict() if rs.quality is not None else {}
     return {"seed": seed, "fit_s": fit_s, "relations": rs.num_relations,
             "landed": float(np.mean(distance < 0.05)), "rank2": float(np.mean(ranks >= 2)),
+            "cos": report.get("independence", {}).get("median_abs_cos"),
+            # A syzygy fitted after each relation: its residual as a share of mean |g_k|.
+            "syzygy_unexplained": [[round(r["residual"] / max(r["g_scale"], 1e-30), 3)
+                                    for r in s.syzygy_rounds] for s in summaries],
             "status": [r["status"] for r in report.get("relations", [])],
             "off_on": [round(r["ratio"], 1) for r in report.get("relations", [])]}
 

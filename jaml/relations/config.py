@@ -13,8 +13,10 @@ from typing import Literal, get_args
 
 Independence = Literal["transversality", "syzygy"]
 Objective = Literal["paper", "reference"]
+SyzygyTraining = Literal["rounds", "joint"]
 INDEPENDENCE: tuple[str, ...] = get_args(Independence)
 OBJECTIVES: tuple[str, ...] = get_args(Objective)
+SYZYGY_TRAINING: tuple[str, ...] = get_args(SyzygyTraining)
 
 
 # Fields added after runs were recorded, with the values that reproduce what those runs did
@@ -46,6 +48,10 @@ class Config:
       syzygy_width: hidden width of the syzygy network f.
       syzygy_max_steps: cap on f's steps per round; None ⇒ max_steps // 2 (reference).
       syzygy_push_steps: g_k steps per push round; None ⇒ max_steps // syzygies_per_relation.
+      syzygy_training: "rounds": the paper's alternation of {fit f, push g_k away from that
+        frozen f}, `syzygies_per_relation` times. "joint": f fits alongside g_k, both on the
+        residual relative to |g_k|, so g_k cannot escape f by rescaling (`syzygy.py`).
+      syzygy_clip: in "joint" training, the push is bounded by this × the first term.
       separation_ratio: stop when mean |g| off-manifold > ratio × on-manifold (App. B.3.1: 5).
       separation_top_fraction: the on-manifold statistic is the mean of the largest fraction of
         |g| values (reference: 0.2, stricter than the paper's plain mean, which is 1.0).
@@ -100,6 +106,8 @@ class Config:
     syzygy_width: int = 32
     syzygy_max_steps: int | None = None
     syzygy_push_steps: int | None = None
+    syzygy_training: SyzygyTraining = "rounds"
+    syzygy_clip: float = 20.0
     separation_ratio: float = 5.0
     separation_top_fraction: float = 0.2
     min_angle: float = 0.4 * math.pi / 2
@@ -126,6 +134,9 @@ class Config:
             problems.append(
                 f"independence must be one of {INDEPENDENCE}, got {self.independence!r}"
             )
+        if self.syzygy_training not in SYZYGY_TRAINING:
+            problems.append(f"syzygy_training must be one of {SYZYGY_TRAINING}, got "
+                            f"{self.syzygy_training!r}")
         if self.objective not in OBJECTIVES:
             problems.append(f"objective must be one of {OBJECTIVES}, got {self.objective!r}")
         positive_ints = (
@@ -157,7 +168,7 @@ class Config:
         if isinstance(self.batch_size, int) and self.batch_size < 2:
             problems.append(f"batch_size must be at least 2, got {self.batch_size}")
         positive_floats = ("learning_rate", "syzygy_learning_rate", "separation_ratio", "tolerance",
-                           "premine_clip")
+                           "premine_clip", "syzygy_clip")
         for name in positive_floats:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):

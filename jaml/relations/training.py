@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from jaml.relations import losses, quality
+from jaml.relations import losses, quality, syzygy
 from jaml.relations.config import Config
 from jaml.relations.data import Batches, prepare
 from jaml.relations.geometry import codimension
@@ -647,6 +647,29 @@ def _refine(cfg, batches, rs, module, width, fitted: _Fitted, within, codim, pro
     return fitted, land, kept, spent
 
 
+def _joint_syzygy(cfg, batches, rs: RelationSet, module, state: LoopState, key, callback):
+    """g_k trained on with its syzygy network f alongside (`syzygy.joint_trainer`), then judged
+    by a fresh f fitted the paper's way on test data. Returns (state, steps, [round info])."""
+    k = rs.num_relations
+    earlier = [Relation(w, rs.depth) for w in rs.widths]
+    level = choose_thickening(cfg, batches, rs, key)
+    objective = _relation_objective(cfg, module, earlier, 0, with_mined=False)
+    chunk, joint, args = syzygy.joint_trainer(
+        cfg, batches, objective, module, earlier, rs.params, state.params,
+        jax.random.fold_in(key, 1), level, cfg.max_steps, cfg.syzygy_clip)
+    report = None
+    if callback is not None:
+        report = lambda s, m, n: callback("push", k, {"step": int(s.step), "steps": n, **m})  # noqa: E731
+    joint = run_until_done(chunk, joint, args, report)
+    state = state.replace(params=joint.params["g"], status=joint.status)
+    _, found, info = fit_syzygy(cfg, batches, _frozen_relations(rs), module.bind(state.params),
+                                jax.random.fold_in(key, 2), level, callback, k)
+    log.info("relation %d: trained beside its syzygy network (%d steps); a fresh syzygy "
+             "leaves %.0f%% of it unexplained -> %s", k + 1, int(joint.step),
+             100 * info["residual"] / max(info["g_scale"], 1e-30), "found" if found else "none")
+    return state, int(joint.step), [info]
+
+
 def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partial=None):
     ahead, programs = {}, {}
     statuses = ["restored"] * rs.num_relations
@@ -712,7 +735,12 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             budget=cfg.premine_steps if premined is not None else None,
         )
         steps, status, rounds = int(state.step), int(state.status), []
-        if cfg.independence == "syzygy" and k > 0 and status != NONFINITE:
+        if cfg.independence == "syzygy" and k > 0 and status != NONFINITE and \
+                cfg.syzygy_training == "joint":
+            state, spent, rounds = _joint_syzygy(cfg, batches, rs, module, state, k_syz, callback)
+            steps += spent
+            status = int(state.status)
+        elif cfg.independence == "syzygy" and k > 0 and status != NONFINITE:
             syz_found = []
             for s in range(cfg.syzygies_per_relation):
                 ks = jax.random.fold_in(k_syz, s)

@@ -182,3 +182,15 @@ def test_algorithm_1_with_syzygies_learns_separating_relations():
     assert rs.num_relations == 2
     assert (_fresh_ratio(rs, src, jax.random.key(31)) >= 5).all()
     assert math.isfinite(float(rs.on_means.sum()))
+
+
+def test_joint_syzygy_training_trains_f_beside_g_k_and_judges_it_afresh():
+    summaries = []
+    cfg = relations.Config(max_relations=2, independence="syzygy", syzygy_training="joint",
+                           max_steps=2000, syzygy_max_steps=1000, mined_weight=0.0)
+    rs = relations.fit(sources.make("ellipse"), cfg,
+                       on_relation=lambda _, summary: summaries.append(summary))
+    assert rs.num_relations == 2
+    (judged,) = summaries[1].syzygy_rounds  # one fresh syzygy, fitted after the joint training
+    assert judged["steps"] >= 100 and judged["g_scale"] > 0
+    assert judged["found"] == (judged["residual"] * cfg.separation_ratio < judged["g_scale"])

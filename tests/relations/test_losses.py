@@ -127,3 +127,21 @@ def test_syzygy_residual_is_a_dot_product_with_minus_one_last():
     earlier = jnp.array([[0.5, 0.25]])
     y = jnp.array([0.4])
     assert float(losses.syzygy_residual(coefficients, earlier, y)[0]) == pytest.approx(0.35)
+
+
+def test_the_joint_syzygy_residual_is_blind_to_scale():
+    """A syzygy that tracks g_k's scale explains it as well at every scale (what stops g_k from
+    escaping f by rescaling); g_k = c·Σ f_j g_j leaves |1 − c|/c of it unexplained."""
+    from jaml.relations.syzygy import explained_share
+
+    rng = np.random.default_rng(0)
+    coefficients = jnp.asarray(rng.normal(size=(64, 2)))
+    earlier = jnp.asarray(rng.normal(size=(64, 2)))
+    y = jnp.sum(coefficients * earlier, -1) + 0.1 * jnp.asarray(rng.normal(size=64))
+    share = float(explained_share(coefficients, earlier, y))
+    assert float(explained_share(7.0 * coefficients, earlier, 7.0 * y)) == pytest.approx(share)
+    exact = jnp.sum(coefficients * earlier, -1)
+    assert float(explained_share(coefficients, earlier, exact)) == pytest.approx(0.0, abs=1e-6)
+    assert float(explained_share(coefficients, earlier, 4.0 * exact)) == pytest.approx(0.75)
+    with pytest.raises(ValueError, match="syzygy_training must be one of"):
+        relations.Config(syzygy_training="alternating")

@@ -22,7 +22,8 @@ SYZYGY_TRAINING: tuple[str, ...] = get_args(SyzygyTraining)
 # Fields added after runs were recorded, with the values that reproduce what those runs did
 # (no mining, no refinement, every one of max_relations trained).
 LEGACY_FIELDS = {"mined_weight": 0.0, "refine_rounds": 0, "stop_when_complete": False,
-                 "codimension": None, "premine": False, "premine_attempts": 1}
+                 "codimension": None, "premine": False, "premine_attempts": 1,
+                 "mined_patience": None}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,6 +81,9 @@ class Config:
       premine_attempts: pre-mined trainings of that relation at most, each from another
         initialisation, while more than a tenth of the projected box points land away from the
         data (or it separates < separation_ratio); the one landing most is kept.
+      mined_patience: a training on mined rows ends once g_k separates and the share of
+        mined rows it clears has not risen for this many steps (None: it runs until they clear
+        or to its budget).
       codimension: D minus the data manifold's dimension; None estimates it by local PCA.
         Mining and refining start at the codimension-th relation (before it, the intersection
         is meant to be larger than the data).
@@ -121,6 +125,7 @@ class Config:
     premine_clip: float = 20.0
     premine_steps: int | None = None
     premine_attempts: int = 3
+    mined_patience: int | None = 4000
     cut_beyond_codim: bool = False
     codimension: int | None = None
     stop_when_complete: bool = True
@@ -161,7 +166,8 @@ class Config:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 problems.append(f"{name} must be a non-negative integer, got {value!r}")
-        for name in ("syzygy_max_steps", "syzygy_push_steps", "codimension", "premine_steps"):
+        for name in ("syzygy_max_steps", "syzygy_push_steps", "codimension", "premine_steps",
+                     "mined_patience"):
             value = getattr(self, name)
             if value is not None and (not isinstance(value, int) or value < 1):
                 problems.append(f"{name} must be None or a positive integer, got {value!r}")

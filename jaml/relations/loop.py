@@ -129,16 +129,23 @@ def make_chunk(train_step: Callable, length: int, draw: Callable | None = None):
 
 
 def run_until_done(chunk, state: LoopState, args, on_chunk: Callable | None = None,
-                   on_state: Callable[[LoopState], None] | None = None) -> LoopState:
+                   on_state: Callable[[LoopState], None] | None = None,
+                   until: Callable[[dict], bool] | None = None) -> LoopState:
     """Call a compiled chunk until the state reports done; `on_chunk(state, metrics, n)` per
     call, with host floats averaged over the chunk's n active steps; `on_state(state)` after
-    every call (where a caller keeps the loop's state to resume from)."""
+    every call (where a caller keeps the loop's state to resume from). `until(metrics)`, given
+    the same averages, may end training early: the state is then returned CAPPED."""
     while True:
         state, metrics, valid = chunk(state, args)
         valid = jax.device_get(valid)
-        if on_chunk is not None and valid.any():
+        means = None
+        if (on_chunk is not None or until is not None) and valid.any():
             host = jax.device_get(metrics)
-            on_chunk(state, {k: float(v[valid].mean()) for k, v in host.items()}, int(valid.sum()))
+            means = {k: float(v[valid].mean()) for k, v in host.items()}
+        if on_chunk is not None and means is not None:
+            on_chunk(state, means, int(valid.sum()))
+        if until is not None and means is not None and not bool(state.done) and until(means):
+            state = state.replace(status=jnp.asarray(CAPPED, jnp.int32))
         if on_state is not None:
             on_state(state)
         if bool(state.done):

@@ -342,8 +342,27 @@ def _fit_relation(
         if restored is not None:
             state = restored
         keep = lambda s: partial.save(k, s)  # noqa: E731
-    final = run_until_done(chunk, state, args, report, keep)
+    until = None
+    if pool is not None and cfg.mined_patience is not None:
+        until = _Plateau(cfg.separation_ratio, max(cfg.mined_patience // cfg.chunk_steps, 1))
+    final = run_until_done(chunk, state, args, report, keep, until)
     return final.replace(step=final.step - start)
+
+
+class _Plateau:
+    """Ends a training on mined rows once g_k separates on- from off-rows (chunk means) and the
+    share of mined rows it clears has not risen by `gain` over the last `window` chunks: those
+    rows rarely all clear, and the loop would otherwise run to its budget."""
+
+    def __init__(self, ratio: float, window: int, gain: float = 0.01):
+        self.ratio, self.window, self.gain, self.cleared = ratio, window, gain, []
+
+    def __call__(self, means: dict) -> bool:
+        self.cleared.append(means["mined_cleared"])
+        w = self.window
+        if len(self.cleared) < 2 * w or means["off_mean"] < self.ratio * means["on_mean"]:
+            return False
+        return max(self.cleared[-w:]) <= max(self.cleared[:-w]) + self.gain
 
 
 def fit_syzygy(

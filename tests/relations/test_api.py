@@ -235,6 +235,29 @@ def test_only_the_codimension_th_transversal_relation_trains_on_premined_rows():
     assert old.premine is False and old.mined_weight == 1.0 and old.premine_attempts == 1
 
 
+def test_training_on_mined_rows_ends_when_the_cleared_share_stops_rising():
+    """Once g_k separates, a window whose best cleared share is within 0.01 of the best before
+    it ends the loop; not before it separates, nor while the share still rises. Records that
+    predate the rule ran to the budget."""
+    from jaml.relations.training import _Plateau
+
+    def stops_at(cleared, off):
+        until = _Plateau(ratio=5.0, window=2)
+        for i, (c, o) in enumerate(zip(cleared, off, strict=True)):
+            if until({"mined_cleared": c, "on_mean": 1.0, "off_mean": o}):
+                return i
+        return None
+
+    rising = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7]
+    assert stops_at(rising, [9.0] * 7) is None
+    flat = [0.1, 0.5, 0.52, 0.515, 0.518, 0.52]
+    assert stops_at(flat, [9.0] * 6) == 4  # the window (0.515, 0.518) adds nothing to 0.52
+    assert stops_at(flat, [9.0, 9.0, 9.0, 9.0, 4.0, 9.0]) == 5  # not while off/on < 5
+    assert relations.Config.from_record({"mined_weight": 1.0}).mined_patience is None
+    with pytest.raises(ValueError, match="mined_patience"):
+        relations.Config(mined_patience=0)
+
+
 @pytest.mark.parametrize("bad", ["nan", "on_data"])
 def test_a_pre_mined_relation_that_fails_is_trained_again_without_its_rows(bad, monkeypatch,
                                                                            caplog):

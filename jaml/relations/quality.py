@@ -159,8 +159,9 @@ def _warnings(report: dict) -> list[str]:
     cos = np.asarray(report["independence"]["median_abs_cos"])
     for i, j in zip(*np.triu_indices(len(cos), 1), strict=True):
         if cos[i, j] > DEPENDENT_COS:
-            out.append(f"g{i + 1} and g{j + 1} are dependent: their gradients' median |cos| on "
-                       f"held-out rows is {cos[i, j]:.2f}")
+            out.append(f"g{i + 1} and g{j + 1} are tangent on the data (dependent to first "
+                       f"order): their gradients' median |cos| on held-out rows is "
+                       f"{cos[i, j]:.2f}")
     land = report["landing"]
     if land["converged"] > 0 and land["spurious"] > SPURIOUS * land["converged"]:
         out.append(f"the zero set has parts away from the data: {100 * land['spurious']:.0f}% of "

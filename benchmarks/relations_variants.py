@@ -29,6 +29,7 @@ VARIANTS = {  # name: (source, Config fields beside the seed)
     "ellipse-premine-12k": ("ellipse", {"max_relations": 2, "premine_steps": 12_500}),
     "ellipse-premine-25k": ("ellipse", {"max_relations": 2, "premine_steps": 25_000}),
     "ellipse-attempts-5": ("ellipse", {"max_relations": 2, "premine_attempts": 5}),
+    "ellipse-patience-2k": ("ellipse", {"max_relations": 2, "mined_patience": 2000}),
     "ellipse-run-out": ("ellipse", {"max_relations": 2, "mined_patience": None}),
     "block-run-out": ("block45", {"max_relations": 2, "mined_patience": None}),
     # Restricted syzygies: the paper's rounds against a frozen f, and f trained alongside g_k.

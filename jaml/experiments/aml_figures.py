@@ -5,6 +5,7 @@ checkpoints, so `--draw-only` redraws without training.
 
     python -m jaml.experiments.aml_figures --out runs/aml_figures
     python -m jaml.experiments.aml_figures --out runs/aml_figures --rows fig5_top --draw-only
+    python -m jaml.experiments.aml_figures --out runs/aml_figures --rows fig5_top --seeds 8
 """
 
 from __future__ import annotations
@@ -40,14 +41,15 @@ ROWS: dict[str, tuple[str, dict, dict | None]] = {
 }
 
 
-def train(name: str, out: Path, seed: int = 0) -> dict:
-    """Learn row `name`'s relations into out/name; returns its summary (with wall seconds)."""
+def train(name: str, out: Path, seed: int = 0, folder: str | None = None) -> dict:
+    """Learn row `name`'s relations into out/name (or out/folder); returns its summary (with
+    wall seconds)."""
     from jaml.relations import Config
     from jaml.relations.run import run
 
     source, overrides, _ = ROWS[name]
     started = time.perf_counter()
-    summary = run(source, Config(seed=seed, **overrides), out / name, progress=False,
+    summary = run(source, Config(seed=seed, **overrides), out / (folder or name), progress=False,
                   figures=False)
     summary["wall_seconds"] = time.perf_counter() - started
     return summary
@@ -85,13 +87,67 @@ def draw(name: str, out: Path) -> list[Path]:
     return draw_figures(rs, drawn, out / name, note=_note(name, summary, codim))
 
 
+def draw_seeds(name: str, out: Path, seeds: list[int]) -> Path:
+    """One panel per seed of row `name` (trained into out/name_s{seed}): 1,024 uniform box points
+    moved onto the learned manifold by `relations.project` at its defaults, coloured by their
+    distance to the data, with the share that land within 0.05 of it."""
+    import jax
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from scipy.spatial import cKDTree
+
+    from jaml import sources
+    from jaml.relations import load, project
+
+    source = sources.make(ROWS[name][0])
+    dense = np.asarray(source.sample(jax.random.key(99), 200_000))
+    low, high = dense.min(0), dense.max(0)
+    tree = cKDTree(dense)
+    cols = min(len(seeds), 4)
+    rows = -(-len(seeds) // cols)
+    fig = plt.figure(figsize=(3.2 * cols, 3.2 * rows))
+    for i, seed in enumerate(seeds):
+        rs = load(out / f"{name}_s{seed}" / "checkpoint")
+        box = np.random.default_rng(seed).uniform(low, high, (1024, dense.shape[1]))
+        points = np.asarray(project(rs, box.astype(np.float32)).points)
+        distance = tree.query(points)[0]
+        near = distance < 0.05
+        ax = fig.add_subplot(rows, cols, i + 1, projection="3d")
+        ax.scatter(*dense[::400].T, s=1, c="0.6")
+        ax.scatter(*points[near].T, s=2, c="tab:green")
+        ax.scatter(*points[~near].T, s=4, c="tab:red")
+        ax.set(xlim=(low[0], high[0]), ylim=(low[1], high[1]), zlim=(low[2], high[2]),
+               xticks=[], yticks=[], zticks=[])
+        ax.set_title(f"seed {seed}: {100 * near.mean():.0f}% within 0.05", fontsize=9)
+    fig.suptitle(f"{name}, {rs.num_relations} relations, defaults: box points projected onto the "
+                 "learned manifold (red: farther than 0.05 from the data)", fontsize=9)
+    fig.tight_layout()
+    path = out / f"{name}_seeds.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("runs/aml_figures"))
     parser.add_argument("--rows", nargs="*", default=list(ROW_NAMES), choices=ROW_NAMES)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--draw-only", action="store_true")
+    parser.add_argument("--seeds", type=int, default=0,
+                        help="train seeds 0..N-1 of each row into OUT/ROW_sSEED and draw them "
+                             "side by side (3-D rows)")
     args = parser.parse_args(argv)
+    if args.seeds:
+        for name in args.rows:
+            for seed in range(args.seeds):
+                if not args.draw_only:
+                    train(name, args.out, seed, f"{name}_s{seed}")
+            print(name, draw_seeds(name, args.out, list(range(args.seeds))), flush=True)
+        return 0
     for name in args.rows:
         if not args.draw_only:
             summary = train(name, args.out, args.seed)

@@ -194,3 +194,14 @@ def test_joint_syzygy_training_trains_f_beside_g_k_and_judges_it_afresh():
     (judged,) = summaries[1].syzygy_rounds  # one fresh syzygy, fitted after the joint training
     assert judged["steps"] >= 100 and judged["g_scale"] > 0
     assert judged["found"] == (judged["residual"] * cfg.separation_ratio < judged["g_scale"])
+
+
+def test_the_seeds_figure_draws_each_seeds_projected_box_points(ellipse, tmp_path):
+    """`aml_figures --seeds`: one panel per seed, from the checkpoints it trained."""
+    from jaml.experiments.aml_figures import draw_seeds
+
+    _, rs = ellipse
+    for seed in (0, 1):
+        relations.save(rs, tmp_path / f"fig5_top_s{seed}" / "checkpoint")
+    path = draw_seeds("fig5_top", tmp_path, [0, 1])
+    assert path == tmp_path / "fig5_top_seeds.png" and path.stat().st_size > 10_000

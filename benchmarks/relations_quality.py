@@ -94,6 +94,10 @@ CASES = {
                         noisy=True,
                         note="restricted syzygies: jaml 3 relations, the reference 2 (its "
                              "syzygy rounds are slow: ~7 min for g1 + g2 on one core)"),
+    "ellipse-syz-joint": Case("ellipse", {"max_relations": 3, "independence": "syzygy",
+                                          "syzygy_training": "joint"}, None, noisy=True,
+                              note="jaml only: the syzygy network trained alongside g_k "
+                                   "(`syzygy_training='joint'`)"),
     "ellipse-auto": Case("ellipse", {}, None,
                          note="jaml only, Config defaults (max_relations 10): relations kept"),
     "block45-2": Case("block45", {"max_relations": 2},

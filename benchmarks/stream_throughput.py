@@ -38,6 +38,7 @@ from jaml.stream import analysis, build, for_env
 from jaml.stream.executor import (
     _act_runs,
     _learn_step_runs,
+    _learner_jit,
     run_stacked_epochs,
     runs_mesh,
     stack_runs,
@@ -67,7 +68,7 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
     def stream_only():
         s = holder["s"]
         for _ in range(epochs):
-            s, _, _ = _act_runs(stream, s)
+            s, _, _ = stream.jit(_act_runs, donate_argnums=0)(s)
         holder["s"] = s
         return s.replay.size
 
@@ -84,7 +85,7 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
         for k in jax.random.split(jax.random.PRNGKey(1), (epochs, runs)):
             if host_loop:
                 for step_keys in jax.vmap(stream.learn_keys)(k).swapaxes(0, 1):
-                    ls, _ = _learn_step_runs(stream, ls, s.replay, step_keys)
+                    ls, _ = _learner_jit(stream, _learn_step_runs)(ls, s.replay, step_keys)
             else:
                 ls, _ = learn_runs(ls, s.replay, k)
         holder["s"] = s.replace(learner=ls)

@@ -33,8 +33,8 @@ from jaml.evaluation import alignment
 from jaml.learners.learner import FRAME_SHAPE
 from jaml.stream import analysis
 from jaml.stream.config import StreamConfig
-from jaml.stream.executor import build, run_epochs
-from jaml.stream.loop import Stream, StreamState
+from jaml.stream.executor import run_epochs
+from jaml.stream.loop import Stream, StreamState, build
 
 # Sizes as overrides (`StreamConfig.with_overrides`): "smoke", the plumbing of a run in
 # minutes on two CPU cores (its sets are too small for its numbers to rank encoders: `SMOKE_NOTE`);
@@ -100,9 +100,14 @@ class TestSet:
     names: tuple[str, ...]
 
 
-def _prepare(config: StreamConfig, state: StreamState | None):
-    """(stream, state, analysis key, π_rand key): the keys a run derives from its seed."""
-    stream = build(config)
+def _prepare(config: StreamConfig, stream: Stream | None, state: StreamState | None):
+    """(stream, state, analysis key, π_rand key): `stream` (built from `config` where None,
+    else checked against it) and the keys a run of `config` derives from its seed."""
+    if stream is None:
+        stream = build(config)
+    elif stream.config.program_key() != config.program_key():
+        raise ValueError("stream was not built from this config (they differ in more than the "
+                         "seed): pass stream=jaml.stream.build(config), or none")
     k_init, k_eval, pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
     if state is None:
         state, _ = run_epochs(stream, stream.init(k_init), config.fill_epochs)
@@ -132,9 +137,12 @@ def _test_set(stream: Stream, chunks: list) -> TestSet:
                    names=tuple(stream.env.ld_state_names))
 
 
-def test_sets(config: StreamConfig, state: StreamState | None = None) -> dict[str, TestSet]:
-    """The sets a run's analysis at `state` uses: "train" (replay), "pi_rand", "pi_curr" (PPO)."""
-    stream, state, key, pi_rand_key = _prepare(config, state)
+def test_sets(config: StreamConfig, state: StreamState | None = None, *,
+              stream: Stream | None = None) -> dict[str, TestSet]:
+    """The sets a run's analysis at `state` uses: "train" (replay), "pi_rand", "pi_curr" (PPO).
+    `stream`: `jaml.stream.build(config)`, whose compiled programs then serve again (default:
+    a new one)."""
+    stream, state, key, pi_rand_key = _prepare(config, stream, state)
     return {k: _test_set(stream, c) for k, c in _chunks(stream, state, key,
                                                         pi_rand_key).items()}
 
@@ -143,7 +151,8 @@ test_sets.__test__ = False  # not a pytest test
 
 
 def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None = None, *,
-             actions_seen: int = 0, references: bool = True) -> dict:
+             actions_seen: int = 0, references: bool = True,
+             stream: Stream | None = None) -> dict:
     """A run's analysis report for `encode(frames uint8 [E, L, 64, 64, 3], actions [E, L, A])
     -> latents [E, Z]`, plus "linear" (a least-squares probe's errors and R², per test set and
     validation), "error_names", "scale" (the `SCALES` entry `config` has the sizes of, else
@@ -153,7 +162,7 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
     `actions_seen`: how many of a sequence's first actions `encode` reads (0: frames only; a
     suite learner's: `config.actions_seen`); the distortion skips pairs whose inputs `encode`
     cannot tell apart. `encode` is first called on one chunk of zeros and its output checked,
-    before the replay is filled."""
+    before the replay is filled. `stream`: as `test_sets`'s."""
     if not isinstance(config, StreamConfig):
         raise TypeError(f"config must be a jaml.stream.StreamConfig, got a "
                         f"{type(config).__name__}: make one with stream.for_env(env, learner) "
@@ -161,11 +170,11 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
     if not callable(encode):
         raise TypeError(f"encode must be a function (frames, actions) -> latents [E, Z], got a "
                         f"{type(encode).__name__}")
-    stream = build(config)
+    stream = build(config) if stream is None else stream
     probe = (jnp.zeros((config.num_envs, stream.seq_len, *FRAME_SHAPE), jnp.uint8),
              jnp.zeros((config.num_envs, stream.seq_len, stream.env.action_size), jnp.float32))
     _checked(encode(*probe), config.num_envs, stream.seq_len, "a chunk of zero frames")
-    stream, state, key, pi_rand_key = _prepare(config, state)
+    stream, state, key, pi_rand_key = _prepare(config, stream, state)
     chunks = _chunks(stream, state, key, pi_rand_key)
     width = None
     latents = {}

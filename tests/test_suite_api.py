@@ -42,7 +42,8 @@ def test_the_apis_numbers_equal_the_streams_own_analysis(run):
     def encode(frames, actions):
         return s.learner.encode(state.learner.variables, frames, actions)
 
-    api = suite.evaluate(encode, config, state, actions_seen=s.learner.config.actions_seen)
+    api = suite.evaluate(encode, config, state, actions_seen=s.learner.config.actions_seen,
+                         stream=s)
     keys = ["pi_rand", "pi_curr", "validation"]  # every row of the report: these, in order
     assert list(api["errors"]) == list(own["errors"]) == list(api["baseline"]) == keys
     assert list(api["linear"]["errors"]) == list(api["linear"]["r2"]) == keys
@@ -70,7 +71,7 @@ def test_the_reference_rows_are_the_runs_own_and_the_floor_is_below_the_ceiling(
     def encode(frames, actions):
         return s.learner.encode(state.learner.variables, frames, actions)
 
-    api = suite.evaluate(encode, config, state)["references"]
+    api = suite.evaluate(encode, config, state, stream=s)["references"]
     assert list(api) == ["constant", "true_state", "pca", "random_projection"] == list(own)
     for row, by_set in own.items():
         assert list(api[row]) == ["pi_rand", "pi_curr", "validation"]
@@ -95,7 +96,7 @@ def test_held_out_rows_share_no_column_and_a_frame_hash_no_longer_beats_the_cons
     level; drawn as the reference draws them (leading rows of one draw, which repeat the fit
     rows' frames) it is far below, the leak this split removes."""
     config, s, state = run
-    train = suite.test_sets(config, state)["train"]
+    train = suite.test_sets(config, state, stream=s)["train"]
     held = alignment.RegressorConfig().split(len(train.states))
     columns = [{tuple(np.round(row.ravel(), 6)) for row in part}
                for part in (train.ld[:held], train.ld[held:])]
@@ -123,7 +124,7 @@ def test_evaluate_checks_its_config_and_the_encoders_output_before_filling_the_r
         run, monkeypatch):
     """Wrong input is refused by one-line errors naming the output's shape and the fix, before
     the replay is filled (`_prepare` is not reached)."""
-    config = run[0]
+    config, s, _ = run
 
     def never(*args):
         raise AssertionError("reached the expensive part")
@@ -142,7 +143,7 @@ def test_evaluate_checks_its_config_and_the_encoders_output_before_filling_the_r
     ]
     for encode, message in cases:
         with pytest.raises(ValueError, match=message) as caught:
-            suite.evaluate(encode, config)
+            suite.evaluate(encode, config, stream=s)
         assert "\n" not in str(caught.value)
 
 
@@ -174,7 +175,7 @@ def test_a_deadline_stops_between_analyses_with_a_checkpoint_and_the_run_resumes
 
 def test_test_sets_are_the_sequences_and_targets_a_run_builds(run):
     config, s, state = run
-    sets = suite.test_sets(config, state)
+    sets = suite.test_sets(config, state, stream=s)
     assert set(sets) == {"train", "pi_rand", "pi_curr"}
     rand = sets["pi_rand"]
     assert rand.frames.shape == (config.eval.rand, s.seq_len, 64, 64, 3)
@@ -182,8 +183,11 @@ def test_test_sets_are_the_sequences_and_targets_a_run_builds(run):
     np.testing.assert_array_equal(rand.states, rand.ld[:, s.hist - 1])
     assert rand.names == tuple(s.env.ld_state_names)
     # π_rand is a function of the run's key alone: the same sequences again.
-    again = suite.test_sets(config, state)["pi_rand"]
+    again = suite.test_sets(config, state, stream=s)["pi_rand"]
     np.testing.assert_array_equal(again.frames, rand.frames)
+    # The Stream passed must be the config's (the seed aside).
+    with pytest.raises(ValueError, match="stream was not built from this config"):
+        suite.test_sets(config.with_overrides({"learner_steps": 3}), state, stream=s)
 
 
 def test_linear_probe_recovers_an_affine_encoding_exactly():

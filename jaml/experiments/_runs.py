@@ -164,20 +164,15 @@ def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,
                 deadline: float | None = None) -> list[dict]:
     """Every seed of one cell trained together (`run_many`: one program, the seeds stacked),
     each in its resumable directory; prints one line per seed (status, seconds by phase) and
-    one for the cell. Returns the runs' summaries.
-
-    The cell compiles in its own programs scope, released when it ends: a driver's next cell
-    shares none of its programs, and on XLA:CPU a process that kept every cell's would run out
-    of memory mappings."""
-    from jaml.stream import programs_scope
+    one for the cell. Returns the runs' summaries. The cell's programs go with its Stream when
+    `run_many` returns: a driver's next cell shares none of them."""
     from jaml.stream.run import run_many
 
     started = time.perf_counter()
-    with programs_scope():
-        summaries = run_many(list(configs), list(dirs), progress=False, stop_after=stop_after,
-                             checkpoint_every=checkpoint_every, final_checkpoint=final_checkpoint,
-                             latent_penalty=latent_penalty, keep_pi_rand=keep_pi_rand,
-                             deadline=deadline)
+    summaries = run_many(list(configs), list(dirs), progress=False, stop_after=stop_after,
+                         checkpoint_every=checkpoint_every, final_checkpoint=final_checkpoint,
+                         latent_penalty=latent_penalty, keep_pi_rand=keep_pi_rand,
+                         deadline=deadline)
     for config, summary in zip(configs, summaries, strict=True):
         phases = ", ".join(f"{k} {v:.0f}s" for k, v in summary["seconds_by_phase"].items())
         print(f"{label} seed {config.seed}: {summary['status']} at epoch {summary['epoch']} "

@@ -11,9 +11,8 @@
     states = stream.stack_runs([s.init(jax.random.PRNGKey(i)) for i in range(6)])
     states, metrics = stream.run_stacked_epochs(s, states, 10)   # metrics [10, 6]
 
-What is compiled for a Stream belongs to the current programs scope: a process that trains many
-configs one after another opens one per config (`with stream.programs_scope(): ...`), which
-releases them when it ends (`jaml.stream.programs`).
+A Stream owns what is compiled for it (`Stream.jit`): build one per config and keep it while it
+serves; its programs go when it does.
 
 `jaml suite` (jaml.stream.run) drives this over run directories with resumable checkpoints
 (jaml.stream.rundir); `jaml.stream.run.run_many` trains several seeds together, each in its own
@@ -34,18 +33,17 @@ _EXPORTS = {
     "EvalConfig": "config",
     "StreamConfig": "config",
     "for_env": "config",
-    "build": "executor",
     "run_epochs": "executor",
     "run_stacked_epochs": "executor",
     "runs_mesh": "executor",
     "stack_runs": "executor",
     "unstack_runs": "executor",
+    "build": "loop",
     "Stream": "loop",
     "StreamState": "loop",
     "PPO": "ppo",
     "PPOState": "ppo",
     "random_policy": "ppo",
-    "programs_scope": "programs:scope",
     "Columns": "replay",
     "Replay": "replay",
 }
@@ -68,7 +66,6 @@ __all__ = [
     "build",
     "evaluate",
     "for_env",
-    "programs_scope",
     "random_policy",
     "rollout",
     "run_epochs",

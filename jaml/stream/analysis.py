@@ -24,7 +24,6 @@ from jaml.evaluation import references as references_lib
 from jaml.stream import collect
 from jaml.stream import replay as replay_lib
 from jaml.stream.loop import Stream, StreamState
-from jaml.stream.programs import jitted
 
 
 def encoded_replay(stream: Stream, states: StreamState, keys: jax.Array, num: int,
@@ -41,7 +40,7 @@ def encoded_replay(stream: Stream, states: StreamState, keys: jax.Array, num: in
         rows = np.arange(n * stream.config.num_envs).reshape(n, -1)
         held_out = rows < alignment.RegressorConfig().split(rows.size)
         carry = (jnp.asarray(held_out), jnp.zeros((), jnp.int32))
-    return _map_chunks(_replay_chunk, stream, states, carry, chunks, store=store)
+    return _map_chunks(stream.jit(_replay_chunk), stream, states, carry, chunks, store=store)
 
 
 def encoded_rollouts(stream: Stream, states: StreamState, keys: jax.Array, num: int,
@@ -61,11 +60,11 @@ def encoded_rollouts(stream: Stream, states: StreamState, keys: jax.Array, num: 
                            fingerprints)
     split = jax.vmap(jax.random.split)(keys)
     random = jnp.asarray(random)
-    env_states = _rollout_start(stream, states, split[:, 0], random)
+    env_states = stream.jit(_rollout_start)(states, split[:, 0], random)
     n = _chunks(num, stream.config.num_envs)
     chunks = jax.vmap(lambda k: jax.random.split(k, n))(split[:, 1])
     store = store if kept is None else []
-    out = _map_chunks(_rollout_chunk, stream, states, (env_states, random), chunks,
+    out = _map_chunks(stream.jit(_rollout_chunk), stream, states, (env_states, random), chunks,
                       fingerprints, store)
     if kept is not None:
         for r, (k, key) in enumerate(zip(kept, keys, strict=True)):
@@ -297,7 +296,7 @@ def reconstructions(stream: Stream, s: StreamState, key: jax.Array, num: int = 8
     """(true, decoded) last frames of `num` replay sequences of one run, uint8 [num, 64, 64, 3]
     each; a learner with boxes (SPAIR) has them drawn over the true frames."""
     seqs = replay_lib.sample(s.replay, key, num, stream.seq_len)
-    recon = _reconstruct(stream, s.learner.variables, seqs.frames, seqs.actions)
+    recon = stream.jit(_reconstruct)(s.learner.variables, seqs.frames, seqs.actions)
     truth = np.asarray(seqs.frames[:, -1])
     if hasattr(stream.learner, "draw_boxes"):
         truth = stream.learner.draw_boxes(s.learner.variables, truth)
@@ -310,8 +309,8 @@ def _chunks(num: int, num_envs: int) -> int:
 
 def _map_chunks(producer, stream: Stream, states: StreamState, carry, keys,
                 fingerprints: bool = False, store: list | None = None):
-    """For each chunk c, `producer(stream, states, carry, keys[:, c]) -> (carry, Columns
-    [R, E, L])`, encoded; returns (latents [R, N, Z], LD targets [R, N, D]) with
+    """For each chunk c, `producer(states, carry, keys[:, c]) -> (carry, Columns [R, E, L])`,
+    encoded; returns (latents [R, N, Z], LD targets [R, N, D]) with
     N = E · C, and with `fingerprints` the input fingerprints [R, N, 2]. `store`: a list that
     gets a host copy of each chunk.
 
@@ -321,23 +320,23 @@ def _map_chunks(producer, stream: Stream, states: StreamState, carry, keys,
     convolutions inside loops slowly, see `executor.run_stacked_epochs`)."""
     outs = []
     for c in range(keys.shape[1]):
-        carry, seqs = producer(stream, states, carry, keys[:, c])
-        outs.append(_encode(stream, states.learner.variables, seqs, fingerprints))
+        carry, seqs = producer(states, carry, keys[:, c])
+        outs.append(stream.jit(_encode, static_argnums=2)(states.learner.variables, seqs,
+                                                          fingerprints))
         if store is not None:
             store.append(jax.device_get(seqs))
     return tuple(jnp.concatenate(x, axis=1) for x in zip(*outs, strict=True))
 
 
-def _kept_chunk(stream: Stream, states, chunks: list, c):
+def _kept_chunk(states, chunks: list, c):
     """A producer over kept chunks: carry the chunks ([chunk][run] host columns), key [1] the
     chunk's index; the runs' columns stacked [R, E, L] on the device."""
     runs = chunks[int(c[0])]
     return chunks, jax.device_put(jax.tree.map(lambda *x: np.stack(x), *runs))
 
 
-# Jitted functions keyed on the Stream, kept by the current `programs` scope: a `jax.jit` made
+# The programs below are jitted by the Stream (`Stream.jit`), which keeps them: a `jax.jit` made
 # per call would recompile at every analysis.
-@jitted(static_argnums=0)
 def _reconstruct(stream: Stream, variables, frames, actions):
     return stream.learner.reconstruct(variables, frames, actions)
 
@@ -361,7 +360,6 @@ def input_fingerprints(hist: int, frames, actions, actions_seen: int | None = No
     return jnp.stack([jnp.sum(words * w, axis=-1, dtype=jnp.uint32) for w in weights], axis=-1)
 
 
-@jitted(static_argnums=(0, 3))
 def _encode(stream: Stream, variables, seqs: replay_lib.Columns, fingerprints: bool = False):
     """(latents [R, E, Z], LD targets [R, E, D]) of R stacked runs' sequences ([R, E, ...], per
     run variables), and with `fingerprints` [R, E, 2]: the encoder applied run by run in one
@@ -384,7 +382,6 @@ def _encode(stream: Stream, variables, seqs: replay_lib.Columns, fingerprints: b
     return out
 
 
-@jitted(static_argnums=0)
 def _replay_chunk(stream: Stream, states: StreamState, carry, keys):
     """One replay sample of `num_envs` sequences per run (keys [R]). carry None (the leading
     split: every row from every column), or (held-out rows [C, E], chunk index c): row e of
@@ -403,7 +400,6 @@ def _replay_chunk(stream: Stream, states: StreamState, carry, keys):
     return (held_out, c + 1), jax.vmap(split)(states, keys)
 
 
-@jitted(static_argnums=0)
 def _rollout_chunk(stream: Stream, states: StreamState, carry, keys):
     """carry (env states [R, E], one traced π_rand flag) → L steps, one test sequence per env
     and run (keys [R])."""
@@ -419,7 +415,6 @@ def _rollout_chunk(stream: Stream, states: StreamState, carry, keys):
     return (env_states, random), seqs
 
 
-@jitted(static_argnums=0)
 def _rollout_start(stream: Stream, states: StreamState, keys: jax.Array,
                    random: jax.Array) -> State:
     """The R runs' envs reset and past their `eval.transient` steps (keys [R])."""

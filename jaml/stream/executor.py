@@ -1,10 +1,10 @@
 """How epochs execute: one run or R stacked runs, on the host, in device blocks, or split
-across devices; and `build`, which keeps one Stream per program in the current scope.
+across devices.
 
 The epoch itself is `Stream.epochs`, a pure function of the stacked states (`jaml.stream.loop`).
 This module decides how a call of n epochs runs it: a host loop of jitted pieces (CPU), blocks of
 up to 32 epochs inside one device loop (GPU/TPU), and one such program per device when the runs
-are sharded across a mesh. What it compiles belongs to the current `programs` scope.
+are sharded across a mesh. What it compiles, the Stream keeps (`Stream.jit`).
 
 Shapes: R runs.
 """
@@ -12,8 +12,6 @@ Shapes: R runs.
 from __future__ import annotations
 
 import concurrent.futures
-import dataclasses
-import functools
 
 import jax
 import jax.numpy as jnp
@@ -22,32 +20,8 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from jaml import learners
-from jaml.stream import loop, programs
-from jaml.stream.config import StreamConfig
+from jaml.stream import loop
 from jaml.stream.loop import Stream, StreamState
-
-# Streams kept per scope, by program: bounded, so a scope that builds many configs (a sweep)
-# does not keep every env and learner alive.
-_BUILT_KEPT = 8
-
-
-def build(config: StreamConfig, latent_penalty=None) -> Stream:
-    """A Stream for `config` (`loop.make`: every size problem is reported here, before anything
-    compiles), kept by the current scope; its config is `config` resolved for its env.
-
-    Building a config again in one scope, or one that differs only in its seed, reuses the same
-    env, learner and PPO (of the last `_BUILT_KEPT` programs built), so jitted functions
-    compiled for one serve the other (see `Stream`)."""
-    built = programs.current().built
-    cache_key = (config.program_key(), latent_penalty)
-    if cache_key not in built:
-        built[cache_key] = loop.make(config.replace(seed=0), latent_penalty)
-        while len(built) > _BUILT_KEPT:
-            built.popitem(last=False)
-    built.move_to_end(cache_key)
-    base = built[cache_key]
-    config = config.resolved(len(base.env.ld_state_names))  # as `loop.make` holds it
-    return base if base.config == config else dataclasses.replace(base, config=config)
 
 
 def run_epochs(stream: Stream, s: StreamState, n: int):
@@ -142,7 +116,7 @@ BLOCK = 32
 def _blocks_per_device(stream: Stream, mesh: Mesh, states: StreamState, n: int):
     """`_block` on each device's runs; the states stay sharded as they came."""
     if mesh.size == 1:
-        return _learner_jit(_block)(stream, states, jnp.asarray(n, jnp.int32))
+        return _learner_jit(stream, _block)(states, jnp.asarray(n, jnp.int32))
     leaves, treedef = jax.tree.flatten(states)
     devices = list(mesh.devices.flat)
     args = {d: (treedef.unflatten([next(s.data for s in x.addressable_shards if s.device == d)
@@ -155,16 +129,16 @@ def _blocks_per_device(stream: Stream, mesh: Mesh, states: StreamState, n: int):
     # is thread safe, XLA compiling and running the executables, happens in one host thread per
     # device: a GPU while loop's trip test syncs with the thread that launched it, so a single
     # thread would run the devices one after another.
+    # A device's shard of sharded states is views of the sharded arrays: not donated.
     avals = tuple(jax.typeof(x) for x in leaves)
-    executables = programs.current().executables
-    lowered = {d: _device_block_kept.lower(stream, *args[d]) for d in devices
-               if (stream, d, avals) not in executables}
+    lowered = {d: stream.jit(_block).lower(*args[d]) for d in devices
+               if (_block, d, avals) not in stream.programs}
 
     def on(device):
-        if device in lowered:
-            executables[stream, device, avals] = lowered[device].compile(
-                compiler_options=learners.compiler_options())
-        return jax.block_until_ready(executables[stream, device, avals](*args[device]))
+        executable = stream.program(
+            (_block, device, avals),
+            lambda: lowered[device].compile(compiler_options=learners.compiler_options()))
+        return jax.block_until_ready(executable(*args[device]))
 
     with concurrent.futures.ThreadPoolExecutor(mesh.size) as pool:
         outs = list(pool.map(on, devices))
@@ -182,24 +156,16 @@ def _blocks_per_device(stream: Stream, mesh: Mesh, states: StreamState, n: int):
 
 def _block(stream: Stream, states: StreamState, n: jax.Array):
     """n (traced, ≤ BLOCK) epochs of stacked runs; metrics in [BLOCK, R] buffers, NaN past n."""
-    shapes = jax.eval_shape(functools.partial(_epochs, stream), states)[1]
+    epochs = stream.jit(Stream.epochs)  # the shape-only trace and the loop's share one trace
+    shapes = jax.eval_shape(epochs, states)[1]
     buffers = jax.tree.map(lambda x: jnp.full((BLOCK, *x.shape), jnp.nan, x.dtype), shapes)
 
     def body(i, carry):
         states, buffers = carry
-        states, metrics = _epochs(stream, states)
+        states, metrics = epochs(states)
         return states, jax.tree.map(lambda b, v: b.at[i].set(v), buffers, metrics)
 
     return jax.lax.fori_loop(0, n, body, (states, buffers))
-
-
-# For one device's shard of sharded states: its buffers are views of the sharded arrays, which
-# are not donated. Lowered and compiled explicitly, per device, into the scope's executables.
-_device_block_kept = programs.jitted(_block, static_argnums=0)
-
-# `Stream.epochs` behind jit, for `_block`: the shape-only trace of its metrics
-# (`jax.eval_shape`) and the traced call share one trace of the epoch.
-_epochs = programs.jitted(lambda stream, states: stream.epochs(states), static_argnums=0)
 
 
 def _host_loop(stream: Stream, states: StreamState, n: int):
@@ -207,13 +173,13 @@ def _host_loop(stream: Stream, states: StreamState, n: int):
     `run_stacked_epochs`)."""
     history = []
     for _ in range(n):
-        states, k_learn, metrics = _act_runs(stream, states)
+        states, k_learn, metrics = stream.jit(_act_runs, donate_argnums=0)(states)
         if bool(loop.replays_full(states)):
             keys = jax.vmap(stream.learn_keys)(k_learn)  # [R, learner_steps, 2]
             learner_state, steps = states.learner, []
             for i in range(stream.config.learner_steps):
-                learner_state, m = _learn_step_runs(stream, learner_state, states.replay,
-                                                    keys[:, i])
+                learner_state, m = _learner_jit(stream, _learn_step_runs)(
+                    learner_state, states.replay, keys[:, i])
                 steps.append(m)
             states = states.replace(learner=learner_state)
             learner_metrics = jax.tree.map(lambda *v: jnp.mean(jnp.stack(v), axis=0), *steps)
@@ -224,26 +190,20 @@ def _host_loop(stream: Stream, states: StreamState, n: int):
     return states, jax.tree.map(lambda *v: jnp.stack(v), *history)
 
 
-@programs.jitted(static_argnums=0, donate_argnums=1)
 def _act_runs(stream: Stream, states: StreamState):
     return jax.vmap(stream.act)(states)
 
 
 def _learn_step_runs(stream: Stream, learner_state, replay, keys):
-    return _learner_jit(_vmapped_learn_step)(stream, learner_state, replay, keys)
-
-
-def _vmapped_learn_step(stream: Stream, learner_state, replay, keys):
     return jax.vmap(stream.learn_step)(learner_state, replay, keys)
 
 
-def _learner_jit(fn):
-    """`fn(stream, states, ...)` jitted in the current scope (the Stream static, the states
-    donated) with the learner's compiler options (`learners.compiler_options()`: on the CPU
-    convolutions take XLA's Eigen path, not YNNPACK's, which ran the VAE's train step slower;
-    XLA's defaults elsewhere). Read at each call: the options depend on the backend."""
-    return programs.current().jit(fn, static_argnums=0, donate_argnums=1,
-                                  compiler_options=learners.compiler_options())
+def _learner_jit(stream: Stream, fn):
+    """`fn(stream, states, ...)` jitted by the Stream (the states donated) with the learner's
+    compiler options (`learners.compiler_options()`: on the CPU convolutions take XLA's Eigen
+    path, not YNNPACK's, which ran the VAE's train step slower; XLA's defaults elsewhere). Read
+    at each call: the options depend on the backend."""
+    return stream.jit(fn, donate_argnums=0, compiler_options=learners.compiler_options())
 
 
 def due_by_device(states: StreamState, due: list) -> list[tuple[StreamState, list]]:

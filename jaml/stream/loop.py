@@ -19,8 +19,8 @@ Shapes: R runs, E envs, T rollout_len, L = learner.seq_len, B sequences per lear
 from __future__ import annotations
 
 import dataclasses
-import functools
 import importlib
+import weakref
 from typing import Any
 
 import jax
@@ -36,7 +36,6 @@ from jaml.stream import ppo as ppo_lib
 from jaml.stream import replay as replay_lib
 from jaml.stream.collect import Episodes
 from jaml.stream.config import StreamConfig
-from jaml.stream.programs import jitted
 
 
 @struct.dataclass
@@ -54,12 +53,11 @@ class StreamState:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Stream:
-    """A configured loop: env, learner, PPO and replay geometry, with pure epoch functions.
+    """A configured loop: env, learner, PPO and replay geometry, with pure epoch functions, and
+    the programs compiled for it (`jit`), which it owns: they live and die with it.
 
-    A static argument of the stream's jitted functions, so it hashes by what the traced code
-    depends on: its parts by identity and its config without the seed, which only the run's
-    keys use. Streams that `executor.build` makes for configs differing only in the seed share
-    their parts, hence one compilation for all seeds of an experiment.
+    The seed enters only through a run's keys (traced inputs), so one Stream serves every seed
+    of a config with one compilation (`jaml.stream.run.run_many` trains them stacked).
     """
 
     config: StreamConfig
@@ -68,22 +66,22 @@ class Stream:
     ppo: ppo_lib.PPO
     optimizer: Any
     train_step: Any
+    programs: dict = dataclasses.field(default_factory=dict, init=False, repr=False)
 
-    @functools.cached_property
-    def _program(self) -> str:
-        return self.config.program_key()
+    def jit(self, fun, **options):
+        """`jax.jit(options)` of `fun(self, *args)` as a function of `args` (the options'
+        argument numbers count from the first of them), made once per (fun, options)."""
+        return self.program((fun, _frozen(options)), lambda: jax.jit(_bound(self, fun),
+                                                                     **options))
 
-    def _parts(self) -> tuple:
-        return (self.env, self.learner, self.ppo, self.optimizer, self.train_step)
-
-    def __hash__(self) -> int:
-        return hash((self._program, *map(id, self._parts())))
-
-    def __eq__(self, other) -> bool:
-        # The parts by identity (they are closures and modules without value equality), held
-        # by both Streams, so the comparison never relies on recycled ids.
-        return (isinstance(other, Stream) and self._program == other._program
-                and all(a is b for a, b in zip(self._parts(), other._parts(), strict=True)))
+    def program(self, key, make):
+        """`make()` (a jitted function, an executable), made once per `key` and kept by this
+        Stream alone: a program holds its Stream weakly (`_bound`), so when the Stream goes,
+        its programs and their memory go with it (on XLA:CPU each compiled kernel maps memory
+        of its own, and a process that kept every config's ran out of mappings)."""
+        if key not in self.programs:
+            self.programs[key] = make()
+        return self.programs[key]
 
     @property
     def seq_len(self) -> int:
@@ -209,7 +207,7 @@ class Stream:
         states, k_learn, metrics = jax.vmap(self.act)(states)
 
         def train(ls):
-            return _learn_runs(self, ls, states.replay, k_learn)
+            return self.jit(Stream.learn_runs)(ls, states.replay, k_learn)
 
         def skip(ls):
             return ls, skipped(self, states, k_learn)
@@ -229,16 +227,13 @@ def replays_full(states: StreamState) -> jax.Array:
     return jax.vmap(lambda replay: replay.full)(states.replay)[0]
 
 
-# `Stream.learn_runs` behind jit, for its callers inside larger programs: the shape-only trace
-# of its metrics (`skipped`'s `jax.eval_shape`) and the train branch share one trace of the
-# learner steps instead of tracing them twice; the nested call is inlined by XLA.
-_learn_runs = jitted(lambda stream, *args: stream.learn_runs(*args), static_argnums=0)
-
-
 def skipped(stream: Stream, states: StreamState, k_learn: jax.Array):
-    """NaN learner metrics [R] for an epoch without learner steps (the replay still fills)."""
-    shapes = jax.eval_shape(functools.partial(_learn_runs, stream), states.learner,
-                            states.replay, k_learn)[1]
+    """NaN learner metrics [R] for an epoch without learner steps (the replay still fills).
+
+    The shape-only trace goes through the jitted learner steps that `Stream.epochs`'s train
+    branch calls: both share one trace of them."""
+    shapes = jax.eval_shape(stream.jit(Stream.learn_runs), states.learner, states.replay,
+                            k_learn)[1]
     return jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype), shapes)
 
 
@@ -264,9 +259,10 @@ def make_learner(name: str, ld_dim: int,
     return learner
 
 
-def make(config: StreamConfig, latent_penalty=None) -> Stream:
-    """A new Stream for `config`; every size problem is reported here, before anything compiles
-    (`executor.build` keeps one per program)."""
+def build(config: StreamConfig, latent_penalty=None) -> Stream:
+    """A new Stream for `config`, its config `config` resolved for its env; every size problem
+    is reported here, before anything compiles. Build one per config and keep it while its
+    programs serve: another Stream compiles its own."""
     if config.env not in envs_mjx.ALL_ENVS:
         raise ValueError(f"unknown env {config.env!r}; valid names: {list(envs_mjx.ALL_ENVS)}")
     if config.learner not in learners.ALL_LEARNERS and ":" not in config.learner:
@@ -314,3 +310,21 @@ def make(config: StreamConfig, latent_penalty=None) -> Stream:
     train_step = learners.make_train_step(learner, optimizer, latent_penalty)
     return Stream(config, env, learner, ppo, optimizer, train_step)
 
+
+def _bound(stream: Stream, fun):
+    """`fun(stream, *args)` as a function of `args`, holding `stream` weakly: the program that
+    jits it is kept by the Stream, and a strong reference back would keep both alive until
+    Python's cycle collector ran."""
+    ref = weakref.ref(stream)
+
+    def call(*args):
+        return fun(ref(), *args)
+
+    call.__name__ = call.__qualname__ = getattr(fun, "__name__", "program")
+    return call
+
+
+def _frozen(options: dict) -> tuple:
+    """jit options as a hashable key (compiler_options is a dict)."""
+    return tuple(sorted((k, tuple(sorted(v.items())) if isinstance(v, dict) else v)
+                        for k, v in options.items()))

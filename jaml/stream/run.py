@@ -17,13 +17,12 @@ from jaml.stream import analysis
 from jaml.stream.config import StreamConfig
 from jaml.stream.executor import (
     BLOCK,
-    build,
     due_by_device,
     run_stacked_epochs,
     stack_runs,
     unstack_runs,
 )
-from jaml.stream.loop import Stream, StreamState
+from jaml.stream.loop import Stream, StreamState, build
 from jaml.stream.rundir import FigureWriter, RunDir, claim_run, open_runs
 from jaml.stream.schedule import (
     analysis_epochs,

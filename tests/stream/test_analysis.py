@@ -324,7 +324,9 @@ def _stand_ins(monkeypatch):
     monkeypatch.setattr(analysis, "_encode", encode)
     config = types.SimpleNamespace(env="CartPole", env_config=None, num_envs=E,
                                    eval=stream.EvalConfig(transient=120))
-    return types.SimpleNamespace(config=config, seq_len=L), calls
+    fake = types.SimpleNamespace(config=config, seq_len=L)
+    fake.jit = lambda fun, **_: lambda *args: fun(fake, *args)  # as `Stream.jit`, unjitted
+    return fake, calls
 
 
 def _state(variables):

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from jaml import stream
-from jaml.stream import checkpoint, programs, rundir
+from jaml.stream import checkpoint, rundir
 from jaml.stream import run as run_lib
 
 
@@ -137,23 +137,20 @@ def test_test_policy_is_uniform_or_current_by_a_traced_flag():
     assert len(traces) == 1
 
 
-def test_streams_of_other_seeds_share_compiled_code_not_their_seed():
+def test_a_stream_makes_each_program_once_and_owns_it():
     a, b = stream.build(tiny()), stream.build(tiny(seed=7))
-    other = stream.build(tiny(learner_steps=3))
     assert (a.config.seed, b.config.seed) == (0, 7)
-    assert a == b and hash(a) == hash(b) and a.learner is b.learner
-    assert other != a
     traces = []
 
-    @jax.jit(static_argnums=0)
     def f(st, x):
         traces.append(st.config.seed)
         return x + st.config.learner_steps
 
-    assert int(f(a, 1)) == int(f(b, 1)) == 3 and int(f(other, 1)) == 4
-    assert len(traces) == 2  # a and b: one trace; other: its own
-    # A Stream with a replaced part is another program, whatever its config.
-    assert dataclasses.replace(a, train_step=lambda *x: x) != a
+    assert a.jit(f) is a.jit(f) and a.jit(f) is not b.jit(f)
+    assert a.jit(f, donate_argnums=0) is not a.jit(f)  # the options are part of the program
+    assert int(a.jit(f)(1)) == 3 and int(a.jit(f)(2)) == 4 and traces == [0]  # one trace
+    # A Stream with a replaced part starts with no programs, whatever its config.
+    assert dataclasses.replace(a, train_step=lambda *x: x).programs == {}
 
 
 def _records(path):
@@ -252,24 +249,21 @@ def test_a_killed_run_resumes_to_the_result_of_an_uninterrupted_one(tmp_path, mo
 
 
 @pytest.mark.slow
-def test_a_non_finite_loss_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
+def test_a_non_finite_loss_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path,
+                                                                            monkeypatch):
     config = tiny(seed=3)
     run_lib.run(config, tmp_path, progress=False, stop_after=2)  # checkpoint at epoch 2
-    # The seed-independent Stream that build() keeps for this config (see Stream's hashing).
-    built = programs.current().built
-    cache_key = next(k for k, v in built.items() if v == stream.build(config))
-    good = built[cache_key]
+    good = stream.build(config)
 
     def poisoned(state, batch, key):
         state, metrics = good.train_step(state, batch, key)
         return state, {**metrics, "loss": jnp.full_like(metrics["loss"], jnp.nan)}
 
-    built[cache_key] = dataclasses.replace(good, train_step=poisoned)
-    try:
+    with monkeypatch.context() as patch:
+        patch.setattr(run_lib, "build",
+                      lambda *_: dataclasses.replace(good, train_step=poisoned))
         with pytest.raises(run_lib.NonFiniteLoss, match="non-finite at epoch 3"):
             run_lib.run(config, tmp_path, progress=False)
-    finally:
-        built[cache_key] = good
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["status"] == "nonfinite" and summary["checkpoint_epoch"] == 2
     assert summary["error"].startswith("learner loss became non-finite at epoch 3;")

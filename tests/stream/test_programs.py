@@ -1,9 +1,10 @@
-"""The programs compiled for a Stream belong to a scope (`stream.programs_scope`): what is built
-and compiled inside one is kept there, and leaving it gives the programs and their memory
-mappings back (on XLA:CPU each kernel is mapped on its own, and a process that kept every
-cell's programs ran out of mappings)."""
+"""A Stream owns the programs compiled for it (`Stream.jit`): they go, with their memory mappings,
+when the Stream does (on XLA:CPU each kernel is mapped on its own, and a process that kept every
+figure cell's programs ran out of mappings), and a driver keeps no Stream past its cell."""
 
+import gc
 import os
+import weakref
 
 import jax
 import jax.numpy as jnp
@@ -11,11 +12,10 @@ import pytest
 
 from jaml import stream
 from jaml.experiments import _runs
-from jaml.stream import programs
+from jaml.stream import run as run_lib
 from tests.stream.test_loop import tiny
 
 
-@programs.jitted(static_argnums=0)
 def _program(st, x):
     # Sorts and scans between the elementwise steps keep XLA from fusing it into one kernel.
     for k in range(12):
@@ -29,61 +29,33 @@ def _mappings() -> int:
 
 
 @pytest.mark.skipif(not os.path.exists("/proc/self/maps"), reason="counts Linux mappings")
-def test_leaving_a_scope_drops_its_programs_and_their_memory_mappings():
-    outside = programs.current()
-    before_outside = outside.cache_sizes()
-    with stream.programs_scope() as scope:
-        assert programs.current() is scope and scope is not outside
-        s = stream.build(tiny())
-        assert list(scope.built.values()) == [s]
-        before = _mappings()
-        first = _program(s, jnp.ones(64)).block_until_ready()
-        jitted = scope.jit(_program.__wrapped__, static_argnums=0)
-        assert jitted._cache_size() == 1 and scope.cache_sizes()["jitted"] == 1
-        added = _mappings() - before
-        assert added >= 30  # a few mappings per compiled kernel
-    assert programs.current() is outside and outside.cache_sizes() == before_outside
-    assert scope.cache_sizes() == {"jitted": 0, "built": 0, "executables": 0}
-    assert jitted._cache_size() == 0
+def test_a_streams_programs_and_their_memory_mappings_go_with_it():
+    jax.jit(lambda x: jnp.sort(x) + 1)(jnp.ones(3)).block_until_ready()  # the runtime's own
+    s = stream.build(tiny())
+    before = _mappings()
+    first = s.jit(_program)(jnp.ones(64)).block_until_ready()
+    added = _mappings() - before
+    assert added >= 30  # a few mappings per compiled kernel
+    program = weakref.ref(s.jit(_program))
+    del s  # no reference cycle: the programs go at once, not at the next garbage collection
+    assert program() is None
     assert _mappings() - before < added / 3
-    # The Stream still runs after its scope: it compiles again, in the scope current then.
-    with stream.programs_scope() as again:
-        assert jnp.array_equal(_program(s, jnp.ones(64)), first)
-        assert again.cache_sizes()["jitted"] == 1
+    # Another Stream of the config compiles its own, to the same numbers.
+    assert jnp.array_equal(stream.build(tiny()).jit(_program)(jnp.ones(64)), first)
 
 
-def test_scopes_nest_and_release_on_an_exception():
-    with stream.programs_scope() as outer:
-        s = stream.build(tiny())
-        with pytest.raises(RuntimeError, match="inside"), stream.programs_scope() as inner:
-            assert stream.build(tiny(seed=3)) is not s  # another scope, another Stream
-            assert len(inner.built) == 1
-            raise RuntimeError("inside")
-        assert inner.cache_sizes()["built"] == 0
-        assert programs.current() is outer
-        # Within one scope, another seed's config shares the Stream's parts (and programs).
-        assert stream.build(tiny(seed=3)) == s and len(outer.built) == 1
+def test_a_figure_cell_keeps_no_stream_even_when_it_fails(monkeypatch):
+    built = []
 
+    def build(*args):
+        built.append(stream.build(*args))
+        built[-1].jit(_program)  # a program of its own, which must not keep it either
+        built[-1] = weakref.ref(built[-1])
+        return built[-1]()
 
-def test_a_figure_cell_releases_its_programs_even_when_it_fails(monkeypatch):
-    seen = []
-
-    def failing_run_many(configs, *args, **kwargs):
-        seen.append(programs.current())
-        stream.build(configs[0])
-        raise RuntimeError("a run failed")
-
-    monkeypatch.setattr("jaml.stream.run.run_many", failing_run_many)
-    with pytest.raises(RuntimeError, match="a run failed"):
+    monkeypatch.setattr(run_lib, "build", build)
+    monkeypatch.setattr(run_lib, "open_runs", lambda *_, **__: 1 / 0)
+    with pytest.raises(ZeroDivisionError):
         _runs.train_seeds("cell", [tiny()], ["unused"])
-    assert seen and seen[0] is not programs.current()
-    assert seen[0].cache_sizes() == {"jitted": 0, "built": 0, "executables": 0}
-
-
-def test_jitted_is_jax_jit_in_the_current_scope():
-    f = programs.jitted(lambda n, x: x * n, static_argnums=0)
-    with stream.programs_scope() as scope:
-        assert int(f(3, jnp.int32(2))) == 6
-        assert f(2, 1.0) == jax.jit(lambda n, x: x * n, static_argnums=0)(2, 1.0)
-        assert scope.cache_sizes()["jitted"] == 2
-        assert f.lower(3, jnp.int32(2)).compile()(jnp.int32(2)) == 6
+    gc.collect()  # the exception's frames held it while it was raised
+    assert len(built) == 1 and built[0]() is None

@@ -13,7 +13,7 @@ import jax
 import numpy as np
 import pytest
 
-from jaml import learners, stream
+from jaml import stream
 from jaml.stream import executor
 from jaml.stream import run as run_lib
 from tests.stream.test_loop import tiny
@@ -40,11 +40,6 @@ def _fast_compiling_prng():
 
 @pytest.mark.slow  # two compiles of the device loop; the one-device stacked tests stay default
 def test_runs_split_across_two_devices_match_each_run_alone():
-    with stream.programs_scope() as programs:
-        _runs_split_across_two_devices_match_each_run_alone(programs)
-
-
-def _runs_split_across_two_devices_match_each_run_alone(programs):
     s = stream.build(small())
     alone = []
     for seed in SEEDS:
@@ -52,8 +47,7 @@ def _runs_split_across_two_devices_match_each_run_alone(programs):
         alone.append(metrics)
     # The CPU's host loop compiled its learner step once (with the learner's compiler options,
     # `executor._learner_jit`) and reused it for every step of every seed.
-    assert programs.jit(executor._vmapped_learn_step, static_argnums=0, donate_argnums=1,
-                        compiler_options=learners.compiler_options())._cache_size() == 1
+    assert executor._learner_jit(s, executor._learn_step_runs)._cache_size() == 1
     # Three runs on two devices: one device steps two runs, the other one run and a padding copy.
     assert jax.device_count() == 2, "tests/conftest.py asks XLA for two CPU devices"
     mesh = stream.runs_mesh(len(SEEDS))
@@ -63,7 +57,8 @@ def _runs_split_across_two_devices_match_each_run_alone(programs):
     states, first = stream.run_stacked_epochs(s, states, 1, mesh=mesh, host_loop=False)
     states, second = stream.run_stacked_epochs(s, states, EPOCHS - 1, mesh=mesh,
                                                host_loop=False)
-    assert sorted(d.id for _, d, _ in programs.executables) == [0, 1], (
+    executables = [k for k in s.programs if k[0] is executor._block and len(k) == 3]
+    assert sorted(device.id for _, device, _ in executables) == [0, 1], (
         "one program per device, reused")
     together = jax.tree.map(lambda a, b: np.concatenate([a, b]), first, second)
     assert mesh.size == 2 and states.epoch.tolist() == [EPOCHS] * len(SEEDS)

@@ -127,14 +127,20 @@ def useful_gflop_per_frame(learner_name: str, sequences: int, dtype: str) -> flo
     # executes 36 taps an output phase where 16 meet real input).
     plain = learners.make(learner_name, ld_dim=LD_DIM, compute_dtype=dtype,
                           upsample_form="dilated")
-    opt = learners.default_optimizer(plain)
-    t = plain.config.seq_len
+    count = flops.flops(*abstract_step(plain, sequences))
+    return count / (sequences * plain.config.seq_len) / 1e9
+
+
+def abstract_step(learner, sequences: int) -> tuple:
+    """(train step, state, batch, key) of `learner` with Adam on `sequences` sequences, the
+    state and batch as shapes alone: a step to trace, not to run."""
+    opt = learners.default_optimizer(learner)
+    t = learner.config.seq_len
     batch = (jax.ShapeDtypeStruct((sequences, t, 64, 64, 3), np.uint8),
              jax.ShapeDtypeStruct((sequences, t, ACTION_DIM), np.float32))
     state = jax.eval_shape(lambda *batch: learners.init_train_state(
-        plain, opt, jax.random.key(0), batch), *batch)
-    count = flops.flops(learners.make_train_step(plain, opt), state, batch, jax.random.key(0))
-    return count / (sequences * t) / 1e9
+        learner, opt, jax.random.key(0), batch), *batch)
+    return learners.make_train_step(learner, opt), state, batch, jax.random.key(0)
 
 
 def memory_shortfall(analysis, stats: dict | None) -> str | None:

@@ -121,9 +121,10 @@ def draw_seeds(name: str, out: Path, seeds: list[int]) -> Path:
         ax.scatter(*points[~near].T, s=4, c="tab:red")
         ax.set(xlim=(low[0], high[0]), ylim=(low[1], high[1]), zlim=(low[2], high[2]),
                xticks=[], yticks=[], zticks=[])
-        ax.set_title(f"seed {seed}: {100 * near.mean():.0f}% within 0.05", fontsize=9)
-    fig.suptitle(f"{name}, {rs.num_relations} relations, defaults: box points projected onto the "
-                 "learned manifold (red: farther than 0.05 from the data)", fontsize=9)
+        ax.set_title(f"seed {seed}, {rs.num_relations} relations: {100 * near.mean():.0f}% "
+                     "within 0.05", fontsize=9)
+    fig.suptitle(f"{name}: box points projected onto the learned manifold (red: farther than "
+                 "0.05 from the data)", fontsize=9)
     fig.tight_layout()
     path = out / f"{name}_seeds.png"
     fig.savefig(path, dpi=100)

@@ -754,12 +754,12 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             budget=cfg.premine_steps if premined is not None else None,
         )
         steps, status, rounds = int(state.step), int(state.status), []
-        if cfg.independence == "syzygy" and k > 0 and status != NONFINITE and \
-                cfg.syzygy_training == "joint":
+        syzygies = cfg.independence == "syzygy" and k > 0 and status != NONFINITE
+        if syzygies and cfg.syzygy_training == "joint":
             state, spent, rounds = _joint_syzygy(cfg, batches, rs, module, state, k_syz, callback)
             steps += spent
             status = int(state.status)
-        elif cfg.independence == "syzygy" and k > 0 and status != NONFINITE:
+        elif syzygies:
             syz_found = []
             for s in range(cfg.syzygies_per_relation):
                 ks = jax.random.fold_in(k_syz, s)

@@ -27,11 +27,26 @@ _NHWC = ("NHWC", "HWIO", "NHWC")
 # (`_halving_kernel_grad`), a transposed convolution onto up to this many outputs one 2×2
 # convolution onto the four phases (`_phase_conv`).
 _FEW_CHANNELS = 4
+# cuDNN's tensor-core convolutions take channels in multiples of this and pad others with a slow
+# layout kernel of their own on every call: off the CPU, the frames' layers are reformulated
+# onto such channel counts (`_blocks_conv`, `_phase_conv`; docs/learners.md "Roofline").
+_CUDNN_CHANNELS = 8
 
 
 def _use_cpu_kernels(cpu_kernels: bool | None) -> bool:
     """None: the CPU formulation when tracing for the CPU backend (the GPU path is XLA's own)."""
-    return jax.default_backend() == "cpu" if cpu_kernels is None else cpu_kernels
+    return _on_cpu() if cpu_kernels is None else cpu_kernels
+
+
+def _on_cpu() -> bool:
+    return jax.default_backend() == "cpu"
+
+
+def _pad_channels(a: jax.Array, axis: int) -> jax.Array:
+    """a with zeros appended along axis up to a multiple of `_CUDNN_CHANNELS`."""
+    widths = [(0, 0)] * a.ndim
+    widths[axis] = (0, -a.shape[axis] % _CUDNN_CHANNELS)
+    return jnp.pad(a, widths)
 
 
 def _xla_conv(x, kernel, strides, padding):
@@ -90,7 +105,9 @@ def _phase_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
             for rw in (0, 1)], axis=3) for rh in (0, 1)], axis=2)  # [N, H, rh, W, rw, O]
         return y.reshape(n, 2 * h, 2 * w, o)
     k2 = k2.transpose(0, 1, 4, 2, 3, 5).reshape(2, 2, i, 4 * o)
-    y = _xla_conv(x, k2, (1, 1), _HALVE).reshape(n, h + 1, w + 1, 2, 2, o)
+    if not _on_cpu():  # 4·O outputs padded to a multiple of 8 (`_CUDNN_CHANNELS`)
+        k2 = _pad_channels(k2, 3)
+    y = _xla_conv(x, k2, (1, 1), _HALVE)[..., :4 * o].reshape(n, h + 1, w + 1, 2, 2, o)
     y = jnp.stack([jnp.stack([y[:, rh:rh + h, rw:rw + w, rh, rw] for rw in (0, 1)], axis=3)
                    for rh in (0, 1)], axis=2)  # [N, H, rh, W, rw, O]
     return y.reshape(n, 2 * h, 2 * w, o)
@@ -101,9 +118,28 @@ def _phase_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
 # each other's input gradients, so each one's backward pass runs the other's forward pass, and
 # both kernel gradients are `_halving_kernel_grad`. XLA's own input gradients are input-dilated
 # convolutions, which its CPU backend runs on a slow generic path (docs/notes/learners.md).
+def _blocks_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
+    """[N, 2H, 2W, C] × [4, 4, C, O] → [N, H, W, O]: the k4 s2 p1 convolution as a k2 s1
+    convolution of the padded input's 2×2 blocks (4·C channels, padded to a multiple of 8): the
+    same taps, on channels cuDNN's kernels take as they are (the GPU's form for few C)."""
+    n, h2, w2, c = x.shape
+    h, w = h2 // 2 + 1, w2 // 2 + 1
+    xp = jnp.pad(x, ((0, 0), (1, 1), (1, 1), (0, 0)))
+    blocks = xp.reshape(n, h, 2, w, 2, c).transpose(0, 1, 3, 2, 4, 5).reshape(n, h, w, 4 * c)
+    k2 = kernel.reshape(2, 2, 2, 2, c, -1).transpose(0, 2, 1, 3, 4, 5).reshape(2, 2, 4 * c, -1)
+    return _xla_conv(_pad_channels(blocks, 3), _pad_channels(k2, 2), (1, 1), ((0, 0), (0, 0)))
+
+
+def _k4s2(x: jax.Array, kernel: jax.Array) -> jax.Array:
+    """The k4 s2 p1 convolution of even sizes: `_blocks_conv` off the CPU for few channels."""
+    if x.shape[-1] <= _FEW_CHANNELS and not _on_cpu():
+        return _blocks_conv(x, kernel)
+    return _xla_conv(x, kernel, (2, 2), _HALVE)
+
+
 @jax.custom_vjp
 def _halving(x: jax.Array, kernel: jax.Array) -> jax.Array:
-    return _xla_conv(x, kernel, (2, 2), _HALVE)
+    return _k4s2(x, kernel)
 
 
 @jax.custom_vjp
@@ -171,8 +207,9 @@ def conv2d(x: jax.Array, kernel: jax.Array, strides: tuple[int, int] = (1, 1),
     cpu_kernels (None: when the default backend is the CPU) computes the encoder's two kinds
     differently, to float32 rounding: k4 s2 p1 on even sizes as `_halving` (its input gradient a
     transposed-convolution forward pass), a kernel covering the whole input (k4 s1 p0 onto 1×1)
-    as one matmul. Other convolutions, and every convolution otherwise (the GPU), are the plain
-    convolution and its autodiff.
+    as one matmul. Otherwise (the GPU) k4 s2 p1 on even sizes and few channels (the frames') is
+    `_blocks_conv` and its autodiff. Other convolutions are the plain convolution and its
+    autodiff.
     """
     strides, padding = tuple(strides), tuple(tuple(p) for p in padding)
     if _use_cpu_kernels(cpu_kernels):
@@ -182,6 +219,9 @@ def conv2d(x: jax.Array, kernel: jax.Array, strides: tuple[int, int] = (1, 1),
         if (kh, kw) == (h, w) and padding == ((0, 0), (0, 0)):
             out = x.reshape(x.shape[0], -1) @ kernel.reshape(-1, kernel.shape[-1])
             return out.reshape(x.shape[0], 1, 1, -1)
+    elif (kernel.shape[:2], strides, padding) == ((4, 4), (2, 2), _HALVE) and \
+            x.shape[-1] <= _FEW_CHANNELS and x.shape[1] % 2 == x.shape[2] % 2 == 0:
+        return _blocks_conv(x, kernel)
     return _xla_conv(x, kernel, strides, padding)
 
 
@@ -251,7 +291,8 @@ def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,
     an output phase against 16 useful), or "dilated" (`lax.conv_transpose`, XLA's input-dilated
     convolution and its autodiff, which XLA's CPU backend runs on a slow generic path), or
     "pair" (that input-dilated convolution forward, the phase pair's backward pass). "auto"
-    is "phase" on the CPU and "pair" elsewhere (why: docs/learners.md). compute_dtype (e.g.
+    is "phase" on the CPU and elsewhere for few outputs (the frames' 3), "pair" for more (why:
+    docs/learners.md). compute_dtype (e.g.
     bfloat16) is the convolution's input and kernel dtype; None keeps x's.
     """
     if form not in UPSAMPLE_FORMS:
@@ -259,7 +300,7 @@ def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,
     if compute_dtype is not None:
         x, kernel = x.astype(compute_dtype), kernel.astype(compute_dtype)
     if form == "auto":
-        form = "phase" if _use_cpu_kernels(None) else "pair"
+        form = "phase" if _on_cpu() or kernel.shape[-1] <= _FEW_CHANNELS else "pair"
     if form == "phase":
         return _doubling(x, kernel)
     if form == "pair":

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from jaml import learners, stream
+from jaml.learners import networks
 from jaml.learners.networks import Conv, ConvDecoder, ConvEncoder, conv2d, elu, upsample2x
 
 
@@ -128,7 +129,8 @@ def _value_and_grads(f, x, w):
     ((3, 8, 7, 5), 4, (2, 2), ((1, 1), (1, 1))),  # k4 s2 p1 on an odd width: XLA's own
     ((3, 8, 7, 5), 3, (2, 1), ((0, 1), (2, 0))),  # uneven strides and paddings
 ])
-def test_cpu_conv_matches_xla_conv_and_autodiff(shape, k, strides, padding):
+@pytest.mark.parametrize("cpu_kernels", [True, False])  # False: the GPU's (3 channels padded)
+def test_conv2d_matches_xla_conv_and_autodiff(shape, k, strides, padding, cpu_kernels):
     rng = np.random.default_rng(0)
     x = jnp.asarray(rng.normal(size=shape), jnp.float32)
     w = jnp.asarray(rng.normal(size=(k, k, shape[-1], 6)), jnp.float32)
@@ -139,7 +141,7 @@ def test_cpu_conv_matches_xla_conv_and_autodiff(shape, k, strides, padding):
 
     want = _value_and_grads(ref, x, w)
     got = jax.jit(lambda x, w: _value_and_grads(
-        lambda x, w: conv2d(x, w, strides, padding, cpu_kernels=True), x, w))(x, w)
+        lambda x, w: conv2d(x, w, strides, padding, cpu_kernels=cpu_kernels), x, w))(x, w)
     for g, r, what in zip(got, want, ("output", "input gradient", "kernel gradient"),
                           strict=True):
         assert g.shape == r.shape and g.dtype == r.dtype, what
@@ -162,7 +164,7 @@ def test_upsample2x_phase_matches_lax_conv_transpose_and_the_subpixel_form(shape
         return jax.lax.conv_transpose(x, w[::-1, ::-1], (2, 2), ((2, 2), (2, 2)),
                                       dimension_numbers=("NHWC", "HWIO", "NHWC"))
 
-    for form in ("phase", "pair"):
+    for form in ("phase", "pair", "dilated"):
         got = jax.jit(lambda x, w, form=form: _value_and_grads(
             lambda x, w: upsample2x(x, w, form=form), x, w))(x, w)
         for ref in (lax_ref, lambda x, w: upsample2x(x, w, form="subpixel")):
@@ -171,6 +173,33 @@ def test_upsample2x_phase_matches_lax_conv_transpose_and_the_subpixel_form(shape
                                   strict=True):
                 assert g.shape == r.shape and g.dtype == r.dtype, what
                 np.testing.assert_allclose(g, r, rtol=1e-5, atol=1e-4, err_msg=f"{form} {what}")
+
+
+def test_the_gpu_forms_of_the_frames_layers_match_lax_and_autodiff(monkeypatch):
+    """Off the CPU the frames' two layers are reformulated onto channel counts cuDNN takes as
+    they are: the encoder's k4 s2 p1 on 3 channels as a k2 convolution of 2×2 blocks, the
+    decoder's transposed convolution onto 3 as the phase form with its outputs padded to 16 (its
+    backward through the blocks form). Traced as for a GPU, here on the CPU: values and both
+    gradients against `lax` and its autodiff."""
+    monkeypatch.setattr(networks, "_on_cpu", lambda: False)
+    rng = np.random.default_rng(0)
+    nhwc = ("NHWC", "HWIO", "NHWC")
+    cases = [
+        ((2, 8, 6, 3), (4, 4, 3, 6), lambda x, w: conv2d(x, w, (2, 2), ((1, 1), (1, 1))),
+         lambda x, w: jax.lax.conv_general_dilated(x, w, (2, 2), ((1, 1), (1, 1)),
+                                                   dimension_numbers=nhwc)),
+        ((2, 4, 3, 5), (4, 4, 5, 3), lambda x, w: upsample2x(x, w),
+         lambda x, w: jax.lax.conv_transpose(x, w[::-1, ::-1], (2, 2), ((2, 2), (2, 2)),
+                                             dimension_numbers=nhwc)),
+    ]
+    for x_shape, w_shape, f, ref in cases:
+        x = jnp.asarray(rng.normal(size=x_shape), jnp.float32)
+        w = jnp.asarray(rng.normal(size=w_shape), jnp.float32)
+        got = jax.jit(lambda x, w, f=f: _value_and_grads(f, x, w))(x, w)
+        for g, r, what in zip(got, _value_and_grads(ref, x, w),
+                              ("output", "input gradient", "kernel gradient"), strict=True):
+            assert g.shape == r.shape and g.dtype == r.dtype, what
+            np.testing.assert_allclose(g, r, rtol=1e-5, atol=1e-4, err_msg=what)
 
 
 def test_an_unknown_upsample_form_is_refused_by_name():
@@ -205,22 +234,22 @@ def test_the_decoder_gives_one_output_and_gradient_in_every_upsample_form():
 
 
 @pytest.mark.parametrize("gpu", [False, True])
-def test_auto_is_the_phase_form_on_the_cpu_and_the_pair_elsewhere(gpu, monkeypatch):
-    """The decoder's default traces the program of upsample_form="phase" for the CPU and of
-    "pair" for a GPU (`_use_cpu_kernels` as on a GPU), and not the other's."""
-    from jaml.learners import networks
-
+def test_auto_is_the_phase_form_on_the_cpu_and_the_pair_for_wide_layers_elsewhere(gpu,
+                                                                                 monkeypatch):
+    """upsample2x's default traces the program of form="phase" on the CPU; as on a GPU
+    (`_on_cpu` False), that of "pair" onto 6 channels and of "phase" onto the frames' 3."""
     if gpu:
-        monkeypatch.setattr(networks, "_use_cpu_kernels", lambda cpu_kernels: False)
-    z = jnp.zeros((2, 5))
+        monkeypatch.setattr(networks, "_on_cpu", lambda: False)
+    x = jnp.zeros((2, 4, 4, 5))
 
-    def program(form):
-        decoder = ConvDecoder((8, 6, 6, 4), upsample_form=form)
-        return str(jax.make_jaxpr(lambda z: decoder.init_with_output(
-            jax.random.key(0), z, True))(z))
+    def program(outputs, form):
+        return str(jax.make_jaxpr(lambda x, w: upsample2x(x, w, form=form))(
+            x, jnp.zeros((4, 4, 5, outputs))))
 
-    assert program("auto") == program("pair" if gpu else "phase")
-    assert program("auto") != program("phase" if gpu else "pair")
+    for outputs, want, other in ((6, "pair" if gpu else "phase", "phase" if gpu else "pair"),
+                                 (3, "phase", "pair")):
+        assert program(outputs, "auto") == program(outputs, want), outputs
+        assert program(outputs, "auto") != program(outputs, other), outputs
 
 
 @pytest.mark.parametrize("name", ["VAE_rpl", "PRED", "DSA", "SVAE"])

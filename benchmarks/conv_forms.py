@@ -1,0 +1,114 @@
+"""The frames' two layers in each formulation, forward and backward: the encoder's first
+convolution (3 channels in, k4 s2 p1) and the decoder's last transposed convolution (3 out).
+
+    python benchmarks/conv_forms.py [--frames 1024] [--dtype bfloat16] [--reps 7] [--steps 20]
+
+cuDNN's tensor-core kernels take channels in multiples of 8, so these two layers, whose FLOPs are
+a few percent of the step's, can cost far more than their bytes say. Each form computes the same
+function (the test suite checks them against `lax`); this times each one's jitted value and
+gradients (the kernel's; the input's too for the decoder layer, whose input is an activation),
+steady state: median over `reps` blocked calls of `steps` steps each, compile apart.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks import harness
+from jaml.learners import networks
+
+_HALVE = ((1, 1), (1, 1))
+_NHWC = ("NHWC", "HWIO", "NHWC")
+
+
+def _lax_conv(x, w):
+    return jax.lax.conv_general_dilated(x, w, (2, 2), _HALVE, dimension_numbers=_NHWC)
+
+
+def _patches_conv(x, w):
+    """k4 s2 p1 as one matmul of the input's 4×4 patches."""
+    c = x.shape[-1]
+    patches = jax.lax.conv_general_dilated_patches(
+        x, (4, 4), (2, 2), _HALVE, dimension_numbers=_NHWC)  # [N, H/2, W/2, C·16]
+    k = w.transpose(2, 0, 1, 3).reshape(c * 16, -1)
+    return patches @ k
+
+
+FIRST = {  # [N, 64, 64, 3] × [4, 4, 3, 64] → [N, 32, 32, 64]
+    "lax (3 channels)": _lax_conv,
+    "2x2 blocks, k2 (conv2d off the CPU)": lambda x, w: networks.conv2d(
+        x, w, (2, 2), _HALVE, cpu_kernels=False),
+    "patches matmul": _patches_conv,
+}
+LAST = {  # [N, 32, 32, 64] × [4, 4, 64, 3] → [N, 64, 64, 3]
+    **{f"upsample2x {f}": (lambda x, w, f=f: networks.upsample2x(x, w, form=f))
+       for f in ("pair", "phase", "subpixel", "dilated")},
+}
+
+
+def _time(fn, args, reps: int, steps: int) -> tuple[float, float]:
+    """(compile seconds, steady-state seconds per step)."""
+    start = time.perf_counter()
+    compiled = jax.jit(fn).lower(*args).compile()
+    compile_s = time.perf_counter() - start
+    jax.block_until_ready(compiled(*args))
+    times = []
+    for _ in range(reps):
+        start = time.perf_counter()
+        for _ in range(steps):
+            out = compiled(*args)
+        jax.block_until_ready(out)
+        times.append((time.perf_counter() - start) / steps)
+    return compile_s, statistics.median(times)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=1024)
+    parser.add_argument("--dtype", default="bfloat16")
+    parser.add_argument("--reps", type=int, default=7)
+    parser.add_argument("--steps", type=int, default=20)
+    parser.add_argument("--no-record", action="store_true", help="print only")
+    args = parser.parse_args(argv)
+    dt, n = jnp.dtype(args.dtype), args.frames
+    rng = np.random.default_rng(0)
+
+    def normal(*shape):
+        return jnp.asarray(rng.normal(size=shape), dt)
+
+    cases = [("first layer", FIRST, (normal(n, 64, 64, 3), normal(4, 4, 3, 64)), (1,)),
+             ("last layer", LAST, (normal(n, 32, 32, 64), normal(4, 4, 64, 3)), (0, 1))]
+    rows = []
+    for layer, forms, args_, wrt in cases:
+        cotangent = None
+        for name, f in forms.items():
+            if cotangent is None:
+                cotangent = normal(*jax.eval_shape(f, *args_).shape)
+
+            def step(*a, f=f, cotangent=cotangent, wrt=wrt):
+                y, vjp = jax.vjp(f, *a)
+                grads = vjp(cotangent)
+                return y, tuple(grads[i] for i in wrt)
+
+            compile_s, s = _time(step, args_, args.reps, args.steps)
+            rows.append({"case": f"{layer}, {n} frames, {args.dtype}", "impl": name,
+                         "us_per_step": 1e6 * s, "compile_s": compile_s})
+            print(f"{layer:12s} {name:28s} {1e6 * s:8.1f} µs (compile {compile_s:.1f} s)",
+                  flush=True)
+    if not args.no_record:
+        harness.record("conv_forms", rows, notes=__doc__.splitlines()[0])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

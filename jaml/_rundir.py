@@ -95,9 +95,8 @@ def _unwritable(out: Path, error: OSError) -> str:
             "write")
 
 
-# Files a driver writes into a run directory before the run claims it (the penalty record of
-# `jaml.experiments.fig9`), and the lock `lock` creates: a directory holding only these is new.
-SIDECARS = frozenset({".lock", "penalty.json"})
+# The lock `lock` creates: a directory holding only it is new.
+SIDECARS = frozenset({".lock"})
 
 
 def _refuse_foreign(out: Path) -> None:

@@ -32,57 +32,14 @@ from jaml import evaluation
 from jaml.evaluation import alignment
 from jaml.learners.learner import FRAME_SHAPE
 from jaml.stream import analysis
-from jaml.stream.config import StreamConfig
+
+# The named scales live beside the domains' settings (`stream.config`); here too, where the
+# suite's users take them (`suite.scaled(config, "small")`).
+from jaml.stream.config import SCALES as SCALES
+from jaml.stream.config import SMOKE_NOTE, StreamConfig, scale_of
+from jaml.stream.config import scaled as scaled
 from jaml.stream.executor import run_epochs
 from jaml.stream.loop import Stream, StreamState, build
-
-# Sizes as overrides (`StreamConfig.with_overrides`): "smoke", the plumbing of a run in
-# minutes on two CPU cores (its sets are too small for its numbers to rank encoders: `SMOKE_NOTE`);
-# "small", the smallest whose numbers order a true-state, a pixel-PCA and a no-information
-# encoder on π_rand and validation, within minutes on two CPU cores (measured: docs/usage.md,
-# "Small runs"); "paper", the paper's (the StreamConfig defaults, `for_env`'s per-domain
-# settings).
-SCALES: dict[str, dict] = {
-    "smoke": {"num_envs": 8, "rollout_len": 4, "replay.slots": 16, "frames_per_batch": 8,
-              "learner_steps": 2, "epochs": 4, "eval.every": 2, "eval.train": 64,
-              "eval.rand": 64, "eval.curr": 32, "eval.transient": 3,
-              "eval.regressor_iterations": 200},
-    "small": {"num_envs": 16, "rollout_len": 16, "replay.slots": 64, "frames_per_batch": 32,
-              "learner_steps": 4, "epochs": 8, "eval.every": 4, "eval.train": 1024,
-              "eval.rand": 1024, "eval.curr": 256, "eval.transient": 3,
-              "eval.regressor_iterations": 2000},
-    "paper": {},
-}
-# The sizes that make the analysis's sets and fit (what `scale_of` compares).
-_SET_SIZES = ("num_envs", "replay.slots", "eval.train", "eval.rand", "eval.curr",
-              "eval.transient", "eval.regressor_iterations")
-
-
-def scaled(config: StreamConfig, scale: str) -> StreamConfig:
-    """`config` with the sizes of `scale` ("smoke": plumbing, minutes on a CPU; "small": the
-    smallest that ranks encoders, minutes on a CPU; "paper": unchanged); PPO's minibatches are
-    cut to split the scale's envs, and a sequence learner's window (SVAE's 24 frames) keeps the
-    rollout and batch long enough to hold one sequence."""
-    if scale not in SCALES:
-        raise ValueError(f"unknown scale {scale!r}; valid: {list(SCALES)}")
-    changes = dict(SCALES[scale])
-    if not changes:
-        return config
-    if changes["num_envs"] % config.ppo.num_minibatches:
-        changes["ppo.num_minibatches"] = 4
-    seq_len = _seq_len(config)
-    changes["rollout_len"] = max(changes["rollout_len"], seq_len - 1)
-    changes["frames_per_batch"] = max(changes["frames_per_batch"], seq_len)
-    return config.with_overrides(changes)
-
-
-def _seq_len(config: StreamConfig) -> int:
-    """The learner's sequence length (1 for a learner of your own: its factory is not called)."""
-    from jaml import learners
-
-    if config.learner not in learners.ALL_LEARNERS:
-        return 1
-    return config.learner_config.seq_len
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,12 +62,15 @@ def _prepare(config: StreamConfig, stream: Stream | None, state: StreamState | N
     else checked against it) and the keys a run of `config` derives from its seed."""
     if stream is None:
         stream = build(config)
-    elif stream.config.program_key() != config.program_key():
-        raise ValueError("stream was not built from this config (they differ in more than the "
-                         "seed): pass stream=jaml.stream.build(config), or none")
+    else:
+        try:
+            stream.run_config(config)
+        except ValueError as error:
+            raise ValueError(f"stream was not built from this config ({error}): pass "
+                             "stream=jaml.stream.build(config), or none") from None
     k_init, k_eval, pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
     if state is None:
-        state, _ = run_epochs(stream, stream.init(k_init), config.fill_epochs)
+        state, _ = run_epochs(stream, stream.init(k_init), stream.config.fill_epochs)
     return stream, state, jax.random.fold_in(k_eval, int(state.epoch)), pi_rand_key
 
 
@@ -229,20 +189,6 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
             {k: (pixels[k][None], s[None]) for k, (_, s) in tests.items()}, [seed])[0]
         report["references"] = {"constant": baseline, **row}
     return report
-
-
-# What the smoke scale's reports and `jaml suite --scale smoke` say beside their numbers.
-SMOKE_NOTE = ("smoke scale: for plumbing only, its sets are too small for its numbers to rank "
-              "encoders (use the small scale, --scale small)")
-
-
-def scale_of(config: StreamConfig) -> str | None:
-    """The name of the `SCALES` entry whose sizes `config` has (None: none, or the paper's
-    defaults changed otherwise)."""
-    for name, sizes in SCALES.items():
-        if sizes and config == config.with_overrides({k: sizes[k] for k in _SET_SIZES}):
-            return name
-    return None
 
 
 def _pixels(stream: Stream, test_set: TestSet) -> np.ndarray:

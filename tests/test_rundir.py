@@ -70,7 +70,7 @@ def test_a_process_that_dies_releases_its_lock(tmp_path):
 
 def test_claim_refuses_a_folder_of_other_files_but_not_the_runs_own(tmp_path):
     """A folder with files but no config.json is not a run: refused, left as it was. The lock
-    and a driver's penalty record (`SIDECARS`) do not count."""
+    (`SIDECARS`) does not count."""
     other = tmp_path / "other"
     other.mkdir()
     for name in ("a.txt", "b.txt", "c.txt", "d"):
@@ -81,7 +81,6 @@ def test_claim_refuses_a_folder_of_other_files_but_not_the_runs_own(tmp_path):
     assert not (other / "config.json").exists()
     mine = tmp_path / "mine"
     _rundir.lock(mine).close()
-    (mine / "penalty.json").write_text("{}")
     assert _rundir.claim(mine, {"lr": 1}) is False
 
 

@@ -12,7 +12,8 @@ import time
 from pathlib import Path
 
 from jaml import _command
-from jaml.stream.config import FLAT_FIELDS, RESOLVED, StreamConfig, changed_fields
+from jaml.stream.config import StreamConfig
+from jaml.stream.records import FLAT_FIELDS, RESOLVED, settings
 
 # jaml.evaluation (JAX, SciPy, Matplotlib) is imported by `cell`: the figure commands' --help
 # imports none of them (tests/test_launch.py).
@@ -85,32 +86,6 @@ def options(part: str, fields: dict) -> dict:
     return {f"{part}.{k}": v for k, v in fields.items()}
 
 
-def settings(record: dict) -> dict:
-    """A run's config.json as the reports show it, flat: the run's fields, its sizes by the
-    names of records written before the config tree (`SIZES`, "eval_every", …: `FLAT_FIELDS`),
-    and its learner's and env's fields that differ from their defaults (float32 dtypes) as
-    "learner_overrides" and "env_overrides" (the learner's ld_dim, the env's, left out). Such an
-    older record is shown as written (less its "resolved" configs)."""
-    if "replay" not in record:  # written before the tree
-        return {k: v for k, v in record.items() if k != RESOLVED}
-    config = StreamConfig.from_dict(record)
-    flat = {k: v for k, v in record.items()
-            if k not in ("replay", "eval", "learner_config", "env_config")}
-    for name, path in FLAT_FIELDS.items():
-        part, field = path.split(".")
-        flat[name] = record[part][field]
-    # Against the defaults with float32 conv stacks, the reference's: a bfloat16 run says so,
-    # whichever machine writes the report.
-    default = StreamConfig(env=config.env, learner=config.learner)
-    if default.learner_config is not None:
-        default = default.replace(learner_config=default.learner_config.for_backend("cpu"))
-    for part in ("learner", "env"):
-        mine, theirs = getattr(config, f"{part}_config"), getattr(default, f"{part}_config")
-        changed = {} if mine is None else changed_fields(mine, theirs, skip=("ld_dim",))
-        flat[f"{part}_overrides"] = json.loads(json.dumps(changed))
-    return flat
-
-
 @dataclasses.dataclass(frozen=True)
 class CallOptions:
     """How one call trains its runs: the flags shared by the commands that train (`jaml suite`,
@@ -160,8 +135,7 @@ def main(command: str, args: type, argv=None) -> int:
 
 def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,
                 checkpoint_every: int | None = None, final_checkpoint: bool = True,
-                latent_penalty=None, keep_pi_rand: bool = True,
-                deadline: float | None = None) -> list[dict]:
+                keep_pi_rand: bool = True, deadline: float | None = None) -> list[dict]:
     """Every seed of one cell trained together (`run_many`: one program, the seeds stacked),
     each in its resumable directory; prints one line per seed (status, seconds by phase) and
     one for the cell. Returns the runs' summaries. The cell's programs go with its Stream when
@@ -171,8 +145,7 @@ def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,
     started = time.perf_counter()
     summaries = run_many(list(configs), list(dirs), progress=False, stop_after=stop_after,
                          checkpoint_every=checkpoint_every, final_checkpoint=final_checkpoint,
-                         latent_penalty=latent_penalty, keep_pi_rand=keep_pi_rand,
-                         deadline=deadline)
+                         keep_pi_rand=keep_pi_rand, deadline=deadline)
     for config, summary in zip(configs, summaries, strict=True):
         phases = ", ".join(f"{k} {v:.0f}s" for k, v in summary["seconds_by_phase"].items())
         print(f"{label} seed {config.seed}: {summary['status']} at epoch {summary['epoch']} "

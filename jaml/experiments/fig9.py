@@ -35,6 +35,7 @@ import tyro
 from jaml.experiments import _runs
 from jaml.experiments._runs import read_jsonl
 from jaml.relations.config import Config
+from jaml.stream.config import SCALES, PenaltyConfig
 
 SOURCE, TARGET = "geom-on-incline", "MeshOnIncline"
 # The objects' mass and friction, in the source's rows and in the target's envs alike.
@@ -133,15 +134,9 @@ RECIPES = {
 }
 
 
-@dataclasses.dataclass(frozen=True)
-class Penalty:
-    """How relations are imposed (`relations.transfer.latent_penalty`)."""
-
-    weight: float = 100.0
-    form: str = "hinge"
-    ok_weight: float = 0.0
-    ok_rows: str = "relations"
-    ok_fraction: float | None = None
+# How the runs impose relations: the weight and the ok-row term, filled per method with the
+# relation set (`penalty_for`) into each run's config (`StreamConfig.penalty`).
+Penalty = PenaltyConfig
 
 
 def learn_relations(out: Path, progress: bool = False, dynamics: str = "drawn",
@@ -195,21 +190,17 @@ def converged(out: Path, relation_set: str) -> list[int]:
     return used
 
 
-def penalty_for(out: Path, relation_set: str, penalty: Penalty, recipe: Recipe,
-                dynamics: str = "drawn"):
-    """(the latent penalty of a relation set for the incline PRED, the 0-based indices of the
-    relations it imposes: all, or the converged ones, as the recipe says)."""
+def penalty_for(out: Path, relation_set: str, penalty: Penalty, recipe: Recipe) -> Penalty:
+    """`penalty` imposing a relation set on the incline PRED: its checkpoint under OUT, the
+    relations the recipe imposes (all, or the converged ones), on the latent slots
+    `COORDINATES` names."""
     from jaml import relations
 
-    learner = _config("PRED", 0, recipe, dynamics).resolved(ld_dim=5).learner_config
-    rs = relations.load(out / "relations" / relation_set / "checkpoint")
-    used = list(range(rs.num_relations)) if recipe.all_relations else converged(out, relation_set)
-    return relations.latent_penalty(
-        rs.select(used), relations.LatentLayout.place(learner.penalty_slots, **COORDINATES),
-        latent_size=learner.penalty_dim,
-        action_size=1, weight=penalty.weight, form=penalty.form, ok_weight=penalty.ok_weight,
-        ok_rows=penalty.ok_rows, ok_fraction=penalty.ok_fraction,
-    ), used
+    checkpoint = out / "relations" / relation_set / "checkpoint"
+    used = (range(relations.load(checkpoint).num_relations) if recipe.all_relations
+            else converged(out, relation_set))
+    return dataclasses.replace(penalty, relations=str(checkpoint), used=tuple(used),
+                               **COORDINATES)
 
 
 def _dynamics(dynamics: str) -> dict:
@@ -250,45 +241,19 @@ def method_penalty(method: str, penalty: Penalty) -> Penalty:
                                ok_fraction=float(share) if share else None)
 
 
-def described(method: str, penalty: Penalty, recipe: Recipe, used) -> dict:
-    """What OUT/<method>/seed_N/penalty.json records of how the run imposes relations."""
-    relation_set = METHODS[method][1]
-    record = {"method": method, "relations": relation_set, "recipe": recipe.name}
-    if relation_set is not None:
-        record |= dataclasses.asdict(method_penalty(method, penalty))
-        record["relations_used"] = [i + 1 for i in used]
-    return record
-
-
-def _same_record(before: dict, now: dict) -> bool:
-    """Records written before recipes and ok rows existed read as "ours" without them."""
-    before = {"recipe": "ours", **before}
-    if before.get("relations") is not None:
-        before = {"ok_weight": 0.0, "ok_rows": "relations", "ok_fraction": None, **before}
-    return before == now
-
-
 def run_method(out: Path, method: str, seeds, penalty: Penalty, recipe: Recipe, *,
                run_dir=None, dynamics: str = "drawn", scale: dict | None = None,
                **call_options) -> None:
-    """Every seed of one method, trained together (`run_many`: one program, seeds stacked).
+    """Every seed of one method, trained together (`run_many`: one program, seeds stacked),
+    its penalty in each run's config (config.json's "penalty").
     `call_options`: `_runs.CallOptions.run_options()` (stop_after, deadline, …)."""
     learner, relation_set, _ = METHODS[method]
-    latent_penalty, used = None, []
-    if relation_set is not None:
-        latent_penalty, used = penalty_for(out, relation_set, method_penalty(method, penalty),
-                                           recipe, dynamics)
-    record = described(method, penalty, recipe, used)
+    imposed = (None if relation_set is None
+               else penalty_for(out, relation_set, method_penalty(method, penalty), recipe))
     directories = [(run_dir or out / method) / f"seed_{seed}" for seed in seeds]
-    for directory in directories:
-        recorded = directory / "penalty.json"
-        if recorded.exists() and not _same_record(json.loads(recorded.read_text()), record):
-            raise ValueError(f"{directory} was run with {recorded.read_text()}, not {record}; "
-                             "use the same options or a new --out")
-        _write_json(recorded, record)
-    configs = [_config(learner, seed, recipe, dynamics, scale, method) for seed in seeds]
-    _runs.train_seeds(method, configs, directories, latent_penalty=latent_penalty,
-                      **call_options)
+    configs = [_config(learner, seed, recipe, dynamics, scale, method).replace(penalty=imposed)
+               for seed in seeds]
+    _runs.train_seeds(method, configs, directories, **call_options)
 
 
 def choose_weight(out: Path, weights, pilot_seed: int, form: str, recipe: Recipe,
@@ -361,8 +326,6 @@ class Args(_runs.Driver):
     def _scale(self) -> dict:
         scale = dict(RECIPES[self.recipe].scale)
         if self.scale == "smoke":  # the suite's smoke sizes, batches and learner steps too
-            from jaml.suite import SCALES
-
             scale |= SCALES["smoke"]
         return scale | {k: v for k, v in (("epochs", self.epochs),
                                           ("eval.every", self.eval_every)) if v is not None}

@@ -59,7 +59,7 @@ def make(name: str, config: LearnerConfig | None = None, **overrides) -> Learner
         config = config.replace(**overrides)
     if config.ld_dim is None:
         raise ValueError(f"{name}: ld_dim is None; give the true LD-state size (a stream run sets "
-                         "its env's: `StreamConfig.resolved(ld_dim)`)")
+                         "its env's: `jaml.stream.resolve`)")
     module, function = _BUILDERS[name].split(":")
     return getattr(importlib.import_module(f"{__name__}.{module}"), function)(name, config)
 

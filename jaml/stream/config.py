@@ -1,14 +1,19 @@
 """`StreamConfig`: one learning-loop run, a frozen tree of typed configs: the run's schedule, its
 replay (`ReplayConfig`), analyses (`EvalConfig`), policy (`PPOConfig`), env (its
-`envs_mjx.config.EnvConfig`) and learner (its `jaml.learners.config.LearnerConfig`).
+`envs_mjx.config.EnvConfig`), learner (its `jaml.learners.config.LearnerConfig`) and the
+relations imposed on the learner's latents (`PenaltyConfig`, or none).
 
 Defaults follow the reference suite (docs/reference/suite.md §3, §5) where they are not sizes; the
 sizes of the paper (5000 replay columns, 10 000-row regressor sets, 100 000 epochs) are fields,
 and `for_env` fills the per-domain ones from the domain family's `DomainDefaults` (rollout
-length, learner steps per epoch, PPO network, sequence-learner window). Options given as text
-(the command line's KEY=VALUE, a driver's sizes) enter the tree once, by path
-(`StreamConfig.with_overrides`); `resolved` fills the derived values; a run's config.json is the
-resolved tree whole (`record`), and `from_dict` reads it back, older flat records included.
+length, learner steps per epoch, PPO network, sequence-learner window); `scaled` sets a named
+scale's sizes (`SCALES`). Options given as text (the command line's KEY=VALUE, a driver's
+sizes) enter the tree once, by path (`StreamConfig.with_overrides`).
+
+A `StreamConfig` may leave values to the run ("auto" dtypes, the replay's size and kept share,
+the learner's ld_dim: None); `resolve` fills them once, for the env's LD-state size and the
+backend, into a `RunConfig`: what the stream, the run directory and its config.json hold, with
+nothing left to fill. Records written by older code are read by `jaml.stream.records`.
 """
 
 from __future__ import annotations
@@ -31,9 +36,6 @@ REFERENCE_REPLAY_COLUMNS = 5000
 # it is.
 REPLAY_KEEP_FRACTION = {"VAE_v0": 0.0}
 DEFAULT_REPLAY_KEEP_FRACTION = 0.5
-# The key under which records written before the typed tree held the learner's and env's
-# configs (`from_dict` reads them).
-RESOLVED = "resolved"
 
 
 def _below(config, names, prefix: str, at_least: int = 1) -> list[str]:
@@ -98,9 +100,9 @@ class ReplayConfig:
     """The frame replay (docs/reference/suite.md §3).
 
     slots: replay columns, a multiple of num_envs; None: the reference's 5000 rounded down to a
-      multiple of num_envs (4992 at 64 envs), filled in by `resolved`.
+      multiple of num_envs (4992 at 64 envs), filled in by `resolve`.
     keep_fraction: share of slots kept from the start; None: the learner's
-      (`REPLAY_KEEP_FRACTION`: VAE_v0 0, others 0.5), filled in by `resolved`.
+      (`REPLAY_KEEP_FRACTION`: VAE_v0 0, others 0.5), filled in by `resolve`.
     """
 
     slots: int | None = None
@@ -114,16 +116,6 @@ class ReplayConfig:
             problems.append(f"replay.keep_fraction must be in [0, 1), got {self.keep_fraction}")
         if problems:
             raise ValueError("; ".join(problems))
-
-    def resolved(self, num_envs: int, learner: str) -> ReplayConfig:
-        """This replay with its defaults filled in for `num_envs` envs and `learner`."""
-        slots = self.slots
-        if slots is None:
-            slots = max(1, REFERENCE_REPLAY_COLUMNS // num_envs) * num_envs
-        keep = self.keep_fraction
-        if keep is None:
-            keep = REPLAY_KEEP_FRACTION.get(learner, DEFAULT_REPLAY_KEEP_FRACTION)
-        return ReplayConfig(slots=slots, keep_fraction=keep)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -173,6 +165,30 @@ class EvalConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class PenaltyConfig:
+    """Relations imposed on the learner's latents (paper eq. 4; `relations.latent_penalty`,
+    docs/transfer.md), built by the stream (`loop.latent_penalty`) from these fields.
+
+    weight, form, ok_weight, ok_rows, ok_fraction: `relations.latent_penalty`'s.
+    relations: the relation set's checkpoint directory (`jaml.relations.save`).
+    used: 0-based indices of the relations imposed (`RelationSet.select`); empty: all of them.
+    static / dynamic: the relation coordinates placed on the learner's declared static and
+      dynamic latent entries (`LatentLayout.place` on `LearnerConfig.penalty_slots`); the
+      action between two steps is the env's action.
+    """
+
+    weight: float = 100.0
+    form: str = "hinge"
+    ok_weight: float = 0.0
+    ok_rows: str = "relations"
+    ok_fraction: float | None = None
+    relations: str = ""
+    used: tuple[int, ...] = ()
+    static: tuple[str, ...] = ()
+    dynamic: tuple[str, ...] = ()
+
+
+@dataclasses.dataclass(frozen=True)
 class StreamConfig:
     """A learning-loop run.
 
@@ -190,8 +206,9 @@ class StreamConfig:
     ppo: PPO's hyper-parameters (`for_env` sets the network and passes per domain).
     env_config: the env's config (`envs_mjx.config`); None: the env's defaults.
     learner_config: the learner's config (`jaml.learners.config`); None: the learner's defaults
-      (your own learner's: none). Its ld_dim is the env's LD-state size: None until `resolved`
+      (your own learner's: none). Its ld_dim is the env's LD-state size: None until `resolve`
       is given it (the stream reads it from the env it builds).
+    penalty: relations imposed on the learner's latents (`PenaltyConfig`); None: none.
     """
 
     env: str = "CartPole"
@@ -208,6 +225,7 @@ class StreamConfig:
     ppo: PPOConfig = dataclasses.field(default_factory=PPOConfig)
     env_config: envs_config.EnvConfig | None = None
     learner_config: learners_config.LearnerConfig | None = None
+    penalty: PenaltyConfig | None = None
 
     def __post_init__(self):
         problems = []
@@ -271,110 +289,83 @@ class StreamConfig:
                          if rest else value)
         return config.replace(**top)
 
-    @property
-    def fill_epochs(self) -> int:
-        """Epochs until the replay is full and the learner starts (docs/reference/suite.md §3)."""
-        return self.resolved().replay.slots // self.num_envs
-
-    def resolved(self, ld_dim: int | None = None) -> StreamConfig:
-        """This config with its derived values filled in: the replay's columns and kept share,
-        the learner's "auto" dtypes for JAX's default backend (`LearnerConfig.for_backend`),
-        and, given the env's LD-state size, the learner's ld_dim. What a run records, so its
-        config.json reads without rules."""
-        changes = {"replay": self.replay.resolved(self.num_envs, self.learner)}
-        if self.learner_config is not None:
-            import jax  # here: the configs import no JAX
-
-            learner = self.learner_config.for_backend(jax.default_backend())
-            changes["learner_config"] = (learner if ld_dim is None
-                                         else learner.replace(ld_dim=ld_dim))
-        return dataclasses.replace(self, **changes)
-
-    def record(self, ld_dim: int | None = None) -> dict[str, Any]:
-        """A run's config.json: the resolved tree (`resolved(ld_dim)`), whole."""
-        return self.resolved(ld_dim).to_dict()
-
-    def env_free(self) -> StreamConfig:
-        """The resolved config with the learner's ld_dim left to the env (None): what two
-        configs of one run compare on, before and after a stream has built its env."""
-        resolved = self.resolved()
-        if resolved.learner_config is None:
-            return resolved
-        return resolved.replace(learner_config=resolved.learner_config.replace(ld_dim=None))
-
-    def program_key(self) -> str:
-        """`env_free` without the seed, as canonical JSON: what the compiled loop depends on
-        (the seed only picks the run's keys)."""
-        return json.dumps(self.env_free().replace(seed=0).to_dict(), sort_keys=True)
-
     def to_dict(self) -> dict[str, Any]:
+        """The tree as JSON-ready fields (a `RunConfig`'s is its config.json)."""
         d = dataclasses.asdict(self)
         return json.loads(json.dumps(d))  # tuples → lists: what a JSON round trip gives
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> StreamConfig:
-        """The config a `to_dict` or `record` describes: a run's config.json, or one written
-        before the tree (flat fields, `learner_overrides` / `env_overrides`, and maybe their
-        configs under "resolved"), read as the run it was. Fields a record lacks (new in the
-        code) take their defaults, the learner's `LEGACY_LEARNER_FIELDS` and the eval's
-        `LEGACY_EVAL_FIELDS` the values it ran with;
-        fields of the learner's and env's configs that the code no
-        longer has are dropped."""
-        d = _migrated(d)
-        learner_fields = d.pop("learner_config", None)
-        env_fields = d.pop("env_config", None)
+    def from_dict(cls, d: dict[str, Any]):
+        """The config a `to_dict` describes (a `RunConfig`'s: a config.json of this code; older
+        records are read by `jaml.stream.records.read`). Fields a record lacks take their
+        defaults; fields of the learner's and env's configs the code no longer has are
+        dropped."""
+        d = dict(d)
+        learner, env, penalty = (d.pop(k, None) for k in ("learner_config", "env_config",
+                                                          "penalty"))
         parts = {name: kind(**_tuples(d.pop(name, {})))
                  for name, kind in (("replay", ReplayConfig), ("eval", EvalConfig),
                                     ("ppo", PPOConfig))}
-        config = cls(**d, **parts)
-        env = None if env_fields is None else _known(config.env_config, env_fields)
-        learner = (None if learner_fields is None or config.learner_config is None
-                   else _known(config.learner_config, LEGACY_LEARNER_FIELDS | learner_fields))
-        return config.replace(env_config=env, learner_config=learner)
+        config = StreamConfig(**d, **parts)  # the env's and learner's default configs
+        return cls(**_fields(config) | {
+            "env_config": _known(config.env_config, env),
+            "learner_config": _known(config.learner_config, learner),
+            "penalty": None if penalty is None else PenaltyConfig(**_tuples(penalty))})
 
 
-# Learner fields added after runs were first recorded, at the values a record that lacks them
-# ran with (then the only behaviour), not at today's defaults: the conv stacks in float32, the
-# encoder blind to the action into the first predicted frame.
-LEGACY_LEARNER_FIELDS = {"compute_dtype": "float32", "activation_dtype": "float32",
-                         "current_action": "hidden"}
-# Eval fields added after runs were first recorded, at the values those runs used: the
-# regressor's held-out rows the leading rows of one replay draw.
-LEGACY_EVAL_FIELDS = {"validation_split": "leading"}
+@dataclasses.dataclass(frozen=True)
+class RunConfig(StreamConfig):
+    """A `StreamConfig` with nothing left to the run (`resolve`): the replay's size and kept
+    share, the learner's dtypes and ld_dim are concrete. What a Stream is built for, what a run
+    directory claims and what its config.json holds (`to_dict`, read back by `from_dict`)."""
 
-# The flat fields of records written before the tree → their paths in it.
-FLAT_FIELDS = {
-    "replay_slots": "replay.slots", "replay_keep_fraction": "replay.keep_fraction",
-    "eval_every": "eval.every", "eval_train": "eval.train", "eval_rand": "eval.rand",
-    "eval_curr": "eval.curr", "eval_transient": "eval.transient",
-    "regressor_iterations": "eval.regressor_iterations",
-    "regressor_normalize": "eval.regressor_normalize",
-    "distortion_dims": "eval.distortion_dims",
-}
+    def __post_init__(self):
+        super().__post_init__()
+        left = [name for name, value in (("replay.slots", self.replay.slots),
+                                         ("replay.keep_fraction", self.replay.keep_fraction))
+                if value is None]
+        learner = self.learner_config
+        if learner is not None:
+            left += [f"learner_config.{name}" for name in ("ld_dim", "compute_dtype",
+                                                            "activation_dtype")
+                     if getattr(learner, name) in (None, "auto")]
+        if left:
+            raise ValueError(f"a RunConfig has every value filled, but {', '.join(left)} is "
+                             "left to the run; make it with resolve(config, ld_dim, backend)")
+
+    @property
+    def fill_epochs(self) -> int:
+        """Epochs until the replay is full and the learner starts (docs/reference/suite.md §3)."""
+        return self.replay.slots // self.num_envs
+
+def resolve(config: StreamConfig, ld_dim: int, backend: str) -> RunConfig:
+    """`config` with every value it leaves to the run filled in: the replay's columns (the
+    reference's 5000 rounded down to a multiple of num_envs) and kept share (the learner's,
+    `REPLAY_KEEP_FRACTION`), the learner's "auto" dtypes for `backend` (JAX's name: "cpu",
+    "gpu", "tpu"; `LearnerConfig.for_backend`) and its ld_dim, the env's LD-state size."""
+    replay = config.replay
+    if replay.slots is None:
+        replay = dataclasses.replace(replay, slots=max(1, REFERENCE_REPLAY_COLUMNS
+                                                       // config.num_envs) * config.num_envs)
+    if replay.keep_fraction is None:
+        replay = dataclasses.replace(replay, keep_fraction=REPLAY_KEEP_FRACTION.get(
+            config.learner, DEFAULT_REPLAY_KEEP_FRACTION))
+    learner = config.learner_config
+    if learner is not None:
+        learner = learner.for_backend(backend).replace(ld_dim=ld_dim)
+    return RunConfig(**_fields(config) | {"replay": replay, "learner_config": learner})
 
 
-def _migrated(d: dict[str, Any]) -> dict[str, Any]:
-    """A record in the tree's form: one written before the tree has its flat fields moved to
-    their paths, and its learner's and env's configs taken from "resolved" where it has them,
-    else from its overrides on the defaults (which is what they were)."""
-    d = dict(d)
-    resolved = d.pop(RESOLVED, {})
-    learner_overrides = d.pop("learner_overrides", None)
-    env_overrides = d.pop("env_overrides", None)
-    for flat, path in FLAT_FIELDS.items():
-        if flat in d:
-            part, name = path.split(".")
-            d.setdefault(part, {})[name] = d.pop(flat)
-    if learner_overrides is not None or "learner" in resolved:
-        d["learner_config"] = resolved.get("learner", {"ld_dim": None, **learner_overrides})
-    if env_overrides is not None or "env" in resolved:
-        d["env_config"] = resolved.get("env", env_overrides)
-    d["eval"] = LEGACY_EVAL_FIELDS | d.get("eval", {})
-    return d
+def _fields(config) -> dict[str, Any]:
+    """A dataclass's fields by name, as they are (not copied: `dataclasses.asdict` would)."""
+    return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}
 
 
-def _known(default, fields: dict[str, Any]):
-    """`default` with the `fields` it has replaced (JSON lists as tuples)."""
+def _known(default, fields: dict[str, Any] | None):
+    """`default` with the `fields` it has replaced (JSON lists as tuples); fields the code no
+    longer has are dropped. None: `default`."""
+    if default is None or fields is None:
+        return default
     valid = {f.name for f in dataclasses.fields(default)}
     return dataclasses.replace(default, **_tuples({k: v for k, v in fields.items()
                                                    if k in valid}))
@@ -488,3 +479,55 @@ def for_env(env: str, learner: str = "VAE_rpl",
     the family's."""
     domain = DOMAINS[envs_config.family(env)]
     return domain.config(env, learner).with_overrides(overrides or {})
+
+
+# Named scales, as overrides over a domain's settings (`scaled`): "smoke", the plumbing of a run
+# in minutes on two CPU cores (its sets are too small for its numbers to rank encoders:
+# `SMOKE_NOTE`); "small", the smallest whose numbers order a true-state, a pixel-PCA and a
+# no-information encoder on π_rand and validation, within minutes on two CPU cores (measured:
+# docs/usage.md, "Small runs"); "paper", the paper's (the StreamConfig defaults, `for_env`'s
+# per-domain settings).
+SCALES: dict[str, dict] = {
+    "smoke": {"num_envs": 8, "rollout_len": 4, "replay.slots": 16, "frames_per_batch": 8,
+              "learner_steps": 2, "epochs": 4, "eval.every": 2, "eval.train": 64,
+              "eval.rand": 64, "eval.curr": 32, "eval.transient": 3,
+              "eval.regressor_iterations": 200},
+    "small": {"num_envs": 16, "rollout_len": 16, "replay.slots": 64, "frames_per_batch": 32,
+              "learner_steps": 4, "epochs": 8, "eval.every": 4, "eval.train": 1024,
+              "eval.rand": 1024, "eval.curr": 256, "eval.transient": 3,
+              "eval.regressor_iterations": 2000},
+    "paper": {},
+}
+# The sizes that make the analysis's sets and fit (what `scale_of` compares).
+_SET_SIZES = ("num_envs", "replay.slots", "eval.train", "eval.rand", "eval.curr",
+              "eval.transient", "eval.regressor_iterations")
+# What the smoke scale's reports and `jaml suite --scale smoke` say beside their numbers.
+SMOKE_NOTE = ("smoke scale: for plumbing only, its sets are too small for its numbers to rank "
+              "encoders (use the small scale, --scale small)")
+
+
+def scaled(config: StreamConfig, scale: str) -> StreamConfig:
+    """`config` with the sizes of `scale` ("smoke": plumbing, minutes on a CPU; "small": the
+    smallest that ranks encoders, minutes on a CPU; "paper": unchanged); PPO's minibatches are
+    cut to split the scale's envs, and a sequence learner's window (SVAE's 24 frames) keeps the
+    rollout and batch long enough to hold one sequence (a learner of your own: one frame)."""
+    if scale not in SCALES:
+        raise ValueError(f"unknown scale {scale!r}; valid: {list(SCALES)}")
+    changes = dict(SCALES[scale])
+    if not changes:
+        return config
+    if changes["num_envs"] % config.ppo.num_minibatches:
+        changes["ppo.num_minibatches"] = 4
+    seq_len = 1 if config.learner_config is None else config.learner_config.seq_len
+    changes["rollout_len"] = max(changes["rollout_len"], seq_len - 1)
+    changes["frames_per_batch"] = max(changes["frames_per_batch"], seq_len)
+    return config.with_overrides(changes)
+
+
+def scale_of(config: StreamConfig) -> str | None:
+    """The name of the `SCALES` entry whose sizes `config` has (None: none, or the paper's
+    defaults changed otherwise)."""
+    for name, sizes in SCALES.items():
+        if sizes and config == config.with_overrides({k: sizes[k] for k in _SET_SIZES}):
+            return name
+    return None

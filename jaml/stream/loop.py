@@ -35,7 +35,7 @@ from jaml.stream import collect
 from jaml.stream import ppo as ppo_lib
 from jaml.stream import replay as replay_lib
 from jaml.stream.collect import Episodes
-from jaml.stream.config import StreamConfig
+from jaml.stream.config import PenaltyConfig, RunConfig, StreamConfig, changed_fields, resolve
 
 
 @struct.dataclass
@@ -60,7 +60,7 @@ class Stream:
     of a config with one compilation (`jaml.stream.run.run_many` trains them stacked).
     """
 
-    config: StreamConfig
+    config: RunConfig
     env: Env
     learner: learners.Learner
     ppo: ppo_lib.PPO
@@ -82,6 +82,16 @@ class Stream:
         if key not in self.programs:
             self.programs[key] = make()
         return self.programs[key]
+
+    def run_config(self, config: StreamConfig) -> RunConfig:
+        """`config` resolved for this Stream's env and backend (`config.resolve`): one of its
+        runs, which may differ from the Stream's own config only in the seed."""
+        run = resolve(config, len(self.env.ld_state_names), jax.default_backend())
+        if run.replace(seed=self.config.seed) != self.config:
+            differ = ", ".join(changed_fields(run, self.config))
+            raise ValueError(f"runs of one Stream differ only in their seeds; this config differs "
+                             f"in {differ}: build a Stream for it (jaml.stream.build)")
+        return run
 
     @property
     def seq_len(self) -> int:
@@ -114,9 +124,8 @@ class Stream:
             learner=learners.init_train_state(self.learner, self.optimizer, k_learner,
                                               (frames, actions)),
             replay=replay_lib.init(
-                cfg.resolved().replay.slots, cfg.rollout_len + 1, learners.learner.FRAME_SHAPE,
-                self.env.action_size, len(self.env.ld_state_names),
-                cfg.resolved().replay.keep_fraction,
+                cfg.replay.slots, cfg.rollout_len + 1, learners.learner.FRAME_SHAPE,
+                self.env.action_size, len(self.env.ld_state_names), cfg.replay.keep_fraction,
             ),
         )
         # Distinct buffers for every leaf: the executor donates the state, and a buffer shared
@@ -259,10 +268,11 @@ def make_learner(name: str, ld_dim: int,
     return learner
 
 
-def build(config: StreamConfig, latent_penalty=None) -> Stream:
-    """A new Stream for `config`, its config `config` resolved for its env; every size problem
-    is reported here, before anything compiles. Build one per config and keep it while its
-    programs serve: another Stream compiles its own."""
+def build(config: StreamConfig) -> Stream:
+    """A new Stream for `config`, its config `config` resolved for its env and JAX's backend
+    (`config.resolve`), its penalty built from `config.penalty`; every size problem is reported
+    here, before anything compiles. Build one per config and keep it while its programs serve:
+    another Stream compiles its own."""
     if config.env not in envs_mjx.ALL_ENVS:
         raise ValueError(f"unknown env {config.env!r}; valid names: {list(envs_mjx.ALL_ENVS)}")
     if config.learner not in learners.ALL_LEARNERS and ":" not in config.learner:
@@ -270,7 +280,7 @@ def build(config: StreamConfig, latent_penalty=None) -> Stream:
                          f"{list(learners.ALL_LEARNERS)}, or your own as MODULE:FACTORY")
     env = envs_mjx.load(config.env, config.env_config)
     ld_dim = len(env.ld_state_names)
-    config = config.resolved(ld_dim)  # the learner's ld_dim is the env's
+    config = resolve(config, ld_dim, jax.default_backend())  # the learner's ld_dim the env's
     unknown = sorted(set(config.eval.distortion_dims) - set(env.ld_state_names))
     if unknown:
         raise ValueError(f"eval.distortion_dims {unknown} are not LD-state names of "
@@ -307,8 +317,31 @@ def build(config: StreamConfig, latent_penalty=None) -> Stream:
         raise ValueError("; ".join(problems))
     ppo = ppo_lib.make(ld_dim, env.action_size, config.ppo, total_updates=config.epochs)
     optimizer = learners.default_optimizer(learner)
-    train_step = learners.make_train_step(learner, optimizer, latent_penalty)
+    penalty = None if config.penalty is None else latent_penalty(config.penalty, learner, env)
+    train_step = learners.make_train_step(learner, optimizer, penalty)
     return Stream(config, env, learner, ppo, optimizer, train_step)
+
+
+def latent_penalty(penalty: PenaltyConfig, learner: learners.Learner, env: Env):
+    """`relations.latent_penalty` of `penalty`: its relations, loaded and selected, placed on
+    the slots the `learner` declares (`LearnerConfig.penalty_slots`), the env's action between
+    two steps."""
+    from jaml import relations  # here: a stream without a penalty needs none of it
+
+    if not penalty.relations:
+        raise ValueError("penalty.relations names no relation set: give the checkpoint "
+                         "directory jaml.relations.save wrote")
+    if not hasattr(learner.config, "penalty_slots"):
+        raise ValueError(f"penalty: the learner {type(learner).__name__} declares no latent "
+                         "slots for relations (LearnerConfig.penalty_slots); give no penalty")
+    rs = relations.load(penalty.relations)
+    rs = rs.select(list(penalty.used)) if penalty.used else rs
+    layout = relations.LatentLayout.place(learner.config.penalty_slots, static=penalty.static,
+                                          dynamic=penalty.dynamic)
+    return relations.latent_penalty(
+        rs, layout, latent_size=learner.config.penalty_dim, action_size=env.action_size,
+        weight=penalty.weight, form=penalty.form, ok_weight=penalty.ok_weight,
+        ok_rows=penalty.ok_rows, ok_fraction=penalty.ok_fraction)
 
 
 def _bound(stream: Stream, fun):

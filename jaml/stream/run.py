@@ -43,15 +43,14 @@ class NonFiniteLoss(RuntimeError):
 
 def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | None = None,
         checkpoint_every: int | None = None, final_checkpoint: bool = True,
-        latent_penalty=None, keep_pi_rand: bool = True, deadline: float | None = None) -> dict:
+        keep_pi_rand: bool = True, deadline: float | None = None) -> dict:
     """Runs (or resumes) the loop in `out`; returns the summary. `stop_after` (epochs) and
     `deadline` (a `time.monotonic()` instant) end the process's work early, with a checkpoint
     (a deliberate interruption, for jobs with a time limit); the next call resumes. A
     non-finite loss raises `NonFiniteLoss`."""
     summary = run_many([config], [out], progress=progress, stop_after=stop_after,
                        checkpoint_every=checkpoint_every, final_checkpoint=final_checkpoint,
-                       latent_penalty=latent_penalty, keep_pi_rand=keep_pi_rand,
-                       deadline=deadline)[0]
+                       keep_pi_rand=keep_pi_rand, deadline=deadline)[0]
     if summary["status"] == "nonfinite":
         raise NonFiniteLoss(summary["error"])
     return summary
@@ -59,10 +58,11 @@ def run(config: StreamConfig, out, *, progress: bool = True, stop_after: int | N
 
 def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
              stop_after: int | None = None, checkpoint_every: int | None = None,
-             final_checkpoint: bool = True, latent_penalty=None, mesh=None,
-             keep_pi_rand: bool = True, deadline: float | None = None) -> list[dict]:
+             final_checkpoint: bool = True, mesh=None, keep_pi_rand: bool = True,
+             deadline: float | None = None) -> list[dict]:
     """Runs (or resumes) several runs of one program, each in its own directory, trained
-    together: the configs may differ only in their seeds, and their states are stacked and
+    together: the configs may differ only in their seeds (one Stream is built for the first and
+    resolves them all, `Stream.run_config`), and their states are stacked and
     advanced by one compiled loop (`run_stacked_epochs`; several devices split the runs, see
     `mesh`). Runs resumed at different epochs first advance in groups by epoch until they meet.
     Returns one summary per run; a run whose loss turns non-finite stops alone (status
@@ -89,13 +89,13 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     is not started: every run still going checkpoints where it is and stops ("interrupted").
     Leave a margin for those checkpoints."""
     outs = _checked(configs, outs, checkpoint_every)
-    stream = build(configs[0], latent_penalty)  # every config problem surfaces before any file
+    stream = build(configs[0])  # every config problem surfaces before any file
     figures = FigureWriter()
-    runs = open_runs(stream, configs, outs, figures=figures, final_checkpoint=final_checkpoint,
-                     keep_pi_rand=keep_pi_rand)
-    epochs, analyses = configs[0].epochs, analysis_epochs(configs[0])
+    runs = open_runs(stream, [stream.run_config(c) for c in configs], outs, figures=figures,
+                     final_checkpoint=final_checkpoint, keep_pi_rand=keep_pi_rand)
+    epochs, analyses = stream.config.epochs, analysis_epochs(stream.config)
     stops = [stop_epoch(r.epoch, epochs, stop_after) for r in runs]
-    label = f"{configs[0].env} {configs[0].learner}" + (
+    label = f"{stream.config.env} {stream.config.learner}" + (
         f" ×{len(runs)}" if len(runs) > 1 else "")
     bar = tqdm(total=epochs * len(runs), initial=sum(r.epoch for r in runs), desc=label,
                unit="epoch", disable=not progress)
@@ -156,18 +156,14 @@ _clock = time.monotonic  # what deadlines are read against
 
 def _checked(configs: list[StreamConfig], outs: list, checkpoint_every: int | None
              ) -> list[Path]:
-    """`run_many`'s arguments checked: one out directory per config, each its own, the configs
-    one program; the directories as Paths."""
+    """`run_many`'s arguments checked: one out directory per config, each its own; the
+    directories as Paths (that the configs are one program, `Stream.run_config` checks)."""
     if len(configs) != len(outs) or not configs:
         raise ValueError(f"run_many needs one out directory per config, got {len(configs)} "
                          f"configs and {len(outs)} directories")
     if checkpoint_every is not None and checkpoint_every < 1:
         raise ValueError(f"checkpoint_every must be a positive number of epochs or None, got "
                          f"{checkpoint_every}")
-    keys = {c.program_key() for c in configs}
-    if len(keys) > 1:
-        raise ValueError("runs trained together must differ only in their seeds; got "
-                         f"{len(keys)} different configurations")
     outs = [Path(o) for o in outs]
     if len(set(outs)) < len(outs):
         raise ValueError(f"two runs share an out directory: {[str(o) for o in outs]}")

@@ -18,8 +18,8 @@ import numpy as np
 
 from jaml._rundir import RunLog, claim, lock, truncate_jsonl, write_json
 from jaml.evaluation import plots
-from jaml.stream import analysis, checkpoint
-from jaml.stream.config import StreamConfig, changed_fields
+from jaml.stream import analysis, checkpoint, records
+from jaml.stream.config import SMOKE_NOTE, RunConfig, changed_fields, resolve, scale_of
 from jaml.stream.loop import Stream, StreamState
 from jaml.stream.schedule import checkpoint_due, first_non_finite
 from jaml.stream.timing import timed
@@ -29,31 +29,31 @@ resume_log = logging.getLogger("jaml.resume")
 log = logging.getLogger("jaml.stream")
 
 
-def claim_run(out: Path, config: StreamConfig, stream: Stream | None = None) -> bool:
-    """`_rundir.claim` for a stream run: config.json holds the resolved config tree whole, the
-    learner's ld_dim the `stream`'s env's (`StreamConfig.record`). A recorded run is this one
-    when its tree (`StreamConfig.from_dict`: older records read as the runs they were) resolves
-    to this one; the learner's ld_dim, the env's, is not compared (a record written without the
-    stream lacks it). A learner of your own (MODULE:FACTORY) is recorded by the config its
-    factory gave (`_own_learner_config`), compared when both records have it. A refusal names
-    the fields that differ."""
-    ld_dim = None if stream is None else len(stream.env.ld_state_names)
-    now = config.env_free()
-    record = config.record(ld_dim)
+def claim_run(out: Path, config: RunConfig, stream: Stream) -> bool:
+    """`_rundir.claim` for a run of `stream`: config.json holds the run's `config` whole
+    (`RunConfig.to_dict`). A recorded run is this one when its record (`records.read`: older
+    records, and a `penalty.json` beside them, read as the runs they were) resolves to this
+    `config` (`Stream.run_config`). A learner of your own (MODULE:FACTORY) is recorded by the
+    config its factory gave (`_own_learner_config`), compared when both records have it. A
+    refusal names the fields that differ."""
+    record = config.to_dict()
     own = _own_learner_config(config, stream)
     if own is not None:
         record["learner_config"] = own
 
+    def then(recorded: dict) -> RunConfig:
+        return resolve(records.read(recorded, out), len(stream.env.ld_state_names),
+                       jax.default_backend())
+
     def same(recorded: dict) -> bool:
-        then = recorded.get("learner_config")
-        own_differs = own is not None and then is not None and then != own
-        return StreamConfig.from_dict(recorded).env_free() == now and not own_differs
+        before = recorded.get("learner_config")
+        own_differs = own is not None and before is not None and before != own
+        return then(recorded) == config and not own_differs
 
     def differences(recorded: dict) -> str:
-        then = StreamConfig.from_dict(recorded).env_free()
-        was = changed_fields(then, now)
+        was = changed_fields(then(recorded), config)
         named = [f"{path} {was[path]!r} recorded, {value!r} now"
-                 for path, value in changed_fields(now, then).items()]
+                 for path, value in changed_fields(config, then(recorded)).items()]
         before = recorded.get("learner_config")
         if own is not None and before is not None and before != own:
             named += [f"learner_config.{k} {before.get(k)!r} recorded, {own.get(k)!r} now"
@@ -63,11 +63,10 @@ def claim_run(out: Path, config: StreamConfig, stream: Stream | None = None) -> 
     return claim(out, record, same, differences)
 
 
-def _own_learner_config(config: StreamConfig, stream: Stream | None) -> dict | None:
+def _own_learner_config(config: RunConfig, stream: Stream) -> dict | None:
     """A learner of your own's config as its factory built it (JSON-ready, with its class as
-    "type"), for config.json; None for a registry learner (its config is in the tree) or
-    without the stream."""
-    if stream is None or config.learner_config is not None:
+    "type"), for config.json; None for a registry learner (its config is in the tree)."""
+    if config.learner_config is not None:
         return None
     own = stream.learner.config
     fields = json.loads(json.dumps(dataclasses.asdict(own), default=str))
@@ -137,7 +136,7 @@ class RunDir:
     reconstructions, checkpoints and summary. Its figures go to `figures`, drawn in the
     background."""
 
-    def __init__(self, stream: Stream, config: StreamConfig, out: Path, figures: FigureWriter,
+    def __init__(self, stream: Stream, config: RunConfig, out: Path, figures: FigureWriter,
                  final_checkpoint: bool = True, keep_pi_rand: bool = True):
         self.config, self.out, self.figures = config, out, figures
         self.final_checkpoint = final_checkpoint
@@ -150,7 +149,7 @@ class RunDir:
             self.lock.close()
             raise
 
-    def _open(self, stream: Stream, config: StreamConfig, out: Path) -> None:
+    def _open(self, stream: Stream, config: RunConfig, out: Path) -> None:
         claim_run(out, config, stream)
         (out / "recon").mkdir(exist_ok=True)
         k_init, self.k_eval, self.pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
@@ -276,10 +275,10 @@ class RunDir:
         return summary
 
 
-def open_runs(stream: Stream, configs: list[StreamConfig], outs: list[Path], **options
+def open_runs(stream: Stream, configs: list[RunConfig], outs: list[Path], **options
               ) -> list[RunDir]:
-    """A `RunDir` per (config, out), `options` RunDir's; one refused lets the ones opened
-    before it go too."""
+    """A `RunDir` per (config, out), `stream`'s runs (`Stream.run_config`), `options` RunDir's;
+    one refused lets the ones opened before it go too."""
     runs: list[RunDir] = []
     try:
         for config, out in zip(configs, outs, strict=True):
@@ -319,13 +318,11 @@ def _records(stream: Stream, names: list[str], epoch: int, report: dict, *,
     return records
 
 
-def _scale(config: StreamConfig) -> dict:
-    """{"scale": the `jaml.suite.SCALES` entry whose set sizes the run has (`suite.scale_of`)},
+def _scale(config: RunConfig) -> dict:
+    """{"scale": the `config.SCALES` entry whose set sizes the run has (`config.scale_of`)},
     and at the smoke scale a "note" that its numbers do not rank encoders."""
-    from jaml import suite  # here: jaml.suite imports the stream
-
-    scale = suite.scale_of(config)
-    return {"scale": scale, **({"note": suite.SMOKE_NOTE} if scale == "smoke" else {})}
+    scale = scale_of(config)
+    return {"scale": scale, **({"note": SMOKE_NOTE} if scale == "smoke" else {})}
 
 
 def _figures(history: list[dict], out: Path) -> None:

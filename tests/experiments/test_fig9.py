@@ -16,6 +16,7 @@ from jaml.evaluation import history_records
 from jaml.experiments import fig9, fig9_report
 from jaml.learners.config import default_config
 from jaml.relations.transfer import LatentLayout
+from jaml.stream.config import resolve
 
 NAMES = ["texture_id", "object_id", "theta", "position", "velocity"]
 
@@ -219,7 +220,8 @@ def test_the_beta_control_weighs_the_kl_as_the_random_row_controls_loss_does_in_
     ld = 5
 
     def learner(method):
-        return fig9._config("PRED", 0, reference, method=method).resolved(ld).learner_config
+        return resolve(fig9._config("PRED", 0, reference, method=method), ld,
+                       "cpu").learner_config
 
     control, pred = learner("PRED+beta_1of11"), learner("PRED")
     assert control.beta == pytest.approx(1 / 11) and pred.beta == 1.0
@@ -262,8 +264,8 @@ def test_the_reference_recipe_and_its_controls():
         logvar_limit=20.0, current_action="observed", kl_form="reference",
         conv_filters=(32, 64, 64, 128), deconv_filters=(128, 64, 64, 32), static_per_step=True,
         compute_dtype="float32", activation_dtype="float32")  # the reference's, on any device
-    assert (pred.resolved().replay.slots, pred.frames_per_batch // 2, pred.learner_steps) == (
-        4992, 512, 10)
+    assert (resolve(pred, 5, "gpu").replay.slots, pred.frames_per_batch // 2,
+            pred.learner_steps) == (4992, 512, 10)
     assert (pred.eval.train, pred.eval.rand, pred.eval.regressor_iterations) == (
         10_000, 10_048, 10_000)
     assert not hasattr(fig9._config("VAE_rpl", 0, ref).learner_config, "static_per_step")
@@ -274,15 +276,28 @@ def test_the_reference_recipe_and_its_controls():
         0.0, "hinge", 10.0, "random")
     assert fig9.method_penalty("PRED+random_rows_5pct", penalty) == fig9.Penalty(
         0.0, "hinge", 10.0, "random", 0.05)
-    assert fig9.described("PRED+random_rows", penalty, ref, [0, 1, 2]) == {
-        "method": "PRED+random_rows", "relations": "trnsv", "recipe": "reference",
-        "weight": 0.0, "form": "hinge", "ok_weight": 10.0, "ok_rows": "random",
-        "ok_fraction": None, "relations_used": [1, 2, 3]}
-    # A record written before recipes existed reads as "ours" without the ok-row term.
-    old = {"method": "PRED+AML_trnsv", "relations": "trnsv", "weight": 100.0, "form": "hinge",
-           "relations_used": [1, 2]}
-    now = fig9.described("PRED+AML_trnsv", fig9.Penalty(100.0), fig9.RECIPES["ours"], [0, 1])
-    assert fig9._same_record(old, now)
+
+
+def test_a_methods_penalty_enters_its_runs_configs(tmp_path, monkeypatch):
+    """A method with relations trains configs whose `penalty` names the set's checkpoint under
+    OUT, the relations the recipe imposes (the reference's: all; "ours": the converged ones)
+    and fig9's coordinates; a method without relations, none. No penalty.json is written."""
+    trained = {}
+    monkeypatch.setattr(fig9._runs, "train_seeds",
+                        lambda method, configs, dirs, **k: trained.update({method: configs}))
+    summary = tmp_path / "relations" / "trnsv" / "summary.json"
+    summary.parent.mkdir(parents=True)
+    summary.write_text(json.dumps({"relations": [{"index": 1, "status": "capped"},
+                                                 {"index": 2, "status": "done"}]}))
+    penalty = fig9.Penalty(2000.0, "hinge", 10.0)
+    for method in ("PRED+random_rows", "PRED"):
+        fig9.run_method(tmp_path, method, [0, 1], penalty, fig9.RECIPES["ours"])
+    assert [c.seed for c in trained["PRED+random_rows"]] == [0, 1]
+    assert {c.penalty for c in trained["PRED+random_rows"]} == {fig9.Penalty(
+        0.0, "hinge", 10.0, "random", relations=str(summary.parent / "checkpoint"), used=(1,),
+        static=("theta",), dynamic=("s", "v"))}
+    assert {c.penalty for c in trained["PRED"]} == {None}
+    assert not list(tmp_path.rglob("penalty.json"))
 
 
 
@@ -299,8 +314,9 @@ def test_the_driver_runs_end_to_end_at_smoke_scale(tmp_path, monkeypatch):
     assert sorted(p.name for p in (out / "relations").iterdir()) == ["trnsv"]
     summary = json.loads((out / "relations" / "trnsv" / "summary.json").read_text())
     assert summary["num_relations"] == 2
-    penalty = json.loads((out / "PRED+AML_trnsv" / "seed_1" / "penalty.json").read_text())
-    assert penalty["weight"] == 2000.0 and penalty["relations_used"] == [1, 2]
+    penalty = json.loads((out / "PRED+AML_trnsv" / "seed_1" / "config.json").read_text())[
+        "penalty"]
+    assert penalty["weight"] == 2000.0 and penalty["used"] == [0, 1]
     text = (out / "fig9.md").read_text()
     assert "- PRED+AML_trnsv vs PRED: 2 seeds identical" in text
     assert text.startswith("Primary comparison: no analysis after learner epoch 500")

@@ -113,7 +113,7 @@ def test_auto_dtypes_are_bfloat16_off_the_cpu_and_float32_on_it():
     # Here, "auto" computes the backend's dtype (the CPU's float32), and a run records it.
     here = "float32" if jax.default_backend() == "cpu" else "bfloat16"
     assert config.conv_dtype == config.act_dtype == getattr(jnp, here)
-    run = stream.for_env("CartPole", "DSA").resolved(4)
+    run = stream.resolve(stream.for_env("CartPole", "DSA"), 4, jax.default_backend())
     assert run.learner_config.compute_dtype == run.learner_config.activation_dtype == here
 
 

@@ -1,5 +1,6 @@
-"""A run's config: one typed tree, resolved whole into config.json, read back by resume, older
-(flat) records still read."""
+"""A run's config: one typed tree, resolved once (`resolve`) into the `RunConfig` that
+config.json holds whole, read back by resume; older records (flat, or with fig9's penalty.json)
+still read (`jaml.stream.records`)."""
 
 import dataclasses
 import json
@@ -12,14 +13,10 @@ from envs_mjx.config import ALL_ENVS, FAMILIES, default_config, family
 from jaml import stream
 from jaml.learners import config as learners_config
 from jaml.learners.config import ALL_LEARNERS
+from jaml.stream import records
 from jaml.stream import run as run_lib
-from jaml.stream.config import (
-    DOMAINS,
-    FLAT_FIELDS,
-    LEGACY_EVAL_FIELDS,
-    LEGACY_LEARNER_FIELDS,
-    changed_fields,
-)
+from jaml.stream.config import DOMAINS, PenaltyConfig, RunConfig, changed_fields, resolve
+from jaml.stream.records import FLAT_FIELDS, LEGACY_EVAL_FIELDS, LEGACY_LEARNER_FIELDS
 from tests.stream.test_loop import tiny
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
@@ -76,13 +73,13 @@ def test_each_env_and_learner_resolves_to_the_values_the_flat_config_gave(env):
     assert set(RESOLVED) == {f"{e}/{x}" for e in ALL_ENVS for x in ALL_LEARNERS}
     for learner in ALL_LEARNERS:
         config = stream.for_env(env, learner)
-        resolved = config.resolved(ld_dim=7)
+        resolved = resolve(config, 7, "cpu")
         flat = _flat(resolved)
-        del flat["learner_overrides"], flat["env_overrides"]
+        del flat["learner_overrides"], flat["env_overrides"], flat["penalty"]
         got = {
             "stream": flat | {"replay_columns": resolved.replay.slots,
                               "keep_fraction": resolved.replay.keep_fraction,
-                              "fill_epochs": config.fill_epochs},
+                              "fill_epochs": resolved.fill_epochs},
             "learner": _fields(resolved.learner_config)
             | {"class": type(resolved.learner_config).__name__},
             "env": _fields(resolved.env_config) | {"class": type(resolved.env_config).__name__},
@@ -130,8 +127,8 @@ def test_overrides_enter_the_tree_by_path_and_unknown_paths_are_named():
 
 def test_the_replays_kept_share_is_the_streams_the_learners_default_unless_set():
     def keep(learner, **replay):
-        return (stream.StreamConfig(learner=learner, replay=stream.ReplayConfig(**replay))
-                .resolved().replay.keep_fraction)
+        return resolve(stream.StreamConfig(learner=learner, replay=stream.ReplayConfig(**replay)),
+                       4, "cpu").replay.keep_fraction
 
     assert keep("VAE_v0") == 0.0
     assert keep("VAE_rpl") == 0.5
@@ -139,15 +136,58 @@ def test_the_replays_kept_share_is_the_streams_the_learners_default_unless_set()
     assert keep("VAE_v0", keep_fraction=0.25) == 0.25
 
 
-def test_resolving_fills_the_derived_fields_once():
-    config = tiny(learner="VAE_v0", overrides={"replay.slots": None})
-    resolved = config.resolved()
-    assert (resolved.replay.slots, resolved.replay.keep_fraction) == (5000, 0.0)  # 625 × 8 envs
-    assert resolved.resolved() == resolved and resolved.fill_epochs == config.fill_epochs
-    assert config.learner_config.ld_dim is None and config.resolved(4).learner_config.ld_dim == 4
-    # The same program whether a default is left to resolve or written out, and whatever the
-    # learner's ld_dim (the env's).
-    assert resolved.program_key() == config.program_key() == config.resolved(4).program_key()
+def test_resolve_fills_every_value_left_to_the_run_once():
+    """Two configs resolved by hand: what `resolve` leaves is the config with the replay's
+    columns (5000 rounded down to the envs), the learner's kept share, the backend's dtypes and
+    the env's ld_dim written in, and nothing else changed."""
+    cart = stream.for_env("CartPole", "VAE_v0", {"num_envs": 48})
+    run = resolve(cart, 4, "cpu")
+    assert run == RunConfig(
+        env="CartPole", learner="VAE_v0", num_envs=48, rollout_len=32, learner_steps=10,
+        replay=stream.ReplayConfig(slots=4992, keep_fraction=0.0),  # 104 columns of 48 envs
+        learner_config=learners_config.default_config("VAE_v0", ld_dim=4).replace(
+            compute_dtype="float32", activation_dtype="float32"))
+    assert (run.fill_epochs, type(run) is RunConfig, resolve(run, 4, "cpu") == run) == (
+        104, True, True)
+    mesh = stream.for_env("MeshOnIncline", "PRED", {"replay.slots": 1024, "seed": 3})
+    run = resolve(mesh, 5, "gpu")
+    assert run == RunConfig(
+        env="MeshOnIncline", learner="PRED", seed=3, rollout_len=10, learner_steps=10,
+        replay=stream.ReplayConfig(slots=1024, keep_fraction=0.5),
+        ppo=stream.PPOConfig(hidden=(256, 256), num_updates=10, num_minibatches=4),
+        eval=stream.EvalConfig(regressor_normalize=False,
+                               distortion_dims=("position", "velocity")),
+        learner_config=learners_config.default_config(
+            "PRED", ld_dim=5, hist=1, pred=1, static_dim=3, latent_dim=2, mu_nl=False,
+            logvar_limit=20.0, compute_dtype="bfloat16", activation_dtype="bfloat16"))
+    assert run.fill_epochs == 16 and run.to_dict()["learner_config"]["ld_dim"] == 5
+    # Nothing is left to resolve in a RunConfig: one made by hand must say it all.
+    with pytest.raises(ValueError, match=r"replay.slots, learner_config.ld_dim, "
+                                         r"learner_config.compute_dtype.* is left to the run"):
+        RunConfig(env="CartPole", learner="PRED", replay=stream.ReplayConfig(keep_fraction=0.5))
+
+
+def test_a_penalty_is_recorded_in_config_json_and_read_back(tmp_path):
+    penalty = PenaltyConfig(weight=2000.0, ok_weight=10.0, relations="runs/r/checkpoint",
+                            used=(0, 2), static=("theta",), dynamic=("s", "v"))
+    run = resolve(tiny("PRED").replace(penalty=penalty), 4, "cpu")
+    record = json.loads(json.dumps(run.to_dict()))  # as config.json holds it
+    assert record["penalty"] == {"weight": 2000.0, "form": "hinge", "ok_weight": 10.0,
+                                 "ok_rows": "relations", "ok_fraction": None,
+                                 "relations": "runs/r/checkpoint", "used": [0, 2],
+                                 "static": ["theta"], "dynamic": ["s", "v"]}
+    assert RunConfig.from_dict(record) == run == resolve(records.read(record), 4, "cpu")
+    assert RunConfig.from_dict(resolve(tiny("PRED"), 4, "cpu").to_dict()).penalty is None
+
+
+def _stream(ld_dim: int = 4) -> SimpleNamespace:
+    """What `claim_run` reads of a Stream for a registry learner: its env's LD-state size."""
+    return SimpleNamespace(env=SimpleNamespace(ld_state_names=("x",) * ld_dim))
+
+
+def _claim(out, config: stream.StreamConfig, ld_dim: int = 4) -> bool:
+    """`claim_run` for `config` as a stream of an env with `ld_dim` LD entries runs it."""
+    return run_lib.claim_run(out, resolve(config, ld_dim, "cpu"), _stream(ld_dim))
 
 
 def _old_record(config: stream.StreamConfig) -> dict:
@@ -171,14 +211,15 @@ def test_a_run_records_its_resolved_config_and_resumes_from_an_older_record(tmp_
     assert json.loads((old / "config.json").read_text())["replay_keep_fraction"] is None
     with pytest.raises(ValueError, match=r"learner_config.current_action 'hidden' recorded, "
                                          r"'observed' now"):
-        run_lib.claim_run(old, today)
-    assert run_lib.claim_run(old, config)  # a resume of the same run
+        _claim(old, today)
+    assert _claim(old, config)  # a resume of the same run
     recorded = json.loads((old / "config.json").read_text())
-    assert recorded == config.resolved().to_dict() and recorded["replay"]["keep_fraction"] == 0.5
-    assert stream.StreamConfig.from_dict(recorded) == config.resolved()
+    run = resolve(config, 4, "cpu")
+    assert recorded == run.to_dict() and recorded["replay"]["keep_fraction"] == 0.5
+    assert RunConfig.from_dict(recorded) == run
     with pytest.raises(ValueError, match="different configuration"):
-        run_lib.claim_run(old, config.with_overrides({"replay.keep_fraction": 0.25}))
-    assert not run_lib.claim_run(tmp_path / "new", config)
+        _claim(old, config.with_overrides({"replay.keep_fraction": 0.25}))
+    assert not _claim(tmp_path / "new", config)
 
 
 def test_changed_fields_give_the_overrides_that_rebuild_a_config():
@@ -199,25 +240,25 @@ def test_a_run_records_its_tree_whole_and_resume_checks_it(tmp_path):
     config = tiny("PRED", {"learner_config.hist": 2, "learner_config.pred": 2})
     built = stream.build(config)
     ld_dim = len(built.env.ld_state_names)
-    assert not run_lib.claim_run(tmp_path, config, built)
+    assert not run_lib.claim_run(tmp_path, built.config, built)
     recorded = json.loads((tmp_path / "config.json").read_text())
-    assert recorded == config.resolved(ld_dim).to_dict() == built.config.to_dict()
+    assert recorded == resolve(config, ld_dim, "cpu").to_dict() == built.config.to_dict()
     assert recorded["learner_config"]["hist"] == 2
     assert recorded["learner_config"]["ld_dim"] == ld_dim
     assert recorded["env_config"] == _fields(default_config("CartPole"))
-    assert stream.StreamConfig.from_dict(recorded) == config.resolved(ld_dim)
-    assert run_lib.claim_run(tmp_path, config, built)  # a resume
+    assert RunConfig.from_dict(recorded) == built.config
+    assert run_lib.claim_run(tmp_path, built.config, built)  # a resume
     # A learner default changed since the run started: another run.
     changed = json.loads(json.dumps(recorded))
     changed["learner_config"]["beta"] = 2.0
     (tmp_path / "config.json").write_text(json.dumps(changed))
     with pytest.raises(ValueError, match="different configuration"):
-        run_lib.claim_run(tmp_path, config, built)
+        run_lib.claim_run(tmp_path, built.config, built)
     # A field new in the code is missing from the record: still the same run.
     del changed["learner_config"]["beta"], changed["env_config"]["multicolor"]
-    del changed["eval"]["distortion_dims"]
+    del changed["eval"]["distortion_dims"], changed["penalty"]
     (tmp_path / "config.json").write_text(json.dumps(changed))
-    assert run_lib.claim_run(tmp_path, config, built)
+    assert run_lib.claim_run(tmp_path, built.config, built)
     assert json.loads((tmp_path / "config.json").read_text()) == recorded  # written whole again
 
 
@@ -227,12 +268,11 @@ def test_a_record_with_the_flat_form_and_resolved_configs_reads_as_its_run(tmp_p
                            "eval.validation_split": "leading"})
     ld_dim = 4
     old = _old_record(config) | {"resolved": {
-        "learner": _fields(config.resolved(ld_dim).learner_config) | {"gone": 1},
+        "learner": _fields(resolve(config, ld_dim, "cpu").learner_config) | {"gone": 1},
         "env": _fields(config.env_config)}}
-    assert stream.StreamConfig.from_dict(old) == config.resolved(ld_dim).replace(
-        replay=config.replay)
+    assert resolve(records.read(old), ld_dim, "cpu") == resolve(config, ld_dim, "cpu")
     (tmp_path / "config.json").write_text(json.dumps(old))
-    assert run_lib.claim_run(tmp_path, config)
+    assert _claim(tmp_path, config, ld_dim)
 
 
 def test_a_committed_run_record_without_the_resolved_configs_resumes(tmp_path):
@@ -240,10 +280,9 @@ def test_a_committed_run_record_without_the_resolved_configs_resumes(tmp_path):
                           .read_text())
     assert "resolved" not in recorded and "learner_overrides" in recorded
     (tmp_path / "config.json").write_text(json.dumps(recorded))
-    config = stream.StreamConfig.from_dict(recorded)
+    config = records.read(recorded)
     assert config.learner_config.latent_dim == 53 and config.env_config.versions == (0, 1, 2, 3)
-    built = SimpleNamespace(env=SimpleNamespace(ld_state_names=("x",) * 53))
-    assert run_lib.claim_run(tmp_path, config, built)
+    assert _claim(tmp_path, config, 53)
     rewritten = json.loads((tmp_path / "config.json").read_text())
     assert rewritten["learner_config"]["latent_dim"] == 53
     assert rewritten["learner_config"]["ld_dim"] == 53
@@ -252,11 +291,11 @@ def test_a_committed_run_record_without_the_resolved_configs_resumes(tmp_path):
 def test_an_older_records_env_options_are_its_resolved_env_config_else_its_overrides():
     base = _old_record(stream.StreamConfig(env="RearrangeGeom"))
     old = base | {"env_overrides": {"versions": [5]}}
-    assert stream.StreamConfig.from_dict(old).env_config.versions == (5,)
-    assert stream.StreamConfig.from_dict(base).env_config == default_config("RearrangeGeom")
+    assert records.read(old).env_config.versions == (5,)
+    assert records.read(base).env_config == default_config("RearrangeGeom")
     env = _fields(dataclasses.replace(default_config("RearrangeGeom"), versions=(6,)))
     new = {**old, "resolved": {"env": {**env, "gone": 1}}}
-    assert stream.StreamConfig.from_dict(new).env_config.versions == (6,)
+    assert records.read(new).env_config.versions == (6,)
 
 
 def test_every_committed_stream_run_config_reads_back():
@@ -264,15 +303,18 @@ def test_every_committed_stream_run_config_reads_back():
     assert len(paths) > 100
     for path in paths:
         recorded = json.loads(path.read_text())
-        config = stream.StreamConfig.from_dict(recorded)
-        resolved = config.resolved()
-        assert stream.StreamConfig.from_dict(resolved.to_dict()) == resolved, path
+        config = records.read(recorded, path.parent)
+        resolved = resolve(config, 4, "cpu")
+        assert RunConfig.from_dict(resolved.to_dict()) == resolved, path
         # A field added to the learner's config since: at the value such runs ran with
         # (LEGACY_LEARNER_FIELDS), else at its default.
         defaults = {f.name: f.default for f in dataclasses.fields(config.learner_config)}
         defaults |= LEGACY_LEARNER_FIELDS
         if "learner_overrides" not in recorded:  # the typed tree, written whole: as written
             got = config.to_dict()
+            sidecar = path.parent / records.PENALTY_SIDECAR  # fig9's, before "penalty" was
+            imposed = sidecar.exists() and json.loads(sidecar.read_text())["relations"]
+            assert (got.pop("penalty") is not None) == bool(imposed), path
             learner, written = got["learner_config"], recorded["learner_config"]
             assert all(learner.pop(k) == defaults[k] for k in learner.keys() - written.keys())
             evaluated, written = got["eval"], recorded["eval"]  # eval fields new since: legacy
@@ -298,3 +340,32 @@ def test_every_committed_stream_run_config_reads_back():
             got, written = _fields(config.learner_config), recorded["resolved"]["learner"]
             assert {k: got[k] for k in written} == written, path
             assert all(got[k] == defaults[k] for k in got.keys() - written.keys()), path
+
+
+def test_a_committed_fig9_run_reads_with_its_penalty_json_as_its_penalty(tmp_path):
+    """A run written before config.json held the penalty: its penalty.json (relation set, the
+    relations used, 1-based, and the weights) is its `penalty`, the relations' checkpoint
+    under OUT/relations and fig9's layout then; with it, the run resumes the same config."""
+    out = tmp_path / "out"
+    run = out / "PRED+AML_trnsv" / "seed_0"
+    committed = RESULTS / "fig9_runs" / "reference_2078" / "PRED+AML_trnsv" / "seed_0"
+    run.mkdir(parents=True)
+    for name in ("config.json", "penalty.json"):
+        (run / name).write_text((committed / name).read_text())
+    recorded = json.loads((run / "config.json").read_text())
+    config = records.read(recorded, run)
+    assert config.penalty == PenaltyConfig(
+        weight=2000.0, form="hinge", ok_weight=10.0, ok_rows="relations", ok_fraction=None,
+        relations=str(out / "relations" / "trnsv" / "checkpoint"), used=(0, 1, 2),
+        static=("theta",), dynamic=("s", "v"))
+    assert records.read(recorded).penalty is None  # without its directory: none
+    assert _claim(run, config, 5)  # the same run, with the penalty it was trained with
+    assert (run / "config.json").read_text() != (committed / "config.json").read_text()
+    assert RunConfig.from_dict(json.loads((run / "config.json").read_text())).penalty == (
+        config.penalty)
+    with pytest.raises(ValueError, match=r"penalty.weight 2000.0 recorded, 100.0 now"):
+        _claim(run, config.replace(penalty=dataclasses.replace(config.penalty, weight=100.0)),
+               5)
+    control = RESULTS / "fig9_runs" / "reference_2078" / "PRED" / "seed_0"
+    assert records.read(json.loads((control / "config.json").read_text()),
+                        control).penalty is None

@@ -59,10 +59,12 @@ def test_bad_configs_raise_before_anything_runs(change, message, tmp_path):
 
 
 def test_replay_size_defaults_to_the_references_5000_columns_per_env_count():
-    assert stream.StreamConfig().resolved().replay.slots == 4992  # 78 columns of 64 envs
-    assert stream.StreamConfig(num_envs=200).resolved().replay.slots == 5000
-    assert stream.StreamConfig(num_envs=96,
-                               replay=stream.ReplayConfig(slots=192)).fill_epochs == 2
+    def run(**fields):
+        return stream.resolve(stream.StreamConfig(**fields), 4, "cpu")
+
+    assert run().replay.slots == 4992  # 78 columns of 64 envs
+    assert run(num_envs=200).replay.slots == 5000
+    assert run(num_envs=96, replay=stream.ReplayConfig(slots=192)).fill_epochs == 2
 
 
 def test_bad_policy_and_sizes_are_named():

@@ -63,7 +63,8 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
     host_loop = jax.default_backend() == "cpu"
     holder = {"s": stack_runs([stream.init(jax.random.PRNGKey(seed)) for seed in range(runs)])}
     # Fill the replay first so the loop case trains on every epoch.
-    holder["s"], _ = run_stacked_epochs(stream, holder["s"], config.fill_epochs, mesh=mesh)
+    holder["s"], _ = run_stacked_epochs(stream, holder["s"], stream.config.fill_epochs,
+                                     mesh=mesh)
 
     def stream_only():
         s = holder["s"]

@@ -29,7 +29,7 @@ def run():
     config = suite.scaled(stream.for_env("CartPole", "VAE_rpl"), "smoke")
     s = stream.build(config)
     k_init = jax.random.split(jax.random.PRNGKey(config.seed), 3)[0]
-    state, _ = stream.run_epochs(s, s.init(k_init), config.fill_epochs)
+    state, _ = stream.run_epochs(s, s.init(k_init), s.config.fill_epochs)
     return config, s, state
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from jaml import _command
 from jaml.stream.config import StreamConfig
-from jaml.stream.records import FLAT_FIELDS, RESOLVED, settings
+from jaml.stream.records import RESOLVED, settings
 
 # jaml.evaluation (JAX, SciPy, Matplotlib) is imported by `cell`: the figure commands' --help
 # imports none of them (tests/test_launch.py).
@@ -46,36 +46,37 @@ class Driver:
         return 0
 
 
-def _stream_default(name: str):
+def _size(path: str):
+    """A `Sizes` field: the `StreamConfig` default at `path` ("eval.train"), the path kept as
+    the field's override (`Sizes.overrides`)."""
     value = StreamConfig()
-    for part in FLAT_FIELDS.get(name, name).split("."):
+    for part in path.split("."):
         value = getattr(value, part)
-    return value
+    return dataclasses.field(default=value, metadata={"path": path})
 
 
 @dataclasses.dataclass(frozen=True)
 class Sizes:
     """A figure's per-epoch and analysis sizes, as its command's flags (`sizes:
-    Annotated[Sizes, tyro.conf.arg(name="")]`: --num-envs, …); defaults are `StreamConfig`'s,
-    the paper's and the reference's."""
+    Annotated[Sizes, tyro.conf.arg(name="")]`: --num-envs, …; the reports show them by these
+    names too); defaults are `StreamConfig`'s, the paper's and the reference's."""
 
-    num_envs: int = _stream_default("num_envs")
+    num_envs: int = _size("num_envs")
     """envs stepped in parallel (the paper's 64)"""
-    replay_slots: int | None = _stream_default("replay_slots")
+    replay_slots: int | None = _size("replay.slots")
     """replay columns; None: the reference's 5000, rounded down to a multiple of num_envs"""
-    eval_train: int = _stream_default("eval_train")
+    eval_train: int = _size("eval.train")
     """sequences in the alignment regressor's training set"""
-    eval_rand: int = _stream_default("eval_rand")
+    eval_rand: int = _size("eval.rand")
     """sequences in the π_rand test set"""
-    eval_curr: int = _stream_default("eval_curr")
+    eval_curr: int = _size("eval.curr")
     """sequences in the π_curr test set"""
-    regressor_iterations: int = _stream_default("regressor_iterations")
+    regressor_iterations: int = _size("eval.regressor_iterations")
     """alignment regressor steps"""
-
 
     def overrides(self) -> dict:
         """These sizes as `StreamConfig.with_overrides` paths ("eval.train", …)."""
-        return {FLAT_FIELDS.get(k, k): v for k, v in dataclasses.asdict(self).items()}
+        return {f.metadata["path"]: getattr(self, f.name) for f in dataclasses.fields(self)}
 
 
 SIZES = tuple(f.name for f in dataclasses.fields(Sizes))  # their names in `settings`

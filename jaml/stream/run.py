@@ -88,12 +88,13 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     JAX spent compiling in it: a call's first block and first analysis compile their programs)
     is not started: every run still going checkpoints where it is and stops ("interrupted").
     Leave a margin for those checkpoints."""
-    outs = _checked(configs, outs, checkpoint_every)
+    outs = _checked(len(configs), outs, checkpoint_every)
     stream = build(configs[0])  # every config problem surfaces before any file
     figures = FigureWriter()
     runs = open_runs(stream, [stream.run_config(c) for c in configs], outs, figures=figures,
                      final_checkpoint=final_checkpoint, keep_pi_rand=keep_pi_rand)
-    epochs, analyses = stream.config.epochs, analysis_epochs(stream.config)
+    epochs = stream.config.epochs
+    analyses = analysis_epochs(stream.config.fill_epochs, epochs, stream.config.eval.every)
     stops = [stop_epoch(r.epoch, epochs, stop_after) for r in runs]
     label = f"{stream.config.env} {stream.config.learner}" + (
         f" ×{len(runs)}" if len(runs) > 1 else "")
@@ -154,12 +155,12 @@ DEADLINE_BLOCK = BLOCK
 _clock = time.monotonic  # what deadlines are read against
 
 
-def _checked(configs: list[StreamConfig], outs: list, checkpoint_every: int | None
-             ) -> list[Path]:
-    """`run_many`'s arguments checked: one out directory per config, each its own; the
-    directories as Paths (that the configs are one program, `Stream.run_config` checks)."""
-    if len(configs) != len(outs) or not configs:
-        raise ValueError(f"run_many needs one out directory per config, got {len(configs)} "
+def _checked(configs: int, outs: list, checkpoint_every: int | None) -> list[Path]:
+    """`run_many`'s arguments checked: one out directory for each of the `configs`, each its
+    own; the directories as Paths (that the configs are one program, `Stream.run_config`
+    checks)."""
+    if configs != len(outs) or not configs:
+        raise ValueError(f"run_many needs one out directory per config, got {configs} "
                          f"configs and {len(outs)} directories")
     if checkpoint_every is not None and checkpoint_every < 1:
         raise ValueError(f"checkpoint_every must be a positive number of epochs or None, got "
@@ -254,4 +255,4 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
         with timed(r.seconds, "analysis"), timed(r.analysis_parts, "reconstructions"):
             frames = analysis.reconstructions(stream, state, jax.random.fold_in(r.eval_key(), 7))
             r.save_reconstructions(frames)
-        r.analyse(stream, state, reports[i], names, checkpoint_every)
+        r.analyse(state, reports[i], names, checkpoint_every)

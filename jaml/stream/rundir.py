@@ -37,7 +37,7 @@ def claim_run(out: Path, config: RunConfig, stream: Stream) -> bool:
     config its factory gave (`_own_learner_config`), compared when both records have it. A
     refusal names the fields that differ."""
     record = config.to_dict()
-    own = _own_learner_config(config, stream)
+    own = _own_learner_config(stream)
     if own is not None:
         record["learner_config"] = own
 
@@ -63,10 +63,10 @@ def claim_run(out: Path, config: RunConfig, stream: Stream) -> bool:
     return claim(out, record, same, differences)
 
 
-def _own_learner_config(config: RunConfig, stream: Stream) -> dict | None:
+def _own_learner_config(stream: Stream) -> dict | None:
     """A learner of your own's config as its factory built it (JSON-ready, with its class as
     "type"), for config.json; None for a registry learner (its config is in the tree)."""
-    if config.learner_config is not None:
+    if stream.config.learner_config is not None:
         return None
     own = stream.learner.config
     fields = json.loads(json.dumps(dataclasses.asdict(own), default=str))
@@ -140,16 +140,18 @@ class RunDir:
                  final_checkpoint: bool = True, keep_pi_rand: bool = True):
         self.config, self.out, self.figures = config, out, figures
         self.final_checkpoint = final_checkpoint
+        self.scale = _scale(config)  # summary.json's "scale" (and "note")
         # The run's π_rand sequences, kept on the host after its first analysis in this call.
         self.pi_rand_set = analysis.PiRandSet() if keep_pi_rand else None
         self.lock = lock(out)  # released by `close` (or when the process ends)
         try:
-            self._open(stream, config, out)
+            self._open(stream)
         except BaseException:  # a refused config or unreadable checkpoint: let the directory go
             self.lock.close()
             raise
 
-    def _open(self, stream: Stream, config: RunConfig, out: Path) -> None:
+    def _open(self, stream: Stream) -> None:
+        config, out = self.config, self.out
         claim_run(out, config, stream)
         (out / "recon").mkdir(exist_ok=True)
         k_init, self.k_eval, self.pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
@@ -214,7 +216,7 @@ class RunDir:
         """The analysis key of the current epoch."""
         return jax.random.fold_in(self.k_eval, self.epoch)
 
-    def analyse(self, stream: Stream, state: StreamState, report: dict, names: list[str],
+    def analyse(self, state: StreamState, report: dict, names: list[str],
                 checkpoint_every: int | None = None) -> None:
         """Records, figures and (see `checkpoint_due`) an atomic checkpoint at the current
         epoch, from this run's `analysis.evaluate_runs` report and its error names (the driver,
@@ -223,7 +225,8 @@ class RunDir:
             self.references = {"epoch": self.epoch, "validation_split":
                                report["validation_split"], **report["references"]}
         with timed(self.seconds, "analysis"), timed(self.analysis_parts, "records"):
-            records = _records(stream, names, self.epoch, report, seed=self.config.seed)
+            records = _records(self.config.learner, names, self.epoch, report,
+                               seed=self.config.seed)
             self.history += records
             with (self.out / "history.jsonl").open("a") as f:
                 # One write per analysis, so a report read beside it (`_runs.read_history`
@@ -262,7 +265,7 @@ class RunDir:
             "resumed_from": self.resumed_from,
             "final": [r for r in self.history if r["step"] == last],
             "references": self.references,
-            **_scale(self.config),
+            **self.scale,
             **({"error": self.error} if self.error is not None else {}),
         }
 
@@ -296,13 +299,11 @@ def _non_finite_message(epoch: int) -> str:
             "new --out or resume from the checkpoint)")
 
 
-def _records(stream: Stream, names: list[str], epoch: int, report: dict, *,
+def _records(learner: str, names: list[str], epoch: int, report: dict, *,
              seed: int) -> list[dict]:
     """One run's history records from its report."""
-    # `seed` is the run's own: runs trained together share one Stream, whose config carries
-    # the first run's seed.
     errors = {k: v for k, v in report["errors"].items() if k != "validation"}
-    records = plots.history_records(epoch, stream.config.learner, errors, names,
+    records = plots.history_records(epoch, learner, errors, names,
                                     report["distortion"], run=seed)
     # The held-out replay rows' error, for choices made without the test sets, and what a latent
     # with no information scores on each test set's rows (`evaluation.constant_errors`).

@@ -13,16 +13,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from jaml.stream.config import StreamConfig
 
-
-def analysis_epochs(config: StreamConfig) -> list[int]:
-    """Epochs after which the run analyses and checkpoints: when the replay is full (the learner
-    has just started), every `eval.every` epochs after that, and at the end."""
-    first = config.fill_epochs
-    epochs = list(range(first, config.epochs + 1, config.eval.every))
-    if not epochs or epochs[-1] != config.epochs:
-        epochs.append(config.epochs)
+def analysis_epochs(first: int, last: int, every: int) -> list[int]:
+    """Epochs after which a run analyses and checkpoints: at `first`, when the replay is full
+    (the learner has just started: `RunConfig.fill_epochs`), every `every` epochs after that
+    (`eval.every`), and at its `last` epoch."""
+    epochs = list(range(first, last + 1, every))
+    if not epochs or epochs[-1] != last:
+        epochs.append(last)
     return epochs
 
 

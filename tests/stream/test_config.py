@@ -180,14 +180,13 @@ def test_a_penalty_is_recorded_in_config_json_and_read_back(tmp_path):
     assert RunConfig.from_dict(resolve(tiny("PRED"), 4, "cpu").to_dict()).penalty is None
 
 
-def _stream(ld_dim: int = 4) -> SimpleNamespace:
-    """What `claim_run` reads of a Stream for a registry learner: its env's LD-state size."""
-    return SimpleNamespace(env=SimpleNamespace(ld_state_names=("x",) * ld_dim))
-
-
 def _claim(out, config: stream.StreamConfig, ld_dim: int = 4) -> bool:
-    """`claim_run` for `config` as a stream of an env with `ld_dim` LD entries runs it."""
-    return run_lib.claim_run(out, resolve(config, ld_dim, "cpu"), _stream(ld_dim))
+    """`claim_run` for `config` as a stream of an env with `ld_dim` LD entries runs it (what
+    `claim_run` reads of a Stream for a registry learner: its config and env's LD-state
+    size)."""
+    run = resolve(config, ld_dim, "cpu")
+    built = SimpleNamespace(config=run, env=SimpleNamespace(ld_state_names=("x",) * ld_dim))
+    return run_lib.claim_run(out, run, built)
 
 
 def _old_record(config: stream.StreamConfig) -> dict:

@@ -49,13 +49,14 @@ def test_a_learner_of_your_own_is_recorded_by_its_factorys_config(tmp_path):
     from jaml import stream
     from jaml.learners.learner import SingleFrameConfig
 
-    config = stream.for_env("CartPole", "tests.stream.test_own_learner:make_tiny")
+    config = stream.resolve(
+        stream.for_env("CartPole", "tests.stream.test_own_learner:make_tiny"), 4, "cpu")
     assert config.learner_config is None
 
     def built(latent_dim):
         own = SingleFrameConfig(ld_dim=4, latent_dim=latent_dim, learning_rate=1e-3)
-        return SimpleNamespace(env=SimpleNamespace(ld_state_names=("a", "b", "c", "d")),
-                               learner=SimpleNamespace(config=own))
+        return SimpleNamespace(config=config, learner=SimpleNamespace(config=own),
+                               env=SimpleNamespace(ld_state_names=("a", "b", "c", "d")))
 
     assert rundir.claim_run(tmp_path, config, built(6)) is False
     recorded = json.loads((tmp_path / "config.json").read_text())["learner_config"]
@@ -73,6 +74,8 @@ def test_analyses_fall_every_eval_every_epochs_from_the_full_replay_and_the_docs
 
     config = stream.for_env("CartPole", "VAE_rpl", {"num_envs": 8, "replay.slots": 16,
                                                     "epochs": 160, "eval.every": 50})
-    assert config.fill_epochs == 2
-    assert schedule.analysis_epochs(config) == [2, 52, 102, 152, 160]
+    run = stream.resolve(config, 4, "cpu")
+    assert run.fill_epochs == 2
+    assert schedule.analysis_epochs(run.fill_epochs, run.epochs, run.eval.every) == [
+        2, 52, 102, 152, 160]
     assert "2, 52, 102" in _command.field_docs(stream.EvalConfig)["every"]

@@ -4,7 +4,6 @@ checkpoints and non-finite stops."""
 
 import numpy as np
 
-from jaml import stream
 from jaml.stream import schedule
 from jaml.stream.schedule import Block
 
@@ -70,12 +69,9 @@ def test_a_block_starts_only_if_it_ends_before_the_deadline():
 
 
 def test_analysis_epochs_start_when_the_replay_is_full():
-    def config(**fields):
-        return stream.for_env("CartPole", "VAE_rpl", {"num_envs": 8, "replay.slots": 16,
-                                                      **fields})
-
-    assert schedule.analysis_epochs(config(epochs=6, **{"eval.every": 2})) == [2, 4, 6]
-    assert schedule.analysis_epochs(config(epochs=7, **{"eval.every": 4})) == [2, 6, 7]
+    assert schedule.analysis_epochs(2, 6, 2) == [2, 4, 6]
+    assert schedule.analysis_epochs(2, 7, 4) == [2, 6, 7]
+    assert schedule.analysis_epochs(9, 7, 4) == [7]  # ends before the replay fills: the end
 
 
 def test_thinned_checkpoints_fall_on_the_first_analysis_due_and_the_last():

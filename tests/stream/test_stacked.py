@@ -182,7 +182,8 @@ def test_runs_split_across_devices_are_analysed_per_device_as_alone(tmp_path, mo
                         functools.partial(run_lib.run_stacked_epochs, host_loop=False))
     configs = [dataclasses.replace(small(), seed=s) for s in range(4)]
     run_lib.run_many(configs, [tmp_path / "many" / str(s) for s in range(4)], progress=False)
-    analyses = len(run_lib.analysis_epochs(configs[0]))
+    run = stream.resolve(configs[0], 4, "cpu")
+    analyses = len(run_lib.analysis_epochs(run.fill_epochs, run.epochs, run.eval.every))
     assert calls == [(2, [0]), (2, [1])] * analyses
     for seed in (0, 2):  # the first run of each device
         run_lib.run(configs[seed], tmp_path / "alone" / str(seed), progress=False)

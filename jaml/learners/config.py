@@ -65,7 +65,7 @@ class LearnerConfig:
       decoder's biased transposed-convolution outputs), what `torch.autocast` stores;
       batch-norm statistics, parameters and everything after the encoder stay float32. With
       compute_dtype "bfloat16" it halves the memory traffic of those elementwise passes. Not in
-      the reference. A run records both concrete (`StreamConfig.resolved`).
+      the reference. A run records both concrete (`jaml.stream.resolve`).
     current_action: "observed" (the reference code): the encoder sees the executed action of
       every input frame, the one into the first predicted frame included; "hidden": that last
       action is zeroed (`elbo.encoder_actions`).
@@ -230,7 +230,7 @@ class RecurrentConfig(LearnerConfig):
 class VAEConfig(SingleFrameConfig):
     """VAE on single frames (PARAMS_VAE: hist 1, past 1, pred 0; latent 2·D).
 
-    VAE_v0 and VAE_rpl differ in the stream's replay alone (`ReplayConfig.resolved`: 0
+    VAE_v0 and VAE_rpl differ in the stream's replay alone (`jaml.stream.resolve`: 0
     and 0.5); β-VAE defaults to β = 5, the best of the paper's {100, 20, 10, 5, 0.5}.
     """
 
@@ -466,7 +466,7 @@ class SPAIRConfig(SingleFrameConfig):
 
 # name → (config class, defaults that differ from the class's); the builders:
 # `jaml.learners.make`. VAE_rpl differs from VAE_v0 only in the stream's replay
-# (`jaml.stream.config.ReplayConfig.resolved`).
+# (`jaml.stream.config.resolve`).
 LEARNERS: dict[str, tuple[type[LearnerConfig], dict]] = {
     "VAE_v0": (VAEConfig, {}),
     "VAE_rpl": (VAEConfig, {}),

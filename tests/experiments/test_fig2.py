@@ -102,7 +102,7 @@ def test_a_cells_extra_options_read_from_records_of_the_config_tree(tmp_path):
                                  {"compute_dtype": "bfloat16"})
         path = tmp_path / "CartPole" / "beta-VAE_5" / f"seed_{seed}"
         _write_run(path, "beta-VAE", seed, [0.1] * 4)
-        (path / "config.json").write_text(json.dumps(config.record(ld_dim=4)))
+        (path / "config.json").write_text(json.dumps(stream.resolve(config, 4, "cpu").to_dict()))
     flat = _runs.cell_config(tmp_path / "CartPole" / "beta-VAE_5")
     # What differs from the learner's defaults (β-VAE's own β is 5).
     assert flat["learner_overrides"] == {"compute_dtype": "bfloat16"}

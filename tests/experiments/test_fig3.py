@@ -382,7 +382,7 @@ def test_the_command_trains_each_variant_then_reports(tmp_path, monkeypatch, cap
     calls = []
 
     def fake_run_many(configs, outs, *, progress, stop_after, checkpoint_every, final_checkpoint,
-                      latent_penalty, keep_pi_rand, deadline):
+                      keep_pi_rand, deadline):
         assert keep_pi_rand and deadline is None  # the defaults: π_rand sets kept, no limit
         calls.append(([c.seed for c in configs], [str(o) for o in outs], stop_after,
                       configs[0]))

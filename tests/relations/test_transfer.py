@@ -302,3 +302,28 @@ def test_a_layout_placed_on_a_learners_declared_slots():
     assert vae.penalty_slots["static"] == ()
     with pytest.raises(LayoutError, match=r"1 static coordinates.*0 static entries"):
         LatentLayout.place(vae.penalty_slots, static=("theta",), dynamic=("s", "v"))
+
+
+def test_a_run_configs_penalty_builds_the_penalty_it_names(tmp_path):
+    """`jaml.stream.loop.latent_penalty` of a `PenaltyConfig`: the saved relation set, placed by
+    name on the slots the learner declares, is the penalty built by hand with `LAYOUT`."""
+    from types import SimpleNamespace
+
+    from jaml.stream.config import PenaltyConfig
+    from jaml.stream.loop import latent_penalty as from_config
+
+    relations.save(trapezoid_relations(), tmp_path / "checkpoint")
+    learner = SimpleNamespace(config=SimpleNamespace(
+        penalty_slots={"static": (0,), "dynamic": (1, 2)}, penalty_dim=3))
+    env = SimpleNamespace(action_size=1)
+    penalty = PenaltyConfig(weight=2.0, form="sum", relations=str(tmp_path / "checkpoint"),
+                            used=(0,), static=("theta",), dynamic=("s", "v"))
+    by_hand = latent_penalty(trapezoid_relations(), LAYOUT, latent_size=3, action_size=1,
+                             weight=2.0, form="sum")
+    z = latents([0.1, 0.5], [0.3, -1.0], [0.7, 0.2], s1=[0.4, 0.1])
+    actions = jnp.ones((2, 2, 1))
+    built = from_config(penalty, learner, env)
+    np.testing.assert_allclose(built(z, actions), by_hand(z, actions), rtol=1e-6)
+    assert np.all(np.asarray(by_hand(z, actions)) > 0)  # off the plane: a penalty to match
+    with pytest.raises(ValueError, match=r"penalty\.relations names no relation set"):
+        from_config(PenaltyConfig(), learner, env)

@@ -344,7 +344,8 @@ class Args(_runs.Driver):
             if len(weights) > 1:
                 penalty = choose_weight(self.out, weights, self.pilot_seed, self.form, recipe,
                                         self.dynamics, self._scale())
-            print(f"penalty: {penalty}", flush=True)
+            print(f"penalty: weight {penalty.weight:g}, form {penalty.form}, ok_weight "
+                  f"{penalty.ok_weight:g}", flush=True)
         if self.pilot_only:
             return False
         for method in self.methods:

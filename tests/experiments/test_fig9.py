@@ -233,7 +233,8 @@ def test_a_method_without_relations_neither_fits_them_nor_runs_the_pilot(tmp_pat
     # own run directory. The reference recipe has one weight: no pilot.
     calls = []
     monkeypatch.setattr(fig9, "learn_relations", lambda *a, **k: calls.append("relations"))
-    monkeypatch.setattr(fig9, "choose_weight", lambda *a, **k: calls.append("pilot"))
+    monkeypatch.setattr(fig9, "choose_weight",
+                        lambda *a, **k: calls.append("pilot") or fig9.Penalty(1000.0))
     monkeypatch.setattr(fig9, "run_method",
                         lambda out, method, seeds, penalty, recipe, **k: calls.append(
                             (method, penalty, recipe.name)))

@@ -40,7 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import learner_roofline
 from benchmarks.learner_throughput import jaml_step, matmul_ceiling, step_shape
-from jaml.learners.config import COMPUTE_DTYPE_NAMES, UPSAMPLE_FORMS
+from jaml.configs.learners import COMPUTE_DTYPE_NAMES, UPSAMPLE_FORMS
 
 KINDS = ("convolution", "matmul", "reduction fusion", "elementwise fusion", "transpose/copy",
          "memset/memcpy", "other")

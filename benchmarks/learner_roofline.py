@@ -56,7 +56,7 @@ from benchmarks.learner_throughput import (
     step_shape,
 )
 from jaml import learners
-from jaml.learners.config import COMPUTE_DTYPE_NAMES, dtype_for_backend
+from jaml.configs.learners import COMPUTE_DTYPE_NAMES, dtype_for_backend
 
 _COUNTED = {"conv_general_dilated": flops.conv_flops, "dot_general": flops.dot_flops}
 OUTSIDE = "(outside modules)"

@@ -64,7 +64,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import flops, harness
 from jaml import learners
-from jaml.learners.config import UPSAMPLE_FORMS, default_config
+from jaml.configs.learners import UPSAMPLE_FORMS, default_config
 
 LD_DIM, ACTION_DIM = 4, 1  # CartPole: D = 4, latent 2·D = 8
 # Quoted dense peaks (TFLOP/s; NVIDIA's H100 SXM / H200 datasheets, without sparsity): float32

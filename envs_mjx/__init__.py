@@ -14,8 +14,9 @@ __all__ = [
     "to_gymnasium",
 ]
 
-# The rest, imported from their modules on first use (PEP 562): the configs above (and so
-# `jaml envs show --env ENV --help`) stay free of JAX and MuJoCo, which the domains import.
+# The rest, imported from their modules on first use (PEP 562). `envs_mjx.config` is jaml's
+# (and the command line's) way to the env names and configs, and importing it imports this
+# package: a plain import of the domains here would put JAX and MuJoCo under every `--help`.
 # Gymnasium is imported on first use of `to_gymnasium` only: the domains, the learning loop and
 # the benchmarks do not need it (and a GPU image without it still runs them).
 _EXPORTS = {

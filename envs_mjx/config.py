@@ -1,7 +1,8 @@
-"""The domains' configs, their names and defaults (`ALL_ENVS`, `default_config`): what
-`jaml envs show --env ENV --help` and `jaml suite --env ENV --help` list. Importing this module
-imports neither JAX nor MuJoCo; the domains that read these configs live in
-`envs_mjx.domains`, and `envs_mjx.registry` builds them.
+"""The domains' configs and the domain registry (`ENVS`: names, config classes, env classes;
+`ALL_ENVS`, `default_config`, `configured`): what `jaml envs show --env ENV --help` and
+`jaml suite --env ENV --help` list. Importing this module imports neither JAX nor MuJoCo; the
+domains that read these configs live in `envs_mjx.domains`, and `envs_mjx.registry` builds
+them.
 """
 
 from __future__ import annotations
@@ -11,7 +12,8 @@ import math
 import typing
 
 # Where an env's pixels come from (`EnvConfig.pixels`).
-PIXELS = ("auto", "required", "off")
+Pixels = typing.Literal["auto", "required", "off"]
+PIXELS = typing.get_args(Pixels)
 # The domain families (`EnvConfig.family`): the domains of one family share the learning
 # suite's per-domain settings.
 FAMILIES = ("pendulum", "locomotion", "incline", "rearrange")
@@ -38,7 +40,7 @@ class EnvConfig:
     episode_length: int | None = 1000
     reward_scale: float | None = 1.0
     n_frames: int = 1
-    pixels: str = "auto"
+    pixels: Pixels = "auto"
     image_size: int = 64
 
     def __post_init__(self):
@@ -81,7 +83,8 @@ class BenchmarkConfig(EnvConfig):
 
 # CartPole's conventions (`CartPoleConfig.conventions`): the reference's, or Gymnasium's
 # CartPole-v1 values for the fields still at the reference's (`GYMNASIUM_CARTPOLE`).
-CONVENTIONS = ("reference", "gymnasium")
+Conventions = typing.Literal["reference", "gymnasium"]
+CONVENTIONS = typing.get_args(Conventions)
 # Gymnasium's CartPole-v1: 500 steps, reward 1 a step, the episode ends at |x| > 2.4 m.
 GYMNASIUM_CARTPOLE = {"episode_length": 500, "reward_scale": 1.0, "x_threshold": 2.4}
 
@@ -106,7 +109,7 @@ class CartPoleConfig(BenchmarkConfig):
     reset_noise: float = 0.05
     x_threshold: float = 0.4
     theta_threshold: float = 12.0 * 3.141592653589793 / 180.0
-    conventions: str = "reference"
+    conventions: Conventions = "reference"
 
     def __post_init__(self):
         if self.conventions not in CONVENTIONS:
@@ -181,8 +184,10 @@ class MeshInclineConfig(InclineConfig):
 
 
 # The Rearrange domains' arms and physics (`envs_mjx.domains.rearrange`).
-ARMS = ("reacher", "franka")
-PHYSICS = ("mjx", "c")
+Arm = typing.Literal["reacher", "franka"]
+ARMS = typing.get_args(Arm)
+Physics = typing.Literal["mjx", "c"]
+PHYSICS = typing.get_args(Physics)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -226,7 +231,7 @@ class RearrangeConfig(EnvConfig):
     episode_length: int | None = 50
     reward_scale: float | None = None  # 1 / episode_length
     n_frames: int = 8
-    arm: str = "reacher"
+    arm: Arm = "reacher"
     version: int | None = None
     versions: tuple[int, ...] = (0, 1, 2, 3)
     repeats: int = 4
@@ -237,35 +242,51 @@ class RearrangeConfig(EnvConfig):
     max_faces: int = 200
     max_joint_velocity: float | None = 100.0
     max_contacts: int | None = 32
-    physics: str = "mjx"
+    physics: Physics = "mjx"
 
 
-# name → its config class; the env classes: `envs_mjx.registry`.
-CONFIGS: dict[str, type[EnvConfig]] = {
-    "CartPole": CartPoleConfig,
-    "InvertedPendulum": InvertedPendulumConfig,
-    "HalfCheetah": LocomotionConfig,
-    "Ant": LocomotionConfig,
-    "GeomOnIncline": InclineConfig,
-    "MeshOnIncline": MeshInclineConfig,
+# The domain registry: name → (config class, the "module:class" of its env, which
+# `envs_mjx.registry` builds). The env classes are named, not imported: they import JAX and
+# MuJoCo, and this module must not.
+ENVS: dict[str, tuple[type[EnvConfig], str]] = {
+    "CartPole": (CartPoleConfig, "envs_mjx.domains.cartpole:CartPole"),
+    "InvertedPendulum": (InvertedPendulumConfig,
+                         "envs_mjx.domains.inverted_pendulum:InvertedPendulum"),
+    "HalfCheetah": (LocomotionConfig, "envs_mjx.domains.half_cheetah:HalfCheetah"),
+    "Ant": (LocomotionConfig, "envs_mjx.domains.ant:Ant"),
+    "GeomOnIncline": (InclineConfig, "envs_mjx.domains.incline:GeomOnIncline"),
+    "MeshOnIncline": (MeshInclineConfig, "envs_mjx.domains.mesh_incline:MeshOnIncline"),
     # arm="reacher" (default) | "franka"; version=0..11 or a batch of versions (i mod 4).
-    "RearrangeGeom": RearrangeConfig,
-    "RearrangeYCB": RearrangeConfig,
+    "RearrangeGeom": (RearrangeConfig, "envs_mjx.domains.rearrange:RearrangeGeom"),
+    "RearrangeYCB": (RearrangeConfig, "envs_mjx.domains.rearrange:RearrangeYCB"),
 }
-ALL_ENVS: tuple[str, ...] = tuple(CONFIGS)
+ALL_ENVS: tuple[str, ...] = tuple(ENVS)
+
+
+def registered(name: str) -> tuple[type[EnvConfig], str]:
+    """The named domain's registry entry (config class, env class's "module:class"); an unknown
+    name raises ValueError listing the valid ones."""
+    if name not in ENVS:
+        raise ValueError(f"unknown env {name!r}; valid names: {list(ALL_ENVS)}")
+    return ENVS[name]
 
 
 def default_config(name: str) -> EnvConfig:
     """The named domain's default config (reproduces the reference settings)."""
-    return _config_class(name)()
+    return registered(name)[0]()
 
 
 def configured(name: str, config: EnvConfig | None = None, **overrides) -> EnvConfig:
-    """`config` (default: the named domain's default config) with `overrides` (its fields)
-    replaced. Unknown keys raise ValueError; a list value becomes a tuple (overrides read back
-    from a run's JSON config arrive as lists; configs stay hashable and compare equal to the
-    ones they were written from)."""
-    config = default_config(name) if config is None else config
+    """`config` (default: the named domain's default config; else checked to be its class) with
+    `overrides` (its fields) replaced. Unknown keys raise ValueError; a list value becomes a
+    tuple (overrides read back from a run's JSON config arrive as lists; configs stay hashable
+    and compare equal to the ones they were written from)."""
+    cls = registered(name)[0]
+    if config is None:
+        config = cls()
+    elif type(config) is not cls:
+        raise ValueError(f"{name} needs a {cls.__name__}, got {type(config).__name__}: give "
+                         f"a {cls.__name__} or None (its defaults)")
     valid = {f.name for f in dataclasses.fields(config)}
     unknown = sorted(set(overrides) - valid)
     if unknown:
@@ -276,11 +297,4 @@ def configured(name: str, config: EnvConfig | None = None, **overrides) -> EnvCo
 
 def family(name: str) -> str:
     """The named domain's family (one of FAMILIES)."""
-    return _config_class(name).family
-
-
-def _config_class(name: str) -> type[EnvConfig]:
-    try:
-        return CONFIGS[name]
-    except KeyError:
-        raise ValueError(f"unknown env {name!r}; valid names: {list(ALL_ENVS)}") from None
+    return registered(name)[0].family

@@ -45,7 +45,8 @@ from gymnasium.vector.utils import batch_space
 
 from envs_mjx.base import Env
 from envs_mjx.compile import compiler_options
-from envs_mjx.registry import ALL_ENVS, make
+from envs_mjx.config import ALL_ENVS
+from envs_mjx.registry import make
 
 # Registry name -> Gymnasium id (registered at import, `register_envs`).
 GYM_IDS: dict[str, str] = {name: f"jaml/{name}-v0" for name in ALL_ENVS}

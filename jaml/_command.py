@@ -18,7 +18,7 @@ import traceback
 import typing
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated
 
 import tyro
 
@@ -43,7 +43,7 @@ def _import_mjx_quietly() -> list[str]:
     return buffer.getvalue().splitlines()
 
 # ---------------------------------------------------------------------------------------------
-# The mechanism: help from docstrings, choices, hidden fields, one-line errors.
+# The mechanism: help from docstrings, hidden fields, one-line errors.
 
 
 def field_docs(cls: type) -> dict[str, str]:
@@ -71,27 +71,6 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
-def _choices() -> dict[tuple[str, str], tuple[str, ...]]:
-    """(class name, field) → its valid values, for `str` fields whose set is fixed elsewhere
-    (registries, validation in __post_init__). Their modules import neither JAX nor MuJoCo."""
-    from envs_mjx.config import ARMS, CONVENTIONS, PHYSICS, PIXELS
-    from jaml.learners.config import COMPUTE_DTYPE_NAMES, CURRENT_ACTIONS, FRAME_NLLS, KL_FORMS
-    from jaml.stream.config import POLICIES
-
-    return {
-        ("StreamConfig", "policy"): POLICIES,
-        ("RearrangeConfig", "arm"): ARMS,
-        ("RearrangeConfig", "physics"): PHYSICS,
-        ("LearnerConfig", "frame_nll"): FRAME_NLLS,
-        ("LearnerConfig", "compute_dtype"): COMPUTE_DTYPE_NAMES,
-        ("LearnerConfig", "activation_dtype"): COMPUTE_DTYPE_NAMES,
-        ("LearnerConfig", "current_action"): CURRENT_ACTIONS,
-        ("LearnerConfig", "kl_form"): KL_FORMS,
-        ("EnvConfig", "pixels"): PIXELS,
-        ("CartPoleConfig", "conventions"): CONVENTIONS,
-    }
-
-
 # (class name, field) of fields that are not flags: the suite sets them from --env/--learner
 # (the learner's ld_dim is the env's LD-state size) and from the typed learner/env configs,
 # which it holds with their concrete types (`jaml.cli._suite_for`).
@@ -101,10 +80,9 @@ _in_rule = threading.local()
 
 
 def _registry() -> tyro.constructors.ConstructorRegistry:
-    """tyro's dataclass handling, plus: help from `field_docs` where tyro finds none, Literal
-    choices from `_choices`, and the `_HIDDEN` fields fixed to their defaults."""
+    """tyro's dataclass handling, plus: help from `field_docs` where tyro finds none, and the
+    `_HIDDEN` fields fixed to their defaults. Choices come from the fields' Literal types."""
     registry = tyro.constructors.ConstructorRegistry()
-    choices = _choices()
 
     @registry.struct_rule
     def documented(info: tyro.constructors.StructTypeInfo):
@@ -126,9 +104,6 @@ def _registry() -> tyro.constructors.ConstructorRegistry:
         fields = []
         for f in spec.fields:
             kind = f.type
-            values = next((choices[b, f.name] for b in bases if (b, f.name) in choices), None)
-            if values is not None:
-                kind = Literal[values]
             if any((b, f.name) in _HIDDEN for b in bases):
                 kind = tyro.conf.Suppress[kind]
             helptext = f.helptext() if callable(f.helptext) else f.helptext

@@ -46,7 +46,7 @@ def _print_summary(out, summary) -> None:
 
 
 def _relations_config():
-    from jaml.relations.config import Config
+    from jaml.configs.relations import Config
 
     return Config
 
@@ -83,7 +83,7 @@ class Relations:
 
 
 def _suite_config():
-    from jaml.stream.config import StreamConfig
+    from jaml.configs.stream import StreamConfig
 
     return StreamConfig
 
@@ -95,7 +95,7 @@ def _envs() -> tuple[str, ...]:
 
 
 def _learners() -> tuple[str, ...]:
-    from jaml.learners.config import ALL_LEARNERS
+    from jaml.configs.learners import ALL_LEARNERS
 
     return ALL_LEARNERS
 
@@ -131,7 +131,7 @@ class Suite:
     def stream_config(self):
         """The run's StreamConfig: `for_env`'s per-domain settings, scaled, then what the flags
         changed, the learner's and env's configs included (`StreamConfig.with_overrides`)."""
-        from jaml.stream.config import changed_fields, for_env
+        from jaml.configs.stream import changed_fields, for_env
         from jaml.suite import scaled
 
         base = for_env(self.env, self.learner)
@@ -195,7 +195,7 @@ def _suite_for(argv: list[str]) -> type:
             namespace={"__doc__": Suite.__doc__, "__module__": __name__})
     if env not in _envs() or learner not in _learners():
         return Suite
-    from jaml.stream.config import for_env
+    from jaml.configs.stream import for_env
 
     base = for_env(env, learner)
     # The typed configs with their concrete types, so that their fields are flags; the
@@ -226,7 +226,7 @@ class Demo:
     """no progress bars"""
 
     def run(self) -> int:
-        from jaml.relations.config import Config
+        from jaml.configs.relations import Config
         from jaml.relations.run import run
 
         for source in ("ellipse", "block45"):
@@ -269,7 +269,7 @@ class EnvsShow:
 
     def run(self) -> int:
         from envs_mjx.show import show
-        from jaml.stream.config import changed_fields
+        from jaml.configs.stream import changed_fields
 
         out = self.out or Path(f"{self.env}.png")
         env_config = getattr(self, "env_config", None)

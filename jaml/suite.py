@@ -29,15 +29,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaml import evaluation
-from jaml.evaluation import alignment
-from jaml.learners.learner import FRAME_SHAPE
-from jaml.stream import analysis
 
 # The named scales live beside the domains' settings (`stream.config`); here too, where the
 # suite's users take them (`suite.scaled(config, "small")`).
-from jaml.stream.config import SCALES as SCALES
-from jaml.stream.config import SMOKE_NOTE, StreamConfig, scale_of
-from jaml.stream.config import scaled as scaled
+from jaml.configs.stream import SCALES as SCALES
+from jaml.configs.stream import SMOKE_NOTE, StreamConfig, scale_of
+from jaml.configs.stream import scaled as scaled
+from jaml.evaluation import alignment
+from jaml.learners.learner import FRAME_SHAPE
+from jaml.stream import analysis
 from jaml.stream.executor import run_epochs
 from jaml.stream.loop import Stream, StreamState, build
 

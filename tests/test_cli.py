@@ -13,8 +13,8 @@ import pytest
 
 from jaml import cli
 from jaml.cli import _INFO_PACKAGES, main
+from jaml.configs.stream import for_env
 from jaml.experiments import _runs
-from jaml.stream.config import for_env
 
 
 def test_info_names_the_cpu_device_versions_and_mjx_imports(capsys):

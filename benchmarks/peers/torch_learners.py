@@ -1,7 +1,7 @@
 """VAE_rpl, PRED and DSA in PyTorch: jaml's networks and losses restated, to time the peer a user
 of the field would run (eager, or `torch.compile` with channels_last and bf16 autocast).
 
-The sizes come from jaml's own configs (`jaml.learners.config`, no JAX imported), so the layer
+The sizes come from jaml's own configs (`jaml.configs.learners`, no JAX imported), so the layer
 shapes, latent sizes and sequence lengths are those of `learners.make(name, ld_dim=D)`. The
 trainable parameter count equals jaml's: PyTorch's LSTM/RNN carry two bias vectors per gate
 where Flax's cells carry one, so the second (`bias_hh_*`, redundant with `bias_ih_*`) is held at
@@ -20,7 +20,7 @@ from torch import nn
 from torch.nn import functional as F
 from torch.utils.flop_counter import FlopCounterMode
 
-from jaml.learners.config import DSAConfig, LearnerConfig, default_config
+from jaml.configs.learners import DSAConfig, LearnerConfig, default_config
 
 # BatchNorm2d's defaults (momentum 0.1, eps 1e-5) are the reference's; jaml's _BN restates them.
 LEARNERS = ("VAE_rpl", "PRED", "DSA")

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from jaml import _command
-from jaml.stream.config import StreamConfig
+from jaml.configs.stream import StreamConfig
 from jaml.stream.records import RESOLVED, settings
 
 # jaml.evaluation (JAX, SciPy, Matplotlib) is imported by `cell`: the figure commands' --help

@@ -32,10 +32,10 @@ from typing import Annotated, Literal
 
 import tyro
 
+from jaml.configs.relations import Config
+from jaml.configs.stream import SCALES, PenaltyConfig
 from jaml.experiments import _runs
 from jaml.experiments._runs import read_jsonl
-from jaml.relations.config import Config
-from jaml.stream.config import SCALES, PenaltyConfig
 
 SOURCE, TARGET = "geom-on-incline", "MeshOnIncline"
 # The objects' mass and friction, in the source's rows and in the target's envs alike.

@@ -12,10 +12,9 @@
 
 from __future__ import annotations
 
-import typing
+import pkgutil
 
-from jaml import _lazy
-from jaml.learners.config import (
+from jaml.configs.learners import (
     ALL_LEARNERS,
     DSAConfig,
     LearnerConfig,
@@ -23,64 +22,30 @@ from jaml.learners.config import (
     SPAIRConfig,
     SVAEConfig,
     VAEConfig,
+    configured,
     default_config,
+    registered,
 )
-
-if typing.TYPE_CHECKING:
-    from jaml.learners.learner import Learner
-
-# name → the module:function that builds it from its config (the configs and defaults:
-# `jaml.learners.config.LEARNERS`).
-_BUILDERS = {
-    "VAE_v0": "vae:make_vae",
-    "VAE_rpl": "vae:make_vae",
-    "beta-VAE": "vae:make_vae",
-    "SVAE": "svae:make_svae",
-    "PRED": "pred:make_pred",
-    "DSA": "dsa:make_dsa",
-    "SPAIR": "spair:make_spair",
-}
+from jaml.learners.learner import LatentPenalty, Learner, Outputs
+from jaml.learners.train import (
+    CPU_COMPILER_OPTIONS,
+    Batch,
+    TrainState,
+    compiler_options,
+    default_optimizer,
+    init_train_state,
+    make_train_step,
+)
 
 
 def make(name: str, config: LearnerConfig | None = None, **overrides) -> Learner:
-    """The learner `name` built from `config`, or from its defaults updated with `overrides`."""
-    import importlib
-
-    from jaml.learners.config import LEARNERS
-
-    if config is None:
-        config = default_config(name, **overrides)
-    elif name not in LEARNERS:
-        raise ValueError(f"unknown learner {name!r}; valid names: {', '.join(ALL_LEARNERS)}")
-    elif not isinstance(config, LEARNERS[name][0]):
-        raise ValueError(f"{name} needs a {LEARNERS[name][0].__name__}, got "
-                         f"{type(config).__name__}")
-    elif overrides:
-        config = config.replace(**overrides)
+    """The learner `name` built from `config`, or from its defaults updated with `overrides`
+    (`jaml.configs.learners.configured`), by its registered builder (`LEARNERS`)."""
+    config = configured(name, config, **overrides)
     if config.ld_dim is None:
         raise ValueError(f"{name}: ld_dim is None; give the true LD-state size (a stream run sets "
                          "its env's: `jaml.stream.resolve`)")
-    module, function = _BUILDERS[name].split(":")
-    return getattr(importlib.import_module(f"{__name__}.{module}"), function)(name, config)
-
-
-# The rest, imported from their modules on first use (PEP 562): the configs above (and so
-# `jaml suite --learner L --help`) stay free of JAX and Flax, which the models import.
-_EXPORTS = {
-    "LatentPenalty": "learner",
-    "Learner": "learner",
-    "Outputs": "learner",
-    "CPU_COMPILER_OPTIONS": "train",
-    "Batch": "train",
-    "TrainState": "train",
-    "compiler_options": "train",
-    "default_optimizer": "train",
-    "init_train_state": "train",
-    "make_train_step": "train",
-}
-
-
-__getattr__, __dir__ = _lazy.exports(__name__, _EXPORTS)
+    return pkgutil.resolve_name(registered(name)[2])(name, config)
 
 
 __all__ = [

@@ -12,8 +12,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from jaml.configs.learners import DSAConfig
 from jaml.learners import elbo
-from jaml.learners.config import DSAConfig
 from jaml.learners.learner import FRAME_SHAPE, Learner, Outputs
 from jaml.learners.networks import ConvDecoder, ConvEncoder, GaussianHead, RNNEncoder, lstm
 

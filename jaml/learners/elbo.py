@@ -9,7 +9,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from jaml.learners.config import CURRENT_ACTIONS, KL_FORMS
+from jaml.configs.learners import CURRENT_ACTIONS, KL_FORMS
 
 
 def frames_to_float(frames: jax.Array) -> jax.Array:

@@ -15,13 +15,13 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from jaml.learners import elbo
-from jaml.learners.config import (  # noqa: F401  (the learners import them from here)
+from jaml.configs.learners import (  # noqa: F401  (the learners import them from here)
     COMPUTE_DTYPE_NAMES,
     LearnerConfig,
     RecurrentConfig,
     SingleFrameConfig,
 )
+from jaml.learners import elbo
 
 FRAME_SHAPE = (64, 64, 3)
 

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaml.learners.config import UPSAMPLE_FORMS
+from jaml.configs.learners import UPSAMPLE_FORMS
 
 # PyTorch BatchNorm2d defaults (momentum 0.1 on the new statistic, eps 1e-5), as in the reference.
 _BN = {"momentum": 0.9, "epsilon": 1e-5}

@@ -5,7 +5,7 @@ Shapes: B batch, T input frames (`hist`), L predicted frames (`pred`), Z per-ste
 
 from __future__ import annotations
 
-from jaml.learners.config import PREDConfig
+from jaml.configs.learners import PREDConfig
 from jaml.learners.learner import Learner
 from jaml.learners.vae import FeedForwardVAE
 

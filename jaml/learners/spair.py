@@ -27,8 +27,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaml.configs.learners import CELL_FIXED, WHERE, SPAIRConfig  # noqa: F401
 from jaml.learners import elbo
-from jaml.learners.config import CELL_FIXED, WHERE, SPAIRConfig  # noqa: F401
 from jaml.learners.learner import FRAME_SHAPE, Learner, Outputs
 from jaml.learners.networks import _BN, _HALVE, MLP, Upsample2x
 

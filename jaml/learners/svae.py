@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from jaml.configs.learners import SVAEConfig
 from jaml.learners import elbo
-from jaml.learners.config import SVAEConfig
 from jaml.learners.learner import FRAME_SHAPE, Learner
 from jaml.learners.networks import ConvDecoder, ConvEncoder, GaussianHead, RNNEncoder
 from jaml.learners.vae import StepwiseGaussianVAE

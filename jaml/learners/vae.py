@@ -13,8 +13,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from jaml.configs.learners import VAEConfig
 from jaml.learners import elbo
-from jaml.learners.config import VAEConfig
 from jaml.learners.learner import FRAME_SHAPE, Learner, Outputs
 from jaml.learners.networks import MLP, ConvDecoder, ConvEncoder, GaussianHead
 

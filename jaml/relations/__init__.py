@@ -13,31 +13,12 @@ pen = relations.latent_penalty(rs, relations.LatentLayout(static={"theta": 2},
                               # (z [B, S, 5], a [B, S, 1]) -> [B], for a learner's loss (eq. 4)
 """
 
-from jaml import _lazy
-
-# Public names, imported from their modules on first use (PEP 562): `jaml.relations.config` (and
-# so `jaml relations --help`) stays free of JAX, which every other module here imports.
-_EXPORTS = {
-    "load": "checkpoint",
-    "save": "checkpoint",
-    "Config": "config",
-    "codimension": "geometry",
-    "jacobian_ranks": "geometry",
-    "project": "geometry",
-    "RelationSet": "relation_set",
-    "evaluate": "relation_set",
-    "holds": "relation_set",
-    "penalty": "relation_set",
-    "RelationSummary": "training",
-    "fit": "training",
-    "LatentLayout": "transfer",
-    "LayoutError": "transfer",
-    "latent_penalty": "transfer",
-}
-
-
-__getattr__, __dir__ = _lazy.exports(__name__, _EXPORTS)
-
+from jaml.configs.relations import Config
+from jaml.relations.checkpoint import load, save
+from jaml.relations.geometry import codimension, jacobian_ranks, project
+from jaml.relations.relation_set import RelationSet, evaluate, holds, penalty
+from jaml.relations.training import RelationSummary, fit
+from jaml.relations.transfer import LatentLayout, LayoutError, latent_penalty
 
 __all__ = [
     "Config",

@@ -17,8 +17,8 @@ from tqdm.auto import tqdm
 
 from jaml import sources
 from jaml._rundir import RunLog, claim, lock, write_json
+from jaml.configs.relations import Config
 from jaml.relations import checkpoint, plots
-from jaml.relations.config import Config
 from jaml.relations.relation_set import RelationSet
 from jaml.relations.training import RelationSummary, fit
 

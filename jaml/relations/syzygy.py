@@ -15,8 +15,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from jaml.configs.relations import Config
 from jaml.relations import losses
-from jaml.relations.config import Config
 from jaml.relations.data import Batches
 from jaml.relations.loop import init_state, make_chunk, optimizer_step
 from jaml.relations.networks import Relation, SyzygyCoefficients

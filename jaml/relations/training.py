@@ -22,8 +22,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from jaml.configs.relations import Config
 from jaml.relations import losses, quality, syzygy
-from jaml.relations.config import Config
 from jaml.relations.data import Batches, prepare
 from jaml.relations.geometry import codimension
 from jaml.relations.loop import (

@@ -1,6 +1,7 @@
-"""On-manifold data for AML: analytic curves, closed-form block-on-incline, MJX incline rollouts
-(`InclineEnvSource`, imported on first use since it loads envs_mjx), a user's rows from a
-.npy / .csv file (`FileSource`), off-manifold samplers."""
+"""On-manifold data for AML: analytic curves, closed-form block-on-incline, a user's rows from a
+.npy / .csv file (`FileSource`), off-manifold samplers; MJX incline rollouts in
+`jaml.sources.incline_env` (`InclineEnvSource`, through `make("geom-on-incline")`), a module
+of its own since it imports MuJoCo and the domains, which the rest does not need."""
 
 from jaml.sources.analytic import HyperboloidPlaneCurve
 from jaml.sources.base import Source
@@ -15,7 +16,6 @@ __all__ = [
     "BlockOnIncline",
     "FileSource",
     "HyperboloidPlaneCurve",
-    "InclineEnvSource",
     "Source",
     "bounding_box",
     "downhill_acceleration",
@@ -25,10 +25,3 @@ __all__ = [
     "uniform_in_box",
 ]
 
-
-def __getattr__(name: str):
-    if name == "InclineEnvSource":
-        from jaml.sources.incline_env import InclineEnvSource
-
-        return InclineEnvSource
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

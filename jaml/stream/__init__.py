@@ -19,51 +19,41 @@ serves; its programs go when it does.
 directory.
 """
 
-from jaml import _lazy
-
-# Public names, imported from their modules on first use (PEP 562): `jaml.stream.config` (and
-# so `jaml suite --help`) stays free of JAX, which every other module here imports.
-_EXPORTS = {
-    "evaluate": "analysis",
-    "Episodes": "collect",
-    "rollout": "collect",
-    "POLICIES": "config",
-    "PPOConfig": "config",
-    "ReplayConfig": "config",
-    "EvalConfig": "config",
-    "StreamConfig": "config",
-    "PenaltyConfig": "config",
-    "RunConfig": "config",
-    "for_env": "config",
-    "resolve": "config",
-    "run_epochs": "executor",
-    "run_stacked_epochs": "executor",
-    "runs_mesh": "executor",
-    "stack_runs": "executor",
-    "unstack_runs": "executor",
-    "build": "loop",
-    "Stream": "loop",
-    "StreamState": "loop",
-    "PPO": "ppo",
-    "PPOState": "ppo",
-    "random_policy": "ppo",
-    "Columns": "replay",
-    "Replay": "replay",
-}
-
-
-__getattr__, __dir__ = _lazy.exports(__name__, _EXPORTS)
-
+from jaml.configs.stream import (
+    POLICIES,
+    EvalConfig,
+    PenaltyConfig,
+    PPOConfig,
+    ReplayConfig,
+    RunConfig,
+    StreamConfig,
+    for_env,
+    resolve,
+)
+from jaml.stream.analysis import evaluate
+from jaml.stream.collect import Episodes, rollout
+from jaml.stream.executor import (
+    run_epochs,
+    run_stacked_epochs,
+    runs_mesh,
+    stack_runs,
+    unstack_runs,
+)
+from jaml.stream.loop import Stream, StreamState, build
+from jaml.stream.ppo import PPO, PPOState, random_policy
+from jaml.stream.replay import Columns, Replay
 
 __all__ = [
     "POLICIES",
     "PPO",
     "Columns",
     "Episodes",
+    "EvalConfig",
     "PPOConfig",
     "PPOState",
     "PenaltyConfig",
     "Replay",
+    "ReplayConfig",
     "RunConfig",
     "Stream",
     "StreamConfig",

@@ -30,12 +30,12 @@ from flax import struct
 import envs_mjx
 from envs_mjx.base import Env, State
 from jaml import learners
+from jaml.configs.stream import PenaltyConfig, RunConfig, StreamConfig, changed_fields, resolve
 from jaml.evaluation import rotation
 from jaml.stream import collect
 from jaml.stream import ppo as ppo_lib
 from jaml.stream import replay as replay_lib
 from jaml.stream.collect import Episodes
-from jaml.stream.config import PenaltyConfig, RunConfig, StreamConfig, changed_fields, resolve
 
 
 @struct.dataclass

@@ -29,7 +29,7 @@ from brax.training.agents.ppo import losses as ppo_losses
 from brax.training.agents.ppo import networks as ppo_networks
 from flax import linen, struct
 
-from jaml.stream.config import PPOConfig
+from jaml.configs.stream import PPOConfig
 
 
 @struct.dataclass

@@ -14,7 +14,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from jaml.stream.config import StreamConfig, changed_fields
+from jaml.configs.stream import StreamConfig, changed_fields
 
 # The key under which records written before the typed tree held the learner's and env's
 # configs.
@@ -36,6 +36,8 @@ FLAT_FIELDS = {
     "regressor_normalize": "eval.regressor_normalize",
     "distortion_dims": "eval.distortion_dims",
 }
+# Where the ready-made learner configs' classes lived, and live (an own learner's "type").
+OLD_LEARNER_CONFIGS, NEW_LEARNER_CONFIGS = "jaml.learners.config.", "jaml.configs.learners."
 # The penalty record `jaml fig9` wrote into a run directory before config.json held it.
 PENALTY_SIDECAR = "penalty.json"
 # Where those runs placed the relations' coordinates on PRED's latent (fig9's layout then):
@@ -54,6 +56,16 @@ def read(record: dict[str, Any], directory: Path | None = None) -> StreamConfig:
     if "penalty" not in d and directory is not None:
         d["penalty"] = _sidecar_penalty(Path(directory))
     return StreamConfig.from_dict(d)
+
+
+def own_learner(record: dict[str, Any]) -> dict | None:
+    """A record's learner_config as written for a learner of your own (its fields and "type"),
+    the type named where its class lives now: the ready-made configs (`SingleFrameConfig`,
+    `RecurrentConfig`) were in jaml.learners.config before jaml.configs.learners."""
+    own = record.get("learner_config")
+    if isinstance(own, dict) and str(own.get("type")).startswith(OLD_LEARNER_CONFIGS):
+        return own | {"type": NEW_LEARNER_CONFIGS + own["type"].rsplit(".", 1)[1]}
+    return own
 
 
 def _migrated(d: dict[str, Any]) -> dict[str, Any]:

@@ -13,8 +13,8 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaml import _interrupts
+from jaml.configs.stream import StreamConfig
 from jaml.stream import analysis
-from jaml.stream.config import StreamConfig
 from jaml.stream.executor import (
     BLOCK,
     due_by_device,

@@ -17,9 +17,9 @@ import jax
 import numpy as np
 
 from jaml._rundir import RunLog, claim, lock, truncate_jsonl, write_json
+from jaml.configs.stream import SMOKE_NOTE, RunConfig, changed_fields, resolve, scale_of
 from jaml.evaluation import plots
 from jaml.stream import analysis, checkpoint, records
-from jaml.stream.config import SMOKE_NOTE, RunConfig, changed_fields, resolve, scale_of
 from jaml.stream.loop import Stream, StreamState
 from jaml.stream.schedule import checkpoint_due, first_non_finite
 from jaml.stream.timing import timed
@@ -46,7 +46,7 @@ def claim_run(out: Path, config: RunConfig, stream: Stream) -> bool:
                        jax.default_backend())
 
     def same(recorded: dict) -> bool:
-        before = recorded.get("learner_config")
+        before = records.own_learner(recorded)
         own_differs = own is not None and before is not None and before != own
         return then(recorded) == config and not own_differs
 
@@ -54,7 +54,7 @@ def claim_run(out: Path, config: RunConfig, stream: Stream) -> bool:
         was = changed_fields(then(recorded), config)
         named = [f"{path} {was[path]!r} recorded, {value!r} now"
                  for path, value in changed_fields(config, then(recorded)).items()]
-        before = recorded.get("learner_config")
+        before = records.own_learner(recorded)
         if own is not None and before is not None and before != own:
             named += [f"learner_config.{k} {before.get(k)!r} recorded, {own.get(k)!r} now"
                       for k in sorted(set(own) | set(before)) if own.get(k) != before.get(k)]

@@ -4,6 +4,7 @@ shared by the tests below through module-level caches; physics checks reuse thos
 editing the state they start from."""
 
 import functools
+import pkgutil
 from typing import NamedTuple
 
 import jax
@@ -14,6 +15,7 @@ import pytest
 from brax.envs.wrappers.training import AutoResetWrapper, EpisodeWrapper, VmapWrapper
 
 import envs_mjx
+import envs_mjx.config
 from envs_mjx.base import PixelsUnavailableWarning
 from envs_mjx.domains import incline
 from tests.envs_mjx.rollout_harness import FAST_COMPILE, Harness
@@ -74,6 +76,10 @@ def test_registry_names_and_overrides():
         "RearrangeGeom",
         "RearrangeYCB",
     }
+    # One table: each name's config class and the env class `make` builds, named after it.
+    for name, (config_class, env_class) in envs_mjx.config.ENVS.items():
+        assert env_class.endswith(f":{name}") and issubclass(config_class, envs_mjx.EnvConfig)
+        assert issubclass(pkgutil.resolve_name(env_class), envs_mjx.Env)
     with pytest.raises(ValueError, match=r"valid names.*CartPole"):
         envs_mjx.make("NoSuchEnv")
     with pytest.raises(ValueError, match="unknown config overrides \\['bogus'\\]"):

@@ -26,8 +26,8 @@ FLAT_SIZES = dataclasses.asdict(_runs.Sizes())
 
 def _options(config) -> dict:
     """The learner config fields a config sets beyond the learner's defaults."""
-    from jaml.learners.config import default_config
-    from jaml.stream.config import changed_fields
+    from jaml.configs.learners import default_config
+    from jaml.configs.stream import changed_fields
 
     return changed_fields(config.learner_config, default_config(config.learner, ld_dim=None))
 

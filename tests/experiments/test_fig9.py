@@ -12,11 +12,11 @@ import pytest
 
 import envs_mjx
 from envs_mjx.config import configured
+from jaml.configs.learners import default_config
+from jaml.configs.stream import resolve
 from jaml.evaluation import history_records
 from jaml.experiments import fig9, fig9_report
-from jaml.learners.config import default_config
 from jaml.relations.transfer import LatentLayout
-from jaml.stream.config import resolve
 
 NAMES = ["texture_id", "object_id", "theta", "position", "velocity"]
 

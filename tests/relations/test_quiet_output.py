@@ -2,7 +2,7 @@
 
 import jax.numpy as jnp
 
-from jaml.relations.config import Config
+from jaml.configs.relations import Config
 from jaml.relations.relation_set import RelationSet
 from jaml.relations.run import _Recorder
 

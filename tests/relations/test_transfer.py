@@ -309,7 +309,7 @@ def test_a_run_configs_penalty_builds_the_penalty_it_names(tmp_path):
     name on the slots the learner declares, is the penalty built by hand with `LAYOUT`."""
     from types import SimpleNamespace
 
-    from jaml.stream.config import PenaltyConfig
+    from jaml.configs.stream import PenaltyConfig
     from jaml.stream.loop import latent_penalty as from_config
 
     relations.save(trapezoid_relations(), tmp_path / "checkpoint")

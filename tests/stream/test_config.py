@@ -11,11 +11,11 @@ import pytest
 
 from envs_mjx.config import ALL_ENVS, FAMILIES, default_config, family
 from jaml import stream
-from jaml.learners import config as learners_config
-from jaml.learners.config import ALL_LEARNERS
+from jaml.configs import learners as learners_config
+from jaml.configs.learners import ALL_LEARNERS
+from jaml.configs.stream import DOMAINS, PenaltyConfig, RunConfig, changed_fields, resolve
 from jaml.stream import records
 from jaml.stream import run as run_lib
-from jaml.stream.config import DOMAINS, PenaltyConfig, RunConfig, changed_fields, resolve
 from jaml.stream.records import FLAT_FIELDS, LEGACY_EVAL_FIELDS, LEGACY_LEARNER_FIELDS
 from tests.stream.test_loop import tiny
 

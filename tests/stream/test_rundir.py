@@ -60,8 +60,13 @@ def test_a_learner_of_your_own_is_recorded_by_its_factorys_config(tmp_path):
 
     assert rundir.claim_run(tmp_path, config, built(6)) is False
     recorded = json.loads((tmp_path / "config.json").read_text())["learner_config"]
-    assert recorded["type"] == "jaml.learners.config.SingleFrameConfig"
+    assert recorded["type"] == "jaml.configs.learners.SingleFrameConfig"
     assert recorded["latent_dim"] == 6 and recorded["ld_dim"] == 4
+    assert rundir.claim_run(tmp_path, config, built(6)) is True
+    # A record written while the ready-made configs lived in jaml.learners.config resumes.
+    record = json.loads((tmp_path / "config.json").read_text())
+    record["learner_config"]["type"] = "jaml.learners.config.SingleFrameConfig"
+    (tmp_path / "config.json").write_text(json.dumps(record))
     assert rundir.claim_run(tmp_path, config, built(6)) is True
     with pytest.raises(ValueError, match=r"learner_config\.latent_dim 6 recorded, 8 now"):
         rundir.claim_run(tmp_path, config, built(8))

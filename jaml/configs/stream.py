@@ -1,6 +1,6 @@
 """`StreamConfig`: one learning-loop run, a frozen tree of typed configs: the run's schedule, its
 replay (`ReplayConfig`), analyses (`EvalConfig`), policy (`PPOConfig`), env (its
-`envs_mjx.config.EnvConfig`), learner (its `jaml.learners.config.LearnerConfig`) and the
+`envs_mjx.config.EnvConfig`), learner (its `jaml.configs.learners.LearnerConfig`) and the
 relations imposed on the learner's latents (`PenaltyConfig`, or none).
 
 Defaults follow the reference suite (docs/reference/suite.md §3, §5) where they are not sizes; the
@@ -21,14 +21,16 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections.abc import Mapping
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 from envs_mjx import config as envs_config
-from jaml.learners import config as learners_config
+from jaml.configs import learners as learners_config
 
-POLICIES = ("ppo", "random")
+Policy = Literal["ppo", "random"]
+POLICIES = get_args(Policy)
 # How the alignment regressor's held-out rows are drawn (`EvalConfig.validation_split`).
-VALIDATION_SPLITS = ("slots", "leading")
+ValidationSplit = Literal["slots", "leading"]
+VALIDATION_SPLITS = get_args(ValidationSplit)
 # The reference's replay size in columns (docs/reference/suite.md §3).
 REFERENCE_REPLAY_COLUMNS = 5000
 # The share of replay slots kept from the initial policy, by learner (docs/reference/suite.md §3):
@@ -152,7 +154,7 @@ class EvalConfig:
     regressor_iterations: int = 10_000
     regressor_normalize: bool = True
     distortion_dims: tuple[str, ...] = ()
-    validation_split: Literal["slots", "leading"] = "slots"
+    validation_split: ValidationSplit = "slots"
 
     def __post_init__(self):
         problems = _below(self, ("every", "train", "rand", "regressor_iterations"), "eval.")
@@ -205,7 +207,7 @@ class StreamConfig:
     eval: the analyses' schedule, sets and regressor (`EvalConfig`).
     ppo: PPO's hyper-parameters (`for_env` sets the network and passes per domain).
     env_config: the env's config (`envs_mjx.config`); None: the env's defaults.
-    learner_config: the learner's config (`jaml.learners.config`); None: the learner's defaults
+    learner_config: the learner's config (`jaml.configs.learners`); None: the learner's defaults
       (your own learner's: none). Its ld_dim is the env's LD-state size: None until `resolve`
       is given it (the stream reads it from the env it builds).
     penalty: relations imposed on the learner's latents (`PenaltyConfig`); None: none.
@@ -213,7 +215,7 @@ class StreamConfig:
 
     env: str = "CartPole"
     learner: str = "VAE_rpl"
-    policy: str = "ppo"
+    policy: Policy = "ppo"
     seed: int = 0
     num_envs: int = 64
     rollout_len: int = 32
@@ -242,26 +244,19 @@ class StreamConfig:
                             f"({self.ppo.num_minibatches})")
         if problems:
             raise ValueError("; ".join(problems))
-        # The typed configs' defaults, and their classes checked against the names: computed
-        # here, so every config holds its env's and (registry) learner's configs.
-        if self.env_config is None:
-            object.__setattr__(self, "env_config", envs_config.default_config(self.env))
-        elif type(self.env_config) is not envs_config.CONFIGS.get(self.env):
-            wanted = envs_config.default_config(self.env)  # an unknown env raises here
-            raise ValueError(f"env_config is a {type(self.env_config).__name__}, but {self.env} "
-                             f"needs a {type(wanted).__name__}: give the env's config or None")
+        # The typed configs' defaults, and their classes checked against the names (by the
+        # registries, `configured`): here, so every config holds its env's and (registry)
+        # learner's configs.
+        object.__setattr__(self, "env_config",
+                           envs_config.configured(self.env, self.env_config))
         if ":" in self.learner:  # your own learner: its factory sets its config
             if self.learner_config is not None:
                 raise ValueError(f"learner_config must be None for your own learner "
                                  f"{self.learner}: its factory sets its config")
             return
-        default = learners_config.default_config(self.learner, ld_dim=None)  # checks the name
-        if self.learner_config is None:
-            object.__setattr__(self, "learner_config", default)
-        elif type(self.learner_config) is not type(default):
-            raise ValueError(
-                f"learner_config is a {type(self.learner_config).__name__}, but {self.learner} "
-                f"needs a {type(default).__name__}: give the learner's config or None")
+        object.__setattr__(self, "learner_config", learners_config.configured(
+            self.learner, self.learner_config) if self.learner_config is not None
+            else learners_config.default_config(self.learner, ld_dim=None))
 
     def replace(self, **changes) -> StreamConfig:
         """`dataclasses.replace`; a new env or learner name starts from its configs' defaults

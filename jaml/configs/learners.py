@@ -1,6 +1,7 @@
-"""The learners' configs: what `jaml suite --learner L --help` lists, the registry's names and
-defaults (`ALL_LEARNERS`, `default_config`). Importing this module imports neither JAX nor
-Flax; the models that read these configs live in the learners' own modules.
+"""The learners' configs: what `jaml suite --learner L --help` lists, and the learner registry
+(`LEARNERS`: names, config classes, defaults, builders; `default_config`, `configured`).
+Importing this module imports neither JAX nor Flax; the models that read these configs live in
+`jaml.learners`.
 """
 
 from __future__ import annotations
@@ -12,18 +13,24 @@ import typing
 if typing.TYPE_CHECKING:
     import jax
 
+# The str fields' values, as Literal types (the command line's choices) and tuples.
 # The encoder's view of the last input frame's action (`elbo.encoder_actions`).
-CURRENT_ACTIONS = ("observed", "hidden")
+CurrentAction = typing.Literal["observed", "hidden"]
+CURRENT_ACTIONS = typing.get_args(CurrentAction)
 # How the decoder's k4 s2 p1 transposed convolutions are computed (`networks.upsample2x`):
 # "auto" is "phase" on the CPU, "pair" elsewhere; all stay selectable, one function.
-UPSAMPLE_FORMS = ("auto", "subpixel", "phase", "dilated", "pair")
+UpsampleForm = typing.Literal["auto", "subpixel", "phase", "dilated", "pair"]
+UPSAMPLE_FORMS = typing.get_args(UpsampleForm)
 # The KL term's forms (`elbo.kl_to_standard_normal`).
-KL_FORMS = ("standard", "reference")
+KLForm = typing.Literal["standard", "reference"]
+KL_FORMS = typing.get_args(KLForm)
 # How the decoded frames' log-likelihoods combine (`LearnerConfig.frame_nll`).
-FRAME_NLLS = ("sum", "mean")
+FrameNLL = typing.Literal["sum", "mean"]
+FRAME_NLLS = typing.get_args(FrameNLL)
 # The conv stacks' dtypes, by their JAX names (`LearnerConfig.conv_dtype`); "auto" is
 # "bfloat16" off the CPU and "float32" on it (`dtype_for_backend`).
-COMPUTE_DTYPE_NAMES = ("auto", "float32", "bfloat16")
+ComputeDtype = typing.Literal["auto", "float32", "bfloat16"]
+COMPUTE_DTYPE_NAMES = typing.get_args(ComputeDtype)
 
 
 def dtype_for_backend(name: str, backend: str) -> str:
@@ -84,12 +91,12 @@ class LearnerConfig:
     conv_filters: tuple[int, ...] = (64, 128, 128, 256)
     conv_features: int = 128
     deconv_filters: tuple[int, ...] = (256, 128, 128, 64)
-    frame_nll: str = "sum"
-    compute_dtype: str = "auto"
-    activation_dtype: str = "auto"
-    current_action: str = "observed"
-    kl_form: str = "standard"
-    upsample_form: str = "auto"
+    frame_nll: FrameNLL = "sum"
+    compute_dtype: ComputeDtype = "auto"
+    activation_dtype: ComputeDtype = "auto"
+    current_action: CurrentAction = "observed"
+    kl_form: KLForm = "standard"
+    upsample_form: UpsampleForm = "auto"
 
     def __post_init__(self):
         if self.upsample_form not in UPSAMPLE_FORMS:
@@ -464,28 +471,35 @@ class SPAIRConfig(SingleFrameConfig):
         return (jnp.asarray(step, jnp.float32) < self.training_wheels_steps).astype(jnp.float32)
 
 
-# name → (config class, defaults that differ from the class's); the builders:
-# `jaml.learners.make`. VAE_rpl differs from VAE_v0 only in the stream's replay
-# (`jaml.stream.config.resolve`).
-LEARNERS: dict[str, tuple[type[LearnerConfig], dict]] = {
-    "VAE_v0": (VAEConfig, {}),
-    "VAE_rpl": (VAEConfig, {}),
-    "beta-VAE": (VAEConfig, {"beta": 5.0}),
-    "SVAE": (SVAEConfig, {}),
-    "PRED": (PREDConfig, {}),
-    "DSA": (DSAConfig, {}),
+# The learner registry: name → (config class, defaults that differ from the class's, the
+# "module:function" that builds the learner from its config, which `jaml.learners.make` calls).
+# The builders are named, not imported: they import JAX and Flax, and this module must not.
+# VAE_rpl differs from VAE_v0 only in the stream's replay (`jaml.configs.stream.resolve`).
+LEARNERS: dict[str, tuple[type[LearnerConfig], dict, str]] = {
+    "VAE_v0": (VAEConfig, {}, "jaml.learners.vae:make_vae"),
+    "VAE_rpl": (VAEConfig, {}, "jaml.learners.vae:make_vae"),
+    "beta-VAE": (VAEConfig, {"beta": 5.0}, "jaml.learners.vae:make_vae"),
+    "SVAE": (SVAEConfig, {}, "jaml.learners.svae:make_svae"),
+    "PRED": (PREDConfig, {}, "jaml.learners.pred:make_pred"),
+    "DSA": (DSAConfig, {}, "jaml.learners.dsa:make_dsa"),
     # 4×4 grid by default; make("SPAIR", ld_dim=D, grid_size=6) for the paper's 6×6 variant.
-    "SPAIR": (SPAIRConfig, {}),
+    "SPAIR": (SPAIRConfig, {}, "jaml.learners.spair:make_spair"),
 }
 ALL_LEARNERS = tuple(LEARNERS)
+
+
+def registered(name: str) -> tuple[type[LearnerConfig], dict, str]:
+    """The named learner's registry entry (config class, defaults, builder); an unknown name
+    raises ValueError listing the valid ones."""
+    if name not in LEARNERS:
+        raise ValueError(f"unknown learner {name!r}; valid names: {', '.join(ALL_LEARNERS)}")
+    return LEARNERS[name]
 
 
 def default_config(name: str, **overrides) -> LearnerConfig:
     """The named learner's config: reference defaults, then `overrides` (ld_dim is required; None
     leaves it to the stream, which sets the env's)."""
-    if name not in LEARNERS:
-        raise ValueError(f"unknown learner {name!r}; valid names: {', '.join(ALL_LEARNERS)}")
-    cls, defaults = LEARNERS[name]
+    cls, defaults, _ = registered(name)
     fields = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(overrides) - fields)
     if unknown:
@@ -493,3 +507,15 @@ def default_config(name: str, **overrides) -> LearnerConfig:
     if "ld_dim" not in overrides:
         raise ValueError(f"{name}: ld_dim (the true LD-state size) is required")
     return cls(**{**defaults, **overrides})
+
+
+def configured(name: str, config: LearnerConfig | None = None, **overrides) -> LearnerConfig:
+    """The named learner's config: `default_config(name, **overrides)`, or `config` (its class
+    checked against the name's) with `overrides` replaced."""
+    if config is None:
+        return default_config(name, **overrides)
+    cls = registered(name)[0]
+    if type(config) is not cls:
+        raise ValueError(f"{name} needs a {cls.__name__}, got {type(config).__name__}: give "
+                         f"a {cls.__name__} or None (its defaults)")
+    return config.replace(**overrides) if overrides else config

@@ -1,5 +1,7 @@
 """The evaluation suite's domains: MJCF models stepped in MJX, with LD state and pixels."""
 
+import importlib
+
 from envs_mjx.config import ALL_ENVS, EnvConfig, default_config
 
 __all__ = [
@@ -32,8 +34,6 @@ _EXPORTS = {
 def __getattr__(name: str):
     if name not in _EXPORTS:
         raise AttributeError(f"module 'envs_mjx' has no attribute {name!r}")
-    import importlib
-
     value = getattr(importlib.import_module(f"envs_mjx.{_EXPORTS[name]}"), name)
     globals()[name] = value
     return value

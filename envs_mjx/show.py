@@ -3,12 +3,14 @@ of the env's own rendered frames from random-action rollouts. Behind `jaml envs 
 
 from __future__ import annotations
 
+import argparse
 import os
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from PIL import Image
 
 import envs_mjx
 
@@ -94,8 +96,6 @@ def show(
 ) -> Path:
     """Writes the rollout grid of env `name` (config `overrides`) to the PNG `out`; returns its
     path."""
-    from PIL import Image
-
     if name not in envs_mjx.ALL_ENVS:
         raise ValueError(f"unknown env {name!r}; valid names: {list(envs_mjx.ALL_ENVS)}")
     out = check_png_path(out)
@@ -105,8 +105,6 @@ def show(
 
 def main(argv: list[str] | None = None) -> int:
     """`python -m envs_mjx.show NAME --out PNG [--arm franka] [--version V] ...`"""
-    import argparse
-
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("name")
     parser.add_argument("--out", required=True)

@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import sys
 
+from jaml import cli
+
 
 def main(argv: list[str] | None = None) -> int:
-    from jaml import cli
-
     return cli.main(argv)
 
 

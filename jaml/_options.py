@@ -3,6 +3,7 @@ drivers' commands."""
 
 from __future__ import annotations
 
+import json
 from typing import Annotated
 
 import tyro
@@ -13,8 +14,6 @@ KeyValues = Annotated[tuple[str, ...], tyro.conf.UseAppendAction,
 
 def key_value(text: str) -> tuple[str, object]:
     """KEY=VALUE with VALUE read as JSON where it parses (numbers, true, lists), else a string."""
-    import json
-
     if "=" not in text:
         raise ValueError(f"expected KEY=VALUE, got {text!r}")
     key, value = text.split("=", 1)

@@ -17,9 +17,14 @@ from typing import Annotated, Literal
 
 import tyro
 
+from envs_mjx.config import ALL_ENVS, default_config
 from jaml import _command
 from jaml._command import _SUITE_FIXED, _one_line, use_compilation_cache  # noqa: F401
 from jaml._options import KeyValues, key_value, key_values  # noqa: F401
+from jaml.configs.learners import ALL_LEARNERS
+from jaml.configs.relations import Config
+from jaml.configs.stream import StreamConfig, changed_fields, for_env, scaled
+from jaml.experiments import fig2, fig3, fig9
 from jaml.experiments._runs import CallOptions
 
 # The root's description in `jaml --help`.
@@ -45,12 +50,6 @@ def _print_summary(out, summary) -> None:
         print(f"  {line}")
 
 
-def _relations_config():
-    from jaml.configs.relations import Config
-
-    return Config
-
-
 @dataclasses.dataclass(frozen=True)
 class Relations:
     """Learn AML relations g_1..g_K on a source's on-manifold rows (paper §3, Alg. 1) and write
@@ -69,8 +68,8 @@ class Relations:
     env's config); for the block presets a BlockOnIncline field, e.g. friction=0.1"""
     no_progress: bool = False
     """no progress bars"""
-    config: Annotated[_relations_config(), tyro.conf.arg(name="")] = dataclasses.field(
-        default_factory=_relations_config())
+    config: Annotated[Config, tyro.conf.arg(name="")] = dataclasses.field(
+        default_factory=Config)
 
     def run(self) -> int:
         from jaml.relations.run import run
@@ -80,24 +79,6 @@ class Relations:
                       progress=not self.no_progress)
         _print_summary(self.out, summary)
         return 0
-
-
-def _suite_config():
-    from jaml.configs.stream import StreamConfig
-
-    return StreamConfig
-
-
-def _envs() -> tuple[str, ...]:
-    from envs_mjx.config import ALL_ENVS
-
-    return ALL_ENVS
-
-
-def _learners() -> tuple[str, ...]:
-    from jaml.configs.learners import ALL_LEARNERS
-
-    return ALL_LEARNERS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,9 +91,9 @@ class Suite:
     reference suite (`jaml.stream.for_env`): `jaml suite --env ENV --learner LEARNER --help`
     shows them, with the env's and the learner's own options (env-config, learner-config)."""
 
-    env: Literal[_envs()]
+    env: Literal[ALL_ENVS]
     """the MJX domain (`jaml envs list`)"""
-    learner: Literal[_learners()]
+    learner: Literal[ALL_LEARNERS]
     """the learner (jaml.learners), or your own as MODULE:FACTORY (docs/own_learner.md)"""
     out: Path
     """run directory"""
@@ -125,15 +106,12 @@ class Suite:
     analysis sets: minutes on a CPU, the smallest whose numbers rank encoders) or "smoke"
     (8 envs, 4 epochs: plumbing only, its numbers do not rank encoders); `jaml.suite.SCALES`;
     flags given beside it win"""
-    config: Annotated[_suite_config(), tyro.conf.arg(name="")] = dataclasses.field(
-        default_factory=_suite_config())
+    config: Annotated[StreamConfig, tyro.conf.arg(name="")] = dataclasses.field(
+        default_factory=StreamConfig)
 
     def stream_config(self):
         """The run's StreamConfig: `for_env`'s per-domain settings, scaled, then what the flags
         changed, the learner's and env's configs included (`StreamConfig.with_overrides`)."""
-        from jaml.configs.stream import changed_fields, for_env
-        from jaml.suite import scaled
-
         base = for_env(self.env, self.learner)
         given = self.config.replace(env=self.env, learner=self.learner, **{
             name: getattr(self, name, getattr(base, name))
@@ -177,12 +155,6 @@ def _print_errors(summary: dict) -> None:
         print(f"  note: {summary['note']}")
 
 
-def _env_default(name: str):
-    from envs_mjx.config import default_config
-
-    return default_config(name)
-
-
 def _suite_for(argv: list[str]) -> type:
     """Suite, or when argv names a valid --env and --learner, a Suite whose defaults are that
     pair's (`for_env`) with the learner's and the env's configs as typed flags."""
@@ -193,10 +165,8 @@ def _suite_for(argv: list[str]) -> type:
         return dataclasses.make_dataclass(
             "Suite", [("learner", str)], bases=(Suite,), frozen=True,
             namespace={"__doc__": Suite.__doc__, "__module__": __name__})
-    if env not in _envs() or learner not in _learners():
+    if env not in ALL_ENVS or learner not in ALL_LEARNERS:
         return Suite
-    from jaml.configs.stream import for_env
-
     base = for_env(env, learner)
     # The typed configs with their concrete types, so that their fields are flags; the
     # learner's ld_dim comes from the env when the stream builds the learner.
@@ -204,7 +174,7 @@ def _suite_for(argv: list[str]) -> type:
     return dataclasses.make_dataclass(
         "Suite",
         [
-            ("config", Annotated[_suite_config(), tyro.conf.arg(name="")],
+            ("config", Annotated[StreamConfig, tyro.conf.arg(name="")],
              dataclasses.field(default=base)),
             ("learner_config", type(learner_config), dataclasses.field(default=learner_config)),
             ("env_config", type(env_config), dataclasses.field(default=env_config)),
@@ -226,7 +196,6 @@ class Demo:
     """no progress bars"""
 
     def run(self) -> int:
-        from jaml.configs.relations import Config
         from jaml.relations.run import run
 
         for source in ("ellipse", "block45"):
@@ -256,7 +225,7 @@ class EnvsShow:
     (envs_mjx.render). `jaml envs show --env ENV --help` lists the env's own options
     (env-config), e.g. `--env-config.arm franka` for the Rearrange domains."""
 
-    env: Literal[_envs()]
+    env: Literal[ALL_ENVS]
     """the MJX domain (`jaml envs list`)"""
     out: Path | None = None
     """PNG path (default: ENV.png)"""
@@ -269,12 +238,11 @@ class EnvsShow:
 
     def run(self) -> int:
         from envs_mjx.show import show
-        from jaml.configs.stream import changed_fields
 
         out = self.out or Path(f"{self.env}.png")
         env_config = getattr(self, "env_config", None)
         options = ({} if env_config is None
-                   else changed_fields(env_config, _env_default(self.env)))
+                   else changed_fields(env_config, default_config(self.env)))
         path = show(self.env, out, resets=self.resets, steps=self.steps, seed=self.seed,
                     **options)
         shown = "".join(f", {k}={v}" for k, v in options.items())
@@ -296,9 +264,9 @@ def _envs_for(argv: list[str]) -> type:
     """Envs, or when argv names a valid --env, an Envs whose `show` takes that env's config as
     typed flags (env-config)."""
     env = _flag(argv, "--env")
-    if env not in _envs():
+    if env not in ALL_ENVS:
         return Envs
-    env_config = _env_default(env)
+    env_config = default_config(env)
     show = dataclasses.make_dataclass(
         "EnvsShow",
         [("env_config", type(env_config), dataclasses.field(default=env_config))],
@@ -339,7 +307,6 @@ class Info:
     """JAX version, backend and devices; package versions; whether MJX imports."""
 
     def run(self) -> int:
-        import importlib
         import importlib.metadata
 
         import jax
@@ -371,8 +338,6 @@ class Info:
 
 
 def _commands(argv: list[str]) -> dict[str, type]:
-    from jaml.experiments import fig2, fig3, fig9
-
     return {"relations": Relations, "suite": _suite_for(argv), "fig2": fig2.Args,
             "fig3": fig3.Args, "fig9": fig9.Args, "demo": Demo, "envs": _envs_for(argv),
             "info": Info}

@@ -56,6 +56,8 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+from mujoco.mjx._src import mesh as mjx_mesh
+from PIL import Image
 
 from envs_mjx.base import geom_ids
 from envs_mjx.config import MESH_OBJECTS, MeshInclineConfig
@@ -66,6 +68,7 @@ from envs_mjx.domains.incline import (
     _normal,
 )
 from envs_mjx.domains.mesh_object import load_object
+from envs_mjx.render.context import mesh_set, texture_index
 
 # Longest side (m) at the incline's scale: the reference's YCB objects at 2.5x measured
 # 0.26-0.38 m (sugar box 0.38, chef can 0.33, soup can 0.31; docs/reference/suite.md §6).
@@ -284,8 +287,6 @@ class MeshOnIncline(GeomOnIncline):
 
     def _render_context(self, ctx, info):
         """The env's object in the renderer's mesh slot, and its surfaces' textures."""
-        from envs_mjx.render.context import texture_index
-
         m = self.mj_model
         if ctx.mesh is None or ctx.mesh.geom != (int(self._geoms[1]),):
             raise ValueError("the render context must draw one mesh, object_visual")
@@ -354,10 +355,6 @@ def _object_tables(spec, config, ids, half_heights) -> _Objects:
     """Compiles the model once per object, its two geoms on that object's meshes, and reads
     what differs: geom frames and sizes, inertia and the compiler's constants, MJX's hull
     vertices and the renderer's triangles. Leaves the spec showing objects[0]."""
-    from mujoco.mjx._src import mesh as mjx_mesh
-
-    from envs_mjx.render.context import mesh_set
-
     hull, visual = spec.geom("object"), spec.geom("object_visual")
     rows, verts, tris = [], [], []
     for k in range(len(ids)):
@@ -444,8 +441,6 @@ def _add_surfaces(spec: mujoco.MjSpec, config) -> None:
 
 def _texture(name: str) -> np.ndarray:
     """uint8 [H, W, 3] of assets/textures/NAME.png."""
-    from PIL import Image  # matplotlib's dependency; only needed when building the model
-
     return np.asarray(Image.open(ASSETS / "textures" / f"{name}.png").convert("RGB"), np.uint8)
 
 

@@ -13,6 +13,7 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from envs_mjx.render import decimate
 
@@ -70,8 +71,6 @@ def load_object(
     folder: str | Path, size: float, max_faces: int = 300, max_texture: int = 128
 ) -> TexturedMesh:
     """The textured object in `folder` (see the module docstring), decimated and rescaled."""
-    from PIL import Image  # matplotlib's dependency; only needed when loading an object
-
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"object folder not found: {folder}")
@@ -110,8 +109,6 @@ def crop_to_uv(image, uv: np.ndarray):
 
 def write_object(mesh: TexturedMesh, folder: str | Path) -> None:
     """Writes `mesh` as `folder/textured.obj` + `texture_map.png` (what `load_object` reads)."""
-    from PIL import Image
-
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     lines = [f"v {x:.6g} {y:.6g} {z:.6g}" for x, y, z in mesh.verts]

@@ -63,6 +63,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+from mujoco.mjx._src import mesh as mjx_mesh
 
 from envs_mjx.base import Env, drawn_rgba, physics_step
 from envs_mjx.c_physics import CPhysics
@@ -70,6 +71,7 @@ from envs_mjx.config import ARMS, PHYSICS, RearrangeConfig
 from envs_mjx.domains._assets import ASSETS, asset
 from envs_mjx.domains.mesh_incline import _add_texture, _pad, _texture
 from envs_mjx.domains.mesh_object import load_object
+from envs_mjx.render.context import mesh_set, texture_index
 
 # What physics="c" brings back after an env step besides qpos / qvel: what the LD state, reward
 # (the Franka's end-effector site) and renderer (geom and camera poses) read.
@@ -350,8 +352,6 @@ class Rearrange(Env):
             if any(not np.array_equal(values[0], v) for v in values[1:]):
                 physics[field] = np.stack(values).astype(np.float32)
         # MJX's convex data of colliding meshes (a can's prism scaled per version).
-        from mujoco.mjx._src import mesh as mjx_mesh
-
         convex = {}
         m0 = ms[0]
         for g in np.flatnonzero(
@@ -368,7 +368,6 @@ class Rearrange(Env):
                     f: np.stack([np.asarray(getattr(h, f)) for h in hulls]).astype(np.float32)
                     for f in ("vert", "face", "face_normal", "edge_face_normal")
                 }
-        from envs_mjx.render.context import texture_index
 
         rgb_role = int(mujoco.mjtTextureRole.mjTEXROLE_RGB)
         geom_tex = []
@@ -653,8 +652,6 @@ class Rearrange(Env):
     def _mesh_tables(self, geoms: tuple) -> dict[str, np.ndarray]:
         """The renderer's triangles of `geoms` per version, padded to one count: [V, Gm, T, ...]
         (host arrays, built once per geom tuple, outside any trace)."""
-        from envs_mjx.render.context import mesh_set
-
         cache = self.__dict__.setdefault("_mesh_table_cache", {})
         if geoms not in cache:
             with jax.ensure_compile_time_eval():

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
+from PIL import Image
 
 from envs_mjx.render import camera as camera_lib
 
@@ -164,8 +165,6 @@ def mip_levels(rgb: np.ndarray) -> list[np.ndarray]:
     """[h, w, 3] uint8 -> MIP_LEVELS images: the texture, then box-filtered halvings (sides
     max(1, side >> level), each level averaged from the full texture), as glGenerateMipmap
     builds them for power-of-two sides."""
-    from PIL import Image  # matplotlib's dependency; only needed when a model has textures
-
     h, w, _ = rgb.shape
     image = Image.fromarray(rgb)
     levels = [rgb]

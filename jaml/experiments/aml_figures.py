@@ -16,6 +16,14 @@ import math
 import time
 from pathlib import Path
 
+import jax
+import numpy as np
+from scipy.spatial import cKDTree
+
+from jaml import sources
+from jaml.relations import Config, codimension, load, project
+from jaml.relations.run import draw_figures, run
+
 ROW_NAMES = ("fig5_top", "fig5_middle", "fig5_bottom", "fig7_top", "fig7_middle",
              "fig7_bottom", "fig7_bottom_theta", "figB_syzygy")
 # More than two relations, and syzygy rounds, are capped lower than the default 50 000 steps
@@ -44,9 +52,6 @@ ROWS: dict[str, tuple[str, dict, dict | None]] = {
 def train(name: str, out: Path, seed: int = 0, folder: str | None = None) -> dict:
     """Learn row `name`'s relations into out/name (or out/folder); returns its summary (with
     wall seconds)."""
-    from jaml.relations import Config
-    from jaml.relations.run import run
-
     source, overrides, _ = ROWS[name]
     started = time.perf_counter()
     summary = run(source, Config(seed=seed, **overrides), out / (folder or name), progress=False,
@@ -71,12 +76,6 @@ def _note(name: str, summary: dict, codim: dict) -> str:
 def draw(name: str, out: Path) -> list[Path]:
     """Redraw row `name`'s figure from its checkpoint (`jaml.relations.run.draw_figures`) and
     write the rank check of its relations on fresh training rows to codimension.json."""
-    import jax
-
-    from jaml import sources
-    from jaml.relations import codimension, load
-    from jaml.relations.run import draw_figures
-
     source, _, slice_options = ROWS[name]
     rs = load(out / name / "checkpoint")
     rows = sources.make(source).sample(jax.random.key(1), 2048)
@@ -91,16 +90,10 @@ def draw_seeds(name: str, out: Path, seeds: list[int]) -> Path:
     """One panel per seed of row `name` (trained into out/name_s{seed}): 1,024 uniform box points
     moved onto the learned manifold by `relations.project` at its defaults, coloured by their
     distance to the data, with the share that land within 0.05 of it."""
-    import jax
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
-    from scipy.spatial import cKDTree
-
-    from jaml import sources
-    from jaml.relations import load, project
 
     source = sources.make(ROWS[name][0])
     dense = np.asarray(source.sample(jax.random.key(99), 200_000))

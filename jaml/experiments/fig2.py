@@ -54,6 +54,7 @@ import tyro
 
 from jaml._options import key_values
 from jaml._rundir import write_text
+from jaml.configs.stream import for_env, scaled
 from jaml.experiments import _runs
 from jaml.experiments._runs import cell
 from jaml.experiments.fig2_grid import (
@@ -92,9 +93,6 @@ def config_for(env: str, variant: str, seed: int, scale: dict, schedule: dict,
                learner_opt: dict | None = None, preset: str = "paper"):
     """The StreamConfig of one run of the grid; `preset` "smoke" replaces its sizes and
     schedule by `jaml.suite.SCALES["smoke"]`."""
-    from jaml.stream import for_env
-    from jaml.suite import scaled
-
     learner, overrides = VARIANTS[variant]
     epochs, eval_every = schedule[family(env)]
     return scaled(for_env(env, learner, {

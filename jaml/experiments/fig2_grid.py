@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+import envs_mjx
 from jaml.experiments import _runs
 
 PENDULUMS = ("CartPole", "InvertedPendulum")
@@ -25,8 +26,6 @@ def ld_groups(env: str) -> dict[str, list[str]]:
 @functools.cache
 def _ld_groups(env: str) -> tuple[tuple[str, tuple[str, ...]], ...]:
     # Building the domain parses its MJCF; a report reads the groups for every cell and check.
-    import envs_mjx
-
     domain = envs_mjx.make(env)
     groups: dict[str, list[str]] = {}
     for name, group in zip(domain.ld_state_names, domain.ld_state_groups, strict=True):

@@ -62,8 +62,10 @@ from typing import Annotated, Literal
 import numpy as np
 import tyro
 
+import envs_mjx
 from jaml._options import KeyValues, key_values
 from jaml._rundir import write_text
+from jaml.configs.stream import for_env, scaled
 from jaml.experiments import _runs
 from jaml.experiments._runs import cell
 
@@ -163,8 +165,6 @@ def _items(options: dict | None) -> tuple:
 
 @functools.cache
 def _domain(env: str, env_opt: tuple):
-    import envs_mjx
-
     return envs_mjx.make(env, **dict(env_opt))
 
 
@@ -240,9 +240,6 @@ def config_for(variant: str, seed: int, scale: dict, schedule: tuple[int, int],
     (`_runs.Sizes.overrides()`, or any others: the tests shrink everything); `learner_opt` learner
     config fields for this variant; `preset` "smoke" replaces sizes and schedule
     (`jaml.suite.SCALES`)."""
-    from jaml.stream import for_env
-    from jaml.suite import scaled
-
     if variant not in VARIANTS:
         raise ValueError(f"unknown variant {variant!r}; valid: {', '.join(VARIANTS)}")
     if env not in ENVS:

@@ -32,8 +32,9 @@ from typing import Annotated, Literal
 
 import tyro
 
+from jaml._rundir import write_json
 from jaml.configs.relations import Config
-from jaml.configs.stream import SCALES, PenaltyConfig
+from jaml.configs.stream import SCALES, PenaltyConfig, for_env
 from jaml.experiments import _runs
 from jaml.experiments._runs import read_jsonl
 
@@ -213,8 +214,6 @@ def _dynamics(dynamics: str) -> dict:
 
 def _config(learner: str, seed: int, recipe: Recipe, dynamics: str = "drawn",
             scale: dict | None = None, method: str | None = None):
-    from jaml.stream import for_env
-
     options = dict(recipe.learner_options)
     if learner == "PRED":
         options |= recipe.pred_options
@@ -225,8 +224,6 @@ def _config(learner: str, seed: int, recipe: Recipe, dynamics: str = "drawn",
 
 
 def _write_json(path: Path, value) -> None:
-    from jaml._rundir import write_json
-
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json(path, value)
 

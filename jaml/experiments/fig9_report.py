@@ -16,6 +16,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from jaml._rundir import write_text
 from jaml.evaluation import plots
@@ -281,8 +282,6 @@ def losses_table(out: Path, runs, metrics=_metrics) -> list[str]:
 def plot(runs, path: Path):
     """Position error, Var(ρ) and irreg_std on π_rand over epochs: each method's seed mean with
     its 90 % band; and the paired difference from PRED of the position error."""
-    from matplotlib.figure import Figure
-
     fig = Figure(figsize=(14, 7.5), layout="constrained")
     axes = fig.subplots(2, 2).ravel()
     for k, (method, seeds) in enumerate(runs.items()):

@@ -19,6 +19,7 @@ import time
 
 import jax
 import numpy as np
+from PIL import Image
 
 from jaml import learners
 from jaml.learners import spair
@@ -224,8 +225,6 @@ def main(argv=None):
             json.dump({"overrides": overrides, "batch": args.batch, "seed": args.seed,
                        "history": history}, f, indent=1)
     if args.png:
-        from PIL import Image
-
         Image.fromarray(picture(learner, state.variables, held_out)).save(args.png)
     return history
 

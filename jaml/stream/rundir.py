@@ -15,6 +15,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from matplotlib.image import imsave
 
 from jaml._rundir import RunLog, claim, lock, truncate_jsonl, write_json
 from jaml.configs.stream import SMOKE_NOTE, RunConfig, changed_fields, resolve, scale_of
@@ -75,8 +76,6 @@ def _own_learner_config(stream: Stream) -> dict | None:
 
 def _save_png(path: Path, rows: list[np.ndarray]) -> None:
     """Rows of uint8 [N, H, W, 3] images, tiled N across, with a 2-pixel gap."""
-    from matplotlib.image import imsave
-
     tiles = [np.concatenate([np.pad(im, ((2, 2), (2, 2), (0, 0)), constant_values=255)
                              for im in row], axis=1) for row in rows]
     imsave(path, np.concatenate(tiles, axis=0))

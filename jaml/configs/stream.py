@@ -13,7 +13,7 @@ sizes) enter the tree once, by path (`StreamConfig.with_overrides`).
 A `StreamConfig` may leave values to the run ("auto" dtypes, the replay's size and kept share,
 the learner's ld_dim: None); `resolve` fills them once, for the env's LD-state size and the
 backend, into a `RunConfig`: what the stream, the run directory and its config.json hold, with
-nothing left to fill. Records written by older code are read by `jaml.stream.records`.
+nothing left to fill. Records written by older code are read by `jaml.configs.records`.
 """
 
 from __future__ import annotations
@@ -292,7 +292,7 @@ class StreamConfig:
     @classmethod
     def from_dict(cls, d: dict[str, Any]):
         """The config a `to_dict` describes (a `RunConfig`'s: a config.json of this code; older
-        records are read by `jaml.stream.records.read`). Fields a record lacks take their
+        records are read by `jaml.configs.records.read`). Fields a record lacks take their
         defaults; fields of the learner's and env's configs the code no longer has are
         dropped."""
         d = dict(d)

@@ -12,8 +12,8 @@ import time
 from pathlib import Path
 
 from jaml import _command
+from jaml.configs.records import RESOLVED, settings
 from jaml.configs.stream import StreamConfig
-from jaml.stream.records import RESOLVED, settings
 
 # jaml.evaluation (JAX, SciPy, Matplotlib) is imported by `cell`: the figure commands' --help
 # imports none of them (tests/test_launch.py).

@@ -18,9 +18,10 @@ import numpy as np
 from matplotlib.image import imsave
 
 from jaml._rundir import RunLog, claim, lock, truncate_jsonl, write_json
+from jaml.configs import records
 from jaml.configs.stream import SMOKE_NOTE, RunConfig, changed_fields, resolve, scale_of
 from jaml.evaluation import plots
-from jaml.stream import analysis, checkpoint, records
+from jaml.stream import analysis, checkpoint
 from jaml.stream.loop import Stream, StreamState
 from jaml.stream.schedule import checkpoint_due, first_non_finite
 from jaml.stream.timing import timed

@@ -1,6 +1,6 @@
 """A run's config: one typed tree, resolved once (`resolve`) into the `RunConfig` that
 config.json holds whole, read back by resume; older records (flat, or with fig9's penalty.json)
-still read (`jaml.stream.records`)."""
+still read (`jaml.configs.records`)."""
 
 import dataclasses
 import json
@@ -12,11 +12,11 @@ import pytest
 from envs_mjx.config import ALL_ENVS, FAMILIES, default_config, family
 from jaml import stream
 from jaml.configs import learners as learners_config
+from jaml.configs import records
 from jaml.configs.learners import ALL_LEARNERS
+from jaml.configs.records import FLAT_FIELDS, LEGACY_EVAL_FIELDS, LEGACY_LEARNER_FIELDS
 from jaml.configs.stream import DOMAINS, PenaltyConfig, RunConfig, changed_fields, resolve
-from jaml.stream import records
 from jaml.stream import run as run_lib
-from jaml.stream.records import FLAT_FIELDS, LEGACY_EVAL_FIELDS, LEGACY_LEARNER_FIELDS
 from tests.stream.test_loop import tiny
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"

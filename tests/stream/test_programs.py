@@ -48,10 +48,10 @@ def test_a_figure_cell_keeps_no_stream_even_when_it_fails(monkeypatch):
     built = []
 
     def build(*args):
-        built.append(stream.build(*args))
-        built[-1].jit(_program)  # a program of its own, which must not keep it either
-        built[-1] = weakref.ref(built[-1])
-        return built[-1]()
+        built_stream = stream.build(*args)
+        built_stream.jit(_program)  # a program of its own, which must not keep it either
+        built.append(weakref.ref(built_stream))
+        return built_stream
 
     monkeypatch.setattr(run_lib, "build", build)
     monkeypatch.setattr(run_lib, "open_runs", lambda *_, **__: 1 / 0)

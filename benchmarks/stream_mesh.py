@@ -32,7 +32,7 @@ sys.path.insert(0, str(ROOT))
 # Small enough to compile in about a minute on XLA:CPU: VAE_v0 with narrow convolutions, one
 # learner step per epoch; the replay fills in two epochs.
 QUICK = {"num_envs": 8, "rollout_len": 4, "replay.slots": 16, "frames_per_batch": 8,
-         "learner_steps": 1, "ppo.num_minibatches": 4,
+         "learner_steps": 1, "epochs": 6, "ppo.num_minibatches": 4,
          "learner_config.conv_filters": (8, 8, 8, 8), "learner_config.conv_features": 16,
          "learner_config.deconv_filters": (8, 8, 8, 8)}
 # The paper's sizes of one epoch, the replay as stream_throughput measures it.
@@ -50,8 +50,9 @@ def worker(args) -> None:
     from jaml.stream.executor import held_runs, run_stacked_epochs, runs_mesh, stack_runs
 
     env, learner = args.case.split("/")
-    stream = build(for_env(env, learner, {**(QUICK if args.quick else PAPER), "epochs": 1000}))
-    config = stream.config  # resolved: the replay's fill epochs
+    config = for_env(env, learner, QUICK if args.quick else PAPER)
+    config = config.replace(epochs=max(config.epochs, config.fill_epochs + args.epochs))
+    stream = build(config)
     mesh = runs_mesh(args.runs)
     held = held_runs(args.runs, mesh)
     states = stack_runs([stream.init(jax.random.PRNGKey(seed)) for seed in held])

@@ -55,7 +55,8 @@ def _device_loop(s, seeds, epochs, mesh):
 def test_one_spmd_program_trains_every_seed_on_two_devices():
     """Three runs on the two XLA:CPU devices of tests/conftest.py (two on one, one and a
     padding copy on the other) as one `shard_map` program: compiled once for every seed and
-    block length, and each seed's bits the same wherever the stacking puts it."""
+    block length, nothing gathered across devices, and each seed's bits the same wherever the
+    stacking puts it."""
     assert jax.device_count() == 2, "tests/conftest.py asks XLA for two CPU devices"
     s = stream.build(small())
     mesh = stream.runs_mesh(len(SEEDS))
@@ -76,6 +77,12 @@ def test_one_spmd_program_trains_every_seed_on_two_devices():
                                   equal_nan=True), (k, seed)
     assert [np.asarray(together["learner/training"])[:, i].tolist() for i in range(3)] == (
         [[0, 1]] * 3)
+    # The partitioned program communicates nothing: each device runs its own runs' loop.
+    fresh = stream.stack_runs([s.init(jax.random.PRNGKey(seed)) for seed in SEEDS[:2]])
+    fresh = jax.device_put(fresh, NamedSharding(mesh, P("runs")))
+    text = program.lower(mesh, fresh, np.int32(1)).compile().as_text()
+    assert not [op for op in ("all-gather", "all-to-all", "all-reduce", "collective-permute")
+                if op in text]
 
 
 def test_runs_are_laid_out_a_devices_share_at_a_time():
@@ -97,7 +104,7 @@ class _FakeState:  # what `run_stacked_epochs` reads before it refuses a wrong s
         self.epoch = epoch
 
 
-@pytest.mark.slow  # more compiles: the host loop's pieces, the one-device program, the HLO
+@pytest.mark.slow  # two more compiles: the host loop's pieces and the one-device program
 def test_runs_split_across_two_devices_match_each_run_alone():
     s = stream.build(small())
     alone = []
@@ -113,13 +120,6 @@ def test_runs_split_across_two_devices_match_each_run_alone():
     _, head = _device_loop(s, SEEDS[:2], EPOCHS, one)
     _, tail = _device_loop(s, SEEDS[2:] * 2, EPOCHS, one)
     per_device = jax.tree.map(lambda a, b: np.concatenate([a, b[:, :1]], axis=1), head, tail)
-    # The partitioned program communicates nothing: each device runs its own runs' loop.
-    mesh = stream.runs_mesh(len(SEEDS))
-    fresh = stream.stack_runs([s.init(jax.random.PRNGKey(seed)) for seed in SEEDS[:2]])
-    fresh = jax.device_put(fresh, NamedSharding(mesh, P("runs")))
-    text = executor.sharded_program(s).lower(mesh, fresh, np.int32(1)).compile().as_text()
-    assert not [op for op in ("all-gather", "all-to-all", "all-reduce", "collective-permute")
-                if op in text]
     assert [np.asarray(m["learner/training"]).tolist() for m in alone] == [[0, 1]] * 3
     for k in METRICS:
         # vmapped device loops fuse differently from the host loop: float rounding, which the

@@ -271,7 +271,6 @@ _PROCESS = """
 import json, sys
 import jax
 jax.distributed.initialize(sys.argv[1], 2, int(sys.argv[2]))
-jax.config.update("jax_threefry_partitionable", False)  # this module's random bits
 from jaml.stream import run as run_lib
 from tests.stream.test_loop import tiny
 summaries = run_lib.run_many([tiny(seed=s) for s in range(3)],

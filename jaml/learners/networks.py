@@ -113,11 +113,6 @@ def _phase_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
     return y.reshape(n, 2 * h, 2 * w, o)
 
 
-# The phase pair: the k4 s2 p1 convolution ("halving", the encoder's on the CPU) and its
-# transpose ("doubling", PyTorch's ConvTranspose2d(4, 2, 1), the decoder's on every backend) are
-# each other's input gradients, so each one's backward pass runs the other's forward pass, and
-# both kernel gradients are `_halving_kernel_grad`. XLA's own input gradients are input-dilated
-# convolutions, which its CPU backend runs on a slow generic path (docs/notes/learners.md).
 def _blocks_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
     """[N, 2H, 2W, C] × [4, 4, C, O] → [N, H, W, O]: the k4 s2 p1 convolution as a k2 s1
     convolution of the padded input's 2×2 blocks (4·C channels, padded to a multiple of 8): the
@@ -137,6 +132,11 @@ def _k4s2(x: jax.Array, kernel: jax.Array) -> jax.Array:
     return _xla_conv(x, kernel, (2, 2), _HALVE)
 
 
+# The phase pair: the k4 s2 p1 convolution ("halving", the encoder's on the CPU) and its
+# transpose ("doubling", PyTorch's ConvTranspose2d(4, 2, 1), the decoder's on every backend) are
+# each other's input gradients, so each one's backward pass runs the other's forward pass, and
+# both kernel gradients are `_halving_kernel_grad`. XLA's own input gradients are input-dilated
+# convolutions, which its CPU backend runs on a slow generic path (docs/notes/learners.md).
 @jax.custom_vjp
 def _halving(x: jax.Array, kernel: jax.Array) -> jax.Array:
     return _k4s2(x, kernel)

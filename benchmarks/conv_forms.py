@@ -56,6 +56,11 @@ LAST = {  # [N, 32, 32, 64] × [4, 4, 64, 3] → [N, 64, 64, 3]
 }
 
 
+NOTES = ("The frames' two layers (the encoder's first convolution, 3 channels in; the decoder's "
+         "last transposed convolution, 3 out) in each formulation: value and gradients, jitted, "
+         "steady state (benchmarks/conv_forms.py).")
+
+
 def _time(fn, args, reps: int, steps: int) -> tuple[float, float]:
     """(compile seconds, steady-state seconds per step)."""
     start = time.perf_counter()
@@ -106,7 +111,7 @@ def main(argv=None) -> int:
             print(f"{layer:12s} {name:28s} {1e6 * s:8.1f} µs (compile {compile_s:.1f} s)",
                   flush=True)
     if not args.no_record:
-        harness.record("conv_forms", rows, notes=__doc__.splitlines()[0])
+        harness.record("conv_forms", rows, notes=NOTES)
     return 0
 
 

@@ -163,14 +163,12 @@ def _roofline_rows(found, placed: dict) -> list[dict]:
     """Each layer's bound (measured ceilings and bandwidth) beside its kernels' time."""
     ceiling = functools.cache(lambda d: 1e12 * matmul_ceiling(d, 8192))
     bounds = learner_roofline.layer_rows(found, ceiling, learner_roofline.copy_bandwidth(2048))
-    rows = [{**r, "fwd_ms": placed.pop((r["layer"], False), 0.0),
-             "bwd_ms": placed.pop((r["layer"], True), 0.0)} for r in bounds]
-    rest = collections.Counter()
-    for (name, backward), ms in placed.items():
-        rest[name, backward] += ms
-    for name in sorted({n for n, _ in rest}):
-        rows.append({"layer": name, "fwd_bound_us": 0.0, "bwd_bound_us": 0.0,
-                     "fwd_ms": rest[name, False], "bwd_ms": rest[name, True]})
+    def ms(name: str) -> dict:
+        return {"fwd_ms": placed.get((name, False), 0.0), "bwd_ms": placed.get((name, True), 0.0)}
+
+    rows = [{**r, **ms(r["layer"])} for r in bounds]
+    for name in sorted({n for n, _ in placed} - {r["layer"] for r in bounds}):
+        rows.append({"layer": name, "fwd_bound_us": 0.0, "bwd_bound_us": 0.0, **ms(name)})
     return rows
 
 

@@ -155,12 +155,12 @@ DEADLINE_BLOCK = BLOCK
 _clock = time.monotonic  # what deadlines are read against
 
 
-def _checked(configs: int, outs: list, checkpoint_every: int | None) -> list[Path]:
-    """`run_many`'s arguments checked: one out directory for each of the `configs`, each its
-    own; the directories as Paths (that the configs are one program, `Stream.run_config`
+def _checked(count: int, outs: list, checkpoint_every: int | None) -> list[Path]:
+    """`run_many`'s arguments checked: one out directory for each of its `count` configs, each
+    its own; the directories as Paths (that the configs are one program, `Stream.run_config`
     checks)."""
-    if configs != len(outs) or not configs:
-        raise ValueError(f"run_many needs one out directory per config, got {configs} "
+    if count != len(outs) or not count:
+        raise ValueError(f"run_many needs one out directory per config, got {count} "
                          f"configs and {len(outs)} directories")
     if checkpoint_every is not None and checkpoint_every < 1:
         raise ValueError(f"checkpoint_every must be a positive number of epochs or None, got "

@@ -170,8 +170,11 @@ class Env(brax_base.Env):
     ):
         self.config = config
         self.mj_model = mj_model
-        self.mjx_model = mjx.put_model(mj_model)
-        self._data0 = mjx.make_data(self.mjx_model)
+        # On this process's first device: MJX's default, `jax.devices()[0]`, belongs to process 0
+        # when several processes share a mesh (`jax.distributed`).
+        device = jax.local_devices()[0]
+        self.mjx_model = mjx.put_model(mj_model, device=device)
+        self._data0 = mjx.make_data(self.mjx_model, device=device)
         self._ld_state_names = tuple(ld_state_names)
         self._base_rgba = drawn_rgba(mj_model)
         self.pixels_fn, self.pixels_valid = self._build_pixels_fn(pixels_fn)

@@ -171,6 +171,30 @@ def use_compilation_cache() -> str | None:
     return str(path)
 
 
+def join_processes() -> int:
+    """`jax.distributed.initialize` for a command started as one of several processes (on one
+    host or several; docs/stream.md, "Several seeds and GPUs"); returns the process count.
+
+    JAML_NUM_PROCESSES (N) and JAML_PROCESS_ID (0 … N-1) name this process, JAX_COORDINATOR_ADDRESS
+    (host:port of process 0, read by JAX) where they meet; JAML_NUM_PROCESSES=auto leaves all
+    three to JAX's cluster detection (SLURM, Open MPI, Cloud TPU). Unset: one process."""
+    setting = os.environ.get("JAML_NUM_PROCESSES")
+    if setting is None:
+        return 1
+    import jax
+
+    if setting == "auto":
+        jax.distributed.initialize()
+    else:
+        try:
+            count, index = int(setting), int(os.environ["JAML_PROCESS_ID"])
+        except (KeyError, ValueError):
+            raise ValueError(f"JAML_NUM_PROCESSES={setting!r} needs an integer (or auto) and "
+                             "JAML_PROCESS_ID this process's index from 0") from None
+        jax.distributed.initialize(num_processes=count, process_id=index)
+    return jax.process_count()
+
+
 def _root(argv: list[str], commands: Callable[[list[str]], dict[str, type]],
           description: str) -> type:
     """The `jaml` dataclass: global flags and one subcommand per command (`commands(argv)`)."""
@@ -257,6 +281,7 @@ def main(argv, commands: Callable[[list[str]], dict[str, type]], description: st
         logging.getLogger("absl").setLevel(logging.ERROR)
     use_compilation_cache()
     try:
+        join_processes()
         with _interrupts.as_interrupt():
             return args.command.run()
     except Exception as error:  # every failure one line; the traceback with --debug

@@ -148,10 +148,12 @@ def train_seeds(label: str, configs, dirs, *, stop_after: int | None = None,
                          checkpoint_every=checkpoint_every, final_checkpoint=final_checkpoint,
                          keep_pi_rand=keep_pi_rand, deadline=deadline)
     for config, summary in zip(configs, summaries, strict=True):
+        if summary is None:  # a run another process trains (`run_many`)
+            continue
         phases = ", ".join(f"{k} {v:.0f}s" for k, v in summary["seconds_by_phase"].items())
         print(f"{label} seed {config.seed}: {summary['status']} at epoch {summary['epoch']} "
               f"({phases})", flush=True)
-    statuses = "/".join(sorted({s["status"] for s in summaries}))
+    statuses = "/".join(sorted({s["status"] for s in summaries if s is not None}))
     print(f"{label}: {len(summaries)} seeds {statuses} in {time.perf_counter() - started:.0f}s",
           flush=True)
     return summaries

@@ -27,10 +27,17 @@ class CheckpointMismatch(ValueError):
 
 
 def manager(out: Path, max_to_keep: int = 2) -> ocp.CheckpointManager:
-    """The manager of OUT/checkpoints (created if missing)."""
+    """The manager of OUT/checkpoints (created if missing), this process's alone: with several
+    processes (`jax.distributed`) each writes the runs it holds, and Orbax would otherwise wait
+    for the others at every save."""
+    alone = ocp.options.MultiprocessingOptions(primary_host=jax.process_index(),
+                                               active_processes={jax.process_index()})
+    directory = (Path(out) / "checkpoints").absolute()
+    directory.mkdir(parents=True, exist_ok=True)  # Orbax creates none for one process of many
     return ocp.CheckpointManager(
-        (Path(out) / "checkpoints").absolute(),
-        options=ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True),
+        directory,
+        options=ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=False,
+                                             multiprocessing_options=alone),
         # Named up front: a manager that has not saved in this process otherwise does not know
         # how to read an item's metadata (`item_metadata` gave None on resume, orbax on the
         # GPU image), so a restarted run could not resume.
@@ -50,7 +57,10 @@ def save(mgr: ocp.CheckpointManager, step: int, state) -> None:
     the write takes effect once it is done (`_interrupts.held`): a checkpoint is whole or
     absent, and the interrupted run's summary names it."""
     with _interrupts.held():
-        mgr.save(step, args=ocp.args.StandardSave(named(state)))
+        leaves = named(state)
+        if jax.process_count() > 1:  # Orbax refuses one process's own arrays among several
+            leaves = {k: np.asarray(x) for k, x in leaves.items()}
+        mgr.save(step, args=ocp.args.StandardSave(leaves))
         mgr.wait_until_finished()
 
 
@@ -88,6 +98,10 @@ def _restore(mgr: ocp.CheckpointManager, abstract, step: int):
             f"{unexpected[:5]}{'…' if len(unexpected) > 5 else ''} (was it written by another "
             "jaml version or config? start a new --out)")
     target = {n: a for n, (_, a) in zip(names, paths_leaves, strict=True) if n is not None}
+    if jax.process_count() > 1:  # on this process's device: Orbax's default is process 0's
+        here = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+        target = {n: jax.ShapeDtypeStruct(a.shape, a.dtype, sharding=here)
+                  for n, a in target.items()}
     metadata = mgr.item_metadata(step)
     reshaped = sorted(n for n, a in target.items() if tuple(metadata[n].shape) != a.shape)
     if reshaped:

@@ -1,21 +1,23 @@
-"""How epochs execute: one run or R stacked runs, on the host, in device blocks, or split
-across devices.
+"""How epochs execute: one run or R stacked runs, on the host, in device blocks, or as one
+SPMD program over a mesh of devices, on one host or several.
 
 The epoch itself is `Stream.epochs`, a pure function of the stacked states (`jaml.stream.loop`).
 This module decides how a call of n epochs runs it: a host loop of jitted pieces (CPU), blocks of
-up to 32 epochs inside one device loop (GPU/TPU), and one such program per device when the runs
-are sharded across a mesh. What it compiles, the Stream keeps (`Stream.jit`).
+up to 32 epochs inside one device loop (GPU/TPU), and that device loop as one `shard_map`
+program, partitioned by XLA's GSPMD, when the runs are sharded along a mesh's "runs" axis. What it compiles, the Stream keeps
+(`Stream.jit`).
 
 Shapes: R runs.
 """
 
 from __future__ import annotations
 
-import concurrent.futures
+import contextlib
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
@@ -47,19 +49,39 @@ def unstack_runs(states: StreamState) -> list[StreamState]:
     return [jax.tree.map(lambda x, i=i: x[i], states) for i in range(count)]
 
 
+RUNS_AXIS = "runs"
+
+
 def runs_mesh(num_runs: int, devices=None) -> Mesh:
-    """A 1-D mesh ("runs") over the first min(num_runs, len(devices)) devices (default: all
-    local devices of the default backend). With `jax.distributed` initialised, pass
-    `jax.devices()` to span every host's devices."""
+    """A 1-D mesh ("runs") for R = `num_runs` runs. On one host: the first min(R, len(devices))
+    devices (default: the local devices of the default backend). With `jax.distributed`
+    initialised (several processes): every process's devices, `jax.devices()`, so each process
+    holds a share of the runs (`held_runs`)."""
+    if devices is None and jax.process_count() > 1:
+        return Mesh(np.asarray(jax.devices()), (RUNS_AXIS,))
     devices = list(jax.local_devices() if devices is None else devices)
     return Mesh(np.asarray(devices[:max(1, min(num_runs, len(devices)))]), (RUNS_AXIS,))
 
 
-RUNS_AXIS = "runs"
+def held_runs(num_runs: int, mesh: Mesh) -> range:
+    """The runs (indices into R = `num_runs`) this process holds on `mesh`: ceil(R / devices)
+    per device in mesh order, the last devices' shares short; every run when the mesh is this
+    process's alone."""
+    devices = list(mesh.devices.flat)
+    mine = [i for i, d in enumerate(devices) if d.process_index == jax.process_index()]
+    if not mine:
+        raise ValueError(f"the mesh holds none of process {jax.process_index()}'s devices; "
+                         "give every process devices in it (`runs_mesh`)")
+    per = -(-num_runs // len(devices))
+    held = range(min(mine[0] * per, num_runs), min((mine[-1] + 1) * per, num_runs))
+    if not held:
+        raise ValueError(f"{num_runs} runs leave process {jax.process_index()} none on a mesh "
+                         f"of {len(devices)} devices; train at least one run per process")
+    return held
 
 
 def run_stacked_epochs(stream: Stream, states: StreamState, n: int, *, mesh: Mesh | None = None,
-                       host_loop: bool | None = None):
+                       host_loop: bool | None = None, num_runs: int | None = None):
     """n epochs of R independent runs of one Stream, stacked along a leading axis.
 
     Returns (states, metrics [n, R] per name). The states are donated (do not reuse the
@@ -70,42 +92,69 @@ def run_stacked_epochs(stream: Stream, states: StreamState, n: int, *, mesh: Mes
 
     The device loop (default on GPU/TPU) runs up to 32 epochs per call inside `fori_loop`.
     With a mesh of several devices (default: `runs_mesh(R)`) the states are sharded along its
-    "runs" axis and each device runs the same one-device program on its own runs, launched
-    from one host thread per device so the devices work at once; nothing is communicated
-    between them. R is padded to a multiple of the mesh size with copies of the first run,
-    dropped afterwards.
-    One program per device rather than one `shard_map` program: XLA's GPU compiler crashed
-    compiling the `shard_map` form of this loop.
+    "runs" axis and one SPMD program (`shard_map`) runs the one-device loop on each device's
+    runs; nothing is communicated between them. Each device holds ceil(R / devices) runs, the
+    last devices' shares padded with copies of a run they hold, dropped afterwards.
+    Over several processes (`jax.distributed`, a mesh spanning them), `num_runs` is R, the runs
+    of every process, and `states` this process's share of them (`held_runs`); the states and
+    metrics returned are its share's.
     The host loop (default on CPU) is a Python loop over jitted, vmapped `act` and `learn_step`
     calls computing the same function with the same keys: XLA:CPU runs convolutions inside a
     while loop many times slower than outside one.
     """
     if host_loop is None:
         host_loop = jax.default_backend() == "cpu"
+    count = int(states.epoch.shape[0])
+    num_runs = count if num_runs is None else num_runs
     if not host_loop:
-        return _device_loop(stream, states, n, runs_mesh(states.epoch.shape[0])
-                            if mesh is None else mesh)
+        return _device_loop(stream, states, n, runs_mesh(num_runs) if mesh is None else mesh,
+                            num_runs)
     return _host_loop(stream, states, n)
 
 
-def _device_loop(stream: Stream, states: StreamState, n: int, mesh: Mesh):
-    """n epochs in blocks of up to `BLOCK` per device call, the runs padded to and sharded
-    along `mesh` (see `run_stacked_epochs`)."""
+def _device_loop(stream: Stream, states: StreamState, n: int, mesh: Mesh, num_runs: int):
+    """n epochs in blocks of up to `BLOCK` per device call, this process's runs padded to its
+    devices' shares and sharded along `mesh` (see `run_stacked_epochs`)."""
     count = int(states.epoch.shape[0])
-    padded = -count % mesh.size
-    if padded:
-        states = jax.tree.map(
-            lambda x: jnp.concatenate([x, jnp.repeat(x[:1], padded, axis=0)]), states)
-    if mesh.size > 1:
-        states = jax.device_put(states, NamedSharding(mesh, P(RUNS_AXIS)))
+    held = held_runs(num_runs, mesh)
+    if count != len(held):
+        raise ValueError(f"process {jax.process_index()} holds runs {held.start}-{held.stop - 1} "
+                         f"of {num_runs} on this mesh but was given {count}; pass its share "
+                         "(`held_runs`) and num_runs = the runs of every process")
+    slots, real = _layout(count, mesh.local_mesh.size, -(-num_runs // mesh.size))
+    if slots != real:
+        states = jax.tree.map(lambda x: x[np.asarray(slots)], states)
+    if mesh.size > 1:  # this process's devices' shards, then the mesh's array of them
+        states = jax.device_put(states, NamedSharding(mesh.local_mesh, P(RUNS_AXIS)))
+        states = multihost_utils.host_local_array_to_global_array(states, mesh, P(RUNS_AXIS))
     blocks = []
     for start in range(0, n, BLOCK):
         k = min(BLOCK, n - start)
-        states, metrics = _blocks_per_device(stream, mesh, states, k)
-        blocks.append(jax.tree.map(lambda x, k=k: x[:k, :count], metrics))
-    if padded:
-        states = jax.tree.map(lambda x: x[:count], states)
+        states, metrics = _run_block(stream, mesh, states, k)
+        if mesh.size > 1:
+            metrics = _host_local(metrics, mesh, P(None, RUNS_AXIS))
+        blocks.append(jax.tree.map(lambda x, k=k: x[:k, np.asarray(real)], metrics))
+    if mesh.size > 1:
+        states = _host_local(states, mesh, P(RUNS_AXIS))
+    if slots != real:
+        states = jax.tree.map(lambda x: x[np.asarray(real)], states)
     return states, jax.tree.map(lambda *x: jnp.concatenate(x), *blocks)
+
+
+def _host_local(tree, mesh: Mesh, spec: P):
+    """This process's shards of the mesh's arrays `tree`, as arrays over its own devices (no
+    copy). An empty leaf (a domain without contacts, say) comes back from XLA whole on each
+    device rather than split: it is made again at its local shape."""
+    axis = tuple(spec).index(RUNS_AXIS)
+
+    def one(x):
+        if x.size:
+            return multihost_utils.global_array_to_host_local_array(x, mesh, spec)
+        shape = list(NamedSharding(mesh, spec).shard_shape(x.shape))
+        shape[axis] *= mesh.local_mesh.size
+        return jax.device_put(np.zeros(shape, x.dtype), NamedSharding(mesh.local_mesh, spec))
+
+    return jax.tree.map(one, tree)
 
 
 # Epochs per device call: the loop runs n ≤ BLOCK epochs with n a traced bound, so one
@@ -113,45 +162,60 @@ def _device_loop(stream: Stream, states: StreamState, n: int, mesh: Mesh):
 BLOCK = 32
 
 
-def _blocks_per_device(stream: Stream, mesh: Mesh, states: StreamState, n: int):
-    """`_block` on each device's runs; the states stay sharded as they came."""
+def _layout(count: int, devices: int, per: int) -> tuple[list[int], list[int]]:
+    """(slots, real): the run in each of the `devices` × `per` slots (`per` runs per device in
+    order, the last devices' spare slots copies of their first run or, holding none, of run 0),
+    and each run's slot."""
+    slots, real = [], []
+    for d in range(devices):
+        mine = list(range(min(d * per, count), min((d + 1) * per, count)))
+        real += [len(slots) + i for i in range(len(mine))]
+        slots += mine + [mine[0] if mine else 0] * (per - len(mine))
+    return slots, real
+
+
+def _run_block(stream: Stream, mesh: Mesh, states: StreamState, n: int):
+    """`_block` on the runs sharded along `mesh`: one device's program as is, several devices'
+    as one `shard_map` program (each device its own runs; nothing crosses devices). The state
+    is donated; one compilation per mesh and input types serves every block length and seed."""
+    n = jnp.asarray(n, jnp.int32)
     if mesh.size == 1:
-        return _learner_jit(stream, _block)(states, jnp.asarray(n, jnp.int32))
-    leaves, treedef = jax.tree.flatten(states)
-    devices = list(mesh.devices.flat)
-    args = {d: (treedef.unflatten([next(s.data for s in x.addressable_shards if s.device == d)
-                                   for x in leaves]),
-                jax.device_put(jnp.asarray(n, jnp.int32), d)) for d in devices}
-    # Each device gets its own executable (its inputs live there). Tracing runs here, in the
-    # caller's thread, one device after another: Flax and JAX tracing state is not safe to share
-    # between threads, and JAX's config contexts (e.g. `jax.threefry_partitionable`, which
-    # decides the random bits) are thread-local, so the caller's are the ones that count. What
-    # is thread safe, XLA compiling and running the executables, happens in one host thread per
-    # device: a GPU while loop's trip test syncs with the thread that launched it, so a single
-    # thread would run the devices one after another.
-    # A device's shard of sharded states is views of the sharded arrays: not donated.
-    avals = tuple(jax.typeof(x) for x in leaves)
-    lowered = {d: stream.jit(_block).lower(*args[d]) for d in devices
-               if (_block, d, avals) not in stream.programs}
+        return _learner_jit(stream, _block)(states, n)
+    with gspmd_partitioner():
+        return sharded_program(stream)(mesh, states, n)
 
-    def on(device):
-        executable = stream.program(
-            (_block, device, avals),
-            lambda: lowered[device].compile(compiler_options=learners.compiler_options()))
-        return jax.block_until_ready(executable(*args[device]))
 
-    with concurrent.futures.ThreadPoolExecutor(mesh.size) as pool:
-        outs = list(pool.map(on, devices))
-    sharding = NamedSharding(mesh, P(RUNS_AXIS))
+def sharded_program(stream: Stream):
+    """The Stream's jitted `_sharded_block(mesh, states, n)`, the mesh static, the states
+    donated, with the learner's compiler options (`_learner_jit`). Trace, compile and call it
+    inside `gspmd_partitioner()`."""
+    return stream.jit(_sharded_block, static_argnums=0, donate_argnums=1,
+                      compiler_options=learners.compiler_options())
 
-    def gather(*parts):
-        shape = (sum(p.shape[0] for p in parts), *parts[0].shape[1:])
-        return jax.make_array_from_single_device_arrays(shape, sharding, list(parts))
 
-    new = jax.tree.map(gather, *(o[0] for o in outs))
-    metrics = jax.tree.map(lambda *m: np.concatenate([np.asarray(x) for x in m], axis=1),
-                           *(o[1] for o in outs))
-    return new, metrics
+@contextlib.contextmanager
+def gspmd_partitioner():
+    """XLA's GSPMD partitioner instead of Shardy, JAX's default, for the calls inside: Shardy's
+    pass segfaults XLA's GPU compiler on the sharded program (jaxlib 0.11.2,
+    docs/notes/stream.md). The option is part of jit's cache key, so what is compiled inside is
+    called inside; it is process-wide while set, restored on the way out."""
+    before = jax.config.jax_use_shardy_partitioner
+    jax.config.update("jax_use_shardy_partitioner", False)
+    try:
+        yield
+    finally:
+        jax.config.update("jax_use_shardy_partitioner", before)
+
+
+def _sharded_block(stream: Stream, mesh: Mesh, states: StreamState, n: jax.Array):
+    """`_block` of each device's runs, the runs axis split along `mesh`'s "runs" axis.
+
+    Unchecked (`check_vma=False`): MJX's solver branches on values that vary by device without
+    saying so, and nothing here is replicated but the trip count n."""
+    return jax.shard_map(lambda s, k: _block(stream, s, k), mesh=mesh,
+                         in_specs=(P(RUNS_AXIS), P()),
+                         out_specs=(P(RUNS_AXIS), P(None, RUNS_AXIS)),
+                         check_vma=False)(states, n)
 
 
 def _block(stream: Stream, states: StreamState, n: jax.Array):

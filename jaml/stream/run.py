@@ -18,7 +18,9 @@ from jaml.stream import analysis
 from jaml.stream.executor import (
     BLOCK,
     due_by_device,
+    held_runs,
     run_stacked_epochs,
+    runs_mesh,
     stack_runs,
     unstack_runs,
 )
@@ -68,6 +70,12 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     Returns one summary per run; a run whose loss turns non-finite stops alone (status
     "nonfinite", its last good checkpoint kept) and the others go on.
 
+    Several processes (`jax.distributed` initialised; every process calls with the same
+    arguments): the mesh spans every process's devices (`runs_mesh`), each process opens,
+    trains and writes only the runs it holds (`executor.held_runs`), and the summaries of the
+    others are None. Its runs must advance together (resumed from one epoch): a process whose
+    runs split into groups stops with an error.
+
     Checkpoints are written with the analyses; `checkpoint_every` (epochs) thins them to the
     first analysis at least that many epochs after the last checkpoint, plus each run's last
     analysis and where `stop_after` stops it. A checkpoint holds the replay (≈ 2 GB per
@@ -90,8 +98,13 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     Leave a margin for those checkpoints."""
     outs = _checked(len(configs), outs, checkpoint_every)
     stream = build(configs[0])  # every config problem surfaces before any file
+    processes = jax.process_count() > 1
+    if processes and mesh is None:
+        mesh = runs_mesh(len(configs))
+    held = held_runs(len(configs), mesh) if processes else range(len(configs))
     figures = FigureWriter()
-    runs = open_runs(stream, [stream.run_config(c) for c in configs], outs, figures=figures,
+    runs = open_runs(stream, [stream.run_config(configs[i]) for i in held],
+                     [outs[i] for i in held], figures=figures,
                      final_checkpoint=final_checkpoint, keep_pi_rand=keep_pi_rand)
     epochs = stream.config.epochs
     analyses = analysis_epochs(stream.config.fill_epochs, epochs, stream.config.eval.every)
@@ -117,9 +130,14 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                     if r.status == "running":
                         r.stop(stacked.state(i))
                 break
+            if processes and len(block.runs) < len(runs):
+                raise ValueError(f"process {jax.process_index()}'s runs are at different "
+                                 "epochs or some stopped; over several processes a process's "
+                                 "runs advance together: resume them from one epoch")
             with Stopwatch() as watch:
                 states, metrics = run_stacked_epochs(stream, stacked.of(block.runs),
-                                                     block.epochs, mesh=mesh)
+                                                     block.epochs, mesh=mesh,
+                                                     num_runs=len(configs) if processes else None)
                 metrics = jax.tree.map(np.asarray, metrics)
             stacked.states = states
             pace = watch.steady / block.epochs
@@ -145,9 +163,9 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     finally:
         bar.close()
         figures.wait()
-        summaries = [r.close() for r in runs]
+        summaries = dict(zip(held, (r.close() for r in runs), strict=True))
     figures.check()  # a figure that failed to draw, after every summary is written
-    return summaries
+    return [summaries.get(i) for i in range(len(configs))]
 
 
 # Epochs between deadline checks: the device loop's block, so no block is split.
@@ -225,10 +243,10 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
     The runs that one device holds are evaluated by one `analysis.evaluate_runs` call on that
     device (on a GPU about the cost of one run's `evaluate`: the analysis is latency bound), the
     time shared among them; with the runs split across devices that is one call per device, the
-    devices taken in turn. Not one host thread per device, as the epochs run: the analysis
-    traces its programs as it goes, and a worker thread does not see the caller's JAX config
-    contexts (e.g. `jax.threefry_partitionable`, which decides the random bits of the test
-    sets and the regressor). Each run then writes its records, figures and checkpoint as
+    devices taken in turn. Not one host thread per device: the analysis traces its programs as
+    it goes, and a worker thread does not see the caller's JAX config contexts (e.g.
+    `jax.threefry_partitionable`, which decides the random bits of the test sets and the
+    regressor). Each run then writes its records, figures and checkpoint as
     alone."""
     reports = {}
     for device_states, members in due_by_device(states, due):

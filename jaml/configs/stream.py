@@ -338,6 +338,7 @@ def resolve(config: StreamConfig, ld_dim: int, backend: str) -> RunConfig:
     reference's 5000 rounded down to a multiple of num_envs) and kept share (the learner's,
     `REPLAY_KEEP_FRACTION`), the learner's "auto" dtypes for `backend` (JAX's name: "cpu",
     "gpu", "tpu"; `LearnerConfig.for_backend`) and its ld_dim, the env's LD-state size."""
+    fields = _fields(config)
     replay = config.replay
     if replay.slots is None:
         replay = dataclasses.replace(replay, slots=max(1, REFERENCE_REPLAY_COLUMNS
@@ -348,7 +349,7 @@ def resolve(config: StreamConfig, ld_dim: int, backend: str) -> RunConfig:
     learner = config.learner_config
     if learner is not None:
         learner = learner.for_backend(backend).replace(ld_dim=ld_dim)
-    return RunConfig(**_fields(config) | {"replay": replay, "learner_config": learner})
+    return RunConfig(**fields | {"replay": replay, "learner_config": learner})
 
 
 def _fields(config) -> dict[str, Any]:

@@ -161,8 +161,9 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
     exact, trimmed, left_out = evaluation.distortion_trimmed(
         latents["pi_rand"], rand.states[:, analysis.distortion_columns(stream)], inputs=inputs)
     held_out = alignment.RegressorConfig().split(len(latents["train"]))
-    baseline = analysis._constant_levels(stream, sets["train"].states,
-                                         {k: s for k, (_, s) in tests.items()})
+    baseline = {k: v.tolist() for k, v in alignment.constant_errors(
+        sets["train"].states, {k: s for k, (_, s) in tests.items()}, validation=True,
+        **analysis._regressor_options(stream)).items()}
     report = {
         "errors": {k: np.asarray(v).tolist() for k, v in errors.items()},
         "baseline": baseline,

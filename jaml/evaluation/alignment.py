@@ -336,7 +336,8 @@ def alignment_errors_runs(latents_train, states_train, test_sets: Mapping[str, t
 
 
 def constant_errors(states_train, test_states: Mapping[str, object],
-                    config: RegressorConfig | None = None, **overrides) -> dict[str, np.ndarray]:
+                    config: RegressorConfig | None = None, *, validation: bool = False,
+                    **overrides) -> dict[str, np.ndarray]:
     """The errors of a prediction that ignores the latents: the level an alignment error is read
     against (what a latent that encodes nothing of the state scores).
 
@@ -346,14 +347,18 @@ def constant_errors(states_train, test_states: Mapping[str, object],
     followed by each block's mean principal-axis error of that constant block (not the block
     loss's own optimum: the median of rotation entries is the reference's regressor fed
     uninformative latents, to first order). states_train [N, D], test_states {name: [Nt, D]}
-    → {name: [D] or [D + J]} numpy arrays.
+    → {name: [D] or [D + J]} numpy arrays; with `validation`, then "validation" on the held-out
+    training rows (NaN where the split holds none), the level of `alignment_errors`' own.
     """
     config = _resolve(config, overrides)
     y = np.asarray(states_train, np.float64)
     if y.ndim != 2 or y.shape[0] < 1:
         raise ValueError(f"states_train must be [N, D] with N ≥ 1, got shape {y.shape}")
+    if validation and "validation" in test_states:
+        raise ValueError('test_states: the name "validation" is reserved for the held-out rows')
     starts = rotation.check_starts(config.rotation_starts, y.shape[1])
-    y_fit = y[config.split(y.shape[0]):]  # the split holds out under 100 %: never empty
+    n_val = config.split(y.shape[0])
+    y_fit = y[n_val:]  # the split holds out under 100 %: never empty
     scale = y_fit.std(axis=0) + config.std_eps if config.normalize else np.ones(y.shape[1])
     constant = np.median(y_fit, axis=0)
     errors = {}
@@ -362,14 +367,22 @@ def constant_errors(states_train, test_states: Mapping[str, object],
         if yt.ndim != 2 or yt.shape[1] != y.shape[1]:
             raise ValueError(f"test_states[{name!r}] must be [Nt, {y.shape[1]}], got shape "
                              f"{yt.shape}")
-        per_entry = np.mean(np.abs(yt - constant) / scale, axis=0)
-        if starts:
-            pred = np.broadcast_to(constant, yt.shape).astype(np.float32)
-            blocks = np.asarray(rotation.block_errors(jnp.asarray(pred),
-                                                      jnp.asarray(yt, jnp.float32), starts))
-            per_entry = np.concatenate([per_entry, blocks.mean(axis=0)])
-        errors[name] = per_entry.astype(np.float32)
+        errors[name] = _constant_error(constant, scale, yt, starts)
+    if validation:
+        errors["validation"] = (_constant_error(constant, scale, y[:n_val], starts) if n_val
+                                else np.full(y.shape[1] + len(starts), np.nan, np.float32))
     return errors
+
+
+def _constant_error(constant, scale, states, starts) -> np.ndarray:
+    """float32 [D + J]: `constant` [D] scored on `states` [Nt, D] (`constant_errors`)."""
+    per_entry = np.mean(np.abs(states - constant) / scale, axis=0)
+    if starts:
+        pred = np.broadcast_to(constant, states.shape).astype(np.float32)
+        blocks = np.asarray(rotation.block_errors(jnp.asarray(pred),
+                                                  jnp.asarray(states, jnp.float32), starts))
+        per_entry = np.concatenate([per_entry, blocks.mean(axis=0)])
+    return per_entry.astype(np.float32)
 
 
 def _resolve(config: RegressorConfig | None, overrides: dict) -> RegressorConfig:

@@ -187,20 +187,25 @@ def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
                                  cfg.eval.curr, random=False,
                                  **({"store": stored["pi_curr"]} if references else {}))
     seeds = np.asarray(jax.vmap(lambda k: jax.random.randint(k, (), 0, 2**31 - 1))(k_reg))
-    errors = _part(seconds, "regressor", alignment.alignment_errors_runs,
-                   *train, tests, seeds=seeds.tolist(), **_regressor_options(stream))
-    errors = {k: np.asarray(v) for k, v in errors.items()}
     train_states = np.asarray(train[1])
     test_states = {k: np.asarray(t) for k, (_, t) in tests.items()}
     columns = distortion_columns(stream)
+    options = _regressor_options(stream)
+    # What each error is read against: a latent-free constant's, in the regressor's units.
+    baselines = [alignment.constant_errors(train_states[r],
+                                           {k: t[r] for k, t in test_states.items()},
+                                           validation=True, **options)
+                 for r in range(len(seeds))]
+    errors = _part(seconds, "regressor", alignment.alignment_errors_runs,
+                   *train, tests, seeds=seeds.tolist(), **options)
+    errors = {k: np.asarray(v) for k, v in errors.items()}
     reports = []
     for r in range(len(seeds)):
         exact, trimmed, left_out = evaluation.distortion_trimmed(lat[r], st[r][:, columns],
                                                                  inputs=inputs[r])
         reports.append({
             "errors": {k: v[r].tolist() for k, v in errors.items()},
-            "baseline": _constant_levels(stream, train_states[r],
-                                         {k: t[r] for k, t in test_states.items()}),
+            "baseline": {k: v.tolist() for k, v in baselines[r].items()},
             "distortion": exact,
             "distortion_trimmed": {"value": trimmed, "left_out": left_out},
             "irregularity": {"replay": irregularity(stream, train[0][r], train_states[r]),
@@ -269,20 +274,6 @@ def irregularity(stream: Stream, latents, states) -> float | None:
         return None
     value = evaluation.irregularity(np.asarray(latents), np.asarray(states), names)
     return None if np.isnan(value) else value
-
-
-def _constant_levels(stream: Stream, train_states, test_states: dict) -> dict:
-    """{test set, then "validation": [D + J] list}: a latent-free constant's errors, in the
-    regressor's units; "validation" on the held-out training rows, as the errors'."""
-    options = _regressor_options(stream)
-    held_out = alignment.RegressorConfig(**options).split(len(train_states))
-    levels = evaluation.constant_errors(train_states, test_states, **options)
-    levels = {k: v.tolist() for k, v in levels.items()}
-    width = len(next(iter(levels.values())))
-    levels["validation"] = (evaluation.constant_errors(
-        train_states, {"v": np.asarray(train_states)[:held_out]}, **options)["v"].tolist()
-        if held_out else [float("nan")] * width)
-    return levels
 
 
 def distortion_columns(stream: Stream) -> np.ndarray:

@@ -86,6 +86,14 @@ def test_constant_errors_by_hand():
     std = math.sqrt(((1 - 4) ** 2 + (2 - 4) ** 2 + (3 - 4) ** 2 + (10 - 4) ** 2) / 4)
     z = evaluation.constant_errors(y, {"t": test})["t"]  # training-std units by default
     np.testing.assert_allclose(z, [2.5 / std], rtol=1e-5)
+    # With `validation`, the held-out row too (|0 − 2.5|), or NaN where none is held out.
+    both = evaluation.constant_errors(y, {"t": test}, normalize=False, validation=True)
+    assert list(both) == ["t", "validation"]
+    np.testing.assert_allclose(both["validation"], [2.5], rtol=1e-6)
+    none = evaluation.constant_errors(y, {"t": test}, validation=True, validation_fraction=0.0)
+    assert np.isnan(none["validation"]).all() and none["validation"].shape == (1,)
+    with pytest.raises(ValueError, match='"validation" is reserved'):
+        evaluation.constant_errors(y, {"validation": test}, validation=True)
 
 
 def test_constant_errors_score_rotation_blocks_by_their_principal_axis():

@@ -118,10 +118,17 @@ def _constant_curve(history: list, test_set: str, dims: Sequence[str]):
 def plot_alignment(history: Iterable[Mapping], path,
                    groups: Mapping[str, Sequence[str]] | None = None,
                    ylabels: Mapping[str, str] | None = None) -> Figure:
-    """Alignment error vs epoch (a record's "step": the epochs completed): one row per test
-    set, one column per dimension.
+    """`alignment_figure` written to `path` (`save_figure`); returns the figure."""
+    fig = alignment_figure(history, groups, ylabels)
+    save_figure(fig, path)
+    return fig
 
-    Writes the figure to `path` and returns it (lines carry the per-step means).
+
+def alignment_figure(history: Iterable[Mapping],
+                     groups: Mapping[str, Sequence[str]] | None = None,
+                     ylabels: Mapping[str, str] | None = None) -> Figure:
+    """Alignment error vs epoch (a record's "step": the epochs completed): one row per test
+    set, one column per dimension (lines carry the per-step means).
 
     groups: optional panel title → state names; the panel shows the mean error over those names
     (the paper aggregates position / velocity / contacts this way for the locomotion domains).
@@ -185,11 +192,17 @@ def plot_alignment(history: Iterable[Mapping], path,
     if any(r.get("baseline") for r in history):
         handles.append(Line2D([], [], color="0.45", linestyle="--", linewidth=1, label=CONSTANT))
     axes[0, 0].legend(handles=handles, fontsize=8)
-    save_figure(fig, path)
     return fig
 
 
 def plot_distortion(history: Iterable[Mapping], path) -> Figure:
+    """`distortion_figure` written to `path` (`save_figure`); returns the figure."""
+    fig = distortion_figure(history)
+    save_figure(fig, path)
+    return fig
+
+
+def distortion_figure(history: Iterable[Mapping]) -> Figure:
     """Distortion Var(ρ) vs epoch, one curve per learner (and test set, if several).
 
     eq. 5's figure is +inf at an analysis where the encoder maps a pair of distinct states
@@ -237,5 +250,4 @@ def plot_distortion(history: Iterable[Mapping], path) -> Figure:
     ax.set_ylabel("distortion Var(ρ)")
     if drawn:
         ax.legend(fontsize=8)
-    save_figure(fig, path)
     return fig

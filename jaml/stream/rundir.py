@@ -327,5 +327,8 @@ def _scale(config: RunConfig) -> dict:
 
 
 def _figures(history: list[dict], out: Path) -> None:
-    plots.plot_alignment(history, out / "alignment.png")
-    plots.plot_distortion(history, out / "distortion.png")
+    """alignment.png and distortion.png of `history`: both drawn, then both written."""
+    figures = {"alignment.png": plots.alignment_figure(history),
+               "distortion.png": plots.distortion_figure(history)}
+    for name, fig in figures.items():
+        plots.save_figure(fig, out / name)

@@ -92,6 +92,20 @@ def test_runs_are_laid_out_a_devices_share_at_a_time():
                                   host_loop=False, num_runs=3)
 
 
+def test_the_sharded_program_is_partitioned_by_gspmd_and_the_option_is_restored():
+    """Inside `gspmd_partitioner` jit lowers for GSPMD (no Shardy dialect in the module); on the
+    way out, an exception included, the process's partitioner option is what it was."""
+    mesh = stream.runs_mesh(2)
+    f = jax.jit(lambda x: x * 2, in_shardings=NamedSharding(mesh, P("runs")))
+    before = jax.config.jax_use_shardy_partitioner
+    with pytest.raises(RuntimeError, match="inside"):
+        with executor.gspmd_partitioner():
+            assert "sdy." not in f.lower(np.zeros(2, np.float32)).as_text()
+            raise RuntimeError("inside")
+    assert jax.config.jax_use_shardy_partitioner == before
+    assert ("sdy." in f.lower(np.zeros(2, np.float32)).as_text()) == before
+
+
 class _FakeState:  # what `run_stacked_epochs` reads before it refuses a wrong share
     def __init__(self, epoch):
         self.epoch = epoch

@@ -35,14 +35,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks import harness
 from jaml import learners
 from jaml.stream import analysis, build, for_env
-from jaml.stream.executor import (
-    _act_runs,
-    _learn_step_runs,
-    _learner_jit,
-    run_stacked_epochs,
-    runs_mesh,
-    stack_runs,
-)
+from jaml.stream.executor import run_stacked_epochs, runs_mesh, stack_runs
+from jaml.stream.loop import _act_runs, _learn_step_runs
 
 
 def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_per_batch: int,
@@ -86,7 +80,7 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
         for k in jax.random.split(jax.random.PRNGKey(1), (epochs, runs)):
             if host_loop:
                 for step_keys in jax.vmap(stream.learn_keys)(k).swapaxes(0, 1):
-                    ls, _ = _learner_jit(stream, _learn_step_runs)(ls, s.replay, step_keys)
+                    ls, _ = stream.learner_jit(_learn_step_runs)(ls, s.replay, step_keys)
             else:
                 ls, _ = learn_runs(ls, s.replay, k)
         holder["s"] = s.replace(learner=ls)

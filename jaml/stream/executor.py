@@ -2,10 +2,10 @@
 SPMD program over a mesh of devices, on one host or several.
 
 The epoch itself is `Stream.epochs`, a pure function of the stacked states (`jaml.stream.loop`).
-This module decides how a call of n epochs runs it: a host loop of jitted pieces (CPU), blocks of
-up to 32 epochs inside one device loop (GPU/TPU), and that device loop as one `shard_map`
-program, partitioned by XLA's GSPMD, when the runs are sharded along a mesh's "runs" axis. What it compiles, the Stream keeps
-(`Stream.jit`).
+This module decides how a call of n epochs runs it: a host loop of jitted pieces (CPU,
+`Stream.host_epoch`), blocks of up to 32 epochs inside one device loop (GPU/TPU), and that device
+loop as one `shard_map` program, partitioned by XLA's GSPMD, when the runs are sharded along a
+mesh's "runs" axis. What it compiles, the Stream keeps (`Stream.jit`, `Stream.learner_jit`).
 
 Shapes: R runs.
 """
@@ -21,8 +21,6 @@ from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
-from jaml import learners
-from jaml.stream import loop
 from jaml.stream.loop import Stream, StreamState
 
 
@@ -98,9 +96,9 @@ def run_stacked_epochs(stream: Stream, states: StreamState, n: int, *, mesh: Mes
     Over several processes (`jax.distributed`, a mesh spanning them), `num_runs` is R, the runs
     of every process, and `states` this process's share of them (`held_runs`); the states and
     metrics returned are its share's.
-    The host loop (default on CPU) is a Python loop over jitted, vmapped `act` and `learn_step`
-    calls computing the same function with the same keys: XLA:CPU runs convolutions inside a
-    while loop many times slower than outside one.
+    The host loop (default on CPU) is a Python loop over `Stream.host_epoch`, jitted pieces
+    computing the same function with the same keys: XLA:CPU runs convolutions inside a while
+    loop many times slower than outside one.
     """
     if host_loop is None:
         host_loop = jax.default_backend() == "cpu"
@@ -180,17 +178,16 @@ def _run_block(stream: Stream, mesh: Mesh, states: StreamState, n: int):
     is donated; one compilation per mesh and input types serves every block length and seed."""
     n = jnp.asarray(n, jnp.int32)
     if mesh.size == 1:
-        return _learner_jit(stream, _block)(states, n)
+        return stream.learner_jit(_block)(states, n)
     with gspmd_partitioner():
         return sharded_program(stream)(mesh, states, n)
 
 
 def sharded_program(stream: Stream):
     """The Stream's jitted `_sharded_block(mesh, states, n)`, the mesh static, the states
-    donated, with the learner's compiler options (`_learner_jit`). Trace, compile and call it
-    inside `gspmd_partitioner()`."""
-    return stream.jit(_sharded_block, static_argnums=0, donate_argnums=1,
-                      compiler_options=learners.compiler_options())
+    donated, with the learner's compiler options (`Stream.learner_jit`). Trace, compile and
+    call it inside `gspmd_partitioner()`."""
+    return stream.learner_jit(_sharded_block, static_argnums=0, donate_argnums=1)
 
 
 @contextlib.contextmanager
@@ -233,41 +230,12 @@ def _block(stream: Stream, states: StreamState, n: jax.Array):
 
 
 def _host_loop(stream: Stream, states: StreamState, n: int):
-    """n epochs as a Python loop over jitted `act` and learner-step calls (see
-    `run_stacked_epochs`)."""
+    """n epochs as a Python loop over `Stream.host_epoch` (see `run_stacked_epochs`)."""
     history = []
     for _ in range(n):
-        states, k_learn, metrics = stream.jit(_act_runs, donate_argnums=0)(states)
-        if bool(loop.replays_full(states)):
-            keys = jax.vmap(stream.learn_keys)(k_learn)  # [R, learner_steps, 2]
-            learner_state, steps = states.learner, []
-            for i in range(stream.config.learner_steps):
-                learner_state, m = _learner_jit(stream, _learn_step_runs)(
-                    learner_state, states.replay, keys[:, i])
-                steps.append(m)
-            states = states.replace(learner=learner_state)
-            learner_metrics = jax.tree.map(lambda *v: jnp.mean(jnp.stack(v), axis=0), *steps)
-        else:
-            learner_metrics = loop.skipped(stream, states, k_learn)
-        metrics.update({f"learner/{k}": v for k, v in learner_metrics.items()})
+        states, metrics = stream.host_epoch(states)
         history.append(metrics)
     return states, jax.tree.map(lambda *v: jnp.stack(v), *history)
-
-
-def _act_runs(stream: Stream, states: StreamState):
-    return jax.vmap(stream.act)(states)
-
-
-def _learn_step_runs(stream: Stream, learner_state, replay, keys):
-    return jax.vmap(stream.learn_step)(learner_state, replay, keys)
-
-
-def _learner_jit(stream: Stream, fn):
-    """`fn(stream, states, ...)` jitted by the Stream (the states donated) with the learner's
-    compiler options (`learners.compiler_options()`: on the CPU convolutions take XLA's Eigen
-    path, not YNNPACK's, which ran the VAE's train step slower; XLA's defaults elsewhere). Read
-    at each call: the options depend on the backend."""
-    return stream.jit(fn, donate_argnums=0, compiler_options=learners.compiler_options())
 
 
 def due_by_device(states: StreamState, due: list) -> list[tuple[StreamState, list]]:

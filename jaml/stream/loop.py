@@ -74,6 +74,14 @@ class Stream:
         return self.program((fun, _frozen(options)), lambda: jax.jit(_bound(self, fun),
                                                                      **options))
 
+    def learner_jit(self, fun, **options):
+        """`jit(fun, options)` with the first argument (the states) donated unless `options` say
+        otherwise, and the learner's compiler options (`learners.compiler_options()`: on the CPU
+        convolutions take XLA's Eigen path, not YNNPACK's, which ran the VAE's train step slower;
+        XLA's defaults elsewhere). Read at each call: the options depend on the backend."""
+        return self.jit(fun, **{"donate_argnums": 0, **options},
+                        compiler_options=learners.compiler_options())
+
     def program(self, key, make):
         """`make()` (a jitted function, an executable), made once per `key` and kept by this
         Stream alone: a program holds its Stream weakly (`_bound`), so when the Stream goes,
@@ -223,8 +231,26 @@ class Stream:
 
         learner_state, learner_metrics = jax.lax.cond(replays_full(states), train, skip,
                                                       states.learner)
-        metrics.update({f"learner/{k}": v for k, v in learner_metrics.items()})
-        return states.replace(learner=learner_state), metrics
+        return states.replace(learner=learner_state), _with_learner(metrics, learner_metrics)
+
+    def host_epoch(self, states: StreamState) -> tuple[StreamState, dict[str, jax.Array]]:
+        """`epochs` as jitted pieces called from the host: the same function with the same keys,
+        the runs acting in one program call and each learner step in one of its own (the CPU's
+        host loop, `jaml.stream.executor`: XLA:CPU runs convolutions inside a while loop many
+        times slower than outside one). The states are donated."""
+        states, k_learn, metrics = self.jit(_act_runs, donate_argnums=0)(states)
+        if bool(replays_full(states)):
+            keys = jax.vmap(self.learn_keys)(k_learn)  # [R, learner_steps, 2]
+            learner_state, steps = states.learner, []
+            for i in range(self.config.learner_steps):
+                learner_state, m = self.learner_jit(_learn_step_runs)(
+                    learner_state, states.replay, keys[:, i])
+                steps.append(m)
+            states = states.replace(learner=learner_state)
+            learner_metrics = jax.tree.map(lambda *v: jnp.mean(jnp.stack(v), axis=0), *steps)
+        else:
+            learner_metrics = skipped(self, states, k_learn)
+        return states, _with_learner(metrics, learner_metrics)
 
 
 _PPO_METRICS = ("total_loss", "policy_loss", "v_loss", "entropy_loss", "kl_mean")
@@ -244,6 +270,19 @@ def skipped(stream: Stream, states: StreamState, k_learn: jax.Array):
     shapes = jax.eval_shape(stream.jit(Stream.learn_runs), states.learner, states.replay,
                             k_learn)[1]
     return jax.tree.map(lambda x: jnp.full(x.shape, jnp.nan, x.dtype), shapes)
+
+
+def _with_learner(metrics: dict, learner_metrics: dict) -> dict:
+    """An epoch's metrics: the acting's, then the learner's as "learner/NAME"."""
+    return metrics | {f"learner/{k}": v for k, v in learner_metrics.items()}
+
+
+def _act_runs(stream: Stream, states: StreamState):
+    return jax.vmap(stream.act)(states)
+
+
+def _learn_step_runs(stream: Stream, learner_state, replay, keys):
+    return jax.vmap(stream.learn_step)(learner_state, replay, keys)
 
 
 def make_learner(name: str, ld_dim: int,

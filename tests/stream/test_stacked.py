@@ -1,10 +1,11 @@
 """Stacked runs: R seeds trained as one program must compute what each seed computes alone.
 
-The reference is the host loop of one run (jitted `act` and `learn_step` per call, the CPU
-path): the device loop (`fori_loop` over whole epochs, the GPU/TPU path) over R vmapped runs,
-with the runs split across two devices (the two XLA:CPU devices of tests/conftest.py) by one
-SPMD program, must reproduce every run's PPO and learner losses; one process per device
-(`jax.distributed`) must train bit for bit what one process with both devices does.
+The reference is the host loop of one run (`Stream.host_epoch`: jitted `act` and `learn_step`
+per call, the CPU path): the device loop (`fori_loop` over whole epochs, the GPU/TPU path) over R
+vmapped runs, with the runs split across two devices (the two XLA:CPU devices of
+tests/conftest.py) by one SPMD program, must reproduce every run's PPO and learner losses; one
+process per device (`jax.distributed`) must train bit for bit what one process with both devices
+does.
 """
 
 import dataclasses
@@ -22,7 +23,7 @@ from jax.sharding import NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from jaml import stream
-from jaml.stream import executor
+from jaml.stream import executor, loop
 from jaml.stream import run as run_lib
 from tests.stream.test_loop import tiny
 
@@ -119,8 +120,8 @@ def test_runs_split_across_two_devices_match_each_run_alone():
         _, metrics = stream.run_epochs(s, s.init(jax.random.PRNGKey(seed)), EPOCHS)
         alone.append(metrics)
     # The CPU's host loop compiled its learner step once (with the learner's compiler options,
-    # `executor._learner_jit`) and reused it for every step of every seed.
-    assert executor._learner_jit(s, executor._learn_step_runs)._cache_size() == 1
+    # `Stream.learner_jit`) and reused it for every step of every seed.
+    assert s.learner_jit(loop._learn_step_runs)._cache_size() == 1
     _, together = _device_loop(s, SEEDS, EPOCHS, stream.runs_mesh(len(SEEDS)))
     # Each device's runs through the one-device program (what one device holds on the mesh).
     one = stream.runs_mesh(1)

@@ -98,14 +98,15 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     Leave a margin for those checkpoints."""
     outs = _checked(len(configs), outs, checkpoint_every)
     stream = build(configs[0])  # every config problem surfaces before any file
+    resolved = [stream.run_config(c) for c in configs]  # and every config is a run of it
     processes = jax.process_count() > 1
     if processes and mesh is None:
         mesh = runs_mesh(len(configs))
     held = held_runs(len(configs), mesh) if processes else range(len(configs))
     figures = FigureWriter()
-    runs = open_runs(stream, [stream.run_config(configs[i]) for i in held],
-                     [outs[i] for i in held], figures=figures,
-                     final_checkpoint=final_checkpoint, keep_pi_rand=keep_pi_rand)
+    runs = open_runs(stream, [resolved[i] for i in held], [outs[i] for i in held],
+                     figures=figures, final_checkpoint=final_checkpoint, keep_pi_rand=keep_pi_rand)
+    stacked = _Stacked(runs)
     epochs = stream.config.epochs
     analyses = analysis_epochs(stream.config.fill_epochs, epochs, stream.config.eval.every)
     stops = [stop_epoch(r.epoch, epochs, stop_after) for r in runs]
@@ -113,7 +114,6 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
         f" ×{len(runs)}" if len(runs) > 1 else "")
     bar = tqdm(total=epochs * len(runs), initial=sum(r.epoch for r in runs), desc=label,
                unit="epoch", disable=not progress)
-    stacked = _Stacked(runs)
     pace = None  # seconds per epoch of the last block, and of the last analysis (deadline)
     analysis_seconds = 0.0
     try:

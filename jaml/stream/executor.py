@@ -236,29 +236,3 @@ def _host_loop(stream: Stream, states: StreamState, n: int):
         states, metrics = stream.host_epoch(states)
         history.append(metrics)
     return states, jax.tree.map(lambda *v: jnp.stack(v), *history)
-
-
-def due_by_device(states: StreamState, due: list) -> list[tuple[StreamState, list]]:
-    """The runs `due` grouped by the device that holds them (the first, where the states are
-    replicated): per device, its due runs' states stacked on it and their entries of `due`.
-
-    Taken from each device's own shard, so nothing crosses devices; a device's whole shard is
-    used as is (no copy of its replays) when every run in it is due."""
-    owner = {}
-    for shard in states.epoch.addressable_shards:
-        start, stop, _ = shard.index[0].indices(states.epoch.shape[0])
-        for i in range(start, stop):
-            owner.setdefault(i, shard.device)
-    groups: dict = {}
-    for i, r in due:
-        groups.setdefault(owner[i], []).append((i, r))
-
-    def local(x, device, index):
-        shard = next(s for s in x.addressable_shards if s.device == device)
-        start, stop, _ = shard.index[0].indices(x.shape[0])
-        if index == list(range(start, stop)):
-            return shard.data
-        return shard.data[np.asarray(index) - start]
-
-    return [(jax.tree.map(lambda x, d=device, m=members: local(x, d, [i for i, _ in m]), states),
-             members) for device, members in groups.items()]

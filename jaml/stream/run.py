@@ -17,7 +17,6 @@ from jaml.configs.stream import StreamConfig
 from jaml.stream import analysis
 from jaml.stream.executor import (
     BLOCK,
-    due_by_device,
     held_runs,
     run_stacked_epochs,
     runs_mesh,
@@ -274,3 +273,29 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
             frames = analysis.reconstructions(stream, state, jax.random.fold_in(r.eval_key(), 7))
             r.save_reconstructions(frames)
         r.analyse(state, reports[i], names, checkpoint_every)
+
+
+def due_by_device(states: StreamState, due: list) -> list[tuple[StreamState, list]]:
+    """The runs `due` grouped by the device that holds them (the first, where the states are
+    replicated): per device, its due runs' states stacked on it and their entries of `due`.
+
+    Taken from each device's own shard, so nothing crosses devices; a device's whole shard is
+    used as is (no copy of its replays) when every run in it is due."""
+    owner = {}
+    for shard in states.epoch.addressable_shards:
+        start, stop, _ = shard.index[0].indices(states.epoch.shape[0])
+        for i in range(start, stop):
+            owner.setdefault(i, shard.device)
+    groups: dict = {}
+    for i, r in due:
+        groups.setdefault(owner[i], []).append((i, r))
+
+    def local(x, device, index):
+        shard = next(s for s in x.addressable_shards if s.device == device)
+        start, stop, _ = shard.index[0].indices(x.shape[0])
+        if index == list(range(start, stop)):
+            return shard.data
+        return shard.data[np.asarray(index) - start]
+
+    return [(jax.tree.map(lambda x, d=device, m=members: local(x, d, [i for i, _ in m]), states),
+             members) for device, members in groups.items()]

@@ -9,9 +9,9 @@ One epoch, a pure function of `StreamState`:
      gradient steps, each on `frames_per_batch // L` sequences of L frames sampled from the
      replay.
 Several independent runs of one Stream (configs that differ only in their seeds) stack along a
-leading runs axis R and `Stream.epochs` vmaps the epoch over them; how epochs are executed
-(host loop, device blocks, several devices) is `jaml.stream.executor`'s, the periodic analysis
-`jaml.stream.analysis`'s.
+leading runs axis R and `Stream.epochs` vmaps the epoch over them (`Stream.host_epoch`: the same
+epoch as jitted pieces called from the host); how epochs are executed (host loop, device blocks,
+several devices) is `jaml.stream.executor`'s, the periodic analysis `jaml.stream.analysis`'s.
 
 Shapes: R runs, E envs, T rollout_len, L = learner.seq_len, B sequences per learner batch.
 """
@@ -227,9 +227,9 @@ class Stream:
             return self.jit(Stream.learn_runs)(ls, states.replay, k_learn)
 
         def skip(ls):
-            return ls, skipped(self, states, k_learn)
+            return ls, _skipped(self, states, k_learn)
 
-        learner_state, learner_metrics = jax.lax.cond(replays_full(states), train, skip,
+        learner_state, learner_metrics = jax.lax.cond(_replays_full(states), train, skip,
                                                       states.learner)
         return states.replace(learner=learner_state), _with_learner(metrics, learner_metrics)
 
@@ -239,7 +239,7 @@ class Stream:
         host loop, `jaml.stream.executor`: XLA:CPU runs convolutions inside a while loop many
         times slower than outside one). The states are donated."""
         states, k_learn, metrics = self.jit(_act_runs, donate_argnums=0)(states)
-        if bool(replays_full(states)):
+        if bool(_replays_full(states)):
             keys = jax.vmap(self.learn_keys)(k_learn)  # [R, learner_steps, 2]
             learner_state, steps = states.learner, []
             for i in range(self.config.learner_steps):
@@ -249,20 +249,20 @@ class Stream:
             states = states.replace(learner=learner_state)
             learner_metrics = jax.tree.map(lambda *v: jnp.mean(jnp.stack(v), axis=0), *steps)
         else:
-            learner_metrics = skipped(self, states, k_learn)
+            learner_metrics = _skipped(self, states, k_learn)
         return states, _with_learner(metrics, learner_metrics)
 
 
 _PPO_METRICS = ("total_loss", "policy_loss", "v_loss", "entropy_loss", "kl_mean")
 
 
-def replays_full(states: StreamState) -> jax.Array:
+def _replays_full(states: StreamState) -> jax.Array:
     """Whether the stacked runs' replays are full (run 0's: they fill on the same epoch).
     Vmapped: the replay's sizes are properties of one run's shapes."""
     return jax.vmap(lambda replay: replay.full)(states.replay)[0]
 
 
-def skipped(stream: Stream, states: StreamState, k_learn: jax.Array):
+def _skipped(stream: Stream, states: StreamState, k_learn: jax.Array):
     """NaN learner metrics [R] for an epoch without learner steps (the replay still fills).
 
     The shape-only trace goes through the jitted learner steps that `Stream.epochs`'s train

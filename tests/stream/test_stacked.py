@@ -99,10 +99,9 @@ def test_the_sharded_program_is_partitioned_by_gspmd_and_the_option_is_restored(
     mesh = stream.runs_mesh(2)
     f = jax.jit(lambda x: x * 2, in_shardings=NamedSharding(mesh, P("runs")))
     before = jax.config.jax_use_shardy_partitioner
-    with pytest.raises(RuntimeError, match="inside"):
-        with executor.gspmd_partitioner():
-            assert "sdy." not in f.lower(np.zeros(2, np.float32)).as_text()
-            raise RuntimeError("inside")
+    with pytest.raises(RuntimeError, match="inside"), executor.gspmd_partitioner():
+        assert "sdy." not in f.lower(np.zeros(2, np.float32)).as_text()
+        raise RuntimeError("inside")
     assert jax.config.jax_use_shardy_partitioner == before
     assert ("sdy." in f.lower(np.zeros(2, np.float32)).as_text()) == before
 

@@ -1,7 +1,9 @@
-"""The frames' two layers in each formulation, forward and backward: the encoder's first
-convolution (3 channels in, k4 s2 p1) and the decoder's last transposed convolution (3 out).
+"""VAE_rpl's convolutions in each formulation, forward and backward: the frames' two layers (the
+encoder's first convolution, 3 channels in, k4 s2 p1; the decoder's last transposed convolution,
+3 out) and, with --layers middle, the wider layers between them.
 
     python benchmarks/conv_forms.py [--frames 1024] [--dtype bfloat16] [--reps 7] [--steps 20]
+        [--layers frames middle]
 
 cuDNN's tensor-core kernels take channels in multiples of 8, so these two layers, whose FLOPs are
 a few percent of the step's, can cost far more than their bytes say. Each form computes the same
@@ -54,11 +56,22 @@ LAST = {  # [N, 32, 32, 64] × [4, 4, 64, 3] → [N, 64, 64, 3]
     **{f"upsample2x {f}": (lambda x, w, f=f: networks.upsample2x(x, w, form=f))
        for f in ("pair", "phase", "subpixel", "dilated")},
 }
+HALVING = {"lax": _lax_conv, "2x2 blocks, k2": networks._blocks_conv}  # the encoder's k4 s2 p1
+# Per case: (layer, its forms, input shape less N, kernel shape, which gradients).
+FRAMES = [("first layer", FIRST, (64, 64, 3), (4, 4, 3, 64), (1,)),
+          ("last layer", LAST, (32, 32, 64), (4, 4, 64, 3), (0, 1))]
+MIDDLE = [("conv1", HALVING, (32, 32, 64), (4, 4, 64, 128), (0, 1)),
+          ("conv2", HALVING, (16, 16, 128), (4, 4, 128, 128), (0, 1)),
+          ("conv3", HALVING, (8, 8, 128), (4, 4, 128, 256), (0, 1)),
+          ("deconv1", LAST, (4, 4, 256), (4, 4, 256, 128), (0, 1)),
+          ("deconv2", LAST, (8, 8, 128), (4, 4, 128, 128), (0, 1)),
+          ("deconv3", LAST, (16, 16, 128), (4, 4, 128, 64), (0, 1))]
 
 
 NOTES = ("The frames' two layers (the encoder's first convolution, 3 channels in; the decoder's "
-         "last transposed convolution, 3 out) in each formulation: value and gradients, jitted, "
-         "steady state (benchmarks/conv_forms.py).")
+         "last transposed convolution, 3 out) and the wider layers between them (conv1-3, "
+         "deconv1-3) in each formulation: value and gradients, jitted, steady state "
+         "(benchmarks/conv_forms.py).")
 
 
 def _time(fn, args, reps: int, steps: int) -> tuple[float, float]:
@@ -83,6 +96,7 @@ def main(argv=None) -> int:
     parser.add_argument("--dtype", default="bfloat16")
     parser.add_argument("--reps", type=int, default=7)
     parser.add_argument("--steps", type=int, default=20)
+    parser.add_argument("--layers", nargs="+", default=["frames"], choices=["frames", "middle"])
     parser.add_argument("--no-record", action="store_true", help="print only")
     args = parser.parse_args(argv)
     dt, n = jnp.dtype(args.dtype), args.frames
@@ -91,10 +105,11 @@ def main(argv=None) -> int:
     def normal(*shape):
         return jnp.asarray(rng.normal(size=shape), dt)
 
-    cases = [("first layer", FIRST, (normal(n, 64, 64, 3), normal(4, 4, 3, 64)), (1,)),
-             ("last layer", LAST, (normal(n, 32, 32, 64), normal(4, 4, 64, 3)), (0, 1))]
+    cases = (FRAMES if "frames" in args.layers else []) + \
+        (MIDDLE if "middle" in args.layers else [])
     rows = []
-    for layer, forms, args_, wrt in cases:
+    for layer, forms, x_shape, w_shape, wrt in cases:
+        args_ = (normal(n, *x_shape), normal(*w_shape))
         cotangent = None
         for name, f in forms.items():
             if cotangent is None:

@@ -6,10 +6,20 @@ the names that differ, rather than failing on a shape at some leaf index. The ma
 metadata records `FORMAT`. Zero-size leaves (mjx.Data has
 some, e.g. `act` of a model without actuator state) are not saved (Orbax refuses them) and are
 restored as zeros. Saving is atomic: Orbax writes a step to a temporary directory and renames it.
+
+With several processes (`jax.distributed`) each process checkpoints the runs it holds, but
+Orbax writes host arrays from process 0 alone and refuses a process's own device arrays, so
+there a process hands its state to a short-lived single-process child that saves it
+(`_save_apart`); restoring needs nothing of the kind.
 """
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
+import tempfile
 from pathlib import Path
 
 import jax
@@ -40,8 +50,9 @@ def manager(out: Path, max_to_keep: int = 2) -> ocp.CheckpointManager:
                                              multiprocessing_options=alone),
         # Named up front: a manager that has not saved in this process otherwise does not know
         # how to read an item's metadata (`item_metadata` gave None on resume, orbax on the
-        # GPU image), so a restarted run could not resume.
-        item_handlers=ocp.StandardCheckpointHandler(),
+        # GPU image), so a restarted run could not resume. The handler takes the same options:
+        # with its default (process 0 writes) any other process's steps held no arrays.
+        item_handlers=ocp.StandardCheckpointHandler(multiprocessing_options=alone),
         metadata={"format": FORMAT, "content": "jaml.stream.StreamState"},
     )
 
@@ -58,10 +69,42 @@ def save(mgr: ocp.CheckpointManager, step: int, state) -> None:
     absent, and the interrupted run's summary names it."""
     with _interrupts.held():
         leaves = named(state)
-        if jax.process_count() > 1:  # Orbax refuses one process's own arrays among several
-            leaves = {k: np.asarray(x) for k, x in leaves.items()}
+        if jax.process_count() > 1:
+            _save_apart(mgr, step, {k: np.asarray(x) for k, x in leaves.items()})
+            return
         mgr.save(step, args=ocp.args.StandardSave(leaves))
         mgr.wait_until_finished()
+
+
+def _save_apart(mgr: ocp.CheckpointManager, step: int, leaves: dict[str, np.ndarray]) -> None:
+    """`save` from one process of several: the leaves go to a temporary file, a child process
+    (CPU-only JAX, not distributed, so Orbax writes every array) saves them as step `step` with
+    `manager`'s defaults, and `mgr` rereads the directory."""
+    directory = Path(mgr.directory)
+    with tempfile.TemporaryDirectory(prefix="jaml-checkpoint-") as tmp:
+        arrays = Path(tmp) / "leaves.npz"
+        np.savez(arrays, **leaves)
+        (Path(tmp) / "dtypes.json").write_text(json.dumps(
+            {k: x.dtype.name for k, x in leaves.items()}))
+        env = {k: v for k, v in os.environ.items() if not k.startswith("JAML_")}
+        child = subprocess.run(
+            [sys.executable, "-m", "jaml.stream.checkpoint", str(directory.parent), str(step),
+             tmp], env={**env, "JAX_PLATFORMS": "cpu"}, capture_output=True, text=True)
+        if child.returncode:
+            raise RuntimeError(f"the process saving {directory / str(step)} failed: "
+                               f"{(child.stderr.strip().splitlines() or ['no output'])[-1]}")
+    mgr.reload()
+
+
+def _save_from_files(out: str, step: str, tmp: str) -> None:
+    """The child of `_save_apart`: OUT/checkpoints step `step` from the leaves in `tmp`."""
+    dtypes = json.loads((Path(tmp) / "dtypes.json").read_text())
+    with np.load(Path(tmp) / "leaves.npz") as arrays:  # bfloat16 comes back as raw bytes
+        leaves = {k: arrays[k].view(jnp.dtype(dtypes[k])) for k in dtypes}
+    mgr = manager(Path(out))
+    mgr.save(int(step), args=ocp.args.StandardSave(leaves))
+    mgr.wait_until_finished()
+    mgr.close()
 
 
 class CheckpointUnreadable(ValueError):
@@ -130,3 +173,7 @@ def _name(path) -> str:
         else:
             parts.append(str(k))
     return ".".join(parts)
+
+
+if __name__ == "__main__":
+    _save_from_files(*sys.argv[1:])

@@ -117,6 +117,24 @@ def test_checkpoint_round_trip_keeps_every_leaf_by_name(tmp_path):
     mgr.close()
 
 
+def test_a_checkpoint_written_by_a_child_process_reads_back_leaf_for_leaf(tmp_path):
+    """The several-processes save (`_save_apart`: a child process writes the step) on one
+    process: every leaf comes back with its dtype (bfloat16 included) and values, and the
+    parent's manager sees the new step."""
+    state = {"learner": {"w": jnp.linspace(-1, 1, 6, dtype=jnp.bfloat16).reshape(2, 3),
+                         "step": jnp.int32(7)},
+             "replay": {"frames": jnp.arange(24, dtype=jnp.uint8).reshape(2, 3, 4)},
+             "key": jnp.asarray([3, 5], jnp.uint32)}
+    mgr = checkpoint.manager(tmp_path)
+    checkpoint._save_apart(mgr, 4, {k: np.asarray(x) for k, x in checkpoint.named(state).items()})
+    assert mgr.latest_step() == 4
+    restored = checkpoint.restore(mgr, jax.eval_shape(lambda: state))
+    for a, b in zip(jax.tree.leaves(state), jax.tree.leaves(restored), strict=True):
+        assert a.dtype == b.dtype
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    mgr.close()
+
+
 def test_test_policy_is_uniform_or_current_by_a_traced_flag():
     """π_rand and π_curr share one compiled policy; each flag value gives that policy's actions."""
     st = stream.build(tiny())

@@ -281,7 +281,8 @@ def test_runs_split_across_devices_are_analysed_per_device_as_alone(tmp_path, mo
 
 
 # One process of `run_many` over two joined by `jax.distributed` (argv: coordinator, process
-# id, out root): each opens and writes the runs it holds.
+# id, out root, and `stop_after` or "-"): each opens and writes the runs it holds; prints each
+# run's status and the epoch it resumed from.
 _PROCESS = """
 import json, sys
 import jax
@@ -289,17 +290,16 @@ jax.distributed.initialize(sys.argv[1], 2, int(sys.argv[2]))
 jax.config.update("jax_threefry_partitionable", False)  # this module's random bits
 from jaml.stream import run as run_lib
 from tests.stream.test_loop import tiny
+stop_after = None if sys.argv[4] == "-" else int(sys.argv[4])
 summaries = run_lib.run_many([tiny(seed=s) for s in range(3)],
-                             [f"{sys.argv[3]}/{s}" for s in range(3)], progress=False)
-print(json.dumps([None if s is None else s["status"] for s in summaries]))
+                             [f"{sys.argv[3]}/{s}" for s in range(3)], progress=False,
+                             stop_after=stop_after)
+print(json.dumps([None if s is None else [s["status"], s["resumed_from"]] for s in summaries]))
 """
 
 
-@pytest.mark.slow  # two processes compiling the loop and the analysis, and this one
-def test_two_processes_write_the_run_directories_they_hold(tmp_path):
-    """Three runs over two processes of one CPU device each (`run_many`, the host loop): the
-    first holds runs 0 and 1, the second run 2; each writes only its own directories, and
-    their records are those of the three runs trained in one process."""
+def _two_processes(out: Path, stop_after: int | None) -> list:
+    """`_PROCESS` run by two processes of one CPU device each; what each printed."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -307,18 +307,31 @@ def test_two_processes_write_the_run_directories_they_hold(tmp_path):
     env = {**os.environ, "JAX_PLATFORMS": "cpu",
            "XLA_FLAGS": "--xla_force_host_platform_device_count=1"}
     procs = [subprocess.Popen([sys.executable, "-c", _PROCESS, f"127.0.0.1:{port}", str(i),
-                               str(tmp_path / "two")], cwd=root, env=env, text=True,
-                              stdout=subprocess.PIPE) for i in range(2)]
+                               str(out), "-" if stop_after is None else str(stop_after)],
+                              cwd=root, env=env, text=True, stdout=subprocess.PIPE)
+             for i in range(2)]
     outs = [p.communicate()[0].strip().splitlines()[-1] for p in procs]
     assert [p.returncode for p in procs] == [0, 0]
-    assert [json.loads(o) for o in outs] == [["finished", "finished", None],
-                                             [None, None, "finished"]]
+    return [json.loads(o) for o in outs]
+
+
+@pytest.mark.slow  # four processes compiling the loop and the analysis, and this one
+def test_two_processes_write_and_resume_the_run_directories_they_hold(tmp_path):
+    """Three runs over two processes of one CPU device each (`run_many`, the host loop): the
+    first holds runs 0 and 1, the second run 2; each writes only its own directories. Stopped
+    after 3 epochs (between the analyses at 2 and 4) and resumed by two new processes, their
+    records are those of the three runs trained through in one process."""
+    assert _two_processes(tmp_path / "two", stop_after=3) == [
+        [["interrupted", None]] * 2 + [None], [None, None, ["interrupted", None]]]
+    assert _two_processes(tmp_path / "two", stop_after=None) == [
+        [["finished", 3]] * 2 + [None], [None, None, ["finished", 3]]]
     run_lib.run_many([tiny(seed=s) for s in range(3)], [tmp_path / "one" / str(s)
                                                         for s in range(3)], progress=False)
     for seed in range(3):
-        two = (tmp_path / "two" / str(seed) / "history.jsonl").read_text().splitlines()
-        one = (tmp_path / "one" / str(seed) / "history.jsonl").read_text().splitlines()
-        assert len(two) == len(one) > 0
-        for a, b in zip(two, one, strict=True):
-            np.testing.assert_allclose(_numbers(json.loads(a)), _numbers(json.loads(b)),
-                                       rtol=1e-4, atol=1e-5)
+        for name in ("metrics.jsonl", "history.jsonl"):
+            two = (tmp_path / "two" / str(seed) / name).read_text().splitlines()
+            one = (tmp_path / "one" / str(seed) / name).read_text().splitlines()
+            assert len(two) == len(one) > 0, name
+            for a, b in zip(two, one, strict=True):
+                np.testing.assert_allclose(_numbers(json.loads(a)), _numbers(json.loads(b)),
+                                           rtol=1e-4, atol=1e-5, err_msg=name)

@@ -17,9 +17,7 @@ in Pallas's interpreter (a CPU check of the kernels, not a timing).
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -99,22 +97,6 @@ def pallas_backward_sums(dz, y, mean, mul, bias, rstd, block_rows: int, interpre
     return a.sum(0), b.sum(0)
 
 
-def _time(fn, args, reps: int, steps: int) -> tuple[float, float, object]:
-    """(compile seconds, steady-state seconds per call, the output)."""
-    start = time.perf_counter()
-    compiled = jax.jit(fn).lower(*args).compile()
-    compile_s = time.perf_counter() - start
-    out = jax.block_until_ready(compiled(*args))
-    times = []
-    for _ in range(reps):
-        start = time.perf_counter()
-        for _ in range(steps):
-            out = compiled(*args)
-        jax.block_until_ready(out)
-        times.append((time.perf_counter() - start) / steps)
-    return compile_s, statistics.median(times), out
-
-
 def _max_rel(a, b) -> float:
     return max(float(jnp.max(jnp.abs(x - y) / (jnp.abs(y) + 1.0)))
                for x, y in zip(a, b, strict=True))
@@ -155,7 +137,7 @@ def main(argv=None) -> int:
                      (dz, y, *channels), 2 * array_mb, "backward")]
         reference = {}
         for name, fn, fn_args, mb, kind in cases:
-            compile_s, s, out = _time(fn, fn_args, args.reps, args.steps)
+            compile_s, s, out = harness.measure_calls(fn, fn_args, args.reps, args.steps)
             err = None
             if kind is not None:
                 reference.setdefault(kind, out)

@@ -15,9 +15,7 @@ steady state: median over `reps` blocked calls of `steps` steps each, compile ap
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -74,22 +72,6 @@ NOTES = ("The frames' two layers (the encoder's first convolution, 3 channels in
          "(benchmarks/conv_forms.py).")
 
 
-def _time(fn, args, reps: int, steps: int) -> tuple[float, float]:
-    """(compile seconds, steady-state seconds per step)."""
-    start = time.perf_counter()
-    compiled = jax.jit(fn).lower(*args).compile()
-    compile_s = time.perf_counter() - start
-    jax.block_until_ready(compiled(*args))
-    times = []
-    for _ in range(reps):
-        start = time.perf_counter()
-        for _ in range(steps):
-            out = compiled(*args)
-        jax.block_until_ready(out)
-        times.append((time.perf_counter() - start) / steps)
-    return compile_s, statistics.median(times)
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=1024)
@@ -120,7 +102,7 @@ def main(argv=None) -> int:
                 grads = vjp(cotangent)
                 return y, tuple(grads[i] for i in wrt)
 
-            compile_s, s = _time(step, args_, args.reps, args.steps)
+            compile_s, s, _ = harness.measure_calls(step, args_, args.reps, args.steps)
             rows.append({"case": f"{layer}, {n} frames, {args.dtype}", "impl": name,
                          "us_per_step": 1e6 * s, "compile_s": compile_s})
             print(f"{layer:12s} {name:28s} {1e6 * s:8.1f} µs (compile {compile_s:.1f} s)",

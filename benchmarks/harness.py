@@ -66,6 +66,26 @@ def measure(fn: Callable, *args, repeats: int = 5, warmup: int = 1) -> dict:
     }
 
 
+def measure_calls(fn: Callable, args: tuple, reps: int, steps: int) -> tuple[float, float, object]:
+    """`jax.jit(fn)` on `args`: (compile seconds, steady-state seconds per call, an output).
+    Compiled ahead, run once, then the median over `reps` blocked blocks of `steps` calls each:
+    for kernels short enough that one blocked call would time its dispatch."""
+    import jax
+
+    start = time.perf_counter()
+    compiled = jax.jit(fn).lower(*args).compile()
+    compile_s = time.perf_counter() - start
+    out = block(compiled(*args))
+    times = []
+    for _ in range(reps):
+        start = time.perf_counter()
+        for _ in range(steps):
+            out = compiled(*args)
+        block(out)
+        times.append((time.perf_counter() - start) / steps)
+    return compile_s, statistics.median(times), out
+
+
 def _cpu_model() -> str:
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():

@@ -50,8 +50,8 @@ def manager(out: Path, max_to_keep: int = 2) -> ocp.CheckpointManager:
                                              multiprocessing_options=alone),
         # Named up front: a manager that has not saved in this process otherwise does not know
         # how to read an item's metadata (`item_metadata` gave None on resume, orbax on the
-        # GPU image), so a restarted run could not resume. The handler takes the same options:
-        # with its default (process 0 writes) any other process's steps held no arrays.
+        # GPU image), so a restarted run could not resume. The handler takes the manager's
+        # options: by default it would write its metadata from process 0 alone.
         item_handlers=ocp.StandardCheckpointHandler(multiprocessing_options=alone),
         metadata={"format": FORMAT, "content": "jaml.stream.StreamState"},
     )
@@ -79,7 +79,9 @@ def save(mgr: ocp.CheckpointManager, step: int, state) -> None:
 def _save_apart(mgr: ocp.CheckpointManager, step: int, leaves: dict[str, np.ndarray]) -> None:
     """`save` from one process of several: the leaves go to a temporary file, a child process
     (CPU-only JAX, not distributed, so Orbax writes every array) saves them as step `step` with
-    `manager`'s defaults, and `mgr` rereads the directory."""
+    `manager`'s defaults, and `mgr` rereads the directory. The child runs in a session of its
+    own, so a Ctrl-C at the terminal reaches only this process, which holds it until the step
+    is written (`save`)."""
     directory = Path(mgr.directory)
     with tempfile.TemporaryDirectory(prefix="jaml-checkpoint-") as tmp:
         arrays = Path(tmp) / "leaves.npz"
@@ -89,7 +91,8 @@ def _save_apart(mgr: ocp.CheckpointManager, step: int, leaves: dict[str, np.ndar
         env = {k: v for k, v in os.environ.items() if not k.startswith("JAML_")}
         child = subprocess.run(
             [sys.executable, "-m", "jaml.stream.checkpoint", str(directory.parent), str(step),
-             tmp], env={**env, "JAX_PLATFORMS": "cpu"}, capture_output=True, text=True)
+             tmp], env={**env, "JAX_PLATFORMS": "cpu"}, capture_output=True, text=True,
+            start_new_session=True)
         if child.returncode:
             raise RuntimeError(f"the process saving {directory / str(step)} failed: "
                                f"{(child.stderr.strip().splitlines() or ['no output'])[-1]}")

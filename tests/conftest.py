@@ -11,7 +11,8 @@ with `jax_disable_most_optimizations` (LLVM backend level 0; the same HLO passes
 programs), which cut the learner tests from 240 s to 172 s. Modules that run long training
 loops are marked `xla_optimized` and compile at XLA's full level: at level 0 the relation
 learning tests took 185 s against 118 s. `JAML_TEST_XLA=optimized|fast` forces one setting for
-every module (to compare). The persistent cache is shared by the xdist workers of one run
+every module (to compare). A test's own long loop in a cheap module compiles at the full level
+inside `xla_optimized()`. The persistent cache is shared by the xdist workers of one run
 (keyed by xdist's run id), so a program one worker compiled is read, not rebuilt, by the other.
 The cheap setting also compiles with XLA:CPU's older (elemental) fusion emitters, the option
 jaml already gives its env programs (`envs_mjx/compile.py`): the same HLO, emitted by the older
@@ -24,6 +25,7 @@ modules of a few tests (test_suite_api, the Franka's contract) last, each then e
 one worker while the other sat idle; `pytest_configure` turns that reordering off.
 """
 
+import contextlib
 import os
 import tempfile
 
@@ -88,6 +90,25 @@ def _xla_optimization(request):
     jax.config.update("jax_disable_most_optimizations", not optimized)
     _OLDER_EMITTERS[0] = older
     yield
+
+
+@contextlib.contextmanager
+def xla_optimized():
+    """Inside the block, programs compile as in a module marked `xla_optimized`: for one long
+    loop in a module that otherwise compiles cheaply. A program compiled inside is what JAX runs
+    again for the same call outside (its in-memory keys hold neither setting): keep the block to
+    the loop's own calls. `JAML_TEST_XLA=fast` keeps it cheap here too."""
+    if _FORCED == "fast":
+        yield
+        return
+    optimized, older = _SETTING[0]
+    jax.config.update("jax_disable_most_optimizations", False)
+    _OLDER_EMITTERS[0] = False
+    try:
+        yield
+    finally:
+        jax.config.update("jax_disable_most_optimizations", not optimized)
+        _OLDER_EMITTERS[0] = older
 
 
 def pytest_configure(config):

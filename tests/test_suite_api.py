@@ -34,17 +34,27 @@ def run():
     return config, s, state
 
 
-def test_the_apis_numbers_equal_the_streams_own_analysis(run):
-    """The run's learner scored through `suite.evaluate` gets the report its analysis writes."""
+@pytest.fixture(scope="module")
+def reports(run):
+    """(the run's analysis with its reference rows, the run's learner scored through
+    `suite.evaluate`): the two tests below read their own parts of one pair."""
     config, s, state = run
     _, k_eval, pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
-    own = analysis.evaluate(s, state, jax.random.fold_in(k_eval, int(state.epoch)), pi_rand_key)
+    own = analysis.evaluate(s, state, jax.random.fold_in(k_eval, int(state.epoch)), pi_rand_key,
+                            references=True)
 
     def encode(frames, actions):
         return s.learner.encode(state.learner.variables, frames, actions)
 
     api = suite.evaluate(encode, config, state, actions_seen=s.learner.config.actions_seen,
                          stream=s)
+    return own, api
+
+
+def test_the_apis_numbers_equal_the_streams_own_analysis(run, reports):
+    """The run's learner scored through `suite.evaluate` gets the report its analysis writes."""
+    _, s, _ = run
+    own, api = reports
     keys = ["pi_rand", "pi_curr", "validation"]  # every row of the report: these, in order
     assert list(api["errors"]) == list(own["errors"]) == list(api["baseline"]) == keys
     assert list(api["linear"]["errors"]) == list(api["linear"]["r2"]) == keys
@@ -60,19 +70,12 @@ def test_the_apis_numbers_equal_the_streams_own_analysis(run):
     assert api["scale"] == "smoke" and api["note"] == suite.SMOKE_NOTE
 
 
-def test_the_reference_rows_are_the_runs_own_and_the_floor_is_below_the_ceiling(run):
+def test_the_reference_rows_are_the_runs_own_and_the_floor_is_below_the_ceiling(reports):
     """`suite.evaluate`'s reference rows equal those the stream's analysis computes on its own
     sets (`analysis.evaluate(references=True)`), share the report's keys, and the true state
-    (the floor) scores below the constant predictor (the ceiling) on every set."""
-    config, s, state = run
-    _, k_eval, pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
-    own = analysis.evaluate(s, state, jax.random.fold_in(k_eval, int(state.epoch)), pi_rand_key,
-                            references=True)["references"]
-
-    def encode(frames, actions):
-        return s.learner.encode(state.learner.variables, frames, actions)
-
-    api = suite.evaluate(encode, config, state, stream=s)["references"]
+    (the floor) scores below the constant predictor (the ceiling) on every set (the rows do not
+    read `actions_seen`, which only the distortion does)."""
+    own, api = (report["references"] for report in reports)
     assert list(api) == ["constant", "true_state", "pca", "random_projection"] == list(own)
     for row, by_set in own.items():
         assert list(api[row]) == ["pi_rand", "pi_curr", "validation"]

@@ -47,9 +47,11 @@ def _fast_compiling_prng():
         yield
 
 
-def _device_loop(s, seeds, epochs, mesh):
-    """Fresh runs of `seeds` trained through the device loop on `mesh`: (states, metrics)."""
-    states = stream.stack_runs([s.init(jax.random.PRNGKey(seed)) for seed in seeds])
+def _device_loop(s, seeds, epochs, mesh, inits=None):
+    """Fresh runs of `seeds` trained through the device loop on `mesh`: (states, metrics).
+    `inits`: each seed's initial state, made once for several calls (else made here)."""
+    inits = inits or {seed: s.init(jax.random.PRNGKey(seed)) for seed in seeds}
+    states = stream.stack_runs([inits[seed] for seed in seeds])
     return stream.run_stacked_epochs(s, states, epochs, mesh=mesh, host_loop=False)
 
 
@@ -61,13 +63,14 @@ def test_one_spmd_program_trains_every_seed_on_two_devices():
     s = stream.build(small())
     mesh = stream.runs_mesh(len(SEEDS))
     assert mesh.size == 2
-    states, first = _device_loop(s, SEEDS, 1, mesh)
+    inits = {seed: s.init(jax.random.PRNGKey(seed)) for seed in SEEDS}  # both stackings'
+    states, first = _device_loop(s, SEEDS, 1, mesh, inits)
     states, second = stream.run_stacked_epochs(s, states, 1, mesh=mesh, host_loop=False)
     assert states.epoch.tolist() == [2, 2, 2]
     together = jax.tree.map(lambda a, b: np.concatenate([a, b]), first, second)
     # The seeds in another order, two epochs in one call: device 0 now steps seeds 2 and 0.
     order = (2, 0, 1)
-    _, reordered = _device_loop(s, order, 2, mesh)
+    _, reordered = _device_loop(s, order, 2, mesh, inits)
     program = executor.sharded_program(s)
     assert program._cache_size() == 1, "one compilation for both calls, both orders"
     assert not [k for k in s.programs if k[0] is executor._block], "no per-device programs"

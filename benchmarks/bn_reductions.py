@@ -1,8 +1,8 @@
 """The batch norms' channel reductions against the card's bandwidth: XLA's fusions and a Pallas
 kernel of partial sums, on each conv stack layer's output.
 
-    python benchmarks/bn_reductions.py [--frames 1024] [--block-rows 256 1024] [--reps 7]
-        [--steps 20] [--interpret] [--no-record]
+    python benchmarks/bn_reductions.py [--frames 1024] [--layers 32x32x64 ...]
+        [--block-rows 128 256] [--reps 7] [--steps 20] [--interpret] [--no-record]
 
 A training batch norm reads its input once for the statistics (sum and sum of squares per
 channel) and its backward pass reads the output gradient and the input once more for two sums
@@ -106,7 +106,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=1024)
     parser.add_argument("--layers", nargs="+", default=list(LAYERS), choices=list(LAYERS))
-    parser.add_argument("--block-rows", type=int, nargs="+", default=[256, 1024])
+    parser.add_argument("--block-rows", type=int, nargs="+", default=[128, 256])
     parser.add_argument("--reps", type=int, default=7)
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--interpret", action="store_true",

@@ -75,6 +75,7 @@ def test_an_unreadable_checkpoint_is_one_line(tmp_path, capsys):
     state = {"a": jnp.arange(4.0), "b": jnp.ones((2, 2))}
     mgr = checkpoint.manager(tmp_path)
     checkpoint.save(mgr, 3, state)
+    mgr.close()  # managers left open are collected later, after their event loops close
     step = tmp_path / "checkpoints" / "3"
     for f in step.rglob("*"):
         if f.is_file() and "manifest" in f.name:
@@ -82,6 +83,7 @@ def test_an_unreadable_checkpoint_is_one_line(tmp_path, capsys):
     mgr = checkpoint.manager(tmp_path)
     with pytest.raises(checkpoint.CheckpointUnreadable) as caught:
         checkpoint.restore(mgr, jax.eval_shape(lambda: state))
+    mgr.close()
     message = str(caught.value)
     assert "\n" not in message and str(step) in message and "move that folder away" in message
     assert isinstance(caught.value, ValueError)  # the CLI's one-line errors

@@ -15,8 +15,8 @@ there a process hands its state to a short-lived single-process child that saves
 
 from __future__ import annotations
 
-import json
 import os
+import pickle
 import subprocess
 import sys
 import tempfile
@@ -84,26 +84,22 @@ def _save_apart(mgr: ocp.CheckpointManager, step: int, leaves: dict[str, np.ndar
     is written (`save`)."""
     directory = Path(mgr.directory)
     with tempfile.TemporaryDirectory(prefix="jaml-checkpoint-") as tmp:
-        arrays = Path(tmp) / "leaves.npz"
-        np.savez(arrays, **leaves)
-        (Path(tmp) / "dtypes.json").write_text(json.dumps(
-            {k: x.dtype.name for k, x in leaves.items()}))
-        env = {k: v for k, v in os.environ.items() if not k.startswith("JAML_")}
+        path = Path(tmp) / "leaves.pkl"
+        path.write_bytes(pickle.dumps(leaves))  # keeps every dtype, bfloat16 included
         child = subprocess.run(
             [sys.executable, "-m", "jaml.stream.checkpoint", str(directory.parent), str(step),
-             tmp], env={**env, "JAX_PLATFORMS": "cpu"}, capture_output=True, text=True,
-            start_new_session=True)
+             str(path)], env={**os.environ, "JAX_PLATFORMS": "cpu"}, capture_output=True,
+            text=True, start_new_session=True)
         if child.returncode:
             raise RuntimeError(f"the process saving {directory / str(step)} failed: "
                                f"{(child.stderr.strip().splitlines() or ['no output'])[-1]}")
     mgr.reload()
 
 
-def _save_from_files(out: str, step: str, tmp: str) -> None:
-    """The child of `_save_apart`: OUT/checkpoints step `step` from the leaves in `tmp`."""
-    dtypes = json.loads((Path(tmp) / "dtypes.json").read_text())
-    with np.load(Path(tmp) / "leaves.npz") as arrays:  # bfloat16 comes back as raw bytes
-        leaves = {k: arrays[k].view(jnp.dtype(dtypes[k])) for k in dtypes}
+def _save_from_file(out: str, step: str, path: str) -> None:
+    """The child of `_save_apart`: OUT/checkpoints step `step` from the leaves pickled at
+    `path` (this process's own temporary file)."""
+    leaves = pickle.loads(Path(path).read_bytes())
     mgr = manager(Path(out))
     mgr.save(int(step), args=ocp.args.StandardSave(leaves))
     mgr.wait_until_finished()
@@ -179,4 +175,4 @@ def _name(path) -> str:
 
 
 if __name__ == "__main__":
-    _save_from_files(*sys.argv[1:])
+    _save_from_file(*sys.argv[1:])

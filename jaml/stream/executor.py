@@ -192,8 +192,9 @@ def sharded_program(stream: Stream):
 
 @contextlib.contextmanager
 def gspmd_partitioner():
-    """XLA's GSPMD partitioner instead of Shardy, JAX's default, for the calls inside: Shardy's
-    pass segfaults XLA's GPU compiler on the sharded program (jaxlib 0.11.2,
+    """XLA's GSPMD partitioner instead of Shardy, JAX's default, for the calls inside: Shardy
+    segfaulted XLA's GPU compiler on the sharded program (jaxlib 0.11.2; the trigger, an empty
+    array returned by a `shard_map`, is now kept out, not yet checked on two GPUs:
     docs/notes/stream.md). The option is part of jit's cache key, so what is compiled inside is
     called inside; it is process-wide while set, restored on the way out."""
     before = jax.config.jax_use_shardy_partitioner
@@ -207,12 +208,27 @@ def gspmd_partitioner():
 def _sharded_block(stream: Stream, mesh: Mesh, states: StreamState, n: jax.Array):
     """`_block` of each device's runs, the runs axis split along `mesh`'s "runs" axis.
 
+    Empty leaves (an env's contact arrays where it has none, say) stay out of the `shard_map`:
+    they hold nothing, and a `shard_map` that returns an empty input as it came segfaults XLA's
+    GPU compiler under Shardy (docs/notes/stream.md); each side makes them anew at its shape.
     Unchecked (`check_vma=False`): MJX's solver branches on values that vary by device without
     saying so, and nothing here is replicated but the trip count n."""
-    return jax.shard_map(lambda s, k: _block(stream, s, k), mesh=mesh,
-                         in_specs=(P(RUNS_AXIS), P()),
-                         out_specs=(P(RUNS_AXIS), P(None, RUNS_AXIS)),
-                         check_vma=False)(states, n)
+    leaves, tree = jax.tree.flatten(states)
+
+    def remade(kept, shape_of):
+        kept = iter(kept)
+        return tree.unflatten([next(kept) if x.size else jnp.zeros(shape_of(x), x.dtype)
+                               for x in leaves])
+
+    def per_device(kept, k):
+        out, metrics = _block(stream, remade(kept, lambda x: (x.shape[0] // mesh.size,
+                                                             *x.shape[1:])), k)
+        return [x for x in jax.tree.leaves(out) if x.size], metrics
+
+    kept, metrics = jax.shard_map(per_device, mesh=mesh, in_specs=(P(RUNS_AXIS), P()),
+                                  out_specs=(P(RUNS_AXIS), P(None, RUNS_AXIS)),
+                                  check_vma=False)([x for x in leaves if x.size], n)
+    return remade(kept, lambda x: x.shape), metrics
 
 
 def _block(stream: Stream, states: StreamState, n: jax.Array):

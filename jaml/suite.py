@@ -38,7 +38,7 @@ from jaml.configs.stream import scaled as scaled
 from jaml.evaluation import alignment
 from jaml.learners.learner import FRAME_SHAPE
 from jaml.stream import analysis
-from jaml.stream.executor import run_epochs
+from jaml.stream.executor import one_run_stacked, run_epochs
 from jaml.stream.loop import Stream, StreamState, build
 
 
@@ -78,7 +78,7 @@ def _chunks(stream: Stream, state: StreamState, key, pi_rand_key) -> dict[str, l
     """{set: host `Columns` chunks} from the analysis's own samplers and keys (one run: R = 1)."""
     cfg = stream.config
     k_train, k_curr, _ = jax.random.split(key, 3)
-    states = jax.tree.map(lambda x: x[None], state)
+    states = one_run_stacked(state)
     out = {"train": [], "pi_rand": []}
     analysis.encoded_replay(stream, states, k_train[None], cfg.eval.train, store=out["train"])
     analysis.encoded_rollouts(stream, states, pi_rand_key[None], cfg.eval.rand, random=True,

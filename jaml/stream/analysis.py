@@ -23,6 +23,7 @@ from jaml.evaluation import alignment, rotation
 from jaml.evaluation import references as references_lib
 from jaml.stream import collect
 from jaml.stream import replay as replay_lib
+from jaml.stream.executor import one_run_stacked
 from jaml.stream.loop import Stream, StreamState
 
 
@@ -145,7 +146,7 @@ def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Ar
              seconds: dict | None = None, pi_rand_set: PiRandSet | None = None,
              references: bool = False) -> dict:
     """`evaluate_runs` of one run (R = 1): its report."""
-    return evaluate_runs(stream, jax.tree.map(lambda x: x[None], s), key[None],
+    return evaluate_runs(stream, one_run_stacked(s), key[None],
                          pi_rand_key[None], seconds=seconds,
                          pi_rand_sets=None if pi_rand_set is None else [pi_rand_set],
                          references=references)[0]

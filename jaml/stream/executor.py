@@ -13,6 +13,7 @@ Shapes: R runs.
 from __future__ import annotations
 
 import contextlib
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -37,14 +38,51 @@ def stack_runs(states: list[StreamState]) -> StreamState:
     Weak types are dropped (e.g. Brax's normaliser initialises `std_eps` from a Python float):
     the epoch loop returns strong types, and a leaf whose type changed between calls would
     re-trace and re-compile the loop on the second call."""
+    return _stack(list(states))
+
+
+# The tree functions below are one program each: leaf by leaf, each new leaf shape would compile
+# a program of its own (a state holds ~150 leaves; seconds of compiling on a CPU).
+@jax.jit
+def _stack(states: list[StreamState]) -> StreamState:
     return jax.tree.map(lambda *x: jax.lax.convert_element_type(jnp.stack(x), x[0].dtype),
                         *states)
 
 
 def unstack_runs(states: StreamState) -> list[StreamState]:
     """The inverse of `stack_runs`: one state per run."""
+    return _unstack(states)
+
+
+@jax.jit
+def _unstack(states: StreamState) -> list[StreamState]:
     count = states.epoch.shape[0]
     return [jax.tree.map(lambda x, i=i: x[i], states) for i in range(count)]
+
+
+@jax.jit
+def one_run_stacked(state: StreamState) -> StreamState:
+    """One run's state as R = 1 stacked runs (leaves [1, ...]; weak types kept, unlike
+    `stack_runs`)."""
+    return jax.tree.map(lambda x: x[None], state)
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def run_of(states: StreamState, i: int) -> StreamState:
+    """Run i's state of stacked `states` (weak types kept)."""
+    return jax.tree.map(lambda x: x[i], states)
+
+
+@functools.partial(jax.jit, static_argnums=(1, 2, 3))
+def _take(tree, index: tuple[int, ...], axis: int = 0, rows: int | None = None):
+    """`tree`'s leaves at `index` along `axis`, of their first `rows` along axis 0 where given."""
+    at = (slice(None),) * axis + (np.asarray(index),)
+    return jax.tree.map(lambda x: x[:rows][at], tree)
+
+
+@jax.jit
+def _concatenate(trees: list):
+    return jax.tree.map(lambda *x: jnp.concatenate(x), *trees)
 
 
 RUNS_AXIS = "runs"
@@ -121,7 +159,7 @@ def _device_loop(stream: Stream, states: StreamState, n: int, mesh: Mesh, num_ru
                          "(`held_runs`) and num_runs = the runs of every process")
     slots, real = _layout(count, mesh.local_mesh.size, -(-num_runs // mesh.size))
     if slots != real:
-        states = jax.tree.map(lambda x: x[np.asarray(slots)], states)
+        states = _take(states, tuple(slots))
     if mesh.size > 1:  # this process's devices' shards, then the mesh's array of them
         states = jax.device_put(states, NamedSharding(mesh.local_mesh, P(RUNS_AXIS)))
         states = multihost_utils.host_local_array_to_global_array(states, mesh, P(RUNS_AXIS))
@@ -131,12 +169,12 @@ def _device_loop(stream: Stream, states: StreamState, n: int, mesh: Mesh, num_ru
         states, metrics = _run_block(stream, mesh, states, k)
         if mesh.size > 1:
             metrics = _host_local(metrics, mesh, P(None, RUNS_AXIS))
-        blocks.append(jax.tree.map(lambda x, k=k: x[:k, np.asarray(real)], metrics))
+        blocks.append(_take(metrics, tuple(real), 1, k))
     if mesh.size > 1:
         states = _host_local(states, mesh, P(RUNS_AXIS))
     if slots != real:
-        states = jax.tree.map(lambda x: x[np.asarray(real)], states)
-    return states, jax.tree.map(lambda *x: jnp.concatenate(x), *blocks)
+        states = _take(states, tuple(real))
+    return states, _concatenate(blocks)
 
 
 def _host_local(tree, mesh: Mesh, spec: P):

@@ -18,6 +18,7 @@ from jaml.stream import analysis
 from jaml.stream.executor import (
     BLOCK,
     held_runs,
+    run_of,
     run_stacked_epochs,
     runs_mesh,
     stack_runs,
@@ -213,7 +214,7 @@ class _Stacked:
         if i not in self.members:
             return self.runs[i].state
         j = self.members.index(i)
-        return jax.tree.map(lambda x: x[j], self.states)
+        return run_of(self.states, j)
 
 
 def _mark(runs: list[RunDir], status: str) -> None:
@@ -268,7 +269,7 @@ def _analyse_together(stream: Stream, states: StreamState, due: list,
             reports[i] = report
     names = analysis.error_names(stream)
     for i, r in due:
-        state = jax.tree.map(lambda x, i=i: x[i], states)
+        state = run_of(states, i)
         with timed(r.seconds, "analysis"), timed(r.analysis_parts, "reconstructions"):
             frames = analysis.reconstructions(stream, state, jax.random.fold_in(r.eval_key(), 7))
             r.save_reconstructions(frames)

@@ -238,7 +238,12 @@ class Stream:
         the runs acting in one program call and each learner step in one of its own (the CPU's
         host loop, `jaml.stream.executor`: XLA:CPU runs convolutions inside a while loop many
         times slower than outside one). The states are donated."""
-        states, k_learn, metrics = self.jit(_act_runs, donate_argnums=0)(states)
+        # The acting program neither reads nor writes the learner's state: left out of it, the
+        # program is the same for every learner of one env and PPO (one compilation serves).
+        learner = states.learner
+        states, k_learn, metrics = self.jit(_act_runs, donate_argnums=0)(
+            states.replace(learner=None))
+        states = states.replace(learner=learner)
         if bool(_replays_full(states)):
             keys = jax.vmap(self.learn_keys)(k_learn)  # [R, learner_steps, 2]
             learner_state, steps = states.learner, []

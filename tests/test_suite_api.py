@@ -233,11 +233,22 @@ def _check_snippet(namespace: dict, printed: str) -> None:
     assert all("(true state " in line and ", constant " in line for line in lines)
 
 
-def test_readme_encoder_snippet_runs_at_the_smoke_scale(run, capsys):
-    """README's snippet with "smoke" for its "small" (the fixture's config: its programs are
-    compiled once in this module); as written, at "small", it is the slow test below."""
+def test_readme_encoder_snippet_runs_at_the_smoke_scale(run, capsys, monkeypatch):
+    """README's snippet with "smoke" for its "small" (the fixture's config: `suite.evaluate`
+    gets the fixture's Stream, built from an equal config, whose programs are traced and
+    compiled once in this module; the snippet's run still fills its own replay); as written, at
+    "small", it is the slow test below."""
+    config, s, _ = run
+    built = []
+
+    def build(c):
+        assert c == config, "the snippet's config is the fixture's"
+        built.append(c)
+        return s
+
+    monkeypatch.setattr(suite, "build", build)
     namespace = _run_encoder_snippet("smoke")
-    assert namespace["config"] == run[0]
+    assert namespace["config"] == config and built == [config]
     _check_snippet(namespace, capsys.readouterr().out)
 
 

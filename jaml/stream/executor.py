@@ -4,15 +4,14 @@ SPMD program over a mesh of devices, on one host or several.
 The epoch itself is `Stream.epochs`, a pure function of the stacked states (`jaml.stream.loop`).
 This module decides how a call of n epochs runs it: a host loop of jitted pieces (CPU,
 `Stream.host_epoch`), blocks of up to 32 epochs inside one device loop (GPU/TPU), and that device
-loop as one `shard_map` program, partitioned by XLA's GSPMD, when the runs are sharded along a
-mesh's "runs" axis. What it compiles, the Stream keeps (`Stream.jit`, `Stream.learner_jit`).
+loop as one `shard_map` program when the runs are sharded along a mesh's "runs" axis. What it
+compiles, the Stream keeps (`Stream.jit`, `Stream.learner_jit`).
 
 Shapes: R runs.
 """
 
 from __future__ import annotations
 
-import contextlib
 import functools
 
 import jax
@@ -217,30 +216,13 @@ def _run_block(stream: Stream, mesh: Mesh, states: StreamState, n: int):
     n = jnp.asarray(n, jnp.int32)
     if mesh.size == 1:
         return stream.learner_jit(_block)(states, n)
-    with gspmd_partitioner():
-        return sharded_program(stream)(mesh, states, n)
+    return sharded_program(stream)(mesh, states, n)
 
 
 def sharded_program(stream: Stream):
     """The Stream's jitted `_sharded_block(mesh, states, n)`, the mesh static, the states
-    donated, with the learner's compiler options (`Stream.learner_jit`). Trace, compile and
-    call it inside `gspmd_partitioner()`."""
+    donated, with the learner's compiler options (`Stream.learner_jit`)."""
     return stream.learner_jit(_sharded_block, static_argnums=0, donate_argnums=1)
-
-
-@contextlib.contextmanager
-def gspmd_partitioner():
-    """XLA's GSPMD partitioner instead of Shardy, JAX's default, for the calls inside: Shardy
-    segfaulted XLA's GPU compiler on the sharded program (jaxlib 0.11.2; the trigger, an empty
-    array returned by a `shard_map`, is now kept out, not yet checked on two GPUs:
-    docs/notes/stream.md). The option is part of jit's cache key, so what is compiled inside is
-    called inside; it is process-wide while set, restored on the way out."""
-    before = jax.config.jax_use_shardy_partitioner
-    jax.config.update("jax_use_shardy_partitioner", False)
-    try:
-        yield
-    finally:
-        jax.config.update("jax_use_shardy_partitioner", before)
 
 
 def _sharded_block(stream: Stream, mesh: Mesh, states: StreamState, n: jax.Array):

@@ -9,17 +9,19 @@ import pytest
 from jaml.learners.conv_kernel import halving_conv_stats
 
 
-# (x shape, output channels, block_m, block_o, block_k): a tile of two frames with two channel
-# tiles and two input-channel chunks; a tile of a quarter frame (2 of its 8 rows).
-@pytest.mark.parametrize("x_shape, o, blocks", [((2, 8, 8, 32), 32, (32, 16, 16)),
-                                                ((1, 16, 16, 16), 32, (16, 32, 16))])
-def test_halving_conv_stats_is_lax_conv_and_its_sums(x_shape, o, blocks):
+# (x shape, output channels, (block_m, block_o, block_k), taps per load): a tile of two frames
+# with two channel tiles and two chunks per load; a tile of a quarter frame (2 of its 8 rows).
+@pytest.mark.parametrize("x_shape, o, blocks, span", [
+    ((2, 8, 8, 32), 32, (32, 16, 16), 1), ((1, 16, 16, 16), 32, (16, 32, 16), 1),
+    ((2, 8, 8, 32), 32, (32, 16, 32), 2), ((1, 16, 16, 16), 32, (16, 32, 32), 2)])
+def test_halving_conv_stats_is_lax_conv_and_its_sums(x_shape, o, blocks, span):
     rng = np.random.default_rng(sum(x_shape) + o)
     c = x_shape[-1]
     x = jnp.asarray(rng.normal(size=x_shape), jnp.bfloat16)
     w = jnp.asarray(rng.normal(size=(4, 4, c, o)) / np.sqrt(16 * c), jnp.bfloat16)
     bm, bo, bk = blocks
-    y, s, q = halving_conv_stats(x, w, block_m=bm, block_o=bo, block_k=bk, interpret=True)
+    y, s, q = halving_conv_stats(x, w, block_m=bm, block_o=bo, block_k=bk, span=span,
+                                 interpret=True)
     # bfloat16 operands, float32 accumulation: the reference's products are exact and only the
     # order of the float32 sums differs.
     ref = jax.lax.conv_general_dilated(x, w, (2, 2), ((1, 1), (1, 1)),

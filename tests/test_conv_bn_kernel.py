@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaml.learners.conv_kernel import halving_conv_stats
+from benchmarks.conv_bn_kernel import halving_conv_stats
 
 
 # (x shape, output channels, (block_m, block_o, block_k), taps per load): a tile of two frames

@@ -147,7 +147,6 @@ def halving_conv_stats(x: jax.Array, kernel: jax.Array, *, block_m: int = 128,
     return y.reshape(n, h // 2, w // 2, o), s.sum(0), q.sum(0)
 
 
-
 def xla_conv(x, w):
     return networks._xla_conv(x, w, (2, 2), networks._HALVE)
 

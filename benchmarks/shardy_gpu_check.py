@@ -21,8 +21,6 @@ import subprocess
 import sys
 
 VARIANTS = ("repro_empty", "repro_full", "block_raw", "block", "run")
-QUICK = {"num_envs": 8, "rollout_len": 4, "replay.slots": 16, "frames_per_batch": 8,
-         "learner_steps": 1, "ppo.num_minibatches": 4, "epochs": 1000}
 
 
 def variant(name: str, case: str) -> str:
@@ -49,11 +47,12 @@ def variant(name: str, case: str) -> str:
         f.lower(*abstract((jnp.ones((4, 3)), jnp.zeros((4, width))))).compile()
         return "compiles"
 
+    from jaml.configs.stream import scaled
     from jaml.stream import build, for_env
     from jaml.stream.executor import _block, sharded_program, stack_runs
 
     env, learner = case.split("/")
-    stream = build(for_env(env, learner, QUICK))
+    stream = build(scaled(for_env(env, learner), "smoke"))
     states = stack_runs([stream.init(jax.random.PRNGKey(seed)) for seed in range(2)])
     n = jax.ShapeDtypeStruct((), jnp.int32, sharding=NamedSharding(mesh, P()))
     if name == "block_raw":
@@ -84,7 +83,7 @@ def variant(name: str, case: str) -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--case", default="CartPole/VAE_rpl", help="ENV/LEARNER")
+    parser.add_argument("--case", default="CartPole/VAE_rpl", help="ENV/LEARNER (smoke scale)")
     parser.add_argument("--variants", nargs="+", default=VARIANTS, choices=VARIANTS)
     parser.add_argument("--one", help=argparse.SUPPRESS)  # a child: run this variant
     parser.add_argument("--timeout", type=float, default=300.0, help="seconds per variant")

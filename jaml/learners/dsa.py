@@ -15,7 +15,7 @@ import jax.numpy as jnp
 from jaml.configs.learners import DSAConfig
 from jaml.learners import elbo
 from jaml.learners.learner import FRAME_SHAPE, Learner, Outputs
-from jaml.learners.networks import ConvDecoder, ConvEncoder, GaussianHead, RNNEncoder, lstm
+from jaml.learners.networks import LSTM, ConvDecoder, ConvEncoder, GaussianHead, RNNEncoder
 
 
 def _random_half(key, b: int, t: int) -> jax.Array:
@@ -39,13 +39,13 @@ class DisentangledSequentialAE(nn.Module):
         mu_act = "elu" if c.mu_nl else "none"
         self.conv = ConvEncoder(c.conv_filters, c.conv_features, c.conv_dtype,
                                 activation_dtype=c.act_dtype)
-        self.static_rnn = lstm(c.rnn_hidden)
+        self.static_rnn = LSTM(c.rnn_hidden)
         self.static_head = GaussianHead(c.f_size, "sigmoid", c.logvar_limit)
         self.dynamic_rnn = RNNEncoder(c.rnn_hidden)
         self.dynamic_head = GaussianHead(c.z_step, mu_act, c.logvar_limit)
         self.prior_f_mu = self.param("prior_f_mu", nn.initializers.zeros, (c.f_size,))
         self.prior_f_logvar = self.param("prior_f_logvar", nn.initializers.zeros, (c.f_size,))
-        self.prior_rnn = lstm(c.prior_hidden)
+        self.prior_rnn = LSTM(c.prior_hidden)
         self.prior_fc = nn.Dense(c.prior_hidden)
         self.prior_head = GaussianHead(c.z_step, "sigmoid", c.logvar_limit)
         self.decoder = ConvDecoder(c.deconv_filters, compute_dtype=c.conv_dtype,

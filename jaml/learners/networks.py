@@ -396,25 +396,80 @@ def torch_rnn_init(hidden: int):
     return init
 
 
-def lstm(hidden: int, name: str | None = None) -> nn.RNN:
-    """[B, T, I] → [B, T, hidden]: an LSTM over time with PyTorch-style init, zero initial state."""
-    init = torch_rnn_init(hidden)
-    return nn.RNN(nn.OptimizedLSTMCell(hidden, kernel_init=init, recurrent_kernel_init=init,
-                                       bias_init=init), name=name)
+def _scan_time(step, carry, xs: jax.Array, reverse: bool, unroll: int) -> jax.Array:
+    """`step` scanned over axis 1 of xs [B, T, ...] (from the last step when `reverse`; outputs
+    kept in the inputs' order) → the outputs [B, T, ...]."""
+    _, ys = lax.scan(step, carry, jnp.swapaxes(xs, 0, 1), reverse=reverse, unroll=unroll)
+    return jnp.swapaxes(ys, 0, 1)
+
+
+class LSTM(nn.Module):
+    """[B, T, I] → [B, T, hidden]: an LSTM over time with PyTorch's init (one bias) and a zero
+    initial state; `reverse` runs it from the last step, outputs in the inputs' order.
+
+    The inputs' projection for every step is one [B·T, I] × [I, 4H] matmul before the scan (and
+    its gradient one after), so a step runs one [B, H] × [H, 4H] matmul and the gates: Flax's
+    `nn.RNN(OptimizedLSTMCell)`, the same function, runs both matmuls at every step. Gates in
+    the order i, f, g, o; c' = f·c + i·g, h' = o·tanh(c').
+    """
+
+    hidden: int
+    reverse: bool = False
+    unroll: int = 1
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        init = torch_rnn_init(self.hidden)
+        w_in = self.param("input_kernel", init, (x.shape[-1], 4 * self.hidden))
+        w_rec = self.param("recurrent_kernel", init, (self.hidden, 4 * self.hidden))
+        bias = self.param("bias", init, (4 * self.hidden,))
+        projected = jnp.dot(x.astype(w_in.dtype), w_in) + bias
+
+        def step(carry, z_in):
+            c, h = carry
+            i, f, g, o = jnp.split(z_in + jnp.dot(h, w_rec), 4, axis=-1)
+            c = nn.sigmoid(f) * c + nn.sigmoid(i) * jnp.tanh(g)
+            h = nn.sigmoid(o) * jnp.tanh(c)
+            return (c, h), h
+
+        zeros = jnp.zeros((x.shape[0], self.hidden), projected.dtype)
+        return _scan_time(step, (zeros, zeros), projected, self.reverse, self.unroll)
+
+
+class TanhRNN(nn.Module):
+    """[B, T, I] → [B, T, hidden]: h' = tanh(W_i x + b + W_h h) from a zero state, PyTorch's
+    init; the inputs' projection hoisted out of the scan as in `LSTM`."""
+
+    hidden: int
+    unroll: int = 1
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        init = torch_rnn_init(self.hidden)
+        w_in = self.param("input_kernel", init, (x.shape[-1], self.hidden))
+        w_rec = self.param("recurrent_kernel", init, (self.hidden, self.hidden))
+        bias = self.param("bias", init, (self.hidden,))
+        projected = jnp.dot(x.astype(w_in.dtype), w_in) + bias
+
+        def step(h, z_in):
+            h = jnp.tanh(z_in + jnp.dot(h, w_rec))
+            return h, h
+
+        zeros = jnp.zeros((x.shape[0], self.hidden), projected.dtype)
+        return _scan_time(step, zeros, projected, False, self.unroll)
 
 
 class RNNEncoder(nn.Module):
-    """[B, T, I] → [B, T, H]: bidirectional LSTM(H), then a one-way tanh RNN(H) (SVAE, DSA)."""
+    """[B, T, I] → [B, T, H]: bidirectional LSTM(H) (the two directions' outputs concatenated),
+    then a one-way tanh RNN(H) (SVAE, DSA)."""
 
     hidden: int = 512
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        x = nn.Bidirectional(lstm(self.hidden), lstm(self.hidden), name="bilstm")(x)
-        init = torch_rnn_init(self.hidden)
-        cell = nn.SimpleCell(self.hidden, kernel_init=init, recurrent_kernel_init=init,
-                             bias_init=init)
-        return nn.RNN(cell, name="rnn")(x)
+        both = jnp.concatenate([LSTM(self.hidden, name="forward")(x),
+                                LSTM(self.hidden, reverse=True, name="backward")(x)], axis=-1)
+        return TanhRNN(self.hidden, name="rnn")(both)
 
 
 class GaussianHead(nn.Module):

@@ -378,3 +378,63 @@ def test_cpu_compiler_options_put_the_convolutions_on_xla_s_own_path():
     assert _ynn_convolutions(jax.jit(f).lower(x, w).compile().as_text()) > 0
     for a, b in zip(ours(x, w), jax.jit(f)(x, w), strict=True):  # another summation order
         np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5 * float(jnp.max(jnp.abs(b))))
+
+
+def _flax_rnn_params(p: dict, name: str, gates: str) -> dict:
+    """The hoisted layer's parameters laid out as Flax's cell's (one kernel per gate)."""
+    split = lambda w: dict(zip(gates, jnp.split(w, len(gates), axis=-1), strict=True))  # noqa: E731
+    w_in, w_rec, bias = (split(p[name][k]) for k in ("input_kernel", "recurrent_kernel", "bias"))
+    return {**{f"i{g}": {"kernel": w_in[g]} for g in gates},
+            **{f"h{g}": {"kernel": w_rec[g], "bias": bias[g]} for g in gates}}
+
+
+@pytest.mark.parametrize("unroll", [1, 5])
+def test_hoisted_recurrent_layers_are_flax_s_cells_scanned(unroll):
+    """`RNNEncoder` (LSTMs both ways, then a tanh RNN) and a lone `LSTM`, with the inputs'
+    projection outside the scan, against Flax's `nn.RNN` of its own cells on the same
+    parameters: outputs and every gradient (float32, on the CPU)."""
+
+    class Encoder(nn.Module):
+        @nn.compact
+        def __call__(self, x):
+            both = jnp.concatenate([networks.LSTM(6, unroll=unroll, name="forward")(x),
+                                    networks.LSTM(6, True, unroll, name="backward")(x)], -1)
+            return networks.TanhRNN(6, unroll, name="rnn")(both), \
+                networks.LSTM(6, unroll=unroll, name="lone")(x)
+
+    class FlaxEncoder(nn.Module):
+        @nn.compact
+        def __call__(self, x):
+            cell = lambda name: nn.OptimizedLSTMCell(6, name=name)  # noqa: E731
+            both = nn.Bidirectional(nn.RNN(cell("forward")), nn.RNN(cell("backward")))(x)
+            return nn.RNN(nn.SimpleCell(6, name="rnn"))(both), nn.RNN(cell("lone"))(x)
+
+    x = jax.random.normal(jax.random.key(0), (3, 5, 4))
+    params = Encoder().init(jax.random.key(1), x)["params"]
+    theirs = {name: _flax_rnn_params(params, name, "ifgo")
+              for name in ("forward", "backward", "lone")}
+    theirs["rnn"] = {"i": {"kernel": params["rnn"]["input_kernel"],
+                           "bias": params["rnn"]["bias"]},
+                     "h": {"kernel": params["rnn"]["recurrent_kernel"]}}
+    assert jax.tree.structure(FlaxEncoder().init(jax.random.key(1), x)["params"]) == \
+        jax.tree.structure(theirs)
+
+    def loss(module, p, x):
+        y, z = module.apply({"params": p}, x)
+        return jnp.sum(jnp.sin(y)) + jnp.sum(z ** 2), (y, z)
+
+    (ours_v, ours_out), ours_g = jax.value_and_grad(
+        lambda p, x: loss(Encoder(), p, x), (0, 1), has_aux=True)(params, x)
+    (ref_v, ref_out), ref_g = jax.value_and_grad(
+        lambda p, x: loss(FlaxEncoder(), p, x), (0, 1), has_aux=True)(theirs, x)
+    np.testing.assert_allclose(ours_v, ref_v, rtol=1e-5)
+    np.testing.assert_allclose(ours_out[0], ref_out[0], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(ours_out[1], ref_out[1], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(ours_g[1], ref_g[1], rtol=1e-5, atol=1e-6)
+    mapped = {name: _flax_rnn_params(ours_g[0], name, "ifgo")
+              for name in ("forward", "backward", "lone")}
+    mapped["rnn"] = {"i": {"kernel": ours_g[0]["rnn"]["input_kernel"],
+                           "bias": ours_g[0]["rnn"]["bias"]},
+                     "h": {"kernel": ours_g[0]["rnn"]["recurrent_kernel"]}}
+    jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6),
+                 mapped, ref_g[0])

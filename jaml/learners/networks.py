@@ -31,6 +31,8 @@ _FEW_CHANNELS = 4
 # layout kernel of their own on every call: off the CPU, the frames' layers are reformulated
 # onto such channel counts (`_blocks_conv`, `_phase_conv`; docs/learners.md "Roofline").
 _CUDNN_CHANNELS = 8
+# The most steps of a recurrent layer unrolled into one loop iteration off the CPU (`scan_unroll`).
+_MAX_UNROLL = 32
 
 
 def _use_cpu_kernels(cpu_kernels: bool | None) -> bool:
@@ -396,10 +398,22 @@ def torch_rnn_init(hidden: int):
     return init
 
 
-def _scan_time(step, carry, xs: jax.Array, reverse: bool, unroll: int) -> jax.Array:
+def scan_unroll(steps: int, unroll: int | None) -> int:
+    """Steps per iteration of a recurrent layer's loop; None: 1 on the CPU, elsewhere the largest
+    divisor of `steps` up to `_MAX_UNROLL` (all of DSA's 24 steps): off the CPU a step is a few
+    small kernels and the loop's own work between them dominates (docs/learners.md, DSA)."""
+    if unroll is not None:
+        return unroll
+    if _on_cpu():
+        return 1
+    return max(d for d in range(1, min(steps, _MAX_UNROLL) + 1) if steps % d == 0)
+
+
+def _scan_time(step, carry, xs: jax.Array, reverse: bool, unroll: int | None) -> jax.Array:
     """`step` scanned over axis 1 of xs [B, T, ...] (from the last step when `reverse`; outputs
     kept in the inputs' order) → the outputs [B, T, ...]."""
-    _, ys = lax.scan(step, carry, jnp.swapaxes(xs, 0, 1), reverse=reverse, unroll=unroll)
+    _, ys = lax.scan(step, carry, jnp.swapaxes(xs, 0, 1), reverse=reverse,
+                     unroll=scan_unroll(xs.shape[1], unroll))
     return jnp.swapaxes(ys, 0, 1)
 
 
@@ -415,7 +429,7 @@ class LSTM(nn.Module):
 
     hidden: int
     reverse: bool = False
-    unroll: int = 1
+    unroll: int | None = None  # steps per loop iteration (`scan_unroll`)
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
@@ -441,7 +455,7 @@ class TanhRNN(nn.Module):
     init; the inputs' projection hoisted out of the scan as in `LSTM`."""
 
     hidden: int
-    unroll: int = 1
+    unroll: int | None = None  # steps per loop iteration (`scan_unroll`)
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:

@@ -388,7 +388,7 @@ def _flax_rnn_params(p: dict, name: str, gates: str) -> dict:
             **{f"h{g}": {"kernel": w_rec[g], "bias": bias[g]} for g in gates}}
 
 
-@pytest.mark.parametrize("unroll", [1, 5])
+@pytest.mark.parametrize("unroll", [None, 1, 5])
 def test_hoisted_recurrent_layers_are_flax_s_cells_scanned(unroll):
     """`RNNEncoder` (LSTMs both ways, then a tanh RNN) and a lone `LSTM`, with the inputs'
     projection outside the scan, against Flax's `nn.RNN` of its own cells on the same
@@ -438,3 +438,10 @@ def test_hoisted_recurrent_layers_are_flax_s_cells_scanned(unroll):
                      "h": {"kernel": ours_g[0]["rnn"]["recurrent_kernel"]}}
     jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6),
                  mapped, ref_g[0])
+
+
+def test_recurrent_layers_unroll_fully_off_the_cpu_and_not_on_it(monkeypatch):
+    assert networks.scan_unroll(24, None) == 1  # the tests run on the CPU
+    assert networks.scan_unroll(24, 3) == 3
+    monkeypatch.setattr(networks, "_on_cpu", lambda: False)
+    assert [networks.scan_unroll(t, None) for t in (24, 12, 48, 7, 100)] == [24, 12, 24, 7, 25]

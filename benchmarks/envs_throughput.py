@@ -22,7 +22,9 @@
     cores, then the PyBullet workers on all cores), so load from other processes falls on both;
     the row holds both medians, their ratio, the spread of the per-round ratios and each
     side's frames per CPU second (a per-core view that load from other processes does not
-    lower; jaml's counts all its threads, spinning included).
+    lower; jaml's counts all its threads, spinning included). With `--fresh-processes K` each
+    pair runs in K new processes one after another and the row is the median process's, with
+    every process's ratio and jaml rate beside it.
 (c') `--parts render`: the env's renderer alone (its pixels function, as env.step calls it) on
     reset states at the pixel batches, so that a physics + pixels row splits into its two parts.
 (d) `--parts options`: physics alone (pixels off) at a small batch, the env's rollout compiled
@@ -38,7 +40,8 @@ docs/reference/perf_anchors.md §2, "[2-core]" rows, 1 core, pybullet 3.2.7, PyB
 
 Run from the repo root: PYTHONPATH=. python benchmarks/envs_throughput.py [--quick]
 [--envs CartPole Ant RearrangeGeom:arm=franka] [--pixel-batches 1024 4096]
-[--parts physics pixels render pybullet] [--physics-batch 4096] [--rounds 7] [--no-record].
+[--parts physics pixels render pybullet] [--physics-batch 4096] [--rounds 7]
+[--fresh-processes K] [--no-record].
 Results go to benchmarks/results.jsonl unless --no-record (use it on a loaded or shared machine
 for the absolute rows; the side-by-side ratio holds there too).
 """
@@ -48,6 +51,8 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import subprocess
+import sys
 import time
 
 import jax
@@ -290,6 +295,32 @@ def bench_vs_pybullet(name, batch, steps, rounds, processes=2):
                             jaml_cpu=t["jaml_cpu_s"], pybullet_cpu=t["pybullet_cpu_s"])
 
 
+def bench_vs_pybullet_in_processes(spec, batch, steps, rounds, processes, fresh):
+    """`bench_vs_pybullet` in `fresh` new Python processes, one after another, and one row of
+    them: the median process's ratio and rates, and every process's ratio and jaml rate. A
+    process's XLA:CPU program can run at about half its usual rate for that process's whole
+    life (docs/notes/learners.md, "The CPU ratio that slipped"), which one process cannot tell
+    from the peer's noise; the spread across processes can."""
+    rows = []
+    for _ in range(fresh):
+        out = subprocess.run(
+            [sys.executable, __file__, "--side-by-side-child", json.dumps(
+                [spec, batch, steps, rounds, processes])],
+            capture_output=True, text=True, check=True)
+        rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    by_ratio = sorted(rows, key=lambda r: r["ratio_jaml_over_pybullet"])
+    row = dict(by_ratio[(len(rows) - 1) // 2])  # the median process (the lower one of two)
+    row.update({
+        "fresh_processes": fresh,
+        "ratio_by_process": [round(r["ratio_jaml_over_pybullet"], 3) for r in rows],
+        "jaml_frames_per_s_by_process": [round(r["jaml_frames_per_s"]) for r in rows],
+        "ratio_min": min(r["ratio_min"] for r in rows),
+        "ratio_max": max(r["ratio_max"] for r in rows),
+        "rounds": sum(r["rounds"] for r in rows),
+    })
+    return row
+
+
 def bench_gym_vs_pybullet(name, steps, rounds):
     """One env stepped through jaml's Gymnasium interface (`envs_mjx.to_gymnasium`: a jitted
     call and a host copy of the frame per step, as a user's Python loop runs it) against one
@@ -449,10 +480,21 @@ def main(argv=None):
     parser.add_argument("--options-batch", type=int, default=8,
                         help="batch of the options case (small: XLA's default CPU emitters "
                              "run the Franka scene's step ~1.9 s at 8 envs)")
+    parser.add_argument("--fresh-processes", type=int, default=1, metavar="K",
+                        help="run each side-by-side pair in K new Python processes, one after "
+                             "another, and record the median process with every process's "
+                             "ratio (a process's rate can hold at about half for its whole "
+                             "life, which one process cannot tell)")
+    parser.add_argument("--side-by-side-child", help=argparse.SUPPRESS)
     parser.add_argument("--processes", type=int, default=usable_cores(),
                         help="PyBullet worker processes (default: one per core this process "
                              "may run on, so `taskset -c 0` gives one)")
     args = parser.parse_args(argv)
+    if args.side_by_side_child:  # one process of --fresh-processes: its row on stdout
+        print(json.dumps(bench_vs_pybullet(*json.loads(args.side_by_side_child))), flush=True)
+        return []
+    if args.fresh_processes < 1:
+        parser.error(f"--fresh-processes must be at least 1, got {args.fresh_processes}")
     for spec in args.envs:
         try:
             name = parse_env(spec)[0]
@@ -507,7 +549,11 @@ def main(argv=None):
         has_peer = side and _has_peer(name)
         for b, procs in pairs if has_peer else ():
             steps = pix_steps if b > 1 or args.quick else args.single_env_steps
-            r = bench_vs_pybullet(name, b, steps, args.rounds, procs)
+            if args.fresh_processes > 1:
+                r = bench_vs_pybullet_in_processes(name, b, steps, args.rounds, procs,
+                                                   args.fresh_processes)
+            else:
+                r = bench_vs_pybullet(name, b, steps, args.rounds, procs)
             line = (f"  side by side, 64x64 frames/s: jaml b{b} "
                     f"{r['jaml_frames_per_s']:,.0f} | PyBullet x{procs} "
                     f"{r['pybullet_frames_per_s']:,.0f} | ratio {r['ratio_jaml_over_pybullet']:.2f}"
@@ -516,6 +562,10 @@ def main(argv=None):
                     f"{r['pybullet_frames_per_cpu_s']:,.0f}")
             if quoted := r["quoted_pybullet_1core_frames_per_s"]:
                 line += f"; quoted, not measured: {quoted:.0f} per core"
+            if "ratio_by_process" in r:
+                line += (f"\n    the median of {args.fresh_processes} processes; their ratios "
+                         f"{r['ratio_by_process']}, jaml b{b} frames/s "
+                         f"{r['jaml_frames_per_s_by_process']}")
             print(line, flush=True)
             side_rows.append(r)
         if has_peer and args.gym and 1 in pix_batches:

@@ -148,6 +148,29 @@ def test_alternated_blocks_give_a_row_with_the_measured_ratio_and_the_quoted_anc
     )["quoted_pybullet_1core_frames_per_s"] == ""
 
 
+def test_fresh_processes_give_the_median_process_with_every_process_beside_it(monkeypatch):
+    """`--fresh-processes 3`: three child processes, each its own side-by-side row; the row is
+    the middle ratio's, the extremes span them all, one of them slow (as one in eight was)."""
+    children = [{"ratio_jaml_over_pybullet": r, "jaml_frames_per_s": j, "ratio_min": lo,
+                 "ratio_max": hi, "rounds": 7, "case": "CartPole/pixels_vs_pybullet/b256"}
+                for r, j, lo, hi in ((2.5, 23_000.0, 2.2, 2.6), (1.07, 9_900.0, 1.0, 1.1),
+                                     (2.52, 23_100.0, 2.4, 2.7))]
+    calls = []
+
+    def run(cmd, **kwargs):
+        calls.append(json.loads(cmd[cmd.index("--side-by-side-child") + 1]))
+        return type("Done", (), {"stdout": "warp missing\n" + json.dumps(children[len(calls) - 1])})
+
+    monkeypatch.setattr(envs_throughput.subprocess, "run", run)
+    row = envs_throughput.bench_vs_pybullet_in_processes("CartPole", 256, 10, 7, 2, 3)
+    assert calls == [["CartPole", 256, 10, 7, 2]] * 3
+    assert row["ratio_jaml_over_pybullet"] == 2.5 and row["jaml_frames_per_s"] == 23_000.0
+    assert row["ratio_by_process"] == [2.5, 1.07, 2.52]
+    assert row["jaml_frames_per_s_by_process"] == [23_000, 9_900, 23_100]
+    assert (row["ratio_min"], row["ratio_max"], row["rounds"]) == (1.0, 2.7, 21)
+    assert row["fresh_processes"] == 3
+
+
 @pytest.mark.slow
 def test_envs_throughput_records_a_side_by_side_row_for_cartpole(tmp_path, monkeypatch):
     env = {"device": "cpu:cpu", "device_count": 1, "cpu": "x", "cpu_cores": 2, "python": "3",

@@ -1,7 +1,8 @@
 """Training throughput (frames/s) of a learner's train step, jaml vs its PyTorch peer.
 
-    python benchmarks/learner_throughput.py [--learners VAE_rpl PRED DSA] [--frames 64 256 1024]
-        [--reps 5] [--steps 3] [--dtypes float32 bfloat16] [--torch eager compiled]
+    python benchmarks/learner_throughput.py [--learners VAE_rpl PRED DSA SVAE]
+        [--frames 64 256 1024] [--reps 5] [--steps 3] [--dtypes float32 bfloat16]
+        [--torch eager compiled]
         [--torch-compile-modes max-autotune-no-cudagraphs default]
         [--torch-memory-formats channels_last contiguous] [--upsample-forms auto dilated phase]
         [--case-timeout 200]
@@ -23,9 +24,10 @@ decoder's transposed convolutions run in each `--upsample-forms` formulation, a 
 (the learner's default: "phase" on the CPU, "pair" elsewhere), "subpixel", "phase", "dilated"
 (XLA's input-dilated convolution), "pair"; the useful FLOPs are the same for all.
 
-If torch imports, the same network in PyTorch (`benchmarks/peers/torch_learners.py`: the three
-learners, jaml's parameter counts and FLOPs) is timed the same way in the same run on the same
-device: eager, and its whole train step (zero_grad, forward, backward, Adam) under
+If torch imports, the same network in PyTorch (`benchmarks/peers/torch_learners.py`: VAE_rpl,
+PRED and DSA with jaml's parameter counts and FLOPs; SVAE has no peer and gets jaml's rows
+alone) is timed the same way in the same run on the same device: eager, and its whole train
+step (zero_grad, forward, backward, Adam) under
 `torch.compile` in each `--torch-compile-modes` mode, each in every `--torch-memory-formats`
 layout of activations and conv weights (channels_last by default). Its rows
 carry TFLOP/s and MFU from jaml's count for the same learner (so the rates compare as the
@@ -477,7 +479,7 @@ def _watch(case: Case, seconds: float | None, record: bool) -> threading.Timer |
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--learners", nargs="+", default=["VAE_rpl"],
-                        choices=["VAE_rpl", "PRED", "DSA"])
+                        choices=["VAE_rpl", "PRED", "DSA", "SVAE"])
     parser.add_argument("--frames", type=int, nargs="+", default=[64, 256],
                         help="frames per train step, a case each: frames // T sequences of a "
                         "learner's T frames (the stream's frames_per_batch)")
@@ -533,7 +535,10 @@ def main(argv=None) -> int:
           f"jax {jax.__version__}, python {platform.python_version()}, {platform.processor()}")
     print(f"train steps (ld_dim {LD_DIM}, Adam), median of {args.reps} reps × {args.steps} steps")
     peer_gflop = {}  # the peer's own count, per learner (the same in every dtype)
-    for name in args.learners if variants else ():
+    peered = [n for n in args.learners if variants and n in tl.LEARNERS]
+    for name in (n for n in args.learners if variants and n not in peered):
+        print(f"{name}: no PyTorch peer (it has {', '.join(tl.LEARNERS)}): jaml's rows only")
+    for name in peered:
         t = tl.seq_len(name, LD_DIM)
         peer_gflop[name] = sum(tl.useful_flops(name, 2, ld_dim=LD_DIM,
                                                action_dim=ACTION_DIM).values()) / 2 / t / 1e9
@@ -548,7 +553,8 @@ def main(argv=None) -> int:
                 case = Case(name, sequences, seq_len, dtype, ceiling, quoted_peak(dtype),
                             useful_gflop_per_frame(name, sequences, dtype), peer_gflop.get(name))
                 timer = _watch(case, args.case_timeout, not args.no_record)
-                rows = measure_case(case, args.reps, args.steps, variants,
+                rows = measure_case(case, args.reps, args.steps,
+                                    variants if name in peered else [],
                                     [(form, act) for act in args.activation_dtypes
                                      for form in args.upsample_forms])
                 if timer:

@@ -103,3 +103,22 @@ def test_jaml_s_refused_step_is_an_error_and_is_not_run(monkeypatch):
     assert lt.bench_jax(1, 1, 1) == {"error": "out of memory: refused"}
     # VAE_rpl holds a 32×32×64 float32 activation per frame at least.
     assert seen and seen[0] >= 32 * 32 * 64 * 4
+
+
+def test_svae_has_no_torch_peer_and_gets_jaml_s_rows_alone(monkeypatch, capsys):
+    """`--learners DSA SVAE --torch eager`: the peer's variants go to DSA's case, none to
+    SVAE's (the peer has no SVAE), and the run says so instead of failing."""
+    pytest.importorskip("torch")
+    seen = {}
+    monkeypatch.setattr(lt, "matmul_ceiling", lambda dtype, n: 1.0)
+    monkeypatch.setattr(lt, "useful_gflop_per_frame", lambda *a: 1.0)
+
+    def measure_case(case, reps, steps, variants, forms):
+        seen[case.learner] = variants
+        return []
+
+    monkeypatch.setattr(lt, "measure_case", measure_case)
+    assert lt.main(["--learners", "DSA", "SVAE", "--frames", "24", "--torch", "eager",
+                    "--no-record"]) == 0
+    assert seen == {"DSA": [(None, "channels_last")], "SVAE": []}
+    assert "SVAE: no PyTorch peer" in capsys.readouterr().out

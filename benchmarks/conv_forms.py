@@ -96,17 +96,8 @@ def main(argv=None) -> int:
         for name, f in forms.items():
             if cotangent is None:
                 cotangent = normal(*jax.eval_shape(f, *args_).shape)
-
-            def step(*a, f=f, cotangent=cotangent, wrt=wrt):
-                y, vjp = jax.vjp(f, *a)
-                grads = vjp(cotangent)
-                return y, tuple(grads[i] for i in wrt)
-
-            compile_s, s, _ = harness.measure_calls(step, args_, args.reps, args.steps)
-            rows.append({"case": f"{layer}, {n} frames, {args.dtype}", "impl": name,
-                         "us_per_step": 1e6 * s, "compile_s": compile_s})
-            print(f"{layer:12s} {name:28s} {1e6 * s:8.1f} µs (compile {compile_s:.1f} s)",
-                  flush=True)
+            rows.append(harness.form_row(f"{layer}, {n} frames, {args.dtype}", name, f, args_,
+                                         cotangent, args.reps, args.steps, wrt))
     if not args.no_record:
         harness.record("conv_forms", rows, notes=NOTES)
     return 0

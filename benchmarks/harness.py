@@ -86,6 +86,24 @@ def measure_calls(fn: Callable, args: tuple, reps: int, steps: int) -> tuple[flo
     return compile_s, statistics.median(times), out
 
 
+def form_row(case: str, impl: str, fn: Callable, args: tuple, cotangent, reps: int, steps: int,
+             wrt: tuple[int, ...] | None = None) -> dict:
+    """One formulation of a layer timed as training runs it: `fn`'s value and its gradients for
+    `args` (those at `wrt`; all by default) under `cotangent`, jitted, steady state
+    (`measure_calls`); the row {"case", "impl", "us_per_step", "compile_s"}, also printed."""
+    import jax
+
+    def step(*a):
+        y, vjp = jax.vjp(fn, *a)
+        grads = vjp(cotangent)
+        return y, grads if wrt is None else tuple(grads[i] for i in wrt)
+
+    compile_s, seconds, _ = measure_calls(step, args, reps, steps)
+    print(f"{case:40s} {impl:28s} {1e6 * seconds:9.1f} µs (compile {compile_s:.1f} s)",
+          flush=True)
+    return {"case": case, "impl": impl, "us_per_step": 1e6 * seconds, "compile_s": compile_s}
+
+
 def _cpu_model() -> str:
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():

@@ -108,21 +108,11 @@ def main(argv=None) -> int:
     rows = []
     for layer, by_form in forms(h, args.unrolls).items():
         x = jax.random.normal(jax.random.key(0), inputs[layer])
-        cotangent = None
+        cotangent = jax.random.normal(jax.random.key(2), (b, x.shape[1], h))
         for name, module in by_form.items():
             params = module.init(jax.random.key(1), x)
-            if cotangent is None:
-                cotangent = jax.random.normal(jax.random.key(2), (b, x.shape[1], h))
-
-            def step(p, x, module=module, cotangent=cotangent):
-                y, vjp = jax.vjp(module.apply, p, x)
-                return y, vjp(cotangent)
-
-            compile_s, s, _ = harness.measure_calls(step, (params, x), args.reps, args.steps)
-            rows.append({"case": f"{layer}, {b} × {t}, hidden {h}", "impl": name,
-                         "us_per_step": 1e6 * s, "compile_s": compile_s})
-            print(f"{layer:16s} {name:20s} {1e6 * s:9.1f} µs (compile {compile_s:.1f} s)",
-                  flush=True)
+            rows.append(harness.form_row(f"{layer}, {b} × {t}, hidden {h}", name, module.apply,
+                                         (params, x), cotangent, args.reps, args.steps))
     if not args.no_record:
         harness.record("rnn_forms", rows, notes=NOTES)
     return 0

@@ -135,3 +135,26 @@ def test_stream_throughput_times_each_mesh_once_and_scales_against_one_device(mo
     assert "speedup_vs_one_device" not in by[(4, 1)]
     with pytest.raises(SystemExit):
         stream_throughput.main(["--devices", "0"])
+
+
+def test_a_form_row_times_the_value_and_the_gradients_it_names(monkeypatch, capsys):
+    """`form_row` differentiates `fn` for the arguments at `wrt` only (all by default), and its
+    row and printed line name the case and the formulation."""
+    import jax.numpy as jnp
+
+    timed = []
+
+    def measure_calls(step, args, reps, steps):
+        timed.append(step(*args))
+        return 0.5, 2e-6, None
+
+    monkeypatch.setattr(harness, "measure_calls", measure_calls)
+    x, w = jnp.arange(3.0), jnp.full(3, 2.0)
+    row = harness.form_row("layer, 3", "plain", lambda x, w: x * w, (x, w), jnp.ones(3), 7, 20,
+                           wrt=(1,))
+    assert row == {"case": "layer, 3", "impl": "plain", "us_per_step": 2.0, "compile_s": 0.5}
+    (y, grads), = timed
+    assert y.tolist() == [0.0, 2.0, 4.0] and [g.tolist() for g in grads] == [[0.0, 1.0, 2.0]]
+    harness.form_row("layer, 3", "all", lambda x, w: x * w, (x, w), jnp.ones(3), 1, 1)
+    assert [g.tolist() for g in timed[1][1]] == [[2.0, 2.0, 2.0], [0.0, 1.0, 2.0]]
+    assert "plain" in capsys.readouterr().out

@@ -306,7 +306,11 @@ def bench_vs_pybullet_in_processes(spec, batch, steps, rounds, processes, fresh)
         out = subprocess.run(
             [sys.executable, __file__, "--side-by-side-child", json.dumps(
                 [spec, batch, steps, rounds, processes])],
-            capture_output=True, text=True, check=True)
+            capture_output=True, text=True)
+        if out.returncode:
+            last = (out.stderr.strip().splitlines() or ["no output"])[-1]
+            raise RuntimeError(f"a --fresh-processes child ({spec}, batch {batch}) exited "
+                               f"{out.returncode}: {last}")
         rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
     by_ratio = sorted(rows, key=lambda r: r["ratio_jaml_over_pybullet"])
     row = dict(by_ratio[(len(rows) - 1) // 2])  # the median process (the lower one of two)

@@ -159,7 +159,8 @@ def test_fresh_processes_give_the_median_process_with_every_process_beside_it(mo
 
     def run(cmd, **kwargs):
         calls.append(json.loads(cmd[cmd.index("--side-by-side-child") + 1]))
-        return type("Done", (), {"stdout": "warp missing\n" + json.dumps(children[len(calls) - 1])})
+        return type("Done", (), {"returncode": 0,
+                                 "stdout": "warp missing\n" + json.dumps(children[len(calls) - 1])})
 
     monkeypatch.setattr(envs_throughput.subprocess, "run", run)
     row = envs_throughput.bench_vs_pybullet_in_processes("CartPole", 256, 10, 7, 2, 3)
@@ -169,6 +170,10 @@ def test_fresh_processes_give_the_median_process_with_every_process_beside_it(mo
     assert row["jaml_frames_per_s_by_process"] == [23_000, 9_900, 23_100]
     assert (row["ratio_min"], row["ratio_max"], row["rounds"]) == (1.0, 2.7, 21)
     assert row["fresh_processes"] == 3
+    monkeypatch.setattr(envs_throughput.subprocess, "run", lambda cmd, **kw: type(
+        "Failed", (), {"returncode": 1, "stdout": "", "stderr": "Traceback\nValueError: no"}))
+    with pytest.raises(RuntimeError, match=r"\(CartPole, batch 256\) exited 1: ValueError: no"):
+        envs_throughput.bench_vs_pybullet_in_processes("CartPole", 256, 10, 7, 2, 3)
 
 
 @pytest.mark.slow

@@ -245,12 +245,17 @@ def torch_peer():
     return torch_learners
 
 
-def setup_torch() -> None:
+def setup_torch(variants: int) -> None:
     """What a careful PyTorch user switches on (process-wide, so here, not in the peer)."""
     import torch
 
+    if torch.cuda.is_available():
+        # JAX takes memory as it needs it, after the peer has released its own.
+        os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
     torch.backends.cudnn.benchmark = True
     torch.set_float32_matmul_precision("high")  # TF32 matmuls (convolutions: cuDNN's default)
+    print(f"torch {torch.__version__}: {variants} peer variant(s) per case, each before jaml's "
+          "step", flush=True)
 
 
 def bench_torch(name: str, sequences: int, reps: int, steps: int, dtype: str = "float32",
@@ -520,14 +525,7 @@ def main(argv=None) -> int:
         list(args.torch_compile_modes) if "compiled" in args.torch else [])
     variants = [(mode, fmt) for mode in modes for fmt in args.torch_memory_formats]
     if tl is not None:
-        import torch
-
-        if torch.cuda.is_available():
-            # JAX takes memory as it needs it, after the peer has released its own.
-            os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
-        setup_torch()
-        print(f"torch {torch.__version__}: {len(variants)} peer variant(s) per case, each "
-              "before jaml's step", flush=True)
+        setup_torch(len(variants))
     elif args.torch:
         print("torch does not import: jaml's rows only")
         variants = []

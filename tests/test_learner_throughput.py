@@ -107,8 +107,12 @@ def test_jaml_s_refused_step_is_an_error_and_is_not_run(monkeypatch):
 
 def test_svae_has_no_torch_peer_and_gets_jaml_s_rows_alone(monkeypatch, capsys):
     """`--learners DSA SVAE --torch eager`: the peer's variants go to DSA's case, none to
-    SVAE's (the peer has no SVAE), and the run says so instead of failing."""
-    pytest.importorskip("torch")
+    SVAE's (the peer has no SVAE), and the run says so instead of failing (the peer stubbed:
+    its learners and its FLOP count are all the run reads of it before the cases)."""
+    peer = types.SimpleNamespace(LEARNERS=("VAE_rpl", "PRED", "DSA"), seq_len=lambda *a: 24,
+                                 useful_flops=lambda *a, **k: {"conv": 48e9})
+    monkeypatch.setattr(lt, "torch_peer", lambda: peer)
+    monkeypatch.setattr(lt, "setup_torch", lambda variants: None)
     seen = {}
     monkeypatch.setattr(lt, "matmul_ceiling", lambda dtype, n: 1.0)
     monkeypatch.setattr(lt, "useful_gflop_per_frame", lambda *a: 1.0)

@@ -8,7 +8,7 @@ and the copy bandwidth measured in the same run, and the step's measured time ag
 
 A layer is a module scope of the traced train step (its jaxpr's name stack) holding a
 convolution or a matmul: a conv or deconv with the batch norm and ELU that follow it, a dense
-layer, a scanned RNN cell over all its steps. Its FLOPs are `benchmarks/flops.py`'s count of
+layer, a recurrent layer over all its steps. Its FLOPs are `benchmarks/flops.py`'s count of
 those convolutions and matmuls (taps on real input), forward apart from backward (the
 `transpose` of the step's autodiff), in the formulation the learner runs. Its bytes are an
 ideally fused layer's: forward, its inputs, weights and outputs once each (in their dtypes;

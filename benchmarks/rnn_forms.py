@@ -22,7 +22,6 @@ from pathlib import Path
 
 import flax.linen as nn
 import jax
-import jax.numpy as jnp
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -64,25 +63,12 @@ def forms(hidden: int, unrolls: list[int]) -> dict[str, dict[str, nn.Module]]:
     jaml_forms = lambda make: {f"hoisted, unroll {u}": make(u) for u in unrolls}  # noqa: E731
     return {
         "dynamic encoder": {"flax cells": FlaxEncoder(hidden),
-                            **jaml_forms(lambda u: _Encoder(hidden, u))},
+                            **jaml_forms(lambda u: networks.RNNEncoder(hidden, u))},
         "static LSTM": {"flax cells": FlaxLSTM(hidden),
                         **jaml_forms(lambda u: networks.LSTM(hidden, unroll=u))},
         "prior LSTM": {"flax cells": FlaxLSTM(hidden),
                        **jaml_forms(lambda u: networks.LSTM(hidden, unroll=u))},
     }
-
-
-class _Encoder(nn.Module):
-    """`networks.RNNEncoder` with its scans unrolled `unroll` steps."""
-
-    hidden: int
-    unroll: int
-
-    @nn.compact
-    def __call__(self, x):
-        both = jnp.concatenate([networks.LSTM(self.hidden, unroll=self.unroll)(x),
-                                networks.LSTM(self.hidden, True, self.unroll)(x)], axis=-1)
-        return networks.TanhRNN(self.hidden, self.unroll)(both)
 
 
 NOTES = ("DSA's recurrent layers (dynamic encoder: LSTMs both ways then a tanh RNN; static and "

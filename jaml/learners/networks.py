@@ -417,6 +417,16 @@ def _scan_time(step, carry, xs: jax.Array, reverse: bool, unroll: int | None) ->
     return jnp.swapaxes(ys, 0, 1)
 
 
+def _projected(layer: nn.Module, x: jax.Array, width: int) -> tuple[jax.Array, jax.Array]:
+    """A recurrent layer's parameters (PyTorch's init) and its inputs' projection for every step:
+    (x [B, T, I] · input_kernel + bias [B, T, width], recurrent_kernel [hidden, width])."""
+    init = torch_rnn_init(layer.hidden)
+    w_in = layer.param("input_kernel", init, (x.shape[-1], width))
+    w_rec = layer.param("recurrent_kernel", init, (layer.hidden, width))
+    bias = layer.param("bias", init, (width,))
+    return jnp.dot(x.astype(w_in.dtype), w_in) + bias, w_rec
+
+
 class LSTM(nn.Module):
     """[B, T, I] → [B, T, hidden]: an LSTM over time with PyTorch's init (one bias) and a zero
     initial state; `reverse` runs it from the last step, outputs in the inputs' order.
@@ -433,11 +443,7 @@ class LSTM(nn.Module):
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        init = torch_rnn_init(self.hidden)
-        w_in = self.param("input_kernel", init, (x.shape[-1], 4 * self.hidden))
-        w_rec = self.param("recurrent_kernel", init, (self.hidden, 4 * self.hidden))
-        bias = self.param("bias", init, (4 * self.hidden,))
-        projected = jnp.dot(x.astype(w_in.dtype), w_in) + bias
+        projected, w_rec = _projected(self, x, 4 * self.hidden)
 
         def step(carry, z_in):
             c, h = carry
@@ -459,11 +465,7 @@ class TanhRNN(nn.Module):
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        init = torch_rnn_init(self.hidden)
-        w_in = self.param("input_kernel", init, (x.shape[-1], self.hidden))
-        w_rec = self.param("recurrent_kernel", init, (self.hidden, self.hidden))
-        bias = self.param("bias", init, (self.hidden,))
-        projected = jnp.dot(x.astype(w_in.dtype), w_in) + bias
+        projected, w_rec = _projected(self, x, self.hidden)
 
         def step(h, z_in):
             h = jnp.tanh(z_in + jnp.dot(h, w_rec))
@@ -478,12 +480,14 @@ class RNNEncoder(nn.Module):
     then a one-way tanh RNN(H) (SVAE, DSA)."""
 
     hidden: int = 512
+    unroll: int | None = None  # steps per loop iteration of its layers (`scan_unroll`)
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        both = jnp.concatenate([LSTM(self.hidden, name="forward")(x),
-                                LSTM(self.hidden, reverse=True, name="backward")(x)], axis=-1)
-        return TanhRNN(self.hidden, name="rnn")(both)
+        both = jnp.concatenate([LSTM(self.hidden, unroll=self.unroll, name="forward")(x),
+                                LSTM(self.hidden, True, self.unroll, name="backward")(x)],
+                               axis=-1)
+        return TanhRNN(self.hidden, self.unroll, name="rnn")(both)
 
 
 class GaussianHead(nn.Module):

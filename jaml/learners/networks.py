@@ -31,8 +31,10 @@ _FEW_CHANNELS = 4
 # layout kernel of their own on every call: off the CPU, the frames' layers are reformulated
 # onto such channel counts (`_blocks_conv`, `_phase_conv`; docs/learners.md "Roofline").
 _CUDNN_CHANNELS = 8
-# The most steps of a recurrent layer unrolled into one loop iteration off the CPU (`scan_unroll`).
-_MAX_UNROLL = 32
+# The most steps of a recurrent layer unrolled into one loop iteration off the CPU (`scan_unroll`):
+# past 8 the layers ran no faster, and unrolling all of a sequence's steps multiplied the compile
+# time of the analysis' encoders (docs/learners.md, DSA).
+_MAX_UNROLL = 8
 
 
 def _use_cpu_kernels(cpu_kernels: bool | None) -> bool:
@@ -400,7 +402,7 @@ def torch_rnn_init(hidden: int):
 
 def scan_unroll(steps: int, unroll: int | None) -> int:
     """Steps per iteration of a recurrent layer's loop; None: 1 on the CPU, elsewhere the largest
-    divisor of `steps` up to `_MAX_UNROLL` (all of DSA's 24 steps): off the CPU a step is a few
+    divisor of `steps` up to `_MAX_UNROLL` (8 of DSA's 24 steps): off the CPU a step is a few
     small kernels and the loop's own work between them dominates (docs/learners.md, DSA)."""
     if unroll is not None:
         return unroll

@@ -72,6 +72,18 @@ def _curves(points: Mapping[int, list[float]]):
     return np.asarray(steps), bands[:, 0], bands[:, 1], bands[:, 2]
 
 
+def _draw_curve(ax, steps, mean, lo, hi, color: str, label: str) -> None:
+    """The runs' mean as a line with its interval as a band; a lone analysis as a point with
+    its interval as an error bar (a line and a band of one point draw nothing)."""
+    if len(steps) > 1:
+        ax.plot(steps, mean, color=color, label=label)
+        ax.fill_between(steps, lo, hi, color=color, alpha=0.2, linewidth=0)
+        return
+    band = np.concatenate([mean - lo, hi - mean])
+    ax.errorbar(steps, mean, yerr=band[:, None] if np.all(np.isfinite(band)) else None,
+                color=color, label=label, marker="o", markersize=4, capsize=3, linestyle="none")
+
+
 def save_figure(fig: Figure, path) -> None:
     """Draw `fig` (Agg canvas, no pyplot) to `path` atomically, through a temporary name of this
     process's own: a figure several processes redraw (an experiment's grid figure) is never left
@@ -169,13 +181,13 @@ def alignment_figure(history: Iterable[Mapping],
                             points[int(r["step"])].append(float(np.mean(vals)))
                 if not points:
                     continue
-                steps, mean, lo, hi = _curves(points)
-                ax.plot(steps, mean, color=colors[learner], label=learner)
-                ax.fill_between(steps, lo, hi, color=colors[learner], alpha=0.2, linewidth=0)
-                drawn.append(mean)
+                curve = _curves(points)
+                _draw_curve(ax, *curve, colors[learner], learner)
+                drawn.append(curve[1])
             constant = _constant_curve(history, test_set, dims)
             if constant is not None:
-                ax.plot(*constant, color="0.45", linestyle="--", linewidth=1, label=CONSTANT)
+                ax.plot(*constant, color="0.45", linestyle="--", linewidth=1, label=CONSTANT,
+                        marker="_" if len(constant[0]) == 1 else None, markersize=12)
                 drawn.append(constant[1])
             log = _spans_decades(drawn)
             ax.set_title(f"{title} ({test_set})" + (" (log)" if log else ""), fontsize=9)
@@ -232,9 +244,7 @@ def distortion_figure(history: Iterable[Mapping]) -> Figure:
         label = learner if len(test_sets) == 1 else f"{learner} ({test_set})"
         color = f"C{k % 10}"
         if exact:
-            steps, mean, lo, hi = _curves(exact)
-            ax.plot(steps, mean, color=color, label=label)
-            ax.fill_between(steps, lo, hi, color=color, alpha=0.2, linewidth=0)
+            _draw_curve(ax, *_curves(exact), color, label)
         if trimmed:
             steps, mean, _, _ = _curves(trimmed)
             ax.plot(steps, mean, color=color, linestyle="--", marker="o", markersize=3,

@@ -78,7 +78,8 @@ def test_the_legend_names_every_learner_even_one_absent_from_the_first_panel(tmp
                {"step": 0, "learner": "VAE_v0", "test_set": "pi_curr", "errors": {"b": 0.2}}]
     fig = evaluation.plot_alignment(history, tmp_path / "legend.png")
     assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == ["VAE_rpl", "VAE_v0"]
-    assert [line.get_label() for line in fig.axes[0].lines] == ["VAE_rpl"]  # drawn: its own
+    # drawn: its own (one analysis each, so a point with its error bar)
+    assert [c.get_label() for c in fig.axes[0].containers] == ["VAE_rpl"]
 
 
 def test_a_panel_spanning_more_than_a_decade_is_log_scaled(tmp_path):
@@ -160,3 +161,24 @@ def test_an_infinite_distortion_is_drawn_trimmed_with_its_count_or_said_in_words
     ax = evaluation.plot_distortion(infinite, tmp_path / "e.png").axes[0]
     assert not ax.lines and "+inf at every analysis" in ax.texts[0].get_text()
     assert _png(tmp_path / "e.png")
+
+
+def test_a_lone_analysis_is_drawn_as_a_point_with_its_interval(tmp_path):
+    """A line and a band of one point draw nothing: a history of one analysis (a run stopped
+    early) shows each curve as a marker with an error bar spanning the runs' 90 % interval."""
+    history = [r for r in _history() if r["step"] == 100]
+    fig = evaluation.plot_alignment(history, tmp_path / "a.png")
+    ax = fig.axes[0]  # x (pi_curr)
+    vae = next(c for c in ax.containers if c.get_label() == "VAE")
+    point, _, (bar,) = vae
+    assert point.get_marker() == "o"
+    np.testing.assert_allclose(point.get_xdata(), [100])
+    runs = np.array([r["errors"]["x"] for r in history
+                     if (r["learner"], r["test_set"]) == ("VAE", "pi_curr")])
+    half = 2.9199856 * runs.std(ddof=1) / math.sqrt(3)  # Student t, 2 dof, 95th percentile
+    np.testing.assert_allclose(bar.get_segments()[0][:, 1],
+                               [runs.mean() - half, runs.mean() + half], rtol=1e-6)
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["VAE", "PRED"]
+    fig = evaluation.plot_distortion(history, tmp_path / "d.png")
+    assert {c.get_label() for c in fig.axes[0].containers} == {
+        "VAE (pi_curr)", "VAE (pi_rand)", "PRED (pi_curr)", "PRED (pi_rand)"}

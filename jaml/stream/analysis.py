@@ -355,18 +355,15 @@ def input_fingerprints(hist: int, frames, actions, actions_seen: int | None = No
 def _encode(stream: Stream, variables, seqs: replay_lib.Columns, fingerprints: bool = False):
     """(latents [R, E, Z], LD targets [R, E, D]) of R stacked runs' sequences ([R, E, ...], per
     run variables), and with `fingerprints` [R, E, 2]: the encoder applied run by run in one
-    program (a Python loop over the static R, no device loop).
+    program, one run per iteration of a `lax.map`.
 
     Not vmapped: vmapping a convolution over per-run weights turns it into one grouped
     convolution, which GPU libraries run far slower than R ordinary ones (see
-    `Stream.learn_runs`), and it would change each run's float rounding. Not `lax.map`:
-    XLA:CPU runs convolutions inside loops slowly (see `executor.run_stacked_epochs`), and on
-    a GPU the unrolled calls are the same R ordinary convolutions without the loop."""
-    z = jnp.stack([
-        stream.learner.encode(jax.tree.map(lambda v, r=r: v[r], variables), seqs.frames[r],
-                              seqs.actions[r])
-        for r in range(seqs.frames.shape[0])
-    ])
+    `Stream.learn_runs`), and it would change each run's float rounding. Not unrolled in
+    Python either: R copies of the encoder compile several times slower, for the same latents
+    (docs/notes/stream.md, "The analysis' encoder")."""
+    z = jax.lax.map(lambda run: stream.learner.encode(*run),
+                    (variables, seqs.frames, seqs.actions))
     out = (z, seqs.ld[:, :, stream.hist - 1])
     if fingerprints:
         out += (input_fingerprints(stream.hist, seqs.frames, seqs.actions,

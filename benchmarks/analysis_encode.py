@@ -46,8 +46,9 @@ def jaml_form(stream, variables, seqs):
 
 
 def bench(learner: str, runs: int, dtype: str, reps: int) -> list[dict]:
-    config = for_env("CartPole", learner).with_overrides({
-        "learner_config.compute_dtype": dtype, "learner_config.activation_dtype": dtype})
+    config = for_env("CartPole", learner).with_overrides({  # a small replay: a run's holds
+        "learner_config.compute_dtype": dtype,               # 2 GB at the default size
+        "learner_config.activation_dtype": dtype, "replay.slots": 1024})
     stream = build(config)
     variables = stack_runs([stream.init(jax.random.PRNGKey(r)) for r in range(runs)]
                            ).learner.variables

@@ -145,6 +145,34 @@ def _one_line(box: str) -> str:
 
 
 
+def _closed_loop_callback(unraisable) -> bool:
+    """Whether an unraisable exception (`sys.unraisablehook`'s argument) is asyncio refusing a
+    callback on an event loop already closed, from a thread nothing waits on any more: what
+    Orbax leaves behind when a checkpoint read fails. It runs each read in a fresh event loop
+    and closes it on the first error, while TensorStore completes the other reads later."""
+    if unraisable.object is not None or not isinstance(unraisable.exc_value, RuntimeError):
+        return False
+    if str(unraisable.exc_value) != "Event loop is closed":
+        return False
+    return any(frame.name == "call_soon_threadsafe"
+               and Path(frame.filename).parts[-2:] == ("asyncio", "base_events.py")
+               for frame in traceback.extract_tb(unraisable.exc_traceback))
+
+
+def quiet_closed_loop_callbacks(hook: Callable) -> Callable:
+    """`hook`, a `sys.unraisablehook`, less `_closed_loop_callback`'s tracebacks: the command
+    line's one-line error for an unreadable checkpoint is then not followed by asyncio's."""
+    if getattr(hook, "quiets_closed_loops", False):
+        return hook
+
+    def quiet(unraisable) -> None:
+        if not _closed_loop_callback(unraisable):
+            hook(unraisable)
+
+    quiet.quiets_closed_loops = True
+    return quiet
+
+
 def use_compilation_cache() -> str | None:
     """Turn on JAX's persistent compilation cache for the command line; returns its directory.
 
@@ -280,6 +308,7 @@ def main(argv, commands: Callable[[list[str]], dict[str, type]], description: st
         # timing, not a problem of the run: shown with -v.
         logging.getLogger("absl").setLevel(logging.ERROR)
     use_compilation_cache()
+    sys.unraisablehook = quiet_closed_loop_callbacks(sys.unraisablehook)
     try:
         join_processes()
         with _interrupts.as_interrupt():

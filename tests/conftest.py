@@ -27,6 +27,7 @@ one worker while the other sat idle; `pytest_configure` turns that reordering of
 
 import contextlib
 import os
+import sys
 import tempfile
 
 import pytest
@@ -36,6 +37,8 @@ os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_TWO_DEVICES}".st
 
 import jax  # noqa: E402
 from jax._src import compiler as _compiler  # noqa: E402
+
+from jaml._command import quiet_closed_loop_callbacks  # noqa: E402
 
 _run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
 _cache = (
@@ -111,10 +114,14 @@ def xla_optimized():
         _OLDER_EMITTERS[0] = older
 
 
+@pytest.hookimpl(trylast=True)  # after pytest's own unraisable-exception hook is in place
 def pytest_configure(config):
-    """xdist's loadfile keeps the collection order (`--no-loadscope-reorder`), `first` included."""
+    """xdist's loadfile keeps the collection order (`--no-loadscope-reorder`), `first` included.
+    The command line's filter of Orbax's closed-loop callbacks wraps pytest's unraisable hook:
+    after a checkpoint read fails, they land in whichever test runs next, as a warning."""
     if hasattr(config.option, "loadscopereorder"):
         config.option.loadscopereorder = False
+    sys.unraisablehook = quiet_closed_loop_callbacks(sys.unraisablehook)
 
 
 def pytest_collection_modifyitems(items):

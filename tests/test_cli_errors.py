@@ -1,7 +1,9 @@
 """Every CLI failure one line naming the problem and the fix; flags' help says what they do."""
 
+import asyncio
 import os
 import time
+import types
 import warnings
 
 import jax
@@ -11,6 +13,7 @@ import pytest
 
 import envs_mjx
 from jaml import _rundir, evaluation
+from jaml._command import quiet_closed_loop_callbacks
 from jaml.cli import main
 from jaml.evaluation.distortion import CollapsedPairsWarning
 from jaml.stream import checkpoint
@@ -142,3 +145,29 @@ def test_cartpoles_conventions_are_a_choice_on_the_command_line(capsys):
     assert len(err) == 1 and err[0].startswith("jaml envs: error: invalid choice 'gym' for "
                                                 "argument '--env-config.conventions'")
     assert "('reference', 'gymnasium')" in err[0]
+
+
+def _unraisable(error: BaseException, obj=None):
+    return types.SimpleNamespace(exc_type=type(error), exc_value=error,
+                                 exc_traceback=error.__traceback__, err_msg=None, object=obj)
+
+
+def test_asyncio_s_closed_loop_tracebacks_after_a_failed_read_are_dropped_and_only_those():
+    """After Orbax fails a read, TensorStore's other reads call back into the event loop Orbax
+    closed: asyncio raises in a thread nobody waits on, and Python prints its traceback after
+    the command's one-line error. The command line's hook drops exactly that one."""
+    loop = asyncio.new_event_loop()
+    loop.close()
+    with pytest.raises(RuntimeError, match="Event loop is closed") as closed:
+        loop.call_soon_threadsafe(print)
+    seen = []
+    hook = quiet_closed_loop_callbacks(seen.append)
+    hook(_unraisable(closed.value))
+    assert seen == []
+    others = [_unraisable(RuntimeError("Event loop is closed")),  # raised elsewhere
+              _unraisable(closed.value, obj=loop),  # from an object's finaliser
+              _unraisable(ValueError("Event loop is closed"))]
+    for other in others:
+        hook(other)
+    assert seen == others
+    assert quiet_closed_loop_callbacks(hook) is hook  # installed twice, wrapped once

@@ -144,7 +144,6 @@ def _one_line(box: str) -> str:
     return " ".join(" ".join(kept).split()) or "invalid arguments"
 
 
-
 def _closed_loop_callback(unraisable) -> bool:
     """Whether an unraisable exception (`sys.unraisablehook`'s argument) is asyncio refusing a
     callback on an event loop already closed, from a thread nothing waits on any more: what

@@ -5,7 +5,7 @@
         [--torch eager compiled]
         [--torch-compile-modes max-autotune-no-cudagraphs default]
         [--torch-memory-formats channels_last contiguous] [--upsample-forms auto dilated phase]
-        [--case-timeout 200]
+        [--max-unroll 32] [--case-timeout 200]
 
 A case's size is in frames per step, as the stream's (`StreamConfig.frames_per_batch`): a step
 of F frames is B = F // T sequences of a learner's T frames (T = 1 for VAE_rpl, 24 for PRED and
@@ -67,6 +67,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks import flops, harness
 from jaml import learners
 from jaml.configs.learners import UPSAMPLE_FORMS, default_config
+from jaml.learners import networks
 
 LD_DIM, ACTION_DIM = 4, 1  # CartPole: D = 4, latent 2·D = 8
 # Quoted dense peaks (TFLOP/s; NVIDIA's H100 SXM / H200 datasheets, without sparsity): float32
@@ -510,12 +511,20 @@ def main(argv=None) -> int:
     parser.add_argument("--activation-dtypes", nargs="+", default=["float32"],
                         choices=["float32", "bfloat16"], help="jaml's activation dtypes "
                         "(LearnerConfig.activation_dtype), a row each per upsample form")
+    parser.add_argument("--max-unroll", type=int, default=None, metavar="N",
+                        help="off the CPU, the most recurrent steps jaml's layers unroll per "
+                        "loop iteration (DSA, SVAE; `networks.scan_unroll`; default: jaml's), "
+                        "named in its rows")
     parser.add_argument("--case-timeout", type=float, default=None, metavar="S",
                         help="seconds a case (peer variants and jaml forms) may take; past "
                         "them its rows so far and an error row for the impl still running are "
                         "recorded, and the run ends")
     parser.add_argument("--no-record", action="store_true", help="print only")
     args = parser.parse_args(argv)
+    if args.max_unroll is not None:
+        if args.max_unroll < 1:
+            parser.error(f"--max-unroll must be ≥ 1, got {args.max_unroll}")
+        networks._MAX_UNROLL = args.max_unroll
     try:
         shapes = {(name, f): step_shape(name, f) for name in args.learners for f in args.frames}
     except ValueError as e:
@@ -557,6 +566,9 @@ def main(argv=None) -> int:
                                      for form in args.upsample_forms])
                 if timer:
                     timer.cancel()
+                if args.max_unroll is not None:
+                    for row in (r for r in rows if r["impl"].startswith("jaml")):
+                        row["impl"] += f", unroll ≤ {args.max_unroll}"
                 if not args.no_record:
                     harness.record("learner_throughput", rows, notes=NOTES)
     return 0

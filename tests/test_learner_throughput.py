@@ -126,3 +126,29 @@ def test_svae_has_no_torch_peer_and_gets_jaml_s_rows_alone(monkeypatch, capsys):
                     "--no-record"]) == 0
     assert seen == {"DSA": [(None, "channels_last")], "SVAE": []}
     assert "SVAE: no PyTorch peer" in capsys.readouterr().out
+
+
+def test_max_unroll_sets_the_recurrent_layers_cap_and_names_it_in_jaml_s_rows(monkeypatch):
+    """`--max-unroll 32` (the rows of an unroll A/B): the cap is set before the case is built
+    and jaml's rows say it; the peer's rows are left as they are (measuring stubbed)."""
+    from jaml.learners import networks
+
+    monkeypatch.setattr(networks, "_MAX_UNROLL", networks._MAX_UNROLL)  # restored after
+    monkeypatch.setattr(lt, "matmul_ceiling", lambda dtype, n: 1.0)
+    monkeypatch.setattr(lt, "useful_gflop_per_frame", lambda *a: 1.0)
+    caps = []
+
+    def measure_case(case, reps, steps, variants, forms):
+        caps.append(networks._MAX_UNROLL)
+        return [{"impl": "jaml, bfloat16 activations"}, {"impl": "pytorch 2.13 eager (cpu)"}]
+
+    monkeypatch.setattr(lt, "measure_case", measure_case)
+    recorded = []
+    monkeypatch.setattr(lt.harness, "record", lambda name, rows, notes: recorded.extend(rows))
+    assert lt.main(["--learners", "DSA", "--frames", "24", "--torch", "--max-unroll",
+                    "32"]) == 0
+    assert caps == [32]
+    assert [r["impl"] for r in recorded] == ["jaml, bfloat16 activations, unroll ≤ 32",
+                                            "pytorch 2.13 eager (cpu)"]
+    with pytest.raises(SystemExit):
+        lt.main(["--learners", "DSA", "--max-unroll", "0"])

@@ -13,9 +13,7 @@ steady state the median of blocked calls, each form in the same process.
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -63,20 +61,13 @@ def bench(learner: str, runs: int, dtype: str, reps: int) -> list[dict]:
     case = f"{learner} encoder, {runs} runs × {e} sequences × {length} frames, {dtype}"
     for impl, form in (("runs unrolled in Python (before)", unrolled),
                        ("lax.map over runs (jaml)", jaml_form)):
-        fn = jax.jit(lambda v, s, form=form: form(stream, v, s))
         _COMPILED.clear()
-        start = time.perf_counter()
-        program = fn.lower(variables, seqs).compile()
-        wall = time.perf_counter() - start
-        latents[impl] = np.asarray(harness.block(program(variables, seqs)))
-        times = []
-        for _ in range(reps):
-            start = time.perf_counter()
-            harness.block(program(variables, seqs))
-            times.append(time.perf_counter() - start)
+        compile_s, seconds, out = harness.measure_calls(
+            lambda v, s, form=form: form(stream, v, s), (variables, seqs), reps, 1)
+        latents[impl] = np.asarray(out)
         rows.append({"case": case, "impl": impl, "learner": learner, "runs": runs,
-                     "compile_s": wall, "xla_compile_s": sum(_COMPILED),
-                     "ms_per_chunk": 1e3 * statistics.median(times)})
+                     "compile_s": compile_s, "xla_compile_s": sum(_COMPILED),
+                     "ms_per_chunk": 1e3 * seconds})
     same = bool(np.array_equal(*latents.values()))
     for row in rows:
         row["same_bits"] = same

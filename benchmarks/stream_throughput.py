@@ -24,6 +24,7 @@ PyTorch stack here; its anchors are in `docs/reference/perf_anchors.md`.
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 from pathlib import Path
@@ -38,11 +39,13 @@ from jaml.stream import analysis, build, for_env
 from jaml.stream.executor import run_stacked_epochs, runs_mesh, stack_runs
 from jaml.stream.loop import _act_runs, _learn_step_runs
 
+CASES = ("stream", "loop", "learner", "analysis")
+
 
 def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_per_batch: int,
           replay_slots: int, repeats: int, devices: int | None,
           compute_dtype: str = "float32", activation_dtype: str = "float32",
-          eval_sizes: dict | None = None) -> list[dict]:
+          eval_sizes: dict | None = None, only: tuple[str, ...] = CASES) -> list[dict]:
     defaults = for_env(env, learner)
     minibatches = defaults.ppo.num_minibatches
     minibatches = minibatches if num_envs % minibatches == 0 else 1
@@ -100,10 +103,11 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
     env_frames = runs * epochs * num_envs * config.rollout_len
     learner_frames = runs * epochs * config.learner_steps * stream.batch_sequences * stream.seq_len
     rows = []
+    flags = os.environ.get("XLA_FLAGS", "")  # named in the rows: flag sets are compared by run
     cases = (("stream", stream_only), ("loop", loop), ("learner", learner_only),
              ("analysis", analyse))
     for case, fn in cases:
-        if case != "loop" and mesh.size > 1:
+        if case not in only or (case != "loop" and mesh.size > 1):
             continue  # the pieces are jitted for one device; only the loop is sharded
         t = harness.measure(fn, repeats=repeats)
         row = {
@@ -111,7 +115,7 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
                     + ("" if compute_dtype == "float32" else f", {compute_dtype}")
                     + ("" if activation_dtype == "float32"
                        else f", {activation_dtype} activations"),
-            "impl": "jaml",
+            "impl": "jaml" + (f", XLA_FLAGS={flags}" if flags else ""),
             "batch": num_envs,
             "runs": runs,
             "devices": mesh.size,
@@ -174,6 +178,9 @@ def main(argv=None) -> int:
                         help="the learner's convolution compute dtypes (one row set each)")
     parser.add_argument("--activation-dtype", default="float32", choices=["float32", "bfloat16"],
                         help="the learner's activation dtype (LearnerConfig.activation_dtype)")
+    parser.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES,
+                        help="which cases to time (the analysis compiles for about a minute "
+                             "on a GPU)")
     parser.add_argument("--quick", action="store_true", help="tiny sizes for a CPU smoke run")
     parser.add_argument("--no-record", action="store_true", help="print only")
     args = parser.parse_args(argv)
@@ -196,7 +203,8 @@ def main(argv=None) -> int:
                         measured.add((dtype, runs, used))
                         rows += bench(env, learner, runs, args.num_envs, args.epochs,
                                       args.frames_per_batch, args.replay_slots, args.repeats,
-                                      used, dtype, args.activation_dtype, eval_sizes)
+                                      used, dtype, args.activation_dtype, eval_sizes,
+                                      tuple(args.cases))
             _speedups(rows)
             if not args.no_record:  # after each pair: a run cut short keeps what it measured
                 harness.record("stream_throughput", rows,

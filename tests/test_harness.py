@@ -118,8 +118,8 @@ def test_stream_throughput_times_each_mesh_once_and_scales_against_one_device(mo
     calls = []
 
     def bench(env, learner, runs, num_envs, epochs, frames_per_batch, replay_slots, repeats,
-              devices, dtype, activation_dtype, eval_sizes):
-        calls.append((runs, devices, dtype, activation_dtype, eval_sizes))
+              devices, dtype, activation_dtype, eval_sizes, only):
+        calls.append((runs, devices, dtype, activation_dtype, eval_sizes, only))
         rate = {1: 10.0, 2: 18.0}[devices] * runs
         return [{"case": "c/loop", "runs": runs, "devices": devices, "env_frames_per_s": rate}]
 
@@ -127,7 +127,7 @@ def test_stream_throughput_times_each_mesh_once_and_scales_against_one_device(mo
     recorded = []
     monkeypatch.setattr(harness, "record", lambda name, rows, notes: recorded.extend(rows))
     assert stream_throughput.main(["--runs", "1", "4", "--devices", "1", "2", "4"]) == 0
-    assert calls == [(runs, devices, "float32", "float32", None)
+    assert calls == [(runs, devices, "float32", "float32", None, stream_throughput.CASES)
                      for runs, devices in ((1, 1), (4, 1), (4, 2))]
     by = {(r["runs"], r["devices"]): r for r in recorded}
     assert by[(4, 2)]["speedup_vs_one_device"] == pytest.approx(1.8)
@@ -135,6 +135,9 @@ def test_stream_throughput_times_each_mesh_once_and_scales_against_one_device(mo
     assert "speedup_vs_one_device" not in by[(4, 1)]
     with pytest.raises(SystemExit):
         stream_throughput.main(["--devices", "0"])
+    calls.clear()
+    assert stream_throughput.main(["--cases", "stream", "loop"]) == 0
+    assert [c[-1] for c in calls] == [("stream", "loop")]
 
 
 def test_a_form_row_times_the_value_and_the_gradients_it_names(monkeypatch, capsys):

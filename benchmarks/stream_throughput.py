@@ -24,12 +24,15 @@ PyTorch stack here; its anchors are in `docs/reference/perf_anchors.md`.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import hashlib
 import os
 import statistics
 import sys
 from pathlib import Path
 
 import jax
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -45,7 +48,8 @@ CASES = ("stream", "loop", "learner", "analysis")
 def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_per_batch: int,
           replay_slots: int, repeats: int, devices: int | None,
           compute_dtype: str = "float32", activation_dtype: str = "float32",
-          eval_sizes: dict | None = None, only: tuple[str, ...] = CASES) -> list[dict]:
+          eval_sizes: dict | None = None, only: tuple[str, ...] = CASES,
+          cuda_graphs: bool = True) -> list[dict]:
     defaults = for_env(env, learner)
     minibatches = defaults.ppo.num_minibatches
     minibatches = minibatches if num_envs % minibatches == 0 else 1
@@ -55,13 +59,14 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
         **{f"eval.{k}": v for k, v in (eval_sizes or {}).items()},
         "replay.slots": replay_slots, "frames_per_batch": frames_per_batch,
         "epochs": max(1000, replay_slots // num_envs), "ppo.num_minibatches": minibatches})
-    stream = build(config)
+    stream = dataclasses.replace(build(config), cuda_graphs=cuda_graphs)
     mesh = runs_mesh(runs, jax.local_devices()[:devices])
     host_loop = jax.default_backend() == "cpu"
     holder = {"s": stack_runs([stream.init(jax.random.PRNGKey(seed)) for seed in range(runs)])}
     # Fill the replay first so the loop case trains on every epoch.
     holder["s"], _ = run_stacked_epochs(stream, holder["s"], stream.config.fill_epochs,
                                      mesh=mesh)
+    filled = state_digest(holder["s"])
 
     def stream_only():
         s = holder["s"]
@@ -115,7 +120,8 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
                     + ("" if compute_dtype == "float32" else f", {compute_dtype}")
                     + ("" if activation_dtype == "float32"
                        else f", {activation_dtype} activations"),
-            "impl": "jaml" + (f", XLA_FLAGS={flags}" if flags else ""),
+            "impl": "jaml" + ("" if cuda_graphs else ", no CUDA graphs of the loops")
+                    + (f", XLA_FLAGS={flags}" if flags else ""),
             "batch": num_envs,
             "runs": runs,
             "devices": mesh.size,
@@ -124,6 +130,8 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
             "epochs_per_call": epochs,
             "host_loop": host_loop,
         }
+        if case == "stream":
+            row["filled_state_sha256"] = filled
         if case in ("stream", "loop"):
             row["env_frames_per_s"] = env_frames / t["median_s"]
         if case in ("loop", "learner"):
@@ -140,6 +148,14 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
     return rows
 
 
+def state_digest(states) -> str:
+    """SHA-256 of every leaf's bytes, in tree order: the same digest, the same bits."""
+    digest = hashlib.sha256()
+    for leaf in jax.tree.leaves(jax.device_get(states)):
+        digest.update(np.ascontiguousarray(leaf).tobytes())
+    return digest.hexdigest()[:16]
+
+
 def _speedups(rows: list[dict]) -> None:
     """speedup_vs_one_run: aggregate throughput over the same case at R = 1, one device;
     speedup_vs_one_device: over the same case and R on one device (the devices' scaling;
@@ -148,12 +164,12 @@ def _speedups(rows: list[dict]) -> None:
         key = next((k for k in ("env_frames_per_s", "learner_frames_per_s") if k in row), None)
         if key is None:  # the analysis: no frame rate
             continue
-        base = next((r for r in rows if r["case"] == row["case"] and r["runs"] == 1
-                     and r["devices"] == 1), None)
+        base = next((r for r in rows if r["case"] == row["case"] and r["impl"] == row["impl"]
+                     and r["runs"] == 1 and r["devices"] == 1), None)
         if base is not None:
             row["speedup_vs_one_run"] = row[key] / base[key]
-        one = next((r for r in rows if r["case"] == row["case"] and r["runs"] == row["runs"]
-                    and r["devices"] == 1), None)
+        one = next((r for r in rows if r["case"] == row["case"] and r["impl"] == row["impl"]
+                    and r["runs"] == row["runs"] and r["devices"] == 1), None)
         if one is not None and row["devices"] > 1:
             row["speedup_vs_one_device"] = row[key] / one[key]
 
@@ -181,6 +197,10 @@ def main(argv=None) -> int:
     parser.add_argument("--cases", nargs="+", default=list(CASES), choices=CASES,
                         help="which cases to time (the analysis compiles for about a minute "
                              "on a GPU)")
+    parser.add_argument("--cuda-graphs", nargs="+", default=["on"], choices=["on", "off"],
+                        help="the Stream's programs with CUDA graphs of their loops (the "
+                             "default on a CUDA GPU) or XLA's default command buffers; one row "
+                             "set each, in this process")
     parser.add_argument("--quick", action="store_true", help="tiny sizes for a CPU smoke run")
     parser.add_argument("--no-record", action="store_true", help="print only")
     args = parser.parse_args(argv)
@@ -201,10 +221,11 @@ def main(argv=None) -> int:
                         if (dtype, runs, used) in measured:
                             continue
                         measured.add((dtype, runs, used))
-                        rows += bench(env, learner, runs, args.num_envs, args.epochs,
-                                      args.frames_per_batch, args.replay_slots, args.repeats,
-                                      used, dtype, args.activation_dtype, eval_sizes,
-                                      tuple(args.cases))
+                        for graphs in args.cuda_graphs:
+                            rows += bench(env, learner, runs, args.num_envs, args.epochs,
+                                          args.frames_per_batch, args.replay_slots,
+                                          args.repeats, used, dtype, args.activation_dtype,
+                                          eval_sizes, tuple(args.cases), graphs == "on")
             _speedups(rows)
             if not args.no_record:  # after each pair: a run cut short keeps what it measured
                 harness.record("stream_throughput", rows,

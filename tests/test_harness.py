@@ -118,10 +118,11 @@ def test_stream_throughput_times_each_mesh_once_and_scales_against_one_device(mo
     calls = []
 
     def bench(env, learner, runs, num_envs, epochs, frames_per_batch, replay_slots, repeats,
-              devices, dtype, activation_dtype, eval_sizes, only):
+              devices, dtype, activation_dtype, eval_sizes, only, cuda_graphs):
         calls.append((runs, devices, dtype, activation_dtype, eval_sizes, only))
-        rate = {1: 10.0, 2: 18.0}[devices] * runs
-        return [{"case": "c/loop", "runs": runs, "devices": devices, "env_frames_per_s": rate}]
+        rate = {1: 10.0, 2: 18.0}[devices] * runs * (1 if cuda_graphs else 0.5)
+        return [{"case": "c/loop", "impl": f"jaml{'' if cuda_graphs else ', off'}", "runs": runs,
+                 "devices": devices, "env_frames_per_s": rate}]
 
     monkeypatch.setattr(stream_throughput, "bench", bench)
     recorded = []
@@ -138,6 +139,13 @@ def test_stream_throughput_times_each_mesh_once_and_scales_against_one_device(mo
     calls.clear()
     assert stream_throughput.main(["--cases", "stream", "loop"]) == 0
     assert [c[-1] for c in calls] == [("stream", "loop")]
+    # Both graph settings in one process: each row's speed-ups are read within its own impl.
+    recorded.clear()
+    assert stream_throughput.main(["--runs", "1", "4", "--devices", "1", "--cuda-graphs", "on",
+                                   "off"]) == 0
+    by = {(r["impl"], r["runs"]): r for r in recorded}
+    assert by[("jaml, off", 4)]["speedup_vs_one_run"] == pytest.approx(4.0)
+    assert by[("jaml", 4)]["env_frames_per_s"] == 2 * by[("jaml, off", 4)]["env_frames_per_s"]
 
 
 def test_a_form_row_times_the_value_and_the_gradients_it_names(monkeypatch, capsys):

@@ -66,13 +66,20 @@ class Stream:
     ppo: ppo_lib.PPO
     optimizer: Any
     train_step: Any
+    cuda_graphs: bool = True
     programs: dict = dataclasses.field(default_factory=dict, init=False, repr=False)
 
     def jit(self, fun, **options):
         """`jax.jit(options)` of `fun(self, *args)` as a function of `args` (the options'
-        argument numbers count from the first of them), made once per (fun, options)."""
-        return self.program((fun, _frozen(options)), lambda: jax.jit(_bound(self, fun),
-                                                                     **options))
+        argument numbers count from the first of them), made once per (fun, options); on a
+        CUDA GPU with `cuda_graphs`, the loops' bodies run as CUDA graphs (`CUDA_GRAPHS`)."""
+        def make():
+            xla = options.get("compiler_options")
+            if self.cuda_graphs and _on_cuda():
+                xla = {**CUDA_GRAPHS, **(xla or {})}
+            return jax.jit(_bound(self, fun), **{**options, "compiler_options": xla})
+
+        return self.program((fun, _frozen(options)), make)
 
     def learner_jit(self, fun, **options):
         """`jit(fun, options)` with the first argument (the states) donated unless `options` say
@@ -256,6 +263,21 @@ class Stream:
         else:
             learner_metrics = _skipped(self, states, k_learn)
         return states, _with_learner(metrics, learner_metrics)
+
+
+# XLA's default command buffers (CUDA graphs) plus the bodies of loops and conditionals: a
+# rollout launches thousands of small kernels an epoch (a physics step, a frame, the policy),
+# and their launches, not the kernels, bound it (docs/notes/stream.md, "CUDA graphs").
+CUDA_GRAPHS = {
+    "xla_gpu_enable_command_buffer":
+        "FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,DYNAMIC_SLICE_FUSION,WHILE,CONDITIONAL",
+    "xla_gpu_graph_min_graph_size": 1,
+}
+
+
+def _on_cuda() -> bool:
+    device = jax.local_devices()[0]
+    return device.platform == "gpu" and "cuda" in device.client.platform_version.lower()
 
 
 _PPO_METRICS = ("total_loss", "policy_loss", "v_loss", "entropy_loss", "kl_mean")

@@ -71,7 +71,7 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
     def stream_only():
         s = holder["s"]
         for _ in range(epochs):
-            s, _, _ = stream.jit(_act_runs, donate_argnums=0)(s)
+            s, _, _ = stream.jit(_act_runs, graphs=True, donate_argnums=0)(s)
         holder["s"] = s
         return s.replay.size
 

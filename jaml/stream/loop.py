@@ -69,24 +69,24 @@ class Stream:
     cuda_graphs: bool = True
     programs: dict = dataclasses.field(default_factory=dict, init=False, repr=False)
 
-    def jit(self, fun, **options):
+    def jit(self, fun, *, graphs: bool = False, **options):
         """`jax.jit(options)` of `fun(self, *args)` as a function of `args` (the options'
-        argument numbers count from the first of them), made once per (fun, options); on a
-        CUDA GPU with `cuda_graphs`, the loops' bodies run as CUDA graphs (`CUDA_GRAPHS`)."""
-        def make():
-            xla = options.get("compiler_options")
-            if self.cuda_graphs and _on_cuda():
-                xla = {**CUDA_GRAPHS, **(xla or {})}
-            return jax.jit(_bound(self, fun), **{**options, "compiler_options": xla})
-
-        return self.program((fun, _frozen(options)), make)
+        argument numbers count from the first of them), made once per (fun, options). `graphs`
+        (top-level programs only: JAX refuses compiler options on a nested jit): on a CUDA GPU
+        and with `cuda_graphs`, the loops' bodies run as CUDA graphs (`CUDA_GRAPHS`)."""
+        if graphs and self.cuda_graphs and _on_cuda():
+            options["compiler_options"] = {**CUDA_GRAPHS, **(options.get("compiler_options")
+                                                             or {})}
+        return self.program((fun, _frozen(options)), lambda: jax.jit(_bound(self, fun),
+                                                                     **options))
 
     def learner_jit(self, fun, **options):
-        """`jit(fun, options)` with the first argument (the states) donated unless `options` say
-        otherwise, and the learner's compiler options (`learners.compiler_options()`: on the CPU
-        convolutions take XLA's Eigen path, not YNNPACK's, which ran the VAE's train step slower;
-        XLA's defaults elsewhere). Read at each call: the options depend on the backend."""
-        return self.jit(fun, **{"donate_argnums": 0, **options},
+        """`jit(fun, options)` of a top-level program (CUDA graphs where they apply) with the
+        first argument (the states) donated unless `options` say otherwise, and the learner's
+        compiler options (`learners.compiler_options()`: on the CPU convolutions take XLA's
+        Eigen path, not YNNPACK's, which ran the VAE's train step slower; XLA's defaults
+        elsewhere). Read at each call: the options depend on the backend."""
+        return self.jit(fun, graphs=True, **{"donate_argnums": 0, **options},
                         compiler_options=learners.compiler_options())
 
     def program(self, key, make):
@@ -248,7 +248,7 @@ class Stream:
         # The acting program neither reads nor writes the learner's state: left out of it, the
         # program is the same for every learner of one env and PPO (one compilation serves).
         learner = states.learner
-        states, k_learn, metrics = self.jit(_act_runs, donate_argnums=0)(
+        states, k_learn, metrics = self.jit(_act_runs, graphs=True, donate_argnums=0)(
             states.replace(learner=None))
         states = states.replace(learner=learner)
         if bool(_replays_full(states)):

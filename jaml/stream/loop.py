@@ -267,7 +267,7 @@ class Stream:
 
 # XLA's default command buffers (CUDA graphs) plus the bodies of loops and conditionals: a
 # rollout launches thousands of small kernels an epoch (a physics step, a frame, the policy),
-# and their launches, not the kernels, bound it (docs/notes/stream.md, "CUDA graphs").
+# and their launches, not the kernels, bound it (docs/notes/stream.md, "CUDA graphs of the loops").
 CUDA_GRAPHS = {
     "xla_gpu_enable_command_buffer":
         "FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,DYNAMIC_SLICE_FUSION,WHILE,CONDITIONAL",

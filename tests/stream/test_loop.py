@@ -173,6 +173,28 @@ def test_a_stream_makes_each_program_once_and_owns_it():
     assert dataclasses.replace(a, train_step=lambda *x: x).programs == {}
 
 
+def test_top_level_programs_take_cuda_graphs_on_a_cuda_gpu_alone(monkeypatch):
+    """`graphs=True` adds `CUDA_GRAPHS` to a program's compiler options on a CUDA GPU (the
+    given options kept and winning), not elsewhere, not with `cuda_graphs=False`, not on a
+    nested program; and this XLA parses the options (a misspelt command type fails here)."""
+    from jaml.stream import loop
+
+    s = stream.build(tiny())
+    made = []
+    real_jit = jax.jit
+    monkeypatch.setattr(loop.jax, "jit", lambda f, **o: made.append(o) or real_jit(f, **o))
+    f = lambda st, x: x * 2  # noqa: E731
+    g = lambda st, x: x * 3  # noqa: E731
+    s.jit(f, graphs=True)
+    monkeypatch.setattr(loop, "_on_cuda", lambda: True)
+    given = {"xla_gpu_graph_min_graph_size": 3, "xla_backend_optimization_level": 1}
+    assert int(s.jit(f, graphs=True, compiler_options=given)(2)) == 4  # compiled on the CPU
+    s.jit(g)
+    dataclasses.replace(s, cuda_graphs=False).jit(f, graphs=True)
+    assert [o.get("compiler_options") for o in made] == [
+        None, {**loop.CUDA_GRAPHS, **given}, None, None]
+
+
 def _records(path):
     return [json.loads(line) for line in path.read_text().splitlines()]
 

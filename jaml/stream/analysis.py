@@ -65,8 +65,8 @@ def encoded_rollouts(stream: Stream, states: StreamState, keys: jax.Array, num: 
     n = _chunks(num, stream.config.num_envs)
     chunks = jax.vmap(lambda k: jax.random.split(k, n))(split[:, 1])
     store = store if kept is None else []
-    out = _map_chunks(stream.jit(_rollout_chunk, graphs=True), stream, states,
-                      (env_states, random), chunks, fingerprints, store)
+    out = _map_chunks(stream.jit(_rollout_chunk), stream, states, (env_states, random), chunks,
+                      fingerprints, store)
     if kept is not None:
         for r, (k, key) in enumerate(zip(kept, keys, strict=True)):
             # Copies, not views of the stacked chunks: a finished run's set is then freed

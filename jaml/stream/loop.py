@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import os
 import weakref
 from typing import Any
 
@@ -66,7 +67,7 @@ class Stream:
     ppo: ppo_lib.PPO
     optimizer: Any
     train_step: Any
-    cuda_graphs: bool = True
+    cuda_graphs: bool = dataclasses.field(default_factory=lambda: _graphs_wanted())
     programs: dict = dataclasses.field(default_factory=dict, init=False, repr=False)
 
     def jit(self, fun, *, graphs: bool = False, **options):
@@ -273,6 +274,14 @@ CUDA_GRAPHS = {
         "FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,DYNAMIC_SLICE_FUSION,WHILE,CONDITIONAL",
     "xla_gpu_graph_min_graph_size": 1,
 }
+
+
+def _graphs_wanted() -> bool:
+    """A new Stream's `cuda_graphs`: on unless JAML_CUDA_GRAPHS=0 (the command line's way out)."""
+    setting = os.environ.get("JAML_CUDA_GRAPHS", "1")
+    if setting not in ("0", "1"):
+        raise ValueError(f"JAML_CUDA_GRAPHS must be 0 or 1, got {setting!r}")
+    return setting == "1"
 
 
 def _on_cuda() -> bool:

@@ -193,6 +193,12 @@ def test_top_level_programs_take_cuda_graphs_on_a_cuda_gpu_alone(monkeypatch):
     dataclasses.replace(s, cuda_graphs=False).jit(f, graphs=True)
     assert [o.get("compiler_options") for o in made] == [
         None, {**loop.CUDA_GRAPHS, **given}, None, None]
+    # JAML_CUDA_GRAPHS=0 turns them off for the Streams built after it; 0 and 1 alone are read.
+    monkeypatch.setenv("JAML_CUDA_GRAPHS", "0")
+    assert not stream.build(tiny()).cuda_graphs
+    monkeypatch.setenv("JAML_CUDA_GRAPHS", "off")
+    with pytest.raises(ValueError, match="JAML_CUDA_GRAPHS must be 0 or 1, got 'off'"):
+        stream.build(tiny())
 
 
 def _records(path):

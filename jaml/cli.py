@@ -334,6 +334,11 @@ class Info:
                   f"{'installed' if warp.WARP_INSTALLED else 'not installed'}")
         cache = jax.config.jax_compilation_cache_dir
         print(f"XLA compilation cache: {cache or 'off'} (JAML_XLA_CACHE)")
+        from jaml.stream.loop import cuda_graphs_wanted, on_cuda
+
+        graphs = "on" if cuda_graphs_wanted() else "off"
+        print(f"CUDA graphs of the stream's loops: {graphs if on_cuda() else 'no CUDA GPU'} "
+              "(JAML_CUDA_GRAPHS)")
         return 0
 
 

@@ -37,6 +37,7 @@ def test_info_names_the_cpu_device_versions_and_mjx_imports(capsys):
         assert f"{name} {importlib.metadata.version(name)}" in lines
     assert "MJX physics (mujoco.mjx): import ok" in lines
     assert "MJX renderer (envs_mjx.render): import ok" in lines
+    assert "CUDA graphs of the stream's loops: no CUDA GPU (JAML_CUDA_GRAPHS)" in lines
 
 
 def test_cli_stdout_has_no_warp_probe_lines(tmp_path):

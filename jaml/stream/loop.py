@@ -67,7 +67,7 @@ class Stream:
     ppo: ppo_lib.PPO
     optimizer: Any
     train_step: Any
-    cuda_graphs: bool = dataclasses.field(default_factory=lambda: _graphs_wanted())
+    cuda_graphs: bool = dataclasses.field(default_factory=lambda: cuda_graphs_wanted())
     programs: dict = dataclasses.field(default_factory=dict, init=False, repr=False)
 
     def jit(self, fun, *, graphs: bool = False, **options):
@@ -75,7 +75,7 @@ class Stream:
         argument numbers count from the first of them), made once per (fun, options). `graphs`
         (top-level programs only: JAX refuses compiler options on a nested jit): on a CUDA GPU
         and with `cuda_graphs`, the loops' bodies run as CUDA graphs (`CUDA_GRAPHS`)."""
-        if graphs and self.cuda_graphs and _on_cuda():
+        if graphs and self.cuda_graphs and on_cuda():
             options["compiler_options"] = {**CUDA_GRAPHS, **(options.get("compiler_options")
                                                              or {})}
         return self.program((fun, _frozen(options)), lambda: jax.jit(_bound(self, fun),
@@ -276,7 +276,7 @@ CUDA_GRAPHS = {
 }
 
 
-def _graphs_wanted() -> bool:
+def cuda_graphs_wanted() -> bool:
     """A new Stream's `cuda_graphs`: on unless JAML_CUDA_GRAPHS=0 (the command line's way out)."""
     setting = os.environ.get("JAML_CUDA_GRAPHS", "1")
     if setting not in ("0", "1"):
@@ -284,7 +284,7 @@ def _graphs_wanted() -> bool:
     return setting == "1"
 
 
-def _on_cuda() -> bool:
+def on_cuda() -> bool:
     device = jax.local_devices()[0]
     return device.platform == "gpu" and "cuda" in device.client.platform_version.lower()
 

@@ -186,7 +186,7 @@ def test_top_level_programs_take_cuda_graphs_on_a_cuda_gpu_alone(monkeypatch):
     f = lambda st, x: x * 2  # noqa: E731
     g = lambda st, x: x * 3  # noqa: E731
     s.jit(f, graphs=True)
-    monkeypatch.setattr(loop, "_on_cuda", lambda: True)
+    monkeypatch.setattr(loop, "on_cuda", lambda: True)
     given = {"xla_gpu_graph_min_graph_size": 3, "xla_backend_optimization_level": 1}
     assert int(s.jit(f, graphs=True, compiler_options=given)(2)) == 4  # compiled on the CPU
     s.jit(g)

@@ -285,6 +285,7 @@ def cuda_graphs_wanted() -> bool:
 
 
 def on_cuda() -> bool:
+    """Whether JAX's first local device is an NVIDIA GPU (CUDA graphs apply there alone)."""
     device = jax.local_devices()[0]
     return device.platform == "gpu" and "cuda" in device.client.platform_version.lower()
 

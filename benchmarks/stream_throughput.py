@@ -19,6 +19,8 @@ PyTorch stack here; its anchors are in `docs/reference/perf_anchors.md`.
 
     python benchmarks/stream_throughput.py --runs 1 6 12             # GPU, paper's 64 envs
     python benchmarks/stream_throughput.py --quick --no-record       # tiny CPU smoke run
+    python benchmarks/stream_throughput.py --runs 4 --cases stream loop --cuda-graphs on off
+        # the Stream's CUDA graphs against XLA's default command buffers, in one process
 """
 
 from __future__ import annotations
@@ -149,7 +151,8 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
 
 
 def state_digest(states) -> str:
-    """SHA-256 of every leaf's bytes, in tree order: the same digest, the same bits."""
+    """SHA-256 of every leaf's bytes in tree order, its first 16 hex digits: another digest,
+    other bits."""
     digest = hashlib.sha256()
     for leaf in jax.tree.leaves(jax.device_get(states)):
         digest.update(np.ascontiguousarray(leaf).tobytes())

@@ -238,7 +238,11 @@ def main(argv=None) -> int:
                                      "of the R runs (its parts' seconds apart); "
                                      "speedup_vs_one_run = aggregate "
                                      "over R = 1 on one device, same run; speedup_vs_one_"
-                                     "device = over the same R on one device, same run")
+                                     "device = over the same R on one device, same run; "
+                                     "on a CUDA GPU jaml's stream and loop run their loops "
+                                     "as CUDA graphs from commit d92efe3 on (impl says when "
+                                     "not); filled_state_sha256: the state after the fill "
+                                     "epochs")
     return 0
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import hashlib
 import json
 import os
 import platform
@@ -102,6 +103,18 @@ def form_row(case: str, impl: str, fn: Callable, args: tuple, cotangent, reps: i
     print(f"{case:40s} {impl:28s} {1e6 * seconds:9.1f} µs (compile {compile_s:.1f} s)",
           flush=True)
     return {"case": case, "impl": impl, "us_per_step": 1e6 * seconds, "compile_s": compile_s}
+
+
+def tree_digest(tree, digits: int = 16) -> str:
+    """SHA-256 of a pytree's leaves' bytes in tree order (a dict's keys sorted), its first
+    `digits` hex digits: the same digest, the same bits, as far as the digits tell."""
+    import jax
+    import numpy as np
+
+    digest = hashlib.sha256()
+    for leaf in jax.tree.leaves(jax.device_get(tree)):
+        digest.update(np.ascontiguousarray(leaf).tobytes())
+    return digest.hexdigest()[:digits]
 
 
 def _cpu_model() -> str:

@@ -27,14 +27,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import hashlib
 import os
 import statistics
 import sys
 from pathlib import Path
 
 import jax
-import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -68,7 +66,7 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
     # Fill the replay first so the loop case trains on every epoch.
     holder["s"], _ = run_stacked_epochs(stream, holder["s"], stream.config.fill_epochs,
                                      mesh=mesh)
-    filled = state_digest(holder["s"])
+    filled = harness.tree_digest(holder["s"])
 
     def stream_only():
         s = holder["s"]
@@ -148,15 +146,6 @@ def bench(env: str, learner: str, runs: int, num_envs: int, epochs: int, frames_
         print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in row.items()},
               flush=True)
     return rows
-
-
-def state_digest(states) -> str:
-    """SHA-256 of every leaf's bytes in tree order, its first 16 hex digits: another digest,
-    other bits."""
-    digest = hashlib.sha256()
-    for leaf in jax.tree.leaves(jax.device_get(states)):
-        digest.update(np.ascontiguousarray(leaf).tobytes())
-    return digest.hexdigest()[:16]
 
 
 def _speedups(rows: list[dict]) -> None:

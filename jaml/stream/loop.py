@@ -72,14 +72,17 @@ class Stream:
 
     def jit(self, fun, *, graphs: bool = False, **options):
         """`jax.jit(options)` of `fun(self, *args)` as a function of `args` (the options'
-        argument numbers count from the first of them), made once per (fun, options). `graphs`
-        (top-level programs only: JAX refuses compiler options on a nested jit): on a CUDA GPU
-        and with `cuda_graphs`, the loops' bodies run as CUDA graphs (`CUDA_GRAPHS`)."""
-        if graphs and self.cuda_graphs and on_cuda():
-            options["compiler_options"] = {**CUDA_GRAPHS, **(options.get("compiler_options")
-                                                             or {})}
-        return self.program((fun, _frozen(options)), lambda: jax.jit(_bound(self, fun),
-                                                                     **options))
+        argument numbers count from the first of them), made once per (fun, graphs, options).
+        `graphs` (top-level programs only: JAX refuses compiler options on a nested jit): on a
+        CUDA GPU and with `cuda_graphs`, the loops' bodies run as CUDA graphs (`CUDA_GRAPHS`),
+        decided when the program is made."""
+        def make():
+            if graphs and self.cuda_graphs and on_cuda():
+                options["compiler_options"] = {**CUDA_GRAPHS,
+                                               **(options.get("compiler_options") or {})}
+            return jax.jit(_bound(self, fun), **options)
+
+        return self.program((fun, graphs, _frozen(options)), make)
 
     def learner_jit(self, fun, **options):
         """`jit(fun, options)` of a top-level program (CUDA graphs where they apply) with the

@@ -20,7 +20,7 @@ from jaml._rundir import RunLog, claim, lock, write_json
 from jaml.configs.relations import Config
 from jaml.relations import checkpoint, plots
 from jaml.relations.relation_set import RelationSet
-from jaml.relations.training import RelationSummary, fit
+from jaml.relations.training import RelationSummary, fit, phase_budgets
 
 log = logging.getLogger("jaml.relations")
 
@@ -49,11 +49,7 @@ class _Recorder:
         if self.progress:
             if self.bar_key != (phase, k):
                 self._close_bar()
-                budget = {
-                    "relation": self.cfg.max_steps,
-                    "push": self.cfg.push_steps,
-                    "syzygy": self.cfg.syzygy_steps,
-                }[phase]
+                budget = phase_budgets(self.cfg)[phase]
                 # No total: a phase stops at convergence, mostly well before its budget.
                 # Started at the first report's step, so the chunk run before the bar existed
                 # does not count as a rate.

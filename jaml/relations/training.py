@@ -76,6 +76,14 @@ class RelationSummary:
 
 Callback = Callable[[str, int, dict], None]  # (phase, relation index, metrics)
 
+
+def phase_budgets(cfg: Config) -> dict[str, int]:
+    """Each phase a `Callback` is called with, and its step budget: g_k's own training (the
+    pre-mined one too), a syzygy network's round, g_k's push round, a refinement round."""
+    return {"relation": cfg.max_steps, "syzygy": cfg.syzygy_steps, "push": cfg.push_steps,
+            "refine": max(cfg.max_steps // REFINE_SHARE, 1)}
+
+
 MINED_CLIP = 2.0  # the mined term at most this × the first term, like the paper's other terms
 
 

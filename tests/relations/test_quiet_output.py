@@ -1,8 +1,12 @@
 """Quiet output: a RelationSet's repr is one short line; relation progress bars count real steps."""
 
+import inspect
+import re
+
 import jax.numpy as jnp
 
 from jaml.configs.relations import Config
+from jaml.relations import training
 from jaml.relations.relation_set import RelationSet
 from jaml.relations.run import _Recorder
 
@@ -29,4 +33,22 @@ def test_a_relation_bar_has_no_budget_total_and_no_rate_from_before_it(tmp_path)
     assert bar.format_dict["rate"] is None  # no rate yet: nothing counted since the start
     rec("relation", 0, {"step": 2000, "on_mean": 0.1, "off_mean": 1.0})
     assert bar.n == 2000
+    rec.close()
+
+
+def test_every_phase_the_fit_reports_has_a_bar_with_its_budget(tmp_path):
+    """The phases named where `training` calls its callback are the ones `phase_budgets`
+    lists, and the bar of each names its budget (a refinement round once had none, and its
+    first report ended `jaml demo` with a KeyError)."""
+    source = inspect.getsource(training)
+    reported = set(re.findall(r'phase="(\w+)"', source)) | set(
+        re.findall(r'callback\("(\w+)"', source))
+    cfg = Config(max_relations=1)
+    budgets = training.phase_budgets(cfg)
+    assert reported and reported <= set(budgets), reported - set(budgets)
+    assert budgets["refine"] == cfg.max_steps // training.REFINE_SHARE
+    rec = _Recorder(tmp_path, cfg, done=0, step_offset=0, progress=True)
+    for phase, budget in budgets.items():
+        rec(phase, 0, {"step": 500, "on_mean": 0.1, "off_mean": 1.0})
+        assert rec.bar.desc == f"g1 {phase} (≤ {budget} steps)"
     rec.close()

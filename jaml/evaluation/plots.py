@@ -112,6 +112,8 @@ TRAIN_STD = "test error (train std)"
 # The dashed curve of a panel whose records carry "baseline": the error of a prediction that
 # ignores the latents (`alignment.constant_errors`), the level an error is read against.
 CONSTANT = "constant predictor"
+# The dotted line of a panel given a `floor`: the regressor's error from the true state itself.
+FLOOR = "true state"
 
 
 def _constant_curve(history: list, test_set: str, dims: Sequence[str]):
@@ -129,16 +131,18 @@ def _constant_curve(history: list, test_set: str, dims: Sequence[str]):
 
 def plot_alignment(history: Iterable[Mapping], path,
                    groups: Mapping[str, Sequence[str]] | None = None,
-                   ylabels: Mapping[str, str] | None = None) -> Figure:
+                   ylabels: Mapping[str, str] | None = None,
+                   floor: Mapping[str, Mapping[str, float]] | None = None) -> Figure:
     """`alignment_figure` written to `path` (`save_figure`); returns the figure."""
-    fig = alignment_figure(history, groups, ylabels)
+    fig = alignment_figure(history, groups, ylabels, floor)
     save_figure(fig, path)
     return fig
 
 
 def alignment_figure(history: Iterable[Mapping],
                      groups: Mapping[str, Sequence[str]] | None = None,
-                     ylabels: Mapping[str, str] | None = None) -> Figure:
+                     ylabels: Mapping[str, str] | None = None,
+                     floor: Mapping[str, Mapping[str, float]] | None = None) -> Figure:
     """Alignment error vs epoch (a record's "step": the epochs completed): one row per test
     set, one column per dimension (lines carry the per-step means).
 
@@ -152,7 +156,9 @@ def alignment_figure(history: Iterable[Mapping],
     A panel whose curves span more than LOG_SPAN (largest over smallest mean) is drawn on a log
     axis, "(log)" in its title: one learner that forgets (errors of 5 and more) would otherwise
     flatten the others' curves near 0.1 into one line. Records with "baseline" (a constant
-    predictor's errors, `jaml.stream.run`'s history) add a dashed grey curve of it.
+    predictor's errors, `jaml.stream.run`'s history) add a dashed grey curve of it. `floor`
+    (test set → state name → error; a run's true-state reference row, `summary.json`'s
+    "references") adds a dotted grey line: what the regressor reaches from the state itself.
     """
     history = [r for r in _check(history) if r.get("errors")]
     if not history:
@@ -189,6 +195,11 @@ def alignment_figure(history: Iterable[Mapping],
                 ax.plot(*constant, color="0.45", linestyle="--", linewidth=1, label=CONSTANT,
                         marker="_" if len(constant[0]) == 1 else None, markersize=12)
                 drawn.append(constant[1])
+            below = (floor or {}).get(test_set, {})
+            if all(d in below for d in dims):
+                level = float(np.mean([below[d] for d in dims]))
+                # Not in the log rule's span: a floor near 0 would put every panel on a log axis.
+                ax.axhline(level, color="0.45", linestyle=":", linewidth=1, label=FLOOR)
             log = _spans_decades(drawn)
             ax.set_title(f"{title} ({test_set})" + (" (log)" if log else ""), fontsize=9)
             ax.set_xlabel("epoch")
@@ -203,6 +214,8 @@ def alignment_figure(history: Iterable[Mapping],
     handles = [Line2D([], [], color=colors[n], label=n) for n in learners]
     if any(r.get("baseline") for r in history):
         handles.append(Line2D([], [], color="0.45", linestyle="--", linewidth=1, label=CONSTANT))
+    if floor:
+        handles.append(Line2D([], [], color="0.45", linestyle=":", linewidth=1, label=FLOOR))
     axes[0, 0].legend(handles=handles, fontsize=8)
     return fig
 

@@ -114,12 +114,12 @@ class FigureWriter:
         self._newest: dict[Path, object] = {}
         self._futures: list[Future] = []
 
-    def submit(self, out: Path, history: list[dict]) -> None:
+    def submit(self, out: Path, history: list[dict], floor: dict | None = None) -> None:
         token = self._newest[out] = object()
 
         def draw():
             if self._newest.get(out) is token:
-                _figures(history, out)
+                _figures(history, out, floor)
 
         self._futures.append(self._pool.submit(draw))
 
@@ -233,7 +233,7 @@ class RunDir:
                 # skips an unterminated line) almost never sees part of an epoch's records.
                 f.write("".join(json.dumps(r) + "\n" for r in records))
             self.logs.analysis(self.epoch, records)
-            self.figures.submit(self.out, list(self.history))
+            self.figures.submit(self.out, list(self.history), _floor(self.references, names))
         if checkpoint_due(self.epoch, self.manager.latest_step(), checkpoint_every,
                           last=self.epoch == self.config.epochs and self.final_checkpoint):
             self.save(state)
@@ -326,9 +326,19 @@ def _scale(config: RunConfig) -> dict:
     return {"scale": scale, **({"note": SMOKE_NOTE} if scale == "smoke" else {})}
 
 
-def _figures(history: list[dict], out: Path) -> None:
-    """alignment.png and distortion.png of `history`: both drawn, then both written."""
-    figures = {"alignment.png": plots.alignment_figure(history),
+def _floor(references: dict | None, names: list[str]) -> dict | None:
+    """The true state's errors of this call's reference rows by test set and state name (the
+    alignment figure's floor), or None before the call's first analysis."""
+    if references is None:
+        return None
+    return {test_set: dict(zip(names, errors, strict=True))
+            for test_set, errors in references["true_state"].items()}
+
+
+def _figures(history: list[dict], out: Path, floor: dict | None = None) -> None:
+    """alignment.png (with the true state's `floor`) and distortion.png of `history`: both
+    drawn, then both written."""
+    figures = {"alignment.png": plots.alignment_figure(history, floor=floor),
                "distortion.png": plots.distortion_figure(history)}
     for name, fig in figures.items():
         plots.save_figure(fig, out / name)

@@ -141,6 +141,39 @@ def test_the_constant_predictor_is_drawn_dashed_where_records_carry_it(tmp_path)
     assert not [ln for ln in plain.axes[0].get_lines() if ln.get_label() == "constant predictor"]
 
 
+def test_the_true_state_floor_is_a_dotted_line_at_its_mean_over_the_panels_names(tmp_path):
+    """`floor` (a run's true-state reference row) is drawn in each test set's panels at the
+    mean over the panel's names, in the legend, and not on a set it has no row for; a floor
+    near 0 leaves the panel's axis linear."""
+    history = [{"step": s, "learner": "PRED", "test_set": t, "run": 0,
+                "errors": {"x": 0.5, "v": 0.9}, "baseline": {"x": 1.0, "v": 2.0}}
+               for s in (1, 2) for t in ("pi_rand", "pi_curr")]
+    floor = {"pi_rand": {"x": 0.001, "v": 0.3}}
+    fig = evaluation.plot_alignment(history, tmp_path / "a.png",
+                                    groups={"x": ["x"], "both": ["x", "v"]}, floor=floor)
+    (x_line,) = [ln for ln in fig.axes[0].get_lines() if ln.get_label() == "true state"]
+    (both_line,) = [ln for ln in fig.axes[1].get_lines() if ln.get_label() == "true state"]
+    assert x_line.get_linestyle() == ":" and list(x_line.get_ydata()) == [0.001, 0.001]
+    assert both_line.get_ydata()[0] == pytest.approx(0.1505)
+    assert not [ln for ax in fig.axes[2:] for ln in ax.get_lines()
+                if ln.get_label() == "true state"]  # pi_curr: no row
+    assert fig.axes[0].get_yscale() == "linear"
+    assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == [
+        "PRED", "constant predictor", "true state"]
+
+
+def test_a_runs_floor_is_its_references_true_state_by_name():
+    from jaml.stream.rundir import _floor
+
+    refs = {"epoch": 4, "true_state": {"pi_rand": [0.1, 0.2], "validation": [0.3, 0.4]},
+            "constant": {"pi_rand": [1.0, 1.0]}}
+    assert _floor(refs, ["x", "v"]) == {"pi_rand": {"x": 0.1, "v": 0.2},
+                                        "validation": {"x": 0.3, "v": 0.4}}
+    assert _floor(None, ["x", "v"]) is None
+    with pytest.raises(ValueError):
+        _floor(refs, ["x"])
+
+
 def test_an_infinite_distortion_is_drawn_trimmed_with_its_count_or_said_in_words(tmp_path):
     """Steps 1 and 3 finite (solid), step 2 +inf with a trimmed figure (a dashed point whose
     label gives the pairs left out); a history that is +inf throughout and carries no trimmed

@@ -153,7 +153,7 @@ def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
 def _warnings(report: dict) -> list[str]:
     out = []
     for r in report["relations"]:
-        if r["status"] != "done":
+        if r["status"] not in ("done", "restored"):  # restored: its end is not known here
             out.append(f"g{r['index']} {r['status']}: it did not meet the stopping rule "
                        f"(held-out off/on {r['ratio']:.1f})")
     cos = np.asarray(report["independence"]["median_abs_cos"])

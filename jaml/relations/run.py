@@ -122,6 +122,14 @@ def _as_now(recorded: dict) -> dict:
     return recorded | {"relations": relations}
 
 
+def _finished(summary_path: Path) -> dict | None:
+    """The summary of a run that ended (any status but "running" or "interrupted"), else None."""
+    if not summary_path.exists():
+        return None
+    summary = json.loads(summary_path.read_text())
+    return None if summary.get("status") in ("running", "interrupted") else summary
+
+
 def _restored_summary(rs: RelationSet, k: int) -> dict:
     """A summary entry rebuilt from a checkpoint whose summary.json was lost."""
     on, off = float(rs.on_means[k]), float(rs.off_means[k])
@@ -164,6 +172,10 @@ def run(
         summary_path, ckpt_path = out / "summary.json", out / "checkpoint"
         start, done = None, []
         resuming = claim(out, resolved, same=lambda recorded: _as_now(recorded) == resolved)
+        finished = _finished(summary_path) if resuming else None
+        if finished is not None:  # a finished run stays finished: nothing is trained again
+            logging.getLogger("jaml.resume").info("%s: finished (%s)", out, finished["status"])
+            return finished
         partial = _PartialDir(out / "partial")
         if not resuming:
             partial.clear()
@@ -219,6 +231,7 @@ def run(
             raise
         finally:
             recorder.close()
+        partial.clear()  # a relation dropped at the end leaves its state: the fit is over
         # "done" only where every relation met its stopping rule; the reason otherwise.
         capped = [r["index"] for r in summaries if r["status"] not in ("done", "restored")]
         if capped:

@@ -697,9 +697,17 @@ def _joint_syzygy(cfg, batches, rs: RelationSet, module, state: LoopState, key, 
     return state, int(joint.step), [info]
 
 
+def _start_statuses(rs: RelationSet) -> list[str]:
+    """How the relations a fit starts from ended, as their quality report says ("restored"
+    where it has none: a checkpoint written before the fit's report)."""
+    recorded = (rs.quality or {}).get("relations", [])
+    return [recorded[j]["status"] if j < len(recorded) else "restored"
+            for j in range(rs.num_relations)]
+
+
 def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partial=None):
     ahead, programs = {}, {}
-    statuses = ["restored"] * rs.num_relations
+    statuses = _start_statuses(rs)
     mining = cfg.mined_weight > 0
     within = quality.landing_distance(batches.dense, batches.held_out, batches.low, batches.high)
     codim = cfg.codimension or quality.data_codimension(batches.dense, jax.random.fold_in(key, 5))

@@ -114,3 +114,14 @@ def test_uniform_noise_has_no_relation_and_the_capped_one_is_dropped(caplog):
         rs = relations.fit(rows, cfg)
     assert rs.num_relations == 0
     assert "relation 1 is not a relation (capped at 300 steps" in caplog.text
+
+
+def test_only_a_relation_known_to_have_missed_its_stopping_rule_is_warned_of():
+    """"restored" (a checkpoint's relation whose end its record does not hold) is no warning;
+    "capped" is."""
+    report = {"relations": [{"index": 1, "status": "restored", "ratio": 160.0},
+                            {"index": 2, "status": "capped", "ratio": 3.0}],
+              "independence": {"median_abs_cos": [[1.0, 0.0], [0.0, 1.0]]},
+              "landing": {"converged": 1.0, "spurious": 0.0, "within": 0.05}}
+    assert quality._warnings(report) == [
+        "g2 capped: it did not meet the stopping rule (held-out off/on 3.0)"]

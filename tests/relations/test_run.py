@@ -114,6 +114,37 @@ def test_a_relation_interrupted_mid_training_resumes_step_for_step(tmp_path, mon
     assert steps == list(range(20, 101, 20))
 
 
+def test_a_finished_run_started_again_trains_nothing_and_keeps_no_partial_state(
+        tmp_path, monkeypatch):
+    """A fit that ended (here with a relation in progress left behind, as one dropped at the
+    end leaves it) clears OUT/partial; started again, the run returns its summary untrained,
+    and a fit from its checkpoint takes the relations' recorded ends, not "restored"."""
+    out, cfg = tmp_path / "run", _tiny_config(max_relations=1)
+    real_fit = run_module.fit
+
+    def fit_leaving_partial(*args, **kwargs):
+        rs = real_fit(*args, **kwargs)
+        (out / "partial").mkdir()
+        return rs
+
+    monkeypatch.setattr(run_module, "fit", fit_leaving_partial)
+    first = run_module.run("ellipse", cfg, out, progress=False, figures=False)
+    assert not (out / "partial").exists()
+
+    def no_training(*args, **kwargs):
+        raise AssertionError("a finished run trained again")
+
+    monkeypatch.setattr(run_module, "fit", no_training)
+    again = run_module.run("ellipse", cfg, out, progress=False, figures=False)
+    assert again == first
+    from jaml.relations import training
+
+    ended = [r["status"] for r in first["relations"]]
+    assert training._start_statuses(relations.load(out / "checkpoint")) == ended
+    assert training._start_statuses(relations.load(out / "checkpoint").replace(quality=None)) == [
+        "restored"]
+
+
 def test_a_different_configuration_in_the_same_directory_is_refused(tmp_path, capsys):
     out = tmp_path / "run"
     run_module.run("ellipse", _tiny_config(max_relations=1), out, progress=False, figures=False)

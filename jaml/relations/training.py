@@ -343,7 +343,9 @@ def _fit_relation(
         state = state.replace(step=jnp.asarray(start, jnp.int32))
     report = None
     if callback is not None:
-        report = lambda s, m, n: callback(phase, k, {"step": int(s.step), "steps": n, **m})  # noqa: E731
+        # Steps taken in this training: a budget's counter starts at `start`.
+        report = lambda s, m, n: callback(phase, k, {"step": int(s.step) - start, "steps": n,  # noqa: E731
+                                                     **m})
     keep = None
     if partial is not None:
         restored = partial.restore(k, state)
@@ -905,7 +907,8 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
         needed = cfg.separation_ratio if k + 1 > codim else DROP_RATIO
         if cfg.stop_when_complete and status == CAPPED and summary.ratio < needed:
             log.warning(
-                "relation %d is not a relation (capped at %d steps, off/on %.1f < %g): dropped; "
+                "relation %d is not a relation (capped; %d steps in all its trainings, off/on "
+                "%.1f < %g): dropped; "
                 "stopping with %d relations", k + 1, steps, summary.ratio, needed,
                 rs.num_relations)
             break

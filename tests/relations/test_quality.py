@@ -113,7 +113,7 @@ def test_uniform_noise_has_no_relation_and_the_capped_one_is_dropped(caplog):
     with caplog.at_level(logging.WARNING, logger="jaml.relations"):
         rs = relations.fit(rows, cfg)
     assert rs.num_relations == 0
-    assert "relation 1 is not a relation (capped at 300 steps" in caplog.text
+    assert "relation 1 is not a relation (capped; 300 steps in all its trainings" in caplog.text
 
 
 def test_only_a_relation_known_to_have_missed_its_stopping_rule_is_warned_of():

@@ -3,6 +3,7 @@
 import inspect
 import re
 
+import jax
 import jax.numpy as jnp
 
 from jaml.configs.relations import Config
@@ -52,3 +53,21 @@ def test_every_phase_the_fit_reports_has_a_bar_with_its_budget(tmp_path):
         rec(phase, 0, {"step": 500, "on_mean": 0.1, "off_mean": 1.0})
         assert rec.bar.desc == f"g1 {phase} (≤ {budget} steps)"
     rec.close()
+
+
+def test_a_budgeted_training_reports_the_steps_it_took_not_its_counters_start():
+    """A refinement round runs the relation's loop with its counter started at max_steps −
+    budget; its reports (the progress bar, metrics.jsonl) count from 0, as its result does."""
+    from jaml import sources
+    from jaml.relations.data import prepare
+    from jaml.relations.networks import Relation
+
+    cfg = Config(chunk_steps=5, stop_patience=1000, batch_size=32)
+    batches = prepare(sources.make("ellipse"), 32, 0.0, jax.random.key(0), 2)
+    params = Relation(4).init(jax.random.key(0), jnp.zeros((1, 3)))
+    reported = []
+    state = training._fit_relation(
+        cfg, batches, RelationSet.empty(3, 3, 1.5), params, jax.random.key(1), 40,
+        callback=lambda phase, k, m: reported.append((phase, m["step"])), phase="refine",
+        budget=10)
+    assert reported == [("refine", 5), ("refine", 10)] and int(state.step) == 10

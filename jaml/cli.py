@@ -23,7 +23,7 @@ from jaml._command import _SUITE_FIXED, _one_line, use_compilation_cache  # noqa
 from jaml._options import KeyValues, key_value, key_values  # noqa: F401
 from jaml.configs.learners import ALL_LEARNERS
 from jaml.configs.relations import Config
-from jaml.configs.stream import StreamConfig, changed_fields, for_env, scaled
+from jaml.configs.stream import SCALES, StreamConfig, changed_fields, for_env, scaled
 from jaml.experiments import fig2, fig3, fig9
 from jaml.experiments._runs import CallOptions
 
@@ -105,19 +105,20 @@ class Suite:
     """sizes: "paper" (the reference's, for a GPU), "small" (16 envs, 8 epochs, 1,024-sequence
     analysis sets: minutes on a CPU, the smallest whose numbers rank encoders) or "smoke"
     (8 envs, 4 epochs: plumbing only, its numbers do not rank encoders); `jaml.suite.SCALES`;
-    flags given beside it win"""
+    flags given beside it win, checked over its sizes (`--help` beside it shows them)"""
     config: Annotated[StreamConfig, tyro.conf.arg(name="")] = dataclasses.field(
         default_factory=StreamConfig)
 
     def stream_config(self):
-        """The run's StreamConfig: `for_env`'s per-domain settings, scaled, then what the flags
-        changed, the learner's and env's configs included (`StreamConfig.with_overrides`)."""
-        base = for_env(self.env, self.learner)
-        given = self.config.replace(env=self.env, learner=self.learner, **{
-            name: getattr(self, name, getattr(base, name))
-            for name in ("learner_config", "env_config")})
-        return scaled(base, self.scale).with_overrides(
-            changed_fields(given, base, skip=("env", "learner")))
+        """The run's StreamConfig: `for_env`'s settings at the scale, then what the flags
+        changed from the defaults they were parsed over (typed learner/env configs included)."""
+        default = _default(type(self), "config")
+        changes = changed_fields(self.config, default, skip=_SUITE_FIXED)
+        for name in ("learner_config", "env_config"):  # typed flags (`_suite_for`)
+            if hasattr(self, name):
+                changes |= {f"{name}.{k}": v for k, v in changed_fields(
+                    getattr(self, name), _default(type(self), name)).items()}
+        return scaled(for_env(self.env, self.learner), self.scale).with_overrides(changes)
 
     def run(self) -> int:
         from jaml.stream.run import run
@@ -155,9 +156,16 @@ def _print_errors(summary: dict) -> None:
         print(f"  note: {summary['note']}")
 
 
+def _default(cls: type, name: str):
+    """The default of dataclass `cls`'s field `name`."""
+    field = next(f for f in dataclasses.fields(cls) if f.name == name)
+    return field.default_factory() if field.default is dataclasses.MISSING else field.default
+
+
 def _suite_for(argv: list[str]) -> type:
     """Suite, or when argv names a valid --env and --learner, a Suite whose defaults are that
-    pair's (`for_env`) with the learner's and the env's configs as typed flags."""
+    pair's (`for_env`) at the --scale given, so that flags are checked over them, with the
+    learner's and the env's configs as typed flags."""
 
     env, learner = _flag(argv, "--env"), _flag(argv, "--learner")
     if learner is not None and ":" in learner:
@@ -167,7 +175,10 @@ def _suite_for(argv: list[str]) -> type:
             namespace={"__doc__": Suite.__doc__, "__module__": __name__})
     if env not in ALL_ENVS or learner not in ALL_LEARNERS:
         return Suite
+    scale = _flag(argv, "--scale")
     base = for_env(env, learner)
+    if scale in SCALES:
+        base = scaled(base, scale)
     # The typed configs with their concrete types, so that their fields are flags; the
     # learner's ld_dim comes from the env when the stream builds the learner.
     learner_config, env_config = base.learner_config, base.env_config

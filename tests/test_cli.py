@@ -145,6 +145,32 @@ def test_suite_flags_become_the_runs_config():
     assert (smoke.eval.every, smoke.eval.train, smoke.replay.slots) == (3, 64, 16)
 
 
+def test_the_usage_docs_suite_commands_parse_a_scale_then_its_flags(capsys):
+    """docs/usage.md's `jaml suite` lines parse: the flags are checked over the scale's sizes
+    (smoke's 8 envs, not the paper's 64), and win over them, even at the paper's value; an
+    inconsistent combination is one line naming the problem and the fix."""
+    import shlex
+    from pathlib import Path
+
+    usage = (Path(__file__).parents[1] / "docs" / "usage.md").read_text()
+    lines = [x.split("#")[0] for x in usage.splitlines() if x.startswith("jaml suite ")]
+    assert len(lines) >= 3
+    configs = [cli.parse(shlex.split(x)[1:]).command.stream_config() for x in lines]
+    ant = configs[[" Ant " in x for x in lines].index(True)]
+    assert (ant.num_envs, ant.replay.slots, ant.eval.every, ant.eval.train) == (8, 32, 2, 64)
+    assert ant.learner_config.hist == 4 and ant.ppo.hidden == (256, 256)  # Ant's PRED
+    paper_envs = cli.parse(["suite", "--env", "Ant", "--learner", "PRED", "--out", "x",
+                            "--scale", "smoke", "--num-envs", "64", "--replay.slots", "64"])
+    assert paper_envs.command.stream_config().num_envs == 64
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["suite", "--env", "Ant", "--learner", "PRED", "--out", "x", "--scale",
+                  "smoke", "--replay.slots", "12"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exit_info.value.code == 2 and len(err) == 1
+    assert "replay.slots (12) must be a multiple of num_envs (8)" in err[0]
+    assert "make replay.slots a multiple (e.g. 8) or change num_envs" in err[0]
+
+
 def test_suite_call_flags_reach_the_run(monkeypatch, tmp_path):
     """`jaml suite` takes the training commands' call flags (`CallOptions`) and hands them to
     `stream.run.run` unchanged."""

@@ -237,11 +237,14 @@ class StreamConfig:
                                   "frames_per_batch", "epochs"), "")
         slots = self.replay.slots
         if self.num_envs >= 1 and slots and slots % self.num_envs:
+            multiple = max(1, slots // self.num_envs) * self.num_envs
             problems.append(f"replay.slots ({slots}) must be a multiple of num_envs "
-                            f"({self.num_envs}): each epoch adds num_envs columns")
+                            f"({self.num_envs}): each epoch adds num_envs columns; make "
+                            f"replay.slots a multiple (e.g. {multiple}) or change num_envs")
         if self.policy == "ppo" and self.num_envs % self.ppo.num_minibatches:
             problems.append(f"num_envs ({self.num_envs}) must split into ppo.num_minibatches "
-                            f"({self.ppo.num_minibatches})")
+                            f"({self.ppo.num_minibatches}); set ppo.num_minibatches to a "
+                            "divisor of num_envs")
         if problems:
             raise ValueError("; ".join(problems))
         # The typed configs' defaults, and their classes checked against the names (by the

@@ -130,7 +130,7 @@ def _check_rows(rows, what: str) -> np.ndarray:
         )
     if host.shape[0] < MIN_ROWS:
         raise ValueError(
-            f"{what} has {host.shape[0]} rows: at least {MIN_ROWS} are needed to learn a "
+            f"{what}: {host.shape[0]} rows, at least {MIN_ROWS} are needed to learn a "
             f"manifold and keep some rows out to check it; pass more rows"
         )
     return host
@@ -188,7 +188,8 @@ def prepare(on_manifold, batch_size: int, noise_scale: float, key, calibration_b
         else:
             started = time.perf_counter()
             pool = _call_sampler(sampler, key, pool_size)
-            host = _check_rows(pool, f"the on_manifold source's pool of {pool_size} rows")
+            host = _check_rows(pool, getattr(on_manifold, "name", None)
+                               or "the on_manifold source's pool")
             log.info(
                 "drew a pool of %d rows from %s in %.1f s",
                 pool_size,

@@ -18,6 +18,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from PIL import Image
 
+from jaml.relations.data import PADDED
 from jaml.relations.geometry import project
 from jaml.relations.relation_set import RelationSet, evaluate
 
@@ -50,7 +51,9 @@ def level_set_points(rs: RelationSet, low, high, key, which=None, n_points=2500,
 
 
 def _box(on: np.ndarray, scale=1.0):
+    """The rows' box × `scale`; a constant column's side as the fit pads it (`padded_box`)."""
     centre, half = (on.max(0) + on.min(0)) / 2, (on.max(0) - on.min(0)) / 2
+    half = np.where(half > 0, half, PADDED * half.max())
     return centre - scale * half, centre + scale * half
 
 

@@ -3,13 +3,14 @@ its recall, a relation that cannot separate dropped, and the quality report's me
 against closed forms."""
 
 import logging
+import re
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaml import relations
+from jaml import relations, sources
 from jaml.relations import quality
 from jaml.relations.data import MIN_ROWS, padded_box, prepare
 from jaml.relations.networks import Relation
@@ -28,9 +29,15 @@ def test_nan_rows_are_refused_with_the_fix():
         relations.fit(rows, relations.Config(max_relations=1))
 
 
-def test_too_few_rows_are_refused_before_training():
-    with pytest.raises(ValueError, match=f"at least {MIN_ROWS} are needed"):
+def test_too_few_rows_are_refused_before_training(tmp_path):
+    """Rows or a file: the refusal names the data and its count once."""
+    with pytest.raises(ValueError, match=f"^on_manifold data: {MIN_ROWS - 1} rows, at least "
+                                         f"{MIN_ROWS} are needed"):
         relations.fit(_circle(MIN_ROWS - 1), relations.Config(max_relations=1))
+    path = tmp_path / "few.npy"
+    np.save(path, np.asarray(_circle(10)))
+    with pytest.raises(ValueError, match=f"^{re.escape(str(path))}: 10 rows, at least"):
+        relations.fit(sources.make(str(path)), relations.Config(max_relations=1))
 
 
 def test_a_constant_column_pads_its_box_and_says_which_relation_it_is(caplog):
@@ -40,6 +47,15 @@ def test_a_constant_column_pads_its_box_and_says_which_relation_it_is(caplog):
     assert "z is constant (0.3): it is the relation z = 0.3" in caplog.text
     np.testing.assert_allclose(high - low, [2.0, 2.0, 0.2], atol=1e-3)  # 10 % of the widest
     np.testing.assert_allclose((low + high)[2] / 2, 0.3, atol=1e-6)
+
+
+def test_a_constant_columns_figure_box_is_padded_as_the_fits_box():
+    """The zero-set figure's box: a constant column gets the side the fit pads it to (a zero
+    side made matplotlib warn of a singular transform), the others their range × scale."""
+    from jaml.relations.plots import _box
+
+    low, high = _box(np.asarray(_circle(1000)), 1.2)
+    np.testing.assert_allclose(high - low, [2.4, 2.4, 0.24], atol=1e-3)
 
 
 def test_held_out_rows_never_train():

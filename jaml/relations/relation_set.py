@@ -86,8 +86,9 @@ class RelationSet:
         rows = "; ".join(f"g{k + 1}: width {w}, {m}"
                          for k, (w, m) in enumerate(zip(self.widths, means, strict=True)))
         names = f" ({', '.join(self.dim_names)})" if self.dim_names else ""
-        head = (f"RelationSet({self.num_relations} relations of τ in R^{self.dim}{names}, depth "
-                f"{self.depth}, tolerance {self.tolerance:.3g}: {rows})")
+        count = f"{self.num_relations} relation{'' if self.num_relations == 1 else 's'}"
+        head = (f"RelationSet({count} of τ in R^{self.dim}{names}, depth {self.depth}, "
+                f"tolerance {self.tolerance:.3g}" + (f": {rows})" if rows else ")"))
         if self.quality is None:
             return head
         return head + "\n" + "\n".join("  " + line for line in self.quality.get("lines", ()))

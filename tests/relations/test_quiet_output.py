@@ -21,6 +21,11 @@ def test_relation_set_repr_is_short_and_names_widths_and_means():
     assert text == str(rs) and "\n" not in text and len(text) < 200
     assert "g1: width 64, on 0.0123 off 0.5" in text and "g2: width 32" in text
     assert "(x, y, z)" in text and "1.0" not in text  # no weights
+    assert text.startswith("RelationSet(2 relations of")
+    one = repr(RelationSet(params=(weights,), on_means=jnp.array([0.01]),
+                           off_means=jnp.array([0.5]), widths=(64,), depth=2, dim=3))
+    assert one.startswith("RelationSet(1 relation of") and one.endswith("off 0.5)")
+    assert repr(RelationSet.empty(3, 2, 1.5)).endswith("tolerance 1.5)")
 
 
 def test_a_relation_bar_has_no_budget_total_and_no_rate_from_before_it(tmp_path):

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import pytest
 
 from jaml.cli import main
-from jaml.learners.learner import Learner, Outputs, SingleFrameConfig
+from jaml.learners import Learner, Outputs, SingleFrameConfig
 
 
 class TinyAE(nn.Module):
@@ -61,3 +61,27 @@ def test_a_factory_must_return_a_learner():
 
     with pytest.raises(ValueError, match=r"returned a dict, not a jaml\.learners\.Learner"):
         make_learner(f"{__name__}:not_a_learner", 4, {})
+
+
+def test_the_docs_learner_runs_as_written_and_needs_no_batchnorm():
+    """docs/own_learner.md's example runs as written (its imports from jaml.learners) and
+    trains without a BatchNorm: the train step keeps an empty batch_stats."""
+    import re
+    from pathlib import Path
+
+    import jax
+    import numpy as np
+
+    from jaml import learners
+
+    doc = (Path(__file__).parents[2] / "docs" / "own_learner.md").read_text()
+    (code,) = re.findall(r"```python\n(.*?)```", doc, re.S)
+    namespace = {}
+    exec(compile(code, "docs/own_learner.md", "exec"), namespace)
+    learner = namespace["make_learner"](ld_dim=4)
+    batch = (np.zeros((2, 1, 64, 64, 3), np.uint8), np.zeros((2, 1, 3), np.float32))
+    optimizer = learners.default_optimizer(learner)
+    state = learners.init_train_state(learner, optimizer, jax.random.key(0), batch)
+    state, metrics = learners.make_train_step(learner, optimizer)(state, batch, jax.random.key(1))
+    assert state.batch_stats == {} and np.isfinite(float(metrics["loss"]))
+    assert learner.encode(state.variables, *batch).shape == (2, 8)

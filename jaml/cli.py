@@ -163,37 +163,33 @@ def _default(cls: type, name: str):
 
 
 def _suite_for(argv: list[str]) -> type:
-    """Suite, or when argv names a valid --env and --learner, a Suite whose defaults are that
-    pair's (`for_env`) at the --scale given, so that flags are checked over them, with the
-    learner's and the env's configs as typed flags."""
+    """Suite, or when argv names a valid --env and --learner (a registry's, or your own as
+    MODULE:FACTORY), a Suite whose defaults are that pair's (`for_env`) at the --scale given,
+    so that flags are checked over them, with the env's config (and a registry learner's) as
+    typed flags."""
 
     env, learner = _flag(argv, "--env"), _flag(argv, "--learner")
-    if learner is not None and ":" in learner:
-        # Your own learner, MODULE:FACTORY (jaml.stream.loop.make_learner): any name.
-        return dataclasses.make_dataclass(
-            "Suite", [("learner", str)], bases=(Suite,), frozen=True,
+    own = learner is not None and ":" in learner  # MODULE:FACTORY: any name
+    fields: list[tuple] = [("learner", str)] if own else []
+    if env not in ALL_ENVS or not (own or learner in ALL_LEARNERS):
+        return Suite if not fields else dataclasses.make_dataclass(
+            "Suite", fields, bases=(Suite,), frozen=True,
             namespace={"__doc__": Suite.__doc__, "__module__": __name__})
-    if env not in ALL_ENVS or learner not in ALL_LEARNERS:
-        return Suite
     scale = _flag(argv, "--scale")
     base = for_env(env, learner)
     if scale in SCALES:
         base = scaled(base, scale)
     # The typed configs with their concrete types, so that their fields are flags; the
-    # learner's ld_dim comes from the env when the stream builds the learner.
-    learner_config, env_config = base.learner_config, base.env_config
+    # learner's ld_dim comes from the env when the stream builds the learner, and your own
+    # learner's config from its factory.
+    typed = [("env_config", base.env_config)] + (
+        [] if own else [("learner_config", base.learner_config)])
+    fields += [("config", Annotated[StreamConfig, tyro.conf.arg(name="")],
+                dataclasses.field(default=base))]
+    fields += [(name, type(value), dataclasses.field(default=value)) for name, value in typed]
     return dataclasses.make_dataclass(
-        "Suite",
-        [
-            ("config", Annotated[StreamConfig, tyro.conf.arg(name="")],
-             dataclasses.field(default=base)),
-            ("learner_config", type(learner_config), dataclasses.field(default=learner_config)),
-            ("env_config", type(env_config), dataclasses.field(default=env_config)),
-        ],
-        bases=(Suite,),
-        frozen=True,
-        namespace={"__doc__": Suite.__doc__, "__module__": __name__},
-    )
+        "Suite", fields, bases=(Suite,), frozen=True,
+        namespace={"__doc__": Suite.__doc__, "__module__": __name__})
 
 
 @dataclasses.dataclass(frozen=True)

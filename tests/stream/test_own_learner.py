@@ -6,7 +6,8 @@ import flax.linen as nn
 import jax.numpy as jnp
 import pytest
 
-from jaml.cli import main
+from jaml.cli import main, parse
+from jaml.configs.stream import for_env
 from jaml.learners import Learner, Outputs, SingleFrameConfig
 
 
@@ -50,6 +51,24 @@ def test_a_factory_that_cannot_be_imported_is_one_line(tmp_path, capsys):
                  str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "cannot import make from no_such_pkg" in err[0]
+
+
+def test_a_factory_learner_takes_the_envs_typed_options_and_the_envs_settings(capsys):
+    """`--learner MODULE:FACTORY` keeps the env's typed options (env-config) in the help and
+    the parse, and the env's family settings (Ant's rollout and PPO network), at the scale."""
+    spec = "tests.stream.test_own_learner:make_tiny"
+    with pytest.raises(SystemExit):
+        main(["suite", "--env", "RearrangeGeom", "--learner", spec, "--help"])
+    out = " ".join(capsys.readouterr().out.replace("│", " ").split())
+    assert "--env-config.arm {" in out and "--learner-config." not in out
+    config = parse(["suite", "--env", "RearrangeGeom", "--learner", spec, "--out", "x",
+                    "--env-config.arm", "franka", "--scale", "smoke", "--replay.slots", "32"]
+                   ).command.stream_config()
+    assert config.env_config.arm == "franka" and config.learner_config is None
+    assert (config.num_envs, config.replay.slots) == (8, 32)
+    ant = parse(["suite", "--env", "Ant", "--learner", spec, "--out", "x"]).command
+    assert ant.stream_config() == for_env("Ant", spec)
+    assert (ant.stream_config().rollout_len, ant.stream_config().ppo.hidden) == (64, (256, 256))
 
 
 def not_a_learner(ld_dim: int):

@@ -96,6 +96,15 @@ class Learner:
             )
         return elbo.frames_to_float(frames), actions.astype(jnp.float32)
 
+    def check_recon(self, recon, batch: int) -> None:
+        """Raise a one-line error unless `recon` is [B, S, 64, 64, 3] (S: latent_steps)."""
+        expected = (batch, self.config.latent_steps, *FRAME_SHAPE)
+        if tuple(jnp.shape(recon)) != expected:
+            raise ValueError(
+                f"{self.name}: Outputs.recon must be [B, S, 64, 64, 3] = {list(expected)} (the "
+                f"last S = config.latent_steps frames decoded), got {list(jnp.shape(recon))}; "
+                "make the module's __call__ return recon of that shape (docs/own_learner.md)")
+
     def module_init(self, key: jax.Array, x: jax.Array, a: jax.Array) -> dict[str, Any]:
         """Flax variables from checked float inputs (traceable; `init` jits it)."""
         params_key, sample_key = jax.random.split(key)
@@ -113,6 +122,7 @@ class Learner:
         """(loss, (metrics, new batch_stats)): `loss` plus the BatchNorm statistics it updated."""
         x, a = self.check_batch(frames, actions)
         out, updates = self.module.apply(variables, x, a, key, train=True, mutable=["batch_stats"])
+        self.check_recon(out.recon, len(x))
         steps = out.recon.shape[1]
         # Unit-variance Gaussian log-likelihood of the decoded frames (docs/reference/suite.md §4),
         # summed over them as in the paper's ELBO, or averaged as in the reference code

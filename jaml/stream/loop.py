@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import inspect
 import os
 import weakref
 from typing import Any
@@ -340,6 +341,15 @@ def make_learner(name: str, ld_dim: int,
     except (ImportError, AttributeError) as error:
         raise ValueError(f"learner {name!r}: cannot import {attr} from {module} ({error}); give "
                          "MODULE:FACTORY with MODULE importable (on PYTHONPATH)") from None
+    try:
+        inspect.signature(factory).bind(ld_dim=ld_dim)
+    except TypeError:
+        raise ValueError(f"learner {name!r}: {attr} must take the keyword ld_dim (the stream "
+                         f"calls {attr}(ld_dim=D), D the env's LD-state size; "
+                         "docs/own_learner.md); define it as `def "
+                         f"{attr}(ld_dim): ...`") from None
+    except ValueError:  # no signature to read (a builtin): let the call say
+        pass
     learner = factory(ld_dim=ld_dim)
     if not isinstance(learner, learners.Learner):
         raise ValueError(f"learner {name!r}: {attr}(ld_dim=...) returned a "

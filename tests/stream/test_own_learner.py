@@ -104,3 +104,35 @@ def test_the_docs_learner_runs_as_written_and_needs_no_batchnorm():
     state, metrics = learners.make_train_step(learner, optimizer)(state, batch, jax.random.key(1))
     assert state.batch_stats == {} and np.isfinite(float(metrics["loss"]))
     assert learner.encode(state.variables, *batch).shape == (2, 8)
+
+
+class WrongRecon(TinyAE):
+    """TinyAE decoding a 32×32 frame without its step axis."""
+
+    def __call__(self, x, a, key, train: bool = True):
+        z = self._z(x, train)
+        return Outputs(recon=jnp.zeros((len(x), 32, 32, 3)) + z.sum(), kl={}, z=z[:, None])
+
+
+def no_ld_dim():
+    return make_tiny(4)
+
+
+def test_a_wrong_recon_or_factory_signature_is_one_line_naming_the_fix():
+    """A recon of the wrong shape fails where the loss is first traced, naming the shape
+    expected; a factory without ld_dim fails where it is called, naming FACTORY(ld_dim=D)."""
+    import jax
+    import numpy as np
+
+    from jaml.stream.loop import make_learner
+
+    learner = Learner("Wrong", make_tiny(4).config, WrongRecon(6), kl_weights={})
+    frames, actions = np.zeros((2, 1, 64, 64, 3), np.uint8), np.zeros((2, 1, 3), np.float32)
+    variables = learner.init(jax.random.key(0), frames, actions)
+    with pytest.raises(ValueError, match=r"^Wrong: Outputs.recon must be \[B, S, 64, 64, 3\] "
+                                         r"= \[2, 1, 64, 64, 3\] .* got \[2, 32, 32, 3\]; "):
+        jax.jit(lambda v: learner.loss(v, jax.random.key(1), frames, actions))(variables)
+    with pytest.raises(ValueError, match=r"no_ld_dim must take the keyword ld_dim .* calls "
+                                         r"no_ld_dim\(ld_dim=D\)") as error:
+        make_learner(f"{__name__}:no_ld_dim", 4, None)
+    assert "\n" not in str(error.value)

@@ -119,11 +119,13 @@ def claim(out: Path, resolved: dict, same: Callable[[dict], bool] | None = None,
     Raises ValueError when `out` holds a run with another configuration (`same(recorded)` is
     False; default: the recorded JSON differs from `resolved`), so that resuming never mixes
     two runs' checkpoints and logs; `differences(recorded)` names what differs, in the
-    message. Also when `out` holds files but no config.json (a folder that is not a jaml run:
-    the run's files would be mixed into it), or a config.json that cannot be read."""
+    message (default: the JSON fields that differ, `describe`). Also when `out` holds files
+    but no config.json (a folder that is not a jaml run: the run's files would be mixed into
+    it), or a config.json that cannot be read."""
     config_path = Path(out) / "config.json"
     resuming = config_path.exists()
     same = (lambda recorded: recorded == resolved) if same is None else same
+    differences = differences or (lambda recorded: describe(differing(recorded, resolved)))
     _refuse_foreign(Path(out))
     recorded = _read_config(config_path) if resuming else None
     try:
@@ -132,12 +134,41 @@ def claim(out: Path, resolved: dict, same: Callable[[dict], bool] | None = None,
         raise ValueError(f"{config_path} does not describe a run this jaml can read "
                          f"({type(error).__name__}: {error}); choose a new --out") from None
     if resuming and not matches:
-        what = "" if differences is None else f": {differences(recorded)}"
-        raise ValueError(f"{out} holds a run with a different configuration ({config_path}"
-                         f"{what}); resume with the same options or choose a new --out")
+        what = differences(recorded)  # after the advice: a long line is cut at its end
+        raise ValueError(f"{out} holds a run with a different configuration; use another "
+                         f"--out or the same options ({what + '; ' if what else ''}recorded in "
+                         f"{config_path})")
     Path(out).mkdir(parents=True, exist_ok=True)
     write_json(config_path, resolved)
     return resuming
+
+
+def differing(recorded, now, at: str = "") -> list[tuple[str, object, object]]:
+    """(path, recorded value, value now) of each field where two JSON-ready configs differ,
+    nested dicts by their fields ("eval.every")."""
+    if not (isinstance(recorded, dict) and isinstance(now, dict)):
+        return [] if recorded == now else [(at.rstrip("."), recorded, now)]
+    return [d for key in sorted(set(recorded) | set(now), key=str)
+            for d in differing(recorded.get(key), now.get(key), f"{at}{key}.")]
+
+
+def describe(differences: list[tuple[str, object, object]], most: int = 6) -> str:
+    """`differing`'s fields as one compact line, `path OLD recorded, NEW now`: a config by
+    its class name, a long value cut, at most `most` fields named."""
+
+    def compact(value) -> str:
+        if hasattr(value, "__dataclass_fields__"):
+            return type(value).__name__
+        if isinstance(value, dict):
+            return str(value.get("type", "{…}")).rsplit(".", 1)[-1]
+        text = repr(value)
+        return text if len(text) <= 40 else text[:39] + "…"
+
+    named = [f"{path} {compact(old)} recorded, {compact(new)} now"
+             for path, old, new in differences[:most]]
+    if len(differences) > most:
+        named.append(f"and {len(differences) - most} more")
+    return ", ".join(named)
 
 
 def _read_config(path: Path) -> dict:

@@ -19,6 +19,10 @@ def test_claim_creates_then_resumes_and_refuses_another_config(tmp_path):
     with pytest.raises(ValueError, match="holds a run with a different configuration"):
         _rundir.claim(out, {"lr": 1e-4, "widths": [8, 8]})
     assert json.loads((out / "config.json").read_text())["lr"] == 1e-3  # left as it was
+    with pytest.raises(ValueError, match=r"; use another --out or the same options \(lr 0\.001 "
+                                         r"recorded, 0\.0001 now, widths \[8, 8\] recorded, "
+                                         r"\[8, 4\] now; recorded in "):
+        _rundir.claim(out, {"lr": 1e-4, "widths": [8, 4]})
     assert not list(out.glob("*.tmp"))
 
 

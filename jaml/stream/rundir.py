@@ -17,7 +17,7 @@ import jax
 import numpy as np
 from matplotlib.image import imsave
 
-from jaml._rundir import RunLog, claim, lock, truncate_jsonl, write_json
+from jaml._rundir import RunLog, claim, describe, differing, lock, truncate_jsonl, write_json
 from jaml.configs import records
 from jaml.configs.stream import SMOKE_NOTE, RunConfig, changed_fields, resolve, scale_of
 from jaml.evaluation import plots
@@ -54,13 +54,12 @@ def claim_run(out: Path, config: RunConfig, stream: Stream) -> bool:
 
     def differences(recorded: dict) -> str:
         was = changed_fields(then(recorded), config)
-        named = [f"{path} {was[path]!r} recorded, {value!r} now"
+        named = [(path, was[path], value)
                  for path, value in changed_fields(config, then(recorded)).items()]
         before = records.own_learner(recorded)
         if own is not None and before is not None and before != own:
-            named += [f"learner_config.{k} {before.get(k)!r} recorded, {own.get(k)!r} now"
-                      for k in sorted(set(own) | set(before)) if own.get(k) != before.get(k)]
-        return ", ".join(named)
+            named += differing(before, own, "learner_config.")
+        return describe(named)
 
     return claim(out, record, same, differences)
 

@@ -221,6 +221,19 @@ def test_a_run_records_its_resolved_config_and_resumes_from_an_older_record(tmp_
     assert not _claim(tmp_path / "new", config)
 
 
+def test_another_learner_in_the_same_out_is_refused_naming_the_fields_compactly(tmp_path):
+    """Another learner's run in a used OUT: one short line naming the fields that differ (a
+    config by its class, not its repr) and the way out."""
+    assert not _claim(tmp_path, stream.for_env("CartPole", "VAE_rpl"))
+    with pytest.raises(ValueError) as refusal:
+        _claim(tmp_path, stream.for_env("CartPole", "PRED"))
+    message = str(refusal.value)
+    assert "learner 'VAE_rpl' recorded, 'PRED' now" in message
+    assert "learner_config VAEConfig recorded, PREDConfig now" in message
+    assert "use another --out or the same options" in message
+    assert "VAEConfig(" not in message and len(message) < 400
+
+
 def test_changed_fields_give_the_overrides_that_rebuild_a_config():
     base = stream.for_env("GeomOnIncline", "PRED")
     config = base.replace(

@@ -281,10 +281,30 @@ def parse(argv: list[str], commands: Callable[[list[str]], dict[str, type]],
                     os.environ[k] = v
 
 
+# The exit status of a command whose stdout was closed early (`jaml … --help | head`): 128 +
+# SIGPIPE, what a shell reports for a process that signal ends.
+CLOSED_STDOUT = 141
+
+
 def main(argv, commands: Callable[[list[str]], dict[str, type]], description: str) -> int:
     """Parses `argv` (sys.argv[1:] when None) over `commands(argv)` (name → dataclass with a
     `run()` returning the exit status) and runs the command: every failure one line on stderr
-    (status 2), an interrupt status 130."""
+    (status 2), an interrupt status 130, a stdout closed early quietly `CLOSED_STDOUT`."""
+    try:
+        try:
+            status = _main(argv, commands, description)
+        finally:  # the help's SystemExit too: its text is written out here, inside the try
+            sys.stdout.flush()
+    except BrokenPipeError:
+        # Python's recipe: stdout's reader has gone; point stdout at devnull so that the
+        # interpreter's own flush at exit does not fail again.
+        with contextlib.suppress(OSError, ValueError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return CLOSED_STDOUT
+    return status
+
+
+def _main(argv, commands: Callable[[list[str]], dict[str, type]], description: str) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = parse(argv, commands, description)
     captured = _import_mjx_quietly()
@@ -312,6 +332,8 @@ def main(argv, commands: Callable[[list[str]], dict[str, type]], description: st
         join_processes()
         with _interrupts.as_interrupt():
             return args.command.run()
+    except BrokenPipeError:
+        raise  # stdout closed early: `main`'s, quietly
     except Exception as error:  # every failure one line; the traceback with --debug
         if args.debug:
             traceback.print_exc()

@@ -56,6 +56,18 @@ def test_cli_stdout_has_no_warp_probe_lines(tmp_path):
     assert f"XLA compilation cache: {tmp_path / 'xla'} (JAML_XLA_CACHE)" in result.stdout
 
 
+def test_a_stdout_closed_early_ends_quietly():
+    """`jaml envs show --env RearrangeGeom --help | head`: the reader is gone before the help
+    is written; the command ends with 141 (128 + SIGPIPE) and no traceback."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "jaml.cli", "envs", "show", "--env", "RearrangeGeom", "--help"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process.stdout.close()  # long before the interpreter has started and parsed
+    err = process.stderr.read()
+    assert process.wait(timeout=120) == 141
+    assert err == ""
+
+
 @pytest.mark.slow  # two fresh processes that compile: ~1 min on the 2-core machine
 def test_a_second_run_reads_the_compilation_cache(tmp_path):
     """`jaml relations` writes its compiled programs to the persistent cache, and the same

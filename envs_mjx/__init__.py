@@ -2,7 +2,10 @@
 
 import importlib
 
+from envs_mjx import _quiet
 from envs_mjx.config import ALL_ENVS, EnvConfig, default_config
+
+_quiet.install()  # mujoco.mjx's MuJoCo Warp probe off stdout, however MJX is first imported
 
 __all__ = [
     "ALL_ENVS",

@@ -26,21 +26,16 @@ from jaml import _interrupts
 
 
 def _import_mjx_quietly() -> list[str]:
-    """Import mujoco.mjx with stdout captured; return what it printed.
-
-    mujoco 4.0's mujoco.mjx.warp probes for MuJoCo Warp (optional, GPU; jaml does not use it)
-    and, when absent, `print`s "Failed to import warp: …" and "Failed to import mujoco_warp: …"
-    to stdout on every import: a print, not a logging call or warning, so no logger level or
-    warnings filter silences it. Only jaml's entry point captures it (libraries leave stdout
-    alone); `jaml -v` logs the captured lines. Called once the arguments are parsed: the help and
+    """Import mujoco.mjx; return what its MuJoCo Warp probe printed, kept off stdout by
+    `envs_mjx._quiet` (`jaml -v` logs it). Called once the arguments are parsed: the help and
     the parse itself import neither MuJoCo nor JAX (the configs they read are plain
     dataclasses)."""
-    if "mujoco.mjx" in sys.modules:
-        return []
-    buffer = io.StringIO()
-    with contextlib.redirect_stdout(buffer), contextlib.suppress(ImportError):
+    from envs_mjx import _quiet
+
+    _quiet.install()
+    with contextlib.suppress(ImportError):
         import mujoco.mjx  # noqa: F401
-    return buffer.getvalue().splitlines()
+    return list(_quiet.probe_lines)
 
 # ---------------------------------------------------------------------------------------------
 # The mechanism: help from docstrings, hidden fields, one-line errors.

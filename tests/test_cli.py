@@ -1,4 +1,5 @@
-"""`jaml info`, and the CLI's stdout free of mujoco.mjx's MuJoCo Warp probe prints."""
+"""`jaml info`, and the CLI's (and a library import's) stdout free of mujoco.mjx's MuJoCo Warp
+probe prints."""
 
 import dataclasses
 import importlib.metadata
@@ -66,6 +67,25 @@ def test_a_stdout_closed_early_ends_quietly():
     err = process.stderr.read()
     assert process.wait(timeout=120) == 141
     assert err == ""
+
+
+def test_a_library_import_of_mjx_keeps_the_warp_probe_off_stdout(capsys):
+    """A script importing envs_mjx, then MJX through brax and jaml.stream, prints only its own
+    lines; what else the probe module prints still reaches stdout."""
+    script = ("import envs_mjx\nprint('first')\nimport brax.envs\nenvs_mjx.make\n"
+              "from jaml import stream\nimport mujoco.mjx.warp\nprint('last')\n")
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                            check=True, timeout=300)
+    assert result.stdout == "first\nlast\n"
+    from envs_mjx import _quiet
+
+    class Probe:
+        def exec_module(self, module):
+            print("Failed to import warp: No module named 'warp'\nwarp 9.9 ready")
+
+    _quiet._QuietLoader(Probe()).exec_module(None)
+    assert capsys.readouterr().out == "warp 9.9 ready\n"
+    assert _quiet.probe_lines[-1] == "Failed to import warp: No module named 'warp'"
 
 
 @pytest.mark.slow  # two fresh processes that compile: ~1 min on the 2-core machine

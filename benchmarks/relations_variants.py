@@ -1,10 +1,11 @@
 """Config variants of `relations.fit` side by side on 8 seeds, one single-threaded process a run.
 
 A quick screen beside `relations_quality.py` (which runs the authors' code too): each run fits
-the ellipse or the 45° block with `relations.Config(seed=s, **variant)` and measures where 512
-uniform box points land under `relations.project` at its defaults (distance to a 200,000-row
-sample of the true manifold, share within 0.05), the Jacobian's rank ≥ 2 share on the data and
-the quality report's statuses and off/on ratios. One JSON line per run on stdout.
+the ellipse, the 45° block or the circle with `relations.Config(seed=s, **variant)` and
+measures where 512 uniform box points land under `relations.project` at its defaults
+(distance to a 200,000-row sample of the true manifold, share within 0.05), the Jacobian's
+rank ≥ 2 share on the data and the quality report's statuses and off/on ratios. One JSON
+line per run on stdout.
 
     python3 benchmarks/relations_variants.py paper,defaults --jobs 16
 """
@@ -26,6 +27,10 @@ VARIANTS = {  # name: (source, Config fields beside the seed)
     "block-before": ("block45", {"max_relations": 2, "premine": False}),
     "block-defaults": ("block45", {"max_relations": 2}),
     "ellipse-auto": ("ellipse", {}),
+    # The unit circle (codimension 1): its one relation tried again from other starts while
+    # its zero set has parts away from the data, or not (one attempt, as before 2026-11-29).
+    "circle-defaults": ("circle", {}),
+    "circle-one-attempt": ("circle", {"premine_attempts": 1}),
     "ellipse-premine-12k": ("ellipse", {"max_relations": 2, "premine_steps": 12_500}),
     "ellipse-premine-25k": ("ellipse", {"max_relations": 2, "premine_steps": 25_000}),
     "ellipse-attempts-5": ("ellipse", {"max_relations": 2, "premine_attempts": 5}),

@@ -78,9 +78,10 @@ class Config:
         first term (elsewhere 2×, like the paper's other terms).
       premine_steps: step budget of that pre-mined training (None ⇒ max_steps): its mined rows
         rarely all clear, so it usually runs to the budget; less is faster, at some landing.
-      premine_attempts: pre-mined trainings of that relation at most, each from another
-        initialisation, while more than a tenth of the projected box points land away from the
-        data (or it separates < separation_ratio); the one landing most is kept.
+      premine_attempts: trainings of the codimension-th relation (pre-mined where there is an
+        earlier zero set) at most, each from another initialisation, while more than a tenth
+        of the projected box points land away from the data (or it separates <
+        separation_ratio); the one landing most is kept.
       mined_patience: a training on mined rows ends once g_k separates and the share of
         mined rows it clears has not risen for this many steps (None: it runs until they clear
         or to its budget).

@@ -847,18 +847,28 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             fitted, land, refined_rounds, spent = refine(state, premined, clip)
             steps += spent
             attempt = 1
-            while premined is not None and attempt < cfg.premine_attempts and (
+            # The codimension-th relation is tried again from other initialisations: the
+            # pre-mined one, and a first one (codimension 1) unless a prior sets its start.
+            retried = premined is not None or (
+                k + 1 == codim and (priors is None or k >= len(priors) or priors[k] is None))
+            while retried and attempt < cfg.premine_attempts and (
                     fitted.ratio < cfg.separation_ratio or land["spurious"] > RETRY_SPURIOUS):
                 # Where g_k starts decides which surface through the data it settles on: from
-                # another initialisation the intersection may have no spurious part.
+                # another initialisation the zero set may have no spurious part. (A sign that
+                # changes away from the data, as a near-linear start leaves it, puts a zero
+                # there that no local push can remove.)
                 log.info("relation %d: %.0f%% of projected box points land away from the data "
-                         "(off/on %.1f); pre-mined again from another initialisation", k + 1,
-                         100 * land["spurious"], fitted.ratio)
-                again = _fit_relation(
-                    cfg, batches, rs, init(jax.random.fold_in(k_init, attempt), example_tau),
-                    jax.random.fold_in(k_train, attempt), cfg.max_steps, callback=callback,
-                    programs=programs, codim=codim, pool=premined, clip=clip,
-                    budget=cfg.premine_steps)
+                         "(off/on %.1f); %s again from another initialisation", k + 1,
+                         100 * land["spurious"], fitted.ratio,
+                         "pre-mined" if premined is not None else "trained")
+                start = init(jax.random.fold_in(k_init, attempt), example_tau)
+                if premined is None:
+                    again = plain_fit(start, k_train=jax.random.fold_in(k_train, attempt))
+                else:
+                    again = _fit_relation(
+                        cfg, batches, rs, start, jax.random.fold_in(k_train, attempt),
+                        cfg.max_steps, callback=callback, programs=programs, codim=codim,
+                        pool=premined, clip=clip, budget=cfg.premine_steps)
                 attempt += 1
                 steps += int(again.step)
                 if int(again.status) == NONFINITE:

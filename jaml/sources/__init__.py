@@ -3,7 +3,7 @@
 `jaml.sources.incline_env` (`InclineEnvSource`, through `make("geom-on-incline")`), a module
 of its own since it imports MuJoCo and the domains, which the rest does not need."""
 
-from jaml.sources.analytic import HyperboloidPlaneCurve
+from jaml.sources.analytic import Circle, HyperboloidPlaneCurve
 from jaml.sources.base import Source
 from jaml.sources.file import FileSource
 from jaml.sources.incline import DRAG_KINDS, BlockOnIncline, downhill_acceleration, flow
@@ -14,6 +14,7 @@ __all__ = [
     "DRAG_KINDS",
     "PRESETS",
     "BlockOnIncline",
+    "Circle",
     "FileSource",
     "HyperboloidPlaneCurve",
     "Source",

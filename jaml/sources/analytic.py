@@ -42,3 +42,24 @@ class HyperboloidPlaneCurve:
         """[..., 2]: (hyperboloid x² + y² − 2z² − 1, plane y − 2z − 1) at τ [..., 3]."""
         x, y, z = tau[..., 0], tau[..., 1], tau[..., 2]
         return jnp.stack([x**2 + y**2 - 2.0 * z**2 - 1.0, y - 2.0 * z - 1.0], axis=-1)
+
+
+@dataclasses.dataclass(frozen=True)
+class Circle:
+    """Points on the unit circle in R²: a 1-D manifold one relation cuts alone (codimension 1),
+    the smallest case of a zero set that must not have parts away from the data."""
+
+    name: str = "circle"
+
+    @property
+    def dim_names(self) -> tuple[str, ...]:
+        return ("x", "y")
+
+    def sample(self, key: jax.Array, n: int) -> jax.Array:
+        t = jax.random.uniform(key, (n,), maxval=2.0 * jnp.pi)
+        return jnp.stack([jnp.cos(t), jnp.sin(t)], axis=-1)
+
+    @staticmethod
+    def residuals(tau: jax.Array) -> jax.Array:
+        """[..., 1]: x² + y² − 1 at τ [..., 2]."""
+        return (tau[..., 0] ** 2 + tau[..., 1] ** 2 - 1.0)[..., None]

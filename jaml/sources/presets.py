@@ -9,7 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from jaml.sources import file
-from jaml.sources.analytic import HyperboloidPlaneCurve
+from jaml.sources.analytic import Circle, HyperboloidPlaneCurve
 from jaml.sources.base import Source
 from jaml.sources.incline import BlockOnIncline
 
@@ -26,6 +26,8 @@ def _incline_env(name: str) -> Callable[..., Source]:
 PRESETS: dict[str, Callable[..., Source]] = {
     # Fig. 5: the hyperboloid ∩ plane ellipse.
     "ellipse": HyperboloidPlaneCurve,
+    # The unit circle in R²: one relation, codimension 1.
+    "circle": Circle,
     # Fig. 7 top row: a 45° incline, no friction, no drag.
     "block45": lambda: BlockOnIncline(incline=math.pi / 4, name="block45"),
     # A 36° incline, μ = 0.2, quadratic drag.

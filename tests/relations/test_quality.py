@@ -141,3 +141,34 @@ def test_only_a_relation_known_to_have_missed_its_stopping_rule_is_warned_of():
               "landing": {"converged": 1.0, "spurious": 0.0, "within": 0.05}}
     assert quality._warnings(report) == [
         "g2 capped: it did not meet the stopping rule (held-out off/on 3.0)"]
+
+
+@pytest.mark.parametrize("attempts", [1, 3])
+def test_a_codimension_one_relation_landing_away_from_the_data_is_tried_from_another_start(
+        monkeypatch, attempts):
+    """The circle's one relation (no earlier zero set to pre-mine) is trained again from
+    another initialisation while its zero set has parts away from the data, up to
+    `premine_attempts` trainings, and the one landing most is kept (the landing measured by
+    the fit is stood in for: the first training's lands half away, the next one's all on)."""
+    from jaml.relations import training
+
+    trainings, lands = [], iter([0.5, 0.0, 0.0])
+    real_fit_relation, real_refine = training._fit_relation, training._refine
+
+    def counting(*args, **kwargs):
+        trainings.append(kwargs.get("phase", "relation"))
+        return real_fit_relation(*args, **kwargs)
+
+    def landing(*args, **kwargs):
+        fitted, land, rounds, spent = real_refine(*args, **kwargs)
+        spurious = next(lands)
+        return (fitted._replace(off_mean=100 * fitted.on_mean),
+                {**land, "spurious": spurious, "landed": 1 - spurious}, rounds, spent)
+
+    monkeypatch.setattr(training, "_fit_relation", counting)
+    monkeypatch.setattr(training, "_refine", landing)
+    rs = relations.fit(sources.make("circle"), relations.Config(
+        max_relations=1, max_steps=40, chunk_steps=20, batch_size=64, stop_patience=1,
+        eval_batches=2, refine_rounds=0, premine_attempts=attempts))
+    assert trainings == ["relation"] * min(attempts, 2)
+    assert rs.num_relations == 1

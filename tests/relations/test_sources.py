@@ -21,6 +21,13 @@ def test_ellipse_lies_on_hyperboloid_and_plane():
     np.testing.assert_allclose(hi, [math.sqrt(2), 1, 0], atol=1e-2)
 
 
+def test_the_circle_preset_lies_on_the_unit_circle_all_round():
+    tau = sources.make("circle").sample(jax.random.key(0), 4096)
+    assert float(jnp.max(jnp.abs(sources.Circle.residuals(tau)))) < 1e-5
+    angles = np.sort(np.arctan2(np.asarray(tau[:, 1]), np.asarray(tau[:, 0])))
+    assert np.diff(angles).max() < 0.02 and angles[0] < -3.1 and angles[-1] > 3.1
+
+
 def test_off_manifold_is_uniform_in_the_data_box():
     batches = prepare(sources.make("ellipse"), 1024, 0.0, jax.random.key(0), 4)
     off = np.asarray(batches.off(jax.random.key(1), batches.data, 20_000))

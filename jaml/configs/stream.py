@@ -501,8 +501,9 @@ SCALES: dict[str, dict] = {
 _SET_SIZES = ("num_envs", "replay.slots", "eval.train", "eval.rand", "eval.curr",
               "eval.transient", "eval.regressor_iterations")
 # What the smoke scale's reports and `jaml suite --scale smoke` say beside their numbers.
-SMOKE_NOTE = ("smoke scale: for plumbing only, its sets are too small for its numbers to rank "
-              "encoders (use the small scale, --scale small)")
+SMOKE_CAVEAT = ("smoke scale: for plumbing only, its sets are too small for its numbers to rank "
+                "encoders")
+SMOKE_NOTE = f"{SMOKE_CAVEAT} (use the small scale, --scale small)"
 
 
 def scaled(config: StreamConfig, scale: str) -> StreamConfig:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from jaml import _command
 from jaml.configs.records import RESOLVED, settings
-from jaml.configs.stream import StreamConfig
+from jaml.configs.stream import SCALES, StreamConfig
 
 # jaml.evaluation (JAX, SciPy, Matplotlib) is imported by `cell`: the figure commands' --help
 # imports none of them (tests/test_launch.py).
@@ -80,6 +80,15 @@ class Sizes:
 
 
 SIZES = tuple(f.name for f in dataclasses.fields(Sizes))  # their names in `settings`
+
+
+def scale_of(settings: dict) -> str | None:
+    """The `SCALES` entry whose sizes a cell's flat `settings` (`cell_config`) has, else None."""
+    for name, sizes in SCALES.items():
+        if sizes and all(settings.get(f.name) == sizes[f.metadata["path"]]
+                         for f in dataclasses.fields(Sizes)):
+            return name
+    return None
 
 
 def options(part: str, fields: dict) -> dict:

@@ -54,7 +54,7 @@ import tyro
 
 from jaml._options import key_values
 from jaml._rundir import write_text
-from jaml.configs.stream import for_env, scaled
+from jaml.configs.stream import SMOKE_CAVEAT, for_env, scaled
 from jaml.experiments import _runs
 from jaml.experiments._runs import cell
 from jaml.experiments.fig2_grid import (
@@ -244,12 +244,14 @@ def report(out: Path, envs, variants) -> str:
              "Several seeds: mean ± the half-width of its 90 % confidence interval, at the last",
              "epoch all of a cell's seeds reached.", ""]
     grid = {env: grid_histories(out, env, variants) for env in envs}
+    smoke = False
     for env, runs in grid.items():
         if not runs:
             continue
         names = list(next(iter(runs.values()))[0][0]["errors"])
         config_path = next((out / env / next(iter(runs))).glob("seed_*/config.json"))
         config = _runs.settings(json.loads(config_path.read_text()))
+        smoke |= _runs.scale_of(config) == "smoke"
         settings = {k: config.get(k) for k in (*_runs.SIZES, "epochs", "eval_every",
                                                "learner_steps", "frames_per_batch")}
         groups = ld_groups(env)
@@ -280,6 +282,8 @@ def report(out: Path, envs, variants) -> str:
             plots.plot_alignment(
                 [r | {"learner": v} for v, hs in runs.items() for h in hs for r in h],
                 out / f"{env}_alignment.png")
+    if smoke:  # --scale smoke: said first, as the suite's smoke runs say it
+        lines[2:2] = [f"Note: {SMOKE_CAVEAT}.", ""]
     records = figure_records(grid)
     if records:
         plots.plot_alignment(records, out / "fig2.png", ylabels=panel_ylabels(envs))

@@ -1,5 +1,6 @@
 """The Fig. 2 report: per-seed histories → mean ± 90 % confidence half-width per dimension."""
 
+import dataclasses
 import json
 import math
 
@@ -55,6 +56,22 @@ def test_report_averages_seeds_with_a_t_interval(tmp_path):
     assert (tmp_path / "fig2.md").read_text() == text
     assert (tmp_path / "CartPole_alignment.png").stat().st_size > 0
     assert (tmp_path / "fig2.png").stat().st_size > 0
+
+
+def test_a_smoke_scale_report_says_its_numbers_do_not_rank_encoders(tmp_path):
+    """fig2.md of `--scale smoke` runs opens with the smoke caveat; other sizes' have none."""
+    from jaml.configs.stream import SCALES, SMOKE_CAVEAT
+
+    run = tmp_path / "CartPole" / "VAE_rpl" / "seed_0"
+    _write_run(run, "VAE_rpl", 0, [0.4, 0.8, 0.1, 1.0])
+    assert SMOKE_CAVEAT not in fig2.report(tmp_path, ["CartPole"], ["VAE_rpl"])
+    smoke = {f.name: SCALES["smoke"][f.metadata["path"]]
+             for f in dataclasses.fields(_runs.Sizes)}
+    config = json.loads((run / "config.json").read_text()) | smoke
+    (run / "config.json").write_text(json.dumps(config))
+    text = fig2.report(tmp_path, ["CartPole"], ["VAE_rpl"])
+    assert text.splitlines()[2] == f"Note: {SMOKE_CAVEAT}."
+    assert _runs.scale_of(_runs.settings(config)) == "smoke"
 
 
 def test_report_shows_each_cells_progress_and_reads_a_cell_at_its_seeds_common_epoch(tmp_path):

@@ -54,9 +54,14 @@ def claim_run(out: Path, config: RunConfig, stream: Stream) -> bool:
 
     def differences(recorded: dict) -> str:
         was = changed_fields(then(recorded), config)
-        named = [(path, was[path], value)
-                 for path, value in changed_fields(config, then(recorded)).items()]
         before = records.own_learner(recorded)
+
+        def shown(path: str, value, record: dict | None):
+            # A learner of your own's config, None in the tree: its record (named by class).
+            return record if path == "learner_config" and value is None else value
+
+        named = [(path, shown(path, was[path], before), shown(path, value, own))
+                 for path, value in changed_fields(config, then(recorded)).items()]
         if own is not None and before is not None and before != own:
             named += differing(before, own, "learner_config.")
         return describe(named)

@@ -70,6 +70,10 @@ def test_a_learner_of_your_own_is_recorded_by_its_factorys_config(tmp_path):
     assert rundir.claim_run(tmp_path, config, built(6)) is True
     with pytest.raises(ValueError, match=r"learner_config\.latent_dim 6 recorded, 8 now"):
         rundir.claim_run(tmp_path, config, built(8))
+    registry = stream.resolve(stream.for_env("CartPole", "VAE_rpl"), 4, "cpu")
+    with pytest.raises(ValueError, match=r"learner_config SingleFrameConfig recorded, VAEConfig "
+                                         r"now; "):
+        rundir.claim_run(tmp_path, registry, SimpleNamespace(config=registry, env=built(6).env))
 
 
 def test_analyses_fall_every_eval_every_epochs_from_the_full_replay_and_the_docs_say_so():

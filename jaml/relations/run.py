@@ -174,7 +174,8 @@ def run(
         resuming = claim(out, resolved, same=lambda recorded: _as_now(recorded) == resolved)
         finished = _finished(summary_path) if resuming else None
         if finished is not None:  # a finished run stays finished: nothing is trained again
-            logging.getLogger("jaml.resume").info("%s: finished (%s)", out, finished["status"])
+            logging.getLogger("jaml.resume").info("%s: finished (%s) before; nothing to train",
+                                                  out, finished["status"])
             return finished
         partial = _PartialDir(out / "partial")
         if not resuming:

@@ -848,9 +848,10 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             steps += spent
             attempt = 1
             # The codimension-th relation is tried again from other initialisations: the
-            # pre-mined one, and a first one (codimension 1) unless a prior sets its start.
+            # pre-mined one, and the first one at codimension 1 (no earlier zero set to
+            # pre-mine) unless a prior sets its start.
             retried = premined is not None or (
-                k + 1 == codim and (priors is None or k >= len(priors) or priors[k] is None))
+                k == 0 and codim == 1 and (not priors or priors[0] is None))
             while retried and attempt < cfg.premine_attempts and (
                     fitted.ratio < cfg.separation_ratio or land["spurious"] > RETRY_SPURIOUS):
                 # Where g_k starts decides which surface through the data it settles on: from

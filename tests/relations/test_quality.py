@@ -122,14 +122,15 @@ def test_the_true_ellipse_relations_land_every_box_point_and_a_spurious_pair_doe
 
 def test_uniform_noise_has_no_relation_and_the_capped_one_is_dropped(caplog):
     """Rows filling their box have nothing that vanishes on them and nowhere else: g_1 caps
-    without separating and is dropped, not returned as a relation."""
+    without separating (from each of its 3 initialisations, 300 steps each) and is dropped,
+    not returned as a relation."""
     rows = np.random.default_rng(5).uniform(-1, 1, (4096, 3)).astype(np.float32)
     cfg = relations.Config(max_relations=2, max_steps=300, chunk_steps=100, stop_patience=20,
                            batch_size=256, eval_batches=2, codimension=1)
     with caplog.at_level(logging.WARNING, logger="jaml.relations"):
         rs = relations.fit(rows, cfg)
     assert rs.num_relations == 0
-    assert "relation 1 is not a relation (capped; 300 steps in all its trainings" in caplog.text
+    assert "relation 1 is not a relation (capped; 900 steps in all its trainings" in caplog.text
 
 
 def test_only_a_relation_known_to_have_missed_its_stopping_rule_is_warned_of():

@@ -5,13 +5,14 @@ import json
 from jaml.cli import main
 
 
-def test_a_resumed_relations_run_says_what_it_resumed_from(tmp_path, capsys):
+def test_a_finished_relations_run_started_again_says_so(tmp_path, capsys):
+    """(What an interrupted run resumes from: tests/relations/test_run.py.)"""
     args = ["relations", "--source", "ellipse", "--max-relations", "1", "--no-progress",
             "--out", str(tmp_path)]
     assert main(args) == 0
-    assert "resumed" not in capsys.readouterr().err
+    assert "finished" not in capsys.readouterr().err
     assert main(args) == 0
-    assert (f"{tmp_path}: resumed from its checkpoint with 1 of 1 relations"
+    assert (f"{tmp_path}: finished (done) before; nothing to train"
             in capsys.readouterr().err)
 
 

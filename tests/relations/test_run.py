@@ -53,7 +53,8 @@ def test_three_dimensional_sources_get_zero_level_set_figures(tmp_path):
     assert (tmp_path / "e" / "zero_sets.png").stat().st_size > 10_000
 
 
-def test_an_interrupted_run_resumes_after_its_last_finished_relation(tmp_path, monkeypatch):
+def test_an_interrupted_run_resumes_after_its_last_finished_relation(tmp_path, monkeypatch,
+                                                                     caplog):
     out, cfg = tmp_path / "run", _tiny_config()
     real_save = run_module.checkpoint.save
 
@@ -70,7 +71,9 @@ def test_an_interrupted_run_resumes_after_its_last_finished_relation(tmp_path, m
     with (out / "metrics.jsonl").open("a") as f:
         f.write(json.dumps({"phase": "relation", "relation": 2, "step": 999}) + "\n")
     monkeypatch.setattr(run_module.checkpoint, "save", real_save)
-    summary = run_module.run("ellipse", cfg, out, progress=False, figures=False)
+    with caplog.at_level("INFO", logger="jaml.resume"):
+        summary = run_module.run("ellipse", cfg, out, progress=False, figures=False)
+    assert f"{out}: resumed from its checkpoint with 1 of 2 relations" in caplog.text
     lines = [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines()]
     keys = [(r["relation"], r["phase"], r["step"]) for r in lines]
     assert len(keys) == len(set(keys)) and (2, "relation", 999) not in keys

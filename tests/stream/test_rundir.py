@@ -14,11 +14,11 @@ def test_figures_are_drawn_in_the_background_from_each_runs_newest_history(monke
 
     drawn, started, release = [], threading.Event(), threading.Event()
 
-    def figures(history, out):
+    def figures(history, out, floor):
         if not drawn:
             started.set()
             release.wait(5)  # the first drawing is slow: the next requests queue behind it
-        drawn.append((out, len(history)))
+        drawn.append((out, len(history), floor))
 
     monkeypatch.setattr(rundir, "_figures", figures)
     writer = rundir.FigureWriter()
@@ -26,13 +26,14 @@ def test_figures_are_drawn_in_the_background_from_each_runs_newest_history(monke
     assert started.wait(5)
     for n in (2, 3):
         writer.submit(Path("a"), [{}] * n)
-    writer.submit(Path("b"), [{}])
+    writer.submit(Path("b"), [{}], {"pi_rand": {"x": 0.1}})
     release.set()
     writer.wait()
     writer.check()
-    assert drawn == [(Path("a"), 1), (Path("a"), 3), (Path("b"), 1)]
+    assert drawn == [(Path("a"), 1, None), (Path("a"), 3, None),
+                     (Path("b"), 1, {"pi_rand": {"x": 0.1}})]
 
-    monkeypatch.setattr(rundir, "_figures", lambda history, out: 1 / 0)
+    monkeypatch.setattr(rundir, "_figures", lambda history, out, floor: 1 / 0)
     failing = rundir.FigureWriter()
     failing.submit(Path("a"), [])
     failing.wait()

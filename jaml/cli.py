@@ -34,6 +34,12 @@ DESCRIPTION = __doc__.split("\n\n")[0]
 # Commands. Each `run()` returns the exit status.
 
 
+def _bars(no_progress: bool) -> bool:
+    """Progress bars unless turned off or stderr is not a terminal (in a log file a bar's
+    carriage returns join every update into one line)."""
+    return not no_progress and sys.stderr.isatty()
+
+
 def _print_summary(out, summary) -> None:
     print(
         f"{summary['source']}: {summary['num_relations']} relations, {summary['status']}, "
@@ -57,7 +63,7 @@ class Relations:
     directory and options resumes. Config defaults follow the paper."""
 
     source: str
-    """a preset (ellipse, block45, block36-drag, block-drag-range, geom-on-incline,
+    """a preset (ellipse, circle, block45, block36-drag, block-drag-range, geom-on-incline,
     mesh-on-incline) or the path of a .npy file of [N, D] rows or a .csv file of N lines of D
     numbers, optionally after a header line of column names (they name the relations' inputs)"""
     out: Path
@@ -67,7 +73,7 @@ class Relations:
     mesh-on-incline pool_size=65536, action_range=[0,0], friction_range=[0,0] (any field of the
     env's config); for the block presets a BlockOnIncline field, e.g. friction=0.1"""
     no_progress: bool = False
-    """no progress bars"""
+    """no progress bars (none either where stderr is not a terminal)"""
     config: Annotated[Config, tyro.conf.arg(name="")] = dataclasses.field(
         default_factory=Config)
 
@@ -76,7 +82,7 @@ class Relations:
 
         summary = run(self.source, self.config, self.out,
                       source_options=key_values(self.source_opt) or None,
-                      progress=not self.no_progress)
+                      progress=_bars(self.no_progress))
         _print_summary(self.out, summary)
         return 0
 
@@ -100,7 +106,7 @@ class Suite:
     call: Annotated[CallOptions, tyro.conf.arg(name="")] = dataclasses.field(
         default_factory=CallOptions)
     no_progress: bool = False
-    """no progress bar"""
+    """no progress bar (none either where stderr is not a terminal)"""
     scale: Literal["paper", "small", "smoke"] = "paper"
     """sizes: "paper" (the reference's, for a GPU), "small" (16 envs, 8 epochs, 1,024-sequence
     analysis sets: minutes on a CPU, the smallest whose numbers rank encoders) or "smoke"
@@ -121,10 +127,15 @@ class Suite:
         return scaled(for_env(self.env, self.learner), self.scale).with_overrides(changes)
 
     def run(self) -> int:
+        import jax
+
         from jaml.stream.run import run
 
         config = self.stream_config()
-        summary = run(config, self.out, progress=not self.no_progress,
+        if self.scale == "paper" and jax.default_backend() == "cpu":
+            print("jaml suite: the paper's scale on a CPU takes hours a run; --scale small "
+                  "takes minutes", file=sys.stderr, flush=True)
+        summary = run(config, self.out, progress=_bars(self.no_progress),
                       **self.call.run_options())
         resumed = ("" if summary.get("resumed_from") is None
                    else f", resumed from epoch {summary['resumed_from']}")
@@ -200,7 +211,7 @@ class Demo:
     out: Path = Path("runs/demo")
     """parent run directory"""
     no_progress: bool = False
-    """no progress bars"""
+    """no progress bars (none either where stderr is not a terminal)"""
 
     def run(self) -> int:
         from jaml.relations.run import run
@@ -208,7 +219,7 @@ class Demo:
         for source in ("ellipse", "block45"):
             print(f"== AML with transversality on {source} (2 relations) ==", flush=True)
             summary = run(source, Config(max_relations=2), self.out / source,
-                          progress=not self.no_progress)
+                          progress=_bars(self.no_progress))
             _print_summary(self.out / source, summary)
         print(f"figures: {sorted(str(p) for p in self.out.rglob('*.png'))}")
         return 0

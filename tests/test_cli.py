@@ -352,3 +352,34 @@ def test_fig2_and_fig9_are_subcommands_and_modules(capsys):
     with pytest.raises(SystemExit) as exit_info:
         fig2.main(["--help"])
     assert exit_info.value.code == 0 and "--pendulum-epochs INT" in capsys.readouterr().out
+
+
+def test_bars_show_only_on_a_terminal_and_the_papers_scale_on_a_cpu_is_flagged(
+        tmp_path, capsys, monkeypatch):
+    """In a log file a bar's carriage returns join its updates into one line: no bar there;
+    `jaml suite` at the paper's scale on a CPU says it takes hours before it starts."""
+    import io
+
+    from jaml.stream import run as stream_run
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    monkeypatch.setattr(sys, "stderr", Terminal())
+    assert cli._bars(False) and not cli._bars(True)
+    monkeypatch.setattr(sys, "stderr", io.StringIO())
+    assert not cli._bars(False)
+    monkeypatch.undo()
+    calls = []
+
+    def fake_run(config, out, progress, **options):
+        calls.append(progress)
+        return {"status": "finished", "epoch": 0, "checkpoint_epoch": None, "final": []}
+
+    monkeypatch.setattr(stream_run, "run", fake_run)
+    for scale, flagged in (("paper", True), ("smoke", False)):
+        assert cli.main(["suite", "--env", "CartPole", "--learner", "VAE_rpl", "--scale", scale,
+                         "--out", str(tmp_path / scale)]) == 0
+        assert ("the paper's scale on a CPU takes hours" in capsys.readouterr().err) == flagged
+    assert calls == [False, False]  # pytest's stderr is no terminal

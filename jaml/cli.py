@@ -132,11 +132,12 @@ class Suite:
         from jaml.stream.run import run
 
         config = self.stream_config()
-        if self.scale == "paper" and jax.default_backend() == "cpu":
+        bars = _bars(self.no_progress)
+        if bars and self.scale == "paper" and jax.default_backend() == "cpu":
+            # Beside the bar, which would sit at 0 for minutes (errors stay one line).
             print("jaml suite: the paper's scale on a CPU takes hours a run; --scale small "
                   "takes minutes", file=sys.stderr, flush=True)
-        summary = run(config, self.out, progress=_bars(self.no_progress),
-                      **self.call.run_options())
+        summary = run(config, self.out, progress=bars, **self.call.run_options())
         resumed = ("" if summary.get("resumed_from") is None
                    else f", resumed from epoch {summary['resumed_from']}")
         print(f"{config.env} {config.learner} ({config.policy}): {summary['status']} at epoch "

@@ -357,7 +357,8 @@ def test_fig2_and_fig9_are_subcommands_and_modules(capsys):
 def test_bars_show_only_on_a_terminal_and_the_papers_scale_on_a_cpu_is_flagged(
         tmp_path, capsys, monkeypatch):
     """In a log file a bar's carriage returns join its updates into one line: no bar there;
-    `jaml suite` at the paper's scale on a CPU says it takes hours before it starts."""
+    on a terminal `jaml suite` at the paper's scale on a CPU says it takes hours before its
+    bar starts."""
     import io
 
     from jaml.stream import run as stream_run
@@ -378,8 +379,10 @@ def test_bars_show_only_on_a_terminal_and_the_papers_scale_on_a_cpu_is_flagged(
         return {"status": "finished", "epoch": 0, "checkpoint_epoch": None, "final": []}
 
     monkeypatch.setattr(stream_run, "run", fake_run)
-    for scale, flagged in (("paper", True), ("smoke", False)):
+    for scale, terminal, flagged in (("paper", True, True), ("smoke", True, False),
+                                     ("paper", False, False)):
+        monkeypatch.setattr(cli, "_bars", lambda no_progress, terminal=terminal: terminal)
         assert cli.main(["suite", "--env", "CartPole", "--learner", "VAE_rpl", "--scale", scale,
-                         "--out", str(tmp_path / scale)]) == 0
+                         "--out", str(tmp_path / f"{scale}{terminal}")]) == 0
         assert ("the paper's scale on a CPU takes hours" in capsys.readouterr().err) == flagged
-    assert calls == [False, False]  # pytest's stderr is no terminal
+    assert calls == [True, True, False]

@@ -133,10 +133,18 @@ def _one_line(box: str) -> str:
     sections = [s for s in sections if s]
     if not sections:
         return "invalid arguments"
-    message = sections[0] if unicode or len(sections) < 2 else sections[1]
+    first = 0 if unicode or len(sections) < 2 else 1
+    message = sections[first]
     indent = min(len(x) - len(x.lstrip()) for x in message) if message else 0
     kept = [x.strip() for x in message if len(x) - len(x.lstrip()) < indent + 8]
-    return " ".join(" ".join(kept).split()) or "invalid arguments"
+    line = " ".join(" ".join(kept).split()) or "invalid arguments"
+    # tyro's closest flag to a misspelt one, the first of its "Perhaps you meant" section.
+    for section in sections[first + 1:]:
+        if section[0].strip().startswith("Perhaps you meant"):
+            flags = [x.split()[0] for x in section[1:] if x.strip().startswith("-")]
+            if flags:
+                return f"{line}; perhaps you meant {flags[0]}"
+    return line
 
 
 def _closed_loop_callback(unraisable) -> bool:

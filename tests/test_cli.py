@@ -235,6 +235,19 @@ def test_a_bad_choice_is_one_line_naming_the_valid_values(capsys):
     assert "('paper', 'reference')" in err
 
 
+@pytest.mark.parametrize(("given", "meant"), [(["--max-relation", "2"], "--max-relations"),
+                                               (["--zzzz"], None)])
+def test_a_misspelt_flag_is_one_line_naming_the_closest_one(capsys, given, meant):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["relations", "--source", "ellipse", "--out", "x", *given])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and len(err.strip().splitlines()) == 1
+    assert err.startswith(f"jaml relations: error: Unrecognized options: {', '.join(given)}")
+    assert ("perhaps you meant" in err) == (meant is not None)
+    if meant:
+        assert f"; perhaps you meant {meant} (see `jaml relations --help`)" in err
+
+
 def test_a_bad_value_beside_help_is_refused_without_a_traceback(capsys):
     """`--help` with an invalid value: tyro's own message, exit 2, no Python traceback (the
     one-line rewrite has nothing to read there: stderr is not captured while helping)."""

@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import sys
+import textwrap
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -157,13 +158,18 @@ def _print_errors(summary: dict) -> None:
     if final and final[0].get("validation"):  # the held-out replay rows, the same for each
         rows.append((f"validation ({final[0].get('validation_split') or 'leading'} split)",
                      final[0]["validation"]))
+    def show(indent: str, head: str, names, values) -> None:  # wrapped: Ant has 28 names
+        print(textwrap.fill(" ".join(f"{k}={v:.3f}" for k, v in zip(names, values,
+                                                                      strict=False)),
+                            width=100, initial_indent=f"{indent}{head}: ",
+                            subsequent_indent=indent + "    ", break_long_words=False))
+
     for label, errors in rows:
-        print(f"  {label}: " + " ".join(f"{k}={v:.3f}" for k, v in errors.items()))
+        show("  ", label, errors, errors.values())
         for ref in ("constant", "true_state", "pca", "random_projection"):
             values = (refs.get(ref) or {}).get(label.split(" ")[0])
             if values is not None:
-                print(f"    {ref} (epoch {refs['epoch']}): " + " ".join(
-                    f"{k}={v:.3f}" for k, v in zip(errors, values, strict=False)))
+                show("    ", f"{ref} (epoch {refs['epoch']})", errors, values)
     if summary.get("note"):
         print(f"  note: {summary['note']}")
 

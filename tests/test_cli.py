@@ -399,3 +399,19 @@ def test_bars_show_only_on_a_terminal_and_the_papers_scale_on_a_cpu_is_flagged(
                          "--out", str(tmp_path / f"{scale}{terminal}")]) == 0
         assert ("the paper's scale on a CPU takes hours" in capsys.readouterr().err) == flagged
     assert calls == [True, True, False]
+
+
+def test_a_runs_last_errors_are_wrapped_under_their_row(capsys):
+    """Ant's 28 LD names under four reference rows: lines of at most 100 characters, every
+    value once, a row's continuation indented under its head."""
+    names = [f"qpos_{i}" for i in range(28)]
+    cli._print_errors({"final": [{"test_set": "pi_rand", "errors": dict.fromkeys(names, 0.5)}],
+                       "references": {"epoch": 4, "constant": {"pi_rand": [1.0] * 28}}})
+    lines = capsys.readouterr().out.splitlines()
+    assert max(map(len, lines)) <= 100 and len(lines) > 2
+    assert lines[0].startswith("  pi_rand: qpos_0=0.500")
+    head = next(i for i, x in enumerate(lines) if x.startswith("    constant (epoch 4): "))
+    assert all(x.startswith("      ") for x in lines[1:head])
+    assert all(x.startswith("        ") for x in lines[head + 1:])
+    text = " ".join(lines)
+    assert text.count("=0.500") == 28 and text.count("=1.000") == 28

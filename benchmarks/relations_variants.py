@@ -31,6 +31,9 @@ VARIANTS = {  # name: (source, Config fields beside the seed)
     # its zero set has parts away from the data, or not (one attempt, as before 2026-11-29).
     "circle-defaults": ("circle", {}),
     "circle-one-attempt": ("circle", {"premine_attempts": 1}),
+    # Fig. 7's bottom row, the incline drawn per row and not observed: codimension 1 too.
+    "drag-defaults": ("block-drag-range", {}),
+    "drag-one-attempt": ("block-drag-range", {"premine_attempts": 1}),
     "ellipse-premine-12k": ("ellipse", {"max_relations": 2, "premine_steps": 12_500}),
     "ellipse-premine-25k": ("ellipse", {"max_relations": 2, "premine_steps": 25_000}),
     "ellipse-attempts-5": ("ellipse", {"max_relations": 2, "premine_attempts": 5}),

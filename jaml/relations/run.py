@@ -23,6 +23,7 @@ from jaml.relations.relation_set import RelationSet
 from jaml.relations.training import RelationSummary, fit, phase_budgets
 
 log = logging.getLogger("jaml.relations")
+UNFINISHED = ("running", "interrupted")  # summary.json statuses of a run that has not ended
 
 
 class _Recorder:
@@ -122,14 +123,6 @@ def _as_now(recorded: dict) -> dict:
     return recorded | {"relations": relations}
 
 
-def _finished(summary_path: Path) -> dict | None:
-    """The summary of a run that ended (any status but "running" or "interrupted"), else None."""
-    if not summary_path.exists():
-        return None
-    summary = json.loads(summary_path.read_text())
-    return None if summary.get("status") in ("running", "interrupted") else summary
-
-
 def _restored_summary(rs: RelationSet, k: int) -> dict:
     """A summary entry rebuilt from a checkpoint whose summary.json was lost."""
     on, off = float(rs.on_means[k]), float(rs.off_means[k])
@@ -172,19 +165,19 @@ def run(
         summary_path, ckpt_path = out / "summary.json", out / "checkpoint"
         start, done = None, []
         resuming = claim(out, resolved, same=lambda recorded: _as_now(recorded) == resolved)
-        finished = _finished(summary_path) if resuming else None
-        if finished is not None:  # a finished run stays finished: nothing is trained again
+        previous = (json.loads(summary_path.read_text())
+                    if resuming and summary_path.exists() else None)
+        if previous is not None and previous.get("status") not in UNFINISHED:
+            # A run that ended stays ended: nothing is trained again.
             logging.getLogger("jaml.resume").info("%s: finished (%s) before; nothing to train",
-                                                  out, finished["status"])
-            return finished
+                                                  out, previous["status"])
+            return previous
         partial = _PartialDir(out / "partial")
         if not resuming:
             partial.clear()
         if resuming and ckpt_path.exists():
             start = checkpoint.load(ckpt_path)
-            recorded = []
-            if summary_path.exists():
-                recorded = json.loads(summary_path.read_text())["relations"]
+            recorded = previous["relations"] if previous is not None else []
             done = recorded[: start.num_relations] + [
                 _restored_summary(start, k) for k in range(len(recorded), start.num_relations)
             ]

@@ -1,16 +1,17 @@
 """Does XLA's GPU compiler take the stream's sharded program under Shardy? A check, not a timing.
 
 One GPU poses as two hosts of one GPU each (JAX's mock GPU topology), so the compiler partitions
-the same two-device program it would on two GPUs. Each variant runs in its own process (a
-compiler crash kills it):
+the same two-device program it would on two GPUs; with --real, a machine's two GPUs run it. Each
+variant runs in its own process (a compiler crash kills it):
 
   repro_empty  the 6-line reproduction (docs/notes/stream.md): segfaults on jaxlib 0.11.2
   repro_full   the same with a non-empty array: compiles
   block_raw    the block with every state leaf crossing the shard_map: segfaults on 0.11.2
   block        executor.sharded_program as it ships: must compile
-  run          that program run 3 epochs under Shardy and under GSPMD: device 0's run compared
+  run          that program run 3 epochs under Shardy and under GSPMD: the runs each process
+               holds compared (device 0's under the mock, both devices' with --real)
 
-    python benchmarks/shardy_gpu_check.py [--case CartPole/VAE_rpl] [--variants ...]
+    python benchmarks/shardy_gpu_check.py [--case CartPole/VAE_rpl] [--variants ...] [--real]
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import sys
 VARIANTS = ("repro_empty", "repro_full", "block_raw", "block", "run")
 
 
-def variant(name: str, case: str) -> str:
+def variant(name: str, case: str, real: bool = False) -> str:
     """Compile (and for `run`, run) one variant in this process; what it found, in words."""
     import jax
     import jax.numpy as jnp
@@ -31,9 +32,10 @@ def variant(name: str, case: str) -> str:
     from jax.sharding import Mesh, NamedSharding
     from jax.sharding import PartitionSpec as P
 
-    jax.config.update("jax_mock_gpu_topology", "1x2x1")  # before the backend starts
-    assert jax.device_count() == 2, jax.devices()
-    mesh = Mesh(np.asarray(jax.devices()), ("runs",))
+    if not real:
+        jax.config.update("jax_mock_gpu_topology", "1x2x1")  # before the backend starts
+    assert jax.device_count() >= 2, jax.devices()
+    mesh = Mesh(np.asarray(jax.devices()[:2]), ("runs",))
     runs = NamedSharding(mesh, P("runs"))
 
     def abstract(tree):
@@ -70,7 +72,7 @@ def variant(name: str, case: str) -> str:
         this = jax.tree.map(lambda x: jax.make_array_from_callback(
             x.shape, runs, lambda i: np.asarray(x)[i]), states)
         out = sharded_program(stream)(mesh, this, jnp.asarray(3, jnp.int32))
-        return [np.asarray(a.addressable_shards[0].data) for a in jax.tree.leaves(out)]
+        return [np.asarray(s.data) for a in jax.tree.leaves(out) for s in a.addressable_shards]
 
     gspmd, shardy, again = run_three(False), run_three(True), run_three(True)
 
@@ -87,16 +89,18 @@ def main(argv=None) -> int:
     parser.add_argument("--variants", nargs="+", default=VARIANTS, choices=VARIANTS)
     parser.add_argument("--one", help=argparse.SUPPRESS)  # a child: run this variant
     parser.add_argument("--timeout", type=float, default=300.0, help="seconds per variant")
+    parser.add_argument("--real", action="store_true", help="two real GPUs, no mock topology")
     args = parser.parse_args(argv)
     if args.one:
-        print("RESULT", variant(args.one, args.case), flush=True)
+        print("RESULT", variant(args.one, args.case, args.real), flush=True)
         return 0
     env = dict(os.environ, PYTHONFAULTHANDLER="1")
-    # Without it the mocked compile waits for the absent second host's autotuning results.
-    env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " --xla_gpu_shard_autotuning=false").strip()
+    if not args.real:  # else the mocked compile waits for the absent host's autotuning results
+        env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " --xla_gpu_shard_autotuning=false").strip()
     for name in args.variants:
         try:
-            done = subprocess.run([sys.executable, __file__, "--one", name, "--case", args.case],
+            done = subprocess.run([sys.executable, __file__, "--one", name, "--case", args.case]
+                                  + ["--real"] * args.real,
                                   env=env, capture_output=True, text=True, timeout=args.timeout)
         except subprocess.TimeoutExpired:
             print(f"{name}: no answer in {args.timeout:.0f} s")

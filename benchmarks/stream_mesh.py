@@ -157,6 +157,7 @@ def main(argv=None) -> int:
         one, one_times = gathered(launch(args, 1, Path(folder)))
         many, many_times = gathered(launch(args, args.devices, Path(folder)))
     differ = different(one, many)
+    shardy = os.environ.get("JAX_USE_SHARDY_PARTITIONER", "true").lower() not in ("0", "false")
     rows = []
     for label, times in (("one process", one_times), ("one process per device", many_times)):
         wall = max(t["wall_s"] for t in times)
@@ -165,7 +166,9 @@ def main(argv=None) -> int:
                      "compile_s": max(t["compile_s"] for t in times), "median_s": wall,
                      "epochs_per_call": args.epochs,
                      "epochs_per_s": args.runs * args.epochs / wall,
-                     "bit_identical": not differ})
+                     "bit_identical": not differ,
+                     "partitioner": "shardy" if shardy else "gspmd",
+                     "xla_flags": os.environ.get("XLA_FLAGS", "")})
         print({k: (round(v, 3) if isinstance(v, float) else v) for k, v in rows[-1].items()},
               flush=True)
     if differ:

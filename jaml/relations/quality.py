@@ -28,6 +28,8 @@ LANDING_SPACING = 3.0  # ... or this many times the data sample's own spacing, i
 RECALL = 0.99  # `holds`' tolerance: this quantile of held-out rows' largest |g_k| / on-mean
 DEPENDENT_COS = 0.9  # a pair of relations whose gradients' median |cos| exceeds this: dependent
 SPURIOUS = 0.1  # warn when more than this share of converged box points lands off the data
+TANGENT_NEIGHBOURS = 32  # rows of the local PCA that gives the data's tangent space at a row
+TANGENT_RTOL = 0.2  # its directions: singular values above this share of the largest
 
 
 def nearest_distances(points, reference) -> np.ndarray:
@@ -71,29 +73,61 @@ def data_codimension(rows, key, sample: int = 1024, queries: int = 256, neighbou
     return int(rows.shape[1] - np.median(dims))
 
 
+def tangent_offsets(points, tree: cKDTree, nearest) -> np.ndarray:
+    """[M]: how far each point [M, D] lies off the data's tangent space at its nearest row
+    (`nearest` [M], indices into the tree's rows): the part of its offset from that row's
+    neighbourhood outside the neighbourhood's principal directions (local PCA)."""
+    rows = tree.data
+    _, idx = tree.query(rows[np.asarray(nearest)], k=min(TANGENT_NEIGHBOURS, len(rows)))
+    patch = rows[idx]  # [M, k, D]
+    centre = patch.mean(axis=1)
+    _, sv, vt = np.linalg.svd(patch - centre[:, None], full_matrices=False)
+    along = (sv > TANGENT_RTOL * sv[:, :1])[..., None] * vt  # [M, r, D], unused rows zero
+    offset = np.asarray(points, np.float64) - centre
+    tangential = np.einsum("mrd,md->mr", along, offset)
+    return np.sqrt(np.maximum((offset**2).sum(-1) - (tangential**2).sum(-1), 0.0))
+
+
 def landing(relations, key, low, high, reference, within: float, n: int = BOX_POINTS,
             steps: int = PROJECTION_STEPS, tolerance: float = 1e-3) -> dict:
     """Project n uniform points of the box [low, high] onto {g = 0}; where do they land?
 
     Returns (shares, spurious points [M, D], their distances [M]): the shares of the n points
-    converged (every equation holds there), landed (converged within `within` of a reference
-    row) and spurious (converged farther away: a part of the zero set that is not the data's).
+    converged (every equation holds there) and, of those, landed, extends or spurious. A
+    converged point is on the data's tangent space at its nearest reference row if within
+    `LANDING_FRACTION` of the box diagonal of it (not `within`: a sparse sample widens the
+    distance between rows along the data, not across it); landed if also within `within` of
+    that row; extends if farther (the zero set going on past the sample's edge, as a plane
+    goes on past the rows drawn of it); spurious if off the tangent space (a part of the zero
+    set that is not the data's).
     """
     low, high = np.asarray(low, np.float32), np.asarray(high, np.float32)
     start = _uniform(key, n, low, high)
     out = project(relations, start, steps=steps, bounds=(low, high), tolerance=tolerance)
-    dist = nearest_distances(out.points, reference)
+    points = np.asarray(out.points, np.float64)
+    tree = cKDTree(np.asarray(reference, np.float64))
+    dist, nearest = tree.query(points)
     converged = np.asarray(out.converged)
+    along = np.zeros_like(converged)
+    if converged.any():
+        across = LANDING_FRACTION * float(np.linalg.norm(high - low))
+        along[converged] = tangent_offsets(points[converged], tree, nearest[converged]) <= across
     near = dist <= within
-    spurious = converged & ~near
+    spurious = converged & ~along
     return {
         "points": n,
         "within": float(within),
         "converged": float(converged.mean()),
-        "landed": float((converged & near).mean()),
+        "landed": float((converged & along & near).mean()),
+        "extends": float((converged & along & ~near).mean()),
         "spurious": float(spurious.mean()),
         "median_distance": float(np.median(dist[converged])) if converged.any() else None,
     }, np.asarray(out.points)[spurious], dist[spurious]
+
+
+def on_data(land: dict) -> float:
+    """The share of projected box points on the data or on its continuation (`landing`)."""
+    return land["landed"] + land.get("extends", 0.0)
 
 
 def calibrated_tolerance(rs: RelationSet, held_out) -> float:
@@ -183,7 +217,10 @@ def _lines(report: dict) -> list[str]:
         + (f"largest pairwise median |cos| {ind['max_pair_cos']:.2f}"
            if ind["max_pair_cos"] is not None else "one relation"),
         f"projection: {100 * land['landed']:.0f}% of {land['points']} box points land on the "
-        f"data (within {land['within']:.3g}), {100 * land['spurious']:.0f}% on spurious zeros, "
+        f"data (within {land['within']:.3g}), "
+        + (f"{100 * land['extends']:.0f}% on its continuation past the sample's edge, "
+           if land.get("extends") else "")
+        + f"{100 * land['spurious']:.0f}% on spurious zeros, "
         f"{100 * (1 - land['converged']):.0f}% not converged",
         f"holds: recall {100 * hold['recall']:.1f}% of held-out rows, accepts "
         f"{100 * hold['off_acceptance']:.1f}% of box rows (tolerance {hold['tolerance']:.3g})",
@@ -198,4 +235,6 @@ __all__ = [
     "landing",
     "landing_distance",
     "nearest_distances",
+    "on_data",
+    "tangent_offsets",
 ]

@@ -666,11 +666,11 @@ def _refine(cfg, batches, rs, module, width, fitted: _Fitted, within, codim, pro
         new_pool, new_land = mine(cfg, grown, batches, jax.random.fold_in(k_mine, 2 + r),
                                   within, pool)
         # Separation may give way to landing, down to the stopping rule's.
-        if (new_land["landed"] <= land["landed"]
+        if (quality.on_data(new_land) <= quality.on_data(land)
                 or candidate.ratio < min(fitted.ratio, cfg.separation_ratio)):
             log.info("relation %d: refining did not help (%.0f%% → %.0f%% land on the data, "
-                     "off/on %.1f); kept as before", k + 1, 100 * land["landed"],
-                     100 * new_land["landed"], candidate.ratio)
+                     "off/on %.1f); kept as before", k + 1, 100 * quality.on_data(land),
+                     100 * quality.on_data(new_land), candidate.ratio)
             break
         fitted, pool, land, kept = candidate, new_pool, new_land, kept + 1
     return fitted, land, kept, spent
@@ -876,7 +876,7 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
                     continue
                 other, other_land, other_rounds, spent = refine(again, premined, clip)
                 steps += spent
-                if (other_land["landed"] > land["landed"]
+                if (quality.on_data(other_land) > quality.on_data(land)
                         and other.ratio >= min(fitted.ratio, cfg.separation_ratio)):
                     fitted, land, refined_rounds = other, other_land, other_rounds
             if premined is not None and fitted.ratio < cfg.separation_ratio:
@@ -944,7 +944,8 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
         if cfg.stop_when_complete and land is not None and land["spurious"] <= COMPLETE and \
                 k + 1 < cfg.max_relations:
             log.info("relations complete: %.0f%% of projected box points land on the data, "
-                     "none away from it; stopping at %d relations", 100 * land["landed"], k + 1)
+                     "none away from it; stopping at %d relations", 100 * quality.on_data(land),
+                     k + 1)
             break
     if rs.num_relations:
         report = quality.assess(rs, jax.random.fold_in(key, 10_000), batches.held_out,

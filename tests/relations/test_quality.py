@@ -120,6 +120,22 @@ def test_the_true_ellipse_relations_land_every_box_point_and_a_spurious_pair_doe
     assert bad["spurious"] >= 0.1 and bad["landed"] <= good["landed"] - 0.1, bad
 
 
+def test_a_zero_set_going_on_past_the_samples_edge_is_not_spurious_and_a_parallel_one_is():
+    """Rows of the plane z = 0 drawn only for x ≤ 0.5, a box reaching x = 1; g = z (z − 0.3)
+    vanishes on the whole plane and on the plane z = 0.3 too. Box points move along z only
+    (g's gradient), to the nearer root: z = 0 for z < 0.15 (half the box's z range), x as
+    drawn. So a quarter land on the rows, a quarter on the plane past their edge (extends),
+    half on z = 0.3 (spurious), whatever the sample's spacing."""
+    rows = np.random.default_rng(6).uniform((0, 0, 0), (0.5, 1, 0), (4000, 3))
+    low, high = np.array([0.0, 0.0, -0.2]), np.array([1.0, 1.0, 0.5])
+    land, points, _ = quality.landing(lambda t: (t[..., 2] * (t[..., 2] - 0.3))[..., None],
+                                      jax.random.key(7), low, high, rows, 0.03, tolerance=1e-4)
+    assert land["converged"] == 1.0
+    for share, expected in (("landed", 0.25), ("extends", 0.25), ("spurious", 0.5)):
+        assert abs(land[share] - expected) < 0.07, (share, land)
+    np.testing.assert_allclose(points[:, 2], 0.3, atol=1e-3)  # the spurious points returned
+
+
 def test_uniform_noise_has_no_relation_and_the_capped_one_is_dropped(caplog):
     """Rows filling their box have nothing that vanishes on them and nowhere else: g_1 caps
     without separating (from each of its 3 initialisations, 300 steps each) and is dropped,

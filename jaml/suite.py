@@ -22,6 +22,8 @@ unless `eval.validation_split` is "leading").
 from __future__ import annotations
 
 import dataclasses
+import sys
+import time
 from collections.abc import Callable
 
 import jax
@@ -57,7 +59,21 @@ class TestSet:
     names: tuple[str, ...]
 
 
-def _prepare(config: StreamConfig, stream: Stream | None, state: StreamState | None):
+class _Phases:
+    """One line on stderr as each phase of `evaluate` starts, with the seconds so far, where
+    `on`: the first compiles and the replay's fill take minutes on a CPU."""
+
+    def __init__(self, on: bool):
+        self.on, self.started = on, time.perf_counter()
+
+    def __call__(self, what: str) -> None:
+        if self.on:
+            print(f"suite.evaluate [{time.perf_counter() - self.started:5.0f} s] {what}",
+                  file=sys.stderr, flush=True)
+
+
+def _prepare(config: StreamConfig, stream: Stream | None, state: StreamState | None,
+             phase=lambda what: None):
     """(stream, state, analysis key, π_rand key): `stream` (built from `config` where None,
     else checked against it) and the keys a run of `config` derives from its seed."""
     if stream is None:
@@ -70,6 +86,7 @@ def _prepare(config: StreamConfig, stream: Stream | None, state: StreamState | N
                              "stream=jaml.stream.build(config), or none") from None
     k_init, k_eval, pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
     if state is None:
+        phase(f"filling the replay: {stream.config.fill_epochs} epochs of the stream")
         state, _ = run_epochs(stream, stream.init(k_init), stream.config.fill_epochs)
     return stream, state, jax.random.fold_in(k_eval, int(state.epoch)), pi_rand_key
 
@@ -83,7 +100,7 @@ def _chunks(stream: Stream, state: StreamState, key, pi_rand_key) -> dict[str, l
     analysis.encoded_replay(stream, states, k_train[None], cfg.eval.train, store=out["train"])
     analysis.encoded_rollouts(stream, states, pi_rand_key[None], cfg.eval.rand, random=True,
                               store=out["pi_rand"])
-    if cfg.policy == "ppo" and cfg.eval.curr > 0:
+    if "pi_curr" in _set_names(stream):
         out["pi_curr"] = []
         analysis.encoded_rollouts(stream, states, k_curr[None], cfg.eval.curr, random=False,
                                   store=out["pi_curr"])
@@ -112,7 +129,7 @@ test_sets.__test__ = False  # not a pytest test
 
 def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None = None, *,
              actions_seen: int = 0, references: bool = True,
-             stream: Stream | None = None) -> dict:
+             stream: Stream | None = None, progress: bool = True) -> dict:
     """A run's analysis report for `encode(frames uint8 [E, L, 64, 64, 3], actions [E, L, A])
     -> latents [E, Z]`, plus "linear" (a least-squares probe's errors and R², per test set and
     validation), "error_names", "scale" (the `SCALES` entry `config` has the sizes of, else
@@ -122,7 +139,8 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
     `actions_seen`: how many of a sequence's first actions `encode` reads (0: frames only; a
     suite learner's: `config.actions_seen`); the distortion skips pairs whose inputs `encode`
     cannot tell apart. `encode` is first called on one chunk of zeros and its output checked,
-    before the replay is filled. `stream`: as `test_sets`'s."""
+    before the replay is filled. `stream`: as `test_sets`'s. `progress`: a line on stderr as
+    each phase starts."""
     if not isinstance(config, StreamConfig):
         raise TypeError(f"config must be a jaml.stream.StreamConfig, got a "
                         f"{type(config).__name__}: make one with stream.for_env(env, learner) "
@@ -130,12 +148,16 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
     if not callable(encode):
         raise TypeError(f"encode must be a function (frames, actions) -> latents [E, Z], got a "
                         f"{type(encode).__name__}")
+    phase = _Phases(progress)
+    phase("building the stream")
     stream = build(config) if stream is None else stream
     probe = (jnp.zeros((config.num_envs, stream.seq_len, *FRAME_SHAPE), jnp.uint8),
              jnp.zeros((config.num_envs, stream.seq_len, stream.env.action_size), jnp.float32))
     _checked(encode(*probe), config.num_envs, stream.seq_len, "a chunk of zero frames")
-    stream, state, key, pi_rand_key = _prepare(config, stream, state)
+    stream, state, key, pi_rand_key = _prepare(config, stream, state, phase)
+    phase(f"drawing the test sets ({', '.join(_set_names(stream))})")
     chunks = _chunks(stream, state, key, pi_rand_key)
+    phase(f"encoding {sum(len(c) for c in chunks.values())} chunks")
     width = None
     latents = {}
     for k, cs in chunks.items():
@@ -147,6 +169,7 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
         latents[k] = np.concatenate(parts)
     sets = {k: _test_set(stream, cs) for k, cs in chunks.items()}
     tests = {k: (latents[k], sets[k].states) for k in sets if k != "train"}
+    phase("fitting the alignment regressor")
     k_reg = jax.random.split(key, 3)[2]
     seed = int(jax.random.randint(k_reg, (), 0, 2**31 - 1))  # as `analysis.evaluate`'s
     # The analysis' own regressor fit (over R runs, here R = 1).
@@ -184,12 +207,21 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
     if report["scale"] == "smoke":
         report["note"] = SMOKE_NOTE
     if references:
+        phase("the reference rows (true state, pixels' PCA, a random projection)")
         pixels = {k: _pixels(stream, s) for k, s in sets.items()}
         row = analysis.reference_rows(
             stream, pixels["train"][None], sets["train"].states[None],
             {k: (pixels[k][None], s[None]) for k, (_, s) in tests.items()}, [seed])[0]
         report["references"] = {"constant": baseline, **row}
+    phase("done")
     return report
+
+
+def _set_names(stream: Stream) -> tuple[str, ...]:
+    """The test sets a run's analysis draws: the replay's, π_rand's and, under PPO, π_curr's."""
+    cfg = stream.config
+    return ("train", "pi_rand") + (("pi_curr",) if cfg.policy == "ppo" and cfg.eval.curr > 0
+                                   else ())
 
 
 def _pixels(stream: Stream, test_set: TestSet) -> np.ndarray:

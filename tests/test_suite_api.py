@@ -1,7 +1,10 @@
 """jaml.suite: the runs' test sets and analysis for an encoder of one's own."""
 
+import contextlib
 import hashlib
+import io
 import json
+import re
 import time
 
 import jax
@@ -46,9 +49,11 @@ def reports(run):
     def encode(frames, actions):
         return s.learner.encode(state.learner.variables, frames, actions)
 
-    api = suite.evaluate(encode, config, state, actions_seen=s.learner.config.actions_seen,
-                         stream=s)
-    return own, api
+    said = io.StringIO()
+    with contextlib.redirect_stderr(said):
+        api = suite.evaluate(encode, config, state, actions_seen=s.learner.config.actions_seen,
+                             stream=s)
+    return own, api | {"stderr": said.getvalue()}
 
 
 def test_the_apis_numbers_equal_the_streams_own_analysis(run, reports):
@@ -68,6 +73,13 @@ def test_the_apis_numbers_equal_the_streams_own_analysis(run, reports):
     assert api["error_names"] == list(s.env.ld_state_names)
     assert api["validation_split"] == own["validation_split"] == "slots"
     assert api["scale"] == "smoke" and api["note"] == suite.SMOKE_NOTE
+    # Its phases, one line each on stderr (the state given: no replay to fill).
+    phases = [re.sub(r"\d+ chunks", "N chunks", line.split("] ", 1)[1])
+              for line in api["stderr"].splitlines()]
+    assert phases == ["building the stream", "drawing the test sets (train, pi_rand, pi_curr)",
+                      "encoding N chunks", "fitting the alignment regressor",
+                      "the reference rows (true state, pixels' PCA, a random projection)",
+                      "done"], api["stderr"]
 
 
 def test_the_reference_rows_are_the_runs_own_and_the_floor_is_below_the_ceiling(reports):

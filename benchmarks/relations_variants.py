@@ -145,7 +145,7 @@ def plot(records_path: str, variants: list[str], out: str, metric: str = "landed
     lines = Path(records_path).read_text().splitlines()
     records = [json.loads(line) for line in lines if line.startswith("{")]
     fig, ax = plt.subplots(figsize=(8, 3.6))
-    groups, colours, ticks = [], {}, []
+    groups, colours, ticks, lowest = [], {}, [], 1.0
     for item in variants:
         name, _, label = item.partition("=")
         source = VARIANTS[name.partition("@")[0]][0]
@@ -160,9 +160,10 @@ def plot(records_path: str, variants: list[str], out: str, metric: str = "landed
         ax.plot([10 * g + r["seed"] + 0.2 * within for r in rows], [r[metric] for r in rows],
                 "o", color=colour, ms=4, label=label if label not in ticks else None)
         ticks.append(label)
+        lowest = min([lowest] + [r[metric] for r in rows])
     ax.set_xticks([10 * g + 3.5 for g in range(len(groups))], groups)
     ax.axhline(0.9, color="grey", lw=0.8, ls="--")
-    ax.set(xlabel="seeds 0–7 of each source", ylim=(0, 1.02),
+    ax.set(xlabel="seeds 0–7 of each source", ylim=(max(0.0, int(lowest * 10) / 10 - 0.1), 1.02),
            ylabel="box points within 0.05 of the manifold" if metric != "landed" else
            "box points landing within 0.05 of the curve")
     ax.legend(fontsize=7, loc="lower left")

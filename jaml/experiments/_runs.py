@@ -78,6 +78,19 @@ class Sizes:
         """These sizes as `StreamConfig.with_overrides` paths ("eval.train", …)."""
         return {f.metadata["path"]: getattr(self, f.name) for f in dataclasses.fields(self)}
 
+    def under(self, scale: str) -> dict:
+        """`overrides()` at the paper's scale; none at another: that scale's own sizes replace
+        these (`scaled`), so they are not checked against sizes no run has. A flag set to other
+        than its default is named on stderr as replaced."""
+        if scale == "paper":
+            return self.overrides()
+        given = [f"--{f.name.replace('_', '-')} {getattr(self, f.name)}"
+                 for f in dataclasses.fields(self) if getattr(self, f.name) != f.default]
+        if given:
+            print(f"--scale {scale} replaces {', '.join(given)}: the scale's sizes are used",
+                  file=sys.stderr, flush=True)
+        return {}
+
 
 SIZES = tuple(f.name for f in dataclasses.fields(Sizes))  # their names in `settings`
 

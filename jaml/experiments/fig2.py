@@ -409,7 +409,7 @@ class Args(_runs.Driver):
     the same cell there (OUT − OTHER, Welch's 90 % interval), also written to OUT/compare.md"""
 
     def train(self) -> None:
-        scale = self.sizes.overrides()
+        scale = self.sizes.under(self.scale)
         schedule = {f: (getattr(self, f"{f}_epochs"), getattr(self, f"{f}_eval_every"))
                     for f in SCHEDULE}
         for env in self.envs:

@@ -594,7 +594,7 @@ class Args(_runs.Driver):
         options = learner_options(self.learner_opt, self.variants)
         env_opt = key_values(self.env_opt)
         for variant in self.variants:
-            run_cell(self.out, variant, self.seeds, self.sizes.overrides(),
+            run_cell(self.out, variant, self.seeds, self.sizes.under(self.scale),
                      (self.epochs, self.eval_every), options[variant], env_opt, self.env,
                      self.scale, **self.call.run_options())
 

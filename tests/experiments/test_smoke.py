@@ -50,3 +50,18 @@ def test_fig3_smoke_configs_take_the_smoke_sizes():
     assert config.learner_config.grid_size == 4 and not config.eval.regressor_normalize
     paper = fig3.config_for("SPAIR_4x4", 0, paper_sizes, fig3.SCHEDULE)
     assert paper.num_envs == 64 and paper.epochs == fig3.SCHEDULE[0]
+
+
+def test_smoke_replaces_size_flags_without_checking_them_against_the_papers_sizes(capsys):
+    """`fig2 --scale smoke --replay-slots 32` failed: 32 slots checked against the paper's 64
+    envs before the smoke scale replaced both. Now the scale's sizes are used, the flag named."""
+    from jaml.cli import parse
+    from jaml.experiments import fig2
+
+    args = parse(["fig2", "--scale", "smoke", "--replay-slots", "32", "--out", "unused"]).command
+    scale = args.sizes.under(args.scale)
+    assert scale == {}
+    assert "--scale smoke replaces --replay-slots 32" in capsys.readouterr().err
+    config = fig2.config_for("CartPole", "VAE_rpl", 0, scale, fig2.SCHEDULE, preset=args.scale)
+    assert (config.num_envs, config.replay.slots) == (8, suite.SCALES["smoke"]["replay.slots"])
+    assert args.sizes.under("paper")["replay.slots"] == 32

@@ -138,6 +138,12 @@ def _one_line(box: str) -> str:
     indent = min(len(x) - len(x.lstrip()) for x in message) if message else 0
     kept = [x.strip() for x in message if len(x) - len(x.lstrip()) < indent + 8]
     line = " ".join(" ".join(kept).split()) or "invalid arguments"
+    # A union's value that fits none of its types: tyro lists each type's own error after it.
+    union = re.match(r"(Error parsing \S+): no type matching (\S+) could be instantiated from "
+                     r"\[(.*?)\]\.", line)
+    if union:
+        kinds = " or ".join(k.strip("{}") for k in union[2].split("|"))
+        line = f"{union[1]}: {union[3]} is not {kinds}"
     # tyro's closest flag to a misspelt one, the first of its "Perhaps you meant" section.
     for section in sections[first + 1:]:
         if section[0].strip().startswith("Perhaps you meant"):

@@ -248,6 +248,17 @@ def test_a_misspelt_flag_is_one_line_naming_the_closest_one(capsys, given, meant
         assert f"; perhaps you meant {meant} (see `jaml relations --help`)" in err
 
 
+def test_a_value_no_type_of_a_union_takes_is_one_short_line(capsys):
+    """tyro lists each type's own error after a union's (`int | None`); the line keeps the
+    flag, the value and the types."""
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["relations", "--source", "ellipse", "--out", "x", "--codimension", "abc"])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2
+    assert err == ("jaml relations: error: Error parsing --codimension: 'abc' is not None or INT "
+                   "(see `jaml relations --help`)\n")
+
+
 def test_a_bad_value_beside_help_is_refused_without_a_traceback(capsys):
     """`--help` with an invalid value: tyro's own message, exit 2, no Python traceback (the
     one-line rewrite has nothing to read there: stderr is not captured while helping)."""

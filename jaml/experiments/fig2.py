@@ -127,6 +127,36 @@ def _final_rows(runs: dict[str, list[list[dict]]]):
             yield variant, test_set, [f[test_set] for f in finals if test_set in f], last
 
 
+def bounds_note(labels: set[str]) -> str:
+    """The line under a domain's table saying what its bound rows (`reference_rows`) are."""
+    ceiling = ("*constant* (the ceiling): a constant prediction's errors on each run's rows at "
+               "its cell's last epoch")
+    floor = ("*true state* (the floor): the regressor's errors with the true state as the "
+             "latent, at each run's first analysis of its last call (summary.json)")
+    if "true state" not in labels:
+        floor = "the true state's errors (the floor): not recorded by these runs"
+    return f"{ceiling}; {floor}; over every run of the domain that recorded them, in each run's " \
+           "own units."
+
+
+def reference_rows(directory: Path, runs: dict[str, list[list[dict]]], names: list[str]):
+    """(label, test set, [{dim: error}] one per run) of a domain's bounds: the constant
+    predictor's errors (the ceiling) from each cell's records at its last common epoch, and
+    the true state's (the floor) from each run's summary.json "references", where recorded."""
+    ceiling, floor = {}, {}
+    for _, test_set, per_seed, _ in _final_rows(runs):
+        ceiling.setdefault(test_set, []).extend(r["baseline"] for r in per_seed
+                                                if r.get("baseline"))
+    for variant in runs:
+        for path in sorted((directory / variant).glob("seed_*/summary.json")):
+            true_state = (json.loads(path.read_text()).get("references") or {}).get("true_state")
+            for test_set, errors in (true_state or {}).items():
+                floor.setdefault(test_set, []).append(dict(zip(names, errors, strict=True)))
+    return [(label, test_set, per_run) for label, rows in (("constant", ceiling),
+                                                           ("true state", floor))
+            for test_set, per_run in rows.items() if per_run]
+
+
 def extra_options(variant: str, config: dict) -> dict:
     """The learner options a cell's runs were given beyond its variant's own (--learner-opt),
     e.g. {"compute_dtype": "bfloat16"}: shown beside the cell, since they change the experiment."""
@@ -266,6 +296,16 @@ def report(out: Path, envs, variants) -> str:
             lines.append(f"| {variant} | {test_set} | "
                          + " | ".join(cell(v) for v in (*dims, *means))
                          + f" | {last} | {len(per_seed)} |")
+        bounds = reference_rows(out / env, runs, names)
+        for label, test_set, per_run in bounds:
+            dims = [[v[n] for v in per_run] for n in show]
+            means = [[float(np.mean([v[d] for d in dims_of])) for v in per_run]
+                     for dims_of in groups.values()]
+            lines.append(f"| *{label}* | {test_set} | "
+                         + " | ".join(cell(v) for v in (*dims, *means))
+                         + f" | — | {len(per_run)} |")
+        if bounds:
+            lines += ["", bounds_note({label for label, _, _ in bounds})]
         lines += ["", *_relative_table(env, groups, runs), ""]
         if env in LOCOMOTION:  # per group, on the tables' scale (fractions of the constant)
             left_out = [v for v, hs in runs.items() if not has_baselines(hs)]

@@ -58,6 +58,40 @@ def test_report_averages_seeds_with_a_t_interval(tmp_path):
     assert (tmp_path / "fig2.png").stat().st_size > 0
 
 
+def test_each_domain_table_ends_with_its_ceiling_and_floor(tmp_path):
+    """The constant predictor's errors (each cell's last epoch) and the true state's (each
+    run's summary.json references) close the table, over every run that recorded them."""
+    for variant, seed, baseline, floor in (("PRED", 0, [1.0, 2.0, 1.0, 2.0], [0.02] * 4),
+                                           ("PRED", 1, [1.2, 2.2, 1.0, 2.0], [0.04] * 4),
+                                           ("VAE_rpl", 0, [1.4, 2.4, 1.0, 2.0], None)):
+        run = tmp_path / "CartPole" / variant / f"seed_{seed}"
+        _write_run(run, variant, seed, [0.3] * 4, baseline=baseline)
+        if floor is not None:
+            (run / "summary.json").write_text(json.dumps(
+                {"references": {"epoch": 10, "true_state": {"pi_rand": floor}}}))
+    text = fig2.report(tmp_path, ["CartPole"], ["PRED", "VAE_rpl"])
+    rows = {line.split(" | ")[0]: line.split(" | ") for line in text.splitlines()
+            if line.startswith("| *")}
+    theta = np.array([1.0, 1.2, 1.4])
+    half = 2.9199856 * theta.std(ddof=1) / math.sqrt(3)
+    assert rows["| *constant*"][1:3] == ["pi_rand", f"{theta.mean():.3f} ± {half:.3f}"]
+    assert rows["| *constant*"][-2:] == ["—", "3 |"]
+    assert rows["| *true state*"][2].startswith("0.030 ± ") and rows["| *true state*"][-1] == "2 |"
+    assert fig2.bounds_note({"constant", "true state"}) in text
+    # Without either record, no row and no note.
+    (tmp_path / "CartPole" / "VAE_rpl").rename(tmp_path / "VAE_rpl")
+    for seed in (0, 1):
+        (tmp_path / "CartPole" / "PRED" / f"seed_{seed}" / "summary.json").unlink()
+        _strip_baseline(tmp_path / "CartPole" / "PRED" / f"seed_{seed}" / "history.jsonl")
+    assert "(the ceiling)" not in fig2.report(tmp_path, ["CartPole"], ["PRED", "VAE_rpl"])
+
+
+def _strip_baseline(path):
+    records = [json.loads(line) for line in path.read_text().splitlines()]
+    path.write_text("".join(json.dumps({k: v for k, v in r.items() if k != "baseline"}) + "\n"
+                            for r in records))
+
+
 def test_a_smoke_scale_report_says_its_numbers_do_not_rank_encoders(tmp_path):
     """fig2.md of `--scale smoke` runs opens with the smoke caveat; other sizes' have none."""
     from jaml.configs.stream import SCALES, SMOKE_CAVEAT

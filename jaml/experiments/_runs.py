@@ -246,6 +246,18 @@ def last_common_step(histories: list[list[dict]]) -> int:
     return min(max(r["step"] for r in h) for h in histories)
 
 
+def true_state_errors(cell_dir: Path, names: list[str]) -> dict[str, list[dict]]:
+    """test set → one {name: error} per seed_N run under `cell_dir` whose summary.json holds the
+    regressor's errors with the true state as the latent (the floor: "references", from its
+    last call's first analysis); runs from before the analysis computed them hold none."""
+    out = {}
+    for path in sorted(Path(cell_dir).glob("seed_*/summary.json")):
+        true_state = (json.loads(path.read_text()).get("references") or {}).get("true_state")
+        for test_set, errors in (true_state or {}).items():
+            out.setdefault(test_set, []).append(dict(zip(names, errors, strict=True)))
+    return out
+
+
 def cell(values, digits: int = 3) -> str:
     """'0.123' for one run, '0.123 ± 0.045' (90 % confidence half-width) for several."""
     from jaml.evaluation import intervals

@@ -148,10 +148,8 @@ def reference_rows(directory: Path, runs: dict[str, list[list[dict]]], names: li
         ceiling.setdefault(test_set, []).extend(r["baseline"] for r in per_seed
                                                 if r.get("baseline"))
     for variant in runs:
-        for path in sorted((directory / variant).glob("seed_*/summary.json")):
-            true_state = (json.loads(path.read_text()).get("references") or {}).get("true_state")
-            for test_set, errors in (true_state or {}).items():
-                floor.setdefault(test_set, []).append(dict(zip(names, errors, strict=True)))
+        for test_set, rows in _runs.true_state_errors(directory / variant, names).items():
+            floor.setdefault(test_set, []).extend(rows)
     return [(label, test_set, per_run) for label, rows in (("constant", ceiling),
                                                            ("true state", floor))
             for test_set, per_run in rows.items() if per_run]

@@ -484,7 +484,10 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
              "prediction), averaged over the objects; "
              "– where the runs did not record it. A \"constant prediction\" row (runs analysed "
              "since the analysis records it) is what a latent with no information scores on the "
-             "same rows: every row predicted as the median of the regressor's training targets.",
+             "same rows: every row predicted as the median of the regressor's training targets "
+             "(the ceiling); a \"true state\" row (runs since 2026-11-29) what the regressor "
+             "scores with the true state itself as the latent, at the first analysis of each "
+             "run's last call (the floor).",
              "", "The paper: \"VAE_rpl encoded angle of the main robot joint, location & partly "
              "orientation (major axis) of the largest objects. SPAIR encoded (rough) locations "
              "quickly, but did not improve with longer training (bounding boxes not tight).\"",
@@ -505,6 +508,7 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
               "|---" * (len(columns) + 4) + "|"]
     for variant, histories in runs.items():
         last = _runs.last_common_step(histories)
+        floors = _runs.true_state_errors(out / variant, list(histories[0][0]["errors"]))
         for test_set in _test_sets(histories):
             for label, field in ((variant, "errors"),
                                  (f"{variant}: constant prediction", "baseline")):
@@ -514,6 +518,12 @@ def report(out: Path, variants=tuple(VARIANTS)) -> str:
                     lines.append(f"| {label} | {test_set} | "
                                  + " | ".join(cell(v) if v else "–" for v in per_panel)
                                  + f" | {last} | {len(per_panel[0])} |")
+            if floors.get(test_set):  # the floor, where the runs recorded it
+                per_panel = [[float(np.mean([r[n] for n in panels[c]])) for r in floors[test_set]]
+                             for c in columns]
+                lines.append(f"| {variant}: true state | {test_set} | "
+                             + " | ".join(cell(v) for v in per_panel)
+                             + f" | — | {len(floors[test_set])} |")
     stopped = {v: _runs.stopped_runs(out / v) for v in variants}
     notes = [f"- {variant} {seed}: stopped, {error.split(';')[0]}; left out of every table "
              "and figure." for variant, errors in stopped.items()

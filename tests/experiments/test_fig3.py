@@ -283,6 +283,25 @@ def test_constant_prediction_rows_come_from_the_records_baselines(tmp_path):
     assert "SPAIR_4x4: constant prediction" not in text
 
 
+def test_true_state_rows_come_from_the_runs_summaries(tmp_path):
+    """The floor: the regressor's errors with the true state as the latent, from each run's
+    summary.json "references"; a variant whose runs did not record it has no row."""
+    for seed in range(2):
+        run = tmp_path / "VAE_rpl" / f"seed_{seed}"
+        _write_run(run, "VAE_rpl", seed, {2: _errors(0.5, 0.5, [0.3] * 4)})
+        floor = [0.01 * (seed + 1)] * len(_names())
+        (run / "summary.json").write_text(json.dumps(
+            {"references": {"epoch": 2, "true_state": {"pi_rand": floor}}}))
+        _write_run(tmp_path / "SPAIR_4x4" / f"seed_{seed}", "SPAIR_4x4", seed,
+                   {2: _errors(0.5, 0.5, [0.3] * 4)})
+    text = fig3.report(tmp_path)
+    row = _row(text, "VAE_rpl: true state", "pi_rand", "| variant | test set | arm joint angles")
+    half = T_90_1DOF * np.std([0.01, 0.02], ddof=1) / math.sqrt(2)
+    assert row["main joint (q0)"] == f"0.015 ± {half:.3f}"
+    assert (row["epoch"], row["seeds"]) == ("—", "2")
+    assert "VAE_rpl: true state | pi_curr" not in text and "SPAIR_4x4: true state" not in text
+
+
 def test_claims_table_pairs_seeds_within_a_variant_and_welch_between(fake_grid):
     from scipy import stats
 

@@ -21,7 +21,7 @@ from matplotlib.figure import Figure
 from jaml._rundir import write_text
 from jaml.evaluation import plots
 from jaml.evaluation.intervals import mean_interval, paired_interval, welch_interval
-from jaml.experiments._runs import read_jsonl, stopped_runs
+from jaml.experiments._runs import read_jsonl, stopped_runs, true_state_errors
 
 BASE = "PRED"
 # name → (label, value of a π_rand analysis record or None)
@@ -327,7 +327,7 @@ def report(out: Path, methods) -> str:
     plot(runs, out / "fig9.png")
     metrics = functools.cache(_metrics)  # each run's metrics.jsonl read once per report
     fill = _fill_epochs(out, runs)
-    lines = [primary(runs, fill), "",
+    lines = [primary(runs, fill), "", bounds(out, runs), "",
              "Streams (a seed's per-epoch episode returns and PPO losses against PRED's):",
              *stream_check(out, runs, metrics), ""]
     for table in (late_table(runs, fill), contrast_table(runs)):
@@ -344,6 +344,28 @@ def report(out: Path, methods) -> str:
     text = "\n".join(lines)
     write_text(out / "fig9.md", text)
     return text
+
+
+def bounds(out: Path, runs) -> str:
+    """A line of π_rand's bounds over every run: a constant prediction's position and velocity
+    errors at each run's last analysis (the ceiling), the true state's as the latent (the floor,
+    summary.json's "references") where the runs recorded it."""
+    def mean(rows, what):
+        return " and ".join(f"{name} {np.mean([r[name] for r in rows]):.4f}"
+                            for name in ("position", "velocity")) \
+            + f" ({len(rows)} run{'s' * (len(rows) != 1)}, {what})"
+
+    last = [max(records, key=lambda r: r["step"]) for seeds in runs.values()
+            for records in seeds.values()]
+    ceiling = [r["baseline"] for r in last if r.get("baseline")]
+    names = list(last[0]["errors"])
+    floor = [row for method, seeds in runs.items()
+             for row in true_state_errors(out / method, names).get("pi_rand", [])]
+    return ("**Bounds on π_rand**, means over every run: a constant prediction's errors "
+            + (mean(ceiling, "each at its last analysis") if ceiling else "not recorded")
+            + " (the ceiling); the true state's as the latent "
+            + (mean(floor, "each at its last call's first analysis") if floor
+               else "not recorded by these runs") + " (the floor).")
 
 
 def _fill_epochs(out: Path, runs) -> int:

@@ -64,6 +64,28 @@ def test_report_leads_with_the_primary_comparison_and_tables_paired_differences(
     assert (tmp_path / "fig9.png").stat().st_size > 0
 
 
+def test_the_bounds_line_reads_the_constants_and_the_runs_floors(tmp_path):
+    """The ceiling: each run's constant prediction at its last analysis; the floor: the true
+    state's errors from summary.json, where a run recorded them."""
+    for seed in range(2):
+        run = tmp_path / "PRED" / f"seed_{seed}"
+        _write_run(run, seed, (0.3, 0.2, 0.1))
+        records = [json.loads(line) for line in (run / "history.jsonl").read_text().splitlines()]
+        for r in records:  # the constant: position 0.5 + seed / 10 at the last analysis only
+            last = r["step"] == 1078
+            r["baseline"] = dict(zip(NAMES, [1.0, 1.0, 1.0, 0.5 + seed / 10 if last else 9.0,
+                                             0.8], strict=True))
+        (run / "history.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    (tmp_path / "PRED" / "seed_1" / "summary.json").write_text(json.dumps(
+        {"references": {"true_state": {"pi_rand": [0.0, 0.0, 0.0, 0.03, 0.07]}}}))
+    line = fig9_report.bounds(tmp_path, fig9_report.collect(tmp_path, ["PRED"]))
+    assert ("a constant prediction's errors position 0.5500 and velocity 0.8000 (2 runs, each "
+            "at its last analysis) (the ceiling); the true state's as the latent position 0.0300 "
+            "and velocity 0.0700 (1 run, each at its last call's first analysis)") in line
+    (tmp_path / "PRED" / "seed_1" / "summary.json").unlink()
+    assert "not recorded by these runs (the floor)" in fig9_report.report(tmp_path, ["PRED"])
+
+
 def test_the_stream_check_reads_committed_gzip_metrics(tmp_path):
     """A committed record keeps metrics.jsonl as metrics.jsonl.gz: the same verdict either way,
     a run with neither is named as missing."""

@@ -135,8 +135,8 @@ def bounds_note(labels: set[str]) -> str:
              "latent, at each run's first analysis of its last call (summary.json)")
     if "true state" not in labels:
         floor = "the true state's errors (the floor): not recorded by these runs"
-    return f"{ceiling}; {floor}; over every run of the domain that recorded them, in each run's " \
-           "own units."
+    return (f"{ceiling}; {floor}; over every run of the domain that recorded them, in each "
+            "run's own units.")
 
 
 def reference_rows(directory: Path, runs: dict[str, list[list[dict]]], names: list[str]):

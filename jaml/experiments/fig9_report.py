@@ -351,9 +351,9 @@ def bounds(out: Path, runs) -> str:
     errors at each run's last analysis (the ceiling), the true state's as the latent (the floor,
     summary.json's "references") where the runs recorded it."""
     def mean(rows, what):
-        return " and ".join(f"{name} {np.mean([r[name] for r in rows]):.4f}"
-                            for name in ("position", "velocity")) \
-            + f" ({len(rows)} run{'s' * (len(rows) != 1)}, {what})"
+        values = " and ".join(f"{name} {np.mean([r[name] for r in rows]):.4f}"
+                              for name in ("position", "velocity"))
+        return f"{values} ({len(rows)} run{'s' * (len(rows) != 1)}, {what})"
 
     last = [max(records, key=lambda r: r["step"]) for seeds in runs.values()
             for records in seeds.values()]

@@ -3,8 +3,9 @@
 `assess` is the report every fit carries (`RelationSet.quality`): per relation, whether it met
 the stopping rule and how well it separates held-out on-manifold rows from off-manifold ones;
 whether the relations are independent (the rank of their Jacobian, the angles between their
-gradients); where points of the data's box land when projected onto {g = 0} (on the data, or on
-spurious parts of the zero set away from it); and how `holds` does on held-out rows.
+gradients); where points of the data's box land when projected onto {g = 0} (on the data, on its
+continuation past the sample's edge, or on spurious parts of the zero set away from it); and
+how `holds` does on held-out rows.
 """
 
 from __future__ import annotations

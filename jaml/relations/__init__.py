@@ -1,12 +1,12 @@
 """Analytic Manifold Learning (paper §3): learn independent relations g_k(τ) = 0 from data.
 
 from jaml import relations
-rs = relations.fit(rows_or_sampler, relations.Config(max_relations=2))
+rs = relations.fit(rows_sampler_source_or_path, relations.Config(max_relations=2))
 relations.evaluate(rs, tau)   # [..., K]
 relations.penalty(rs, tau)    # [...] Σ_k |g_k|  (paper eq. 4)
 relations.holds(rs, tau)      # bool [...]
 relations.save(rs, path); rs = relations.load(path)
-points, residuals = relations.project(rs, tau)   # onto {g_1 = … = g_K = 0}, Gauss–Newton
+points, residuals, converged = relations.project(rs, tau)  # onto {g = 0}, Gauss–Newton
 relations.codimension(rs, on_rows)  # how often ∇g_1..∇g_K are independent there
 pen = relations.latent_penalty(rs, relations.LatentLayout(static={"theta": 2},
                                dynamic={"s": 3, "v": 4}), latent_size=5, action_size=1)

@@ -16,7 +16,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from jaml.relations.networks import Relation
-from jaml.relations.relation_set import RelationSet, Report
+from jaml.relations.relation_set import RelationSet, Report, require_relations
 
 log = logging.getLogger("jaml.relations")
 FORMAT = "jaml.relations/1"
@@ -57,6 +57,7 @@ def _read_meta(path: Path):
 
 def save(rs: RelationSet, path, *, overwrite: bool = True) -> Path:
     """Write `rs` to the directory `path` (atomically; replaces an existing one if overwrite)."""
+    require_relations(rs, "save")
     path = Path(path).absolute()
     with ocp.Checkpointer(ocp.CompositeCheckpointHandler()) as ckptr:
         ckptr.save(

@@ -7,6 +7,7 @@ empty or constant data raise a ValueError/TypeError that names the problem.
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections.abc import Callable
 from typing import NamedTuple
@@ -15,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaml import sources
 from jaml.sources.off_manifold import bounding_box, uniform_in_box
 
 log = logging.getLogger(__name__)
@@ -178,8 +180,11 @@ def _pool_size(on_manifold) -> int | None:
 def prepare(on_manifold, batch_size: int, noise_scale: float, key, calibration_batches: int):
     """Validate the user's data and build its `Batches`.
 
-    A Source with a `pool_size` is sampled once here (`pool_size` rows) and then behaves as rows.
+    A Source with a `pool_size` is sampled once here (`pool_size` rows) and then behaves as rows;
+    a path (str or os.PathLike) names a `.npy` / `.csv` file of rows (`sources.make`).
     """
+    if isinstance(on_manifold, str | os.PathLike):
+        on_manifold = sources.make(os.fspath(on_manifold))
     sampler, names = _as_sampler(on_manifold)
     pool_size = _pool_size(on_manifold)
     if sampler is None or pool_size is not None:

@@ -12,7 +12,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaml.relations.loop import ONCE_COMPILER_OPTIONS
-from jaml.relations.relation_set import RelationSet, _check_tau, evaluate, evaluate_raw, holds
+from jaml.relations.relation_set import (
+    RelationSet,
+    _check_tau,
+    evaluate,
+    evaluate_raw,
+    holds,
+    require_relations,
+)
 
 DEFAULT_RANK_RTOL = 0.1  # σ_i / σ_1 of the row-normalised Jacobian; for K = 2, tan(θ/2) > 0.1
 
@@ -121,6 +128,7 @@ def project(relations, tau, steps: int = 50, free=None, max_step: float | None =
     recorded on-manifold means, which matters only where the K equations cannot all hold.
     """
     if isinstance(relations, RelationSet):
+        require_relations(relations, "project")
         tau = _check_tau(relations, tau)
         if bounds is None and relations.low:
             bounds = (relations.low, relations.high)

@@ -159,12 +159,22 @@ def evaluate_raw(rs: RelationSet, tau) -> jax.Array:
     return jnp.stack([rs.relation(k, raw=True)(tau) for k in range(rs.num_relations)], axis=-1)
 
 
+def require_relations(rs: RelationSet, what: str) -> None:
+    """A one-line ValueError where `rs` holds no relation: no equation holds or fails, so
+    `holds` would accept every point and `penalty` be 0 everywhere."""
+    if rs.num_relations == 0:
+        raise ValueError(f"{what}: this RelationSet has no relations (the fit found none that "
+                         "separates on- from off-manifold rows; its log says why)")
+
+
 def penalty(rs: RelationSet, tau) -> jax.Array:
     """[...]: Σ_k |g_k(tau)| (paper eq. 4), differentiable in tau."""
+    require_relations(rs, "penalty")
     return jnp.sum(jnp.abs(evaluate(rs, tau)), axis=-1)
 
 
 def holds(rs: RelationSet, tau, tolerance: float | None = None) -> jax.Array:
     """bool [...]: every |g_k(tau)| is below tolerance × its recorded on-manifold mean."""
+    require_relations(rs, "holds")
     tol = rs.tolerance if tolerance is None else tolerance
     return jnp.all(jnp.abs(evaluate(rs, tau)) < tol * rs.on_means, axis=-1)

@@ -539,7 +539,8 @@ def fit(
     """Learn relations that vanish on `on_manifold` (Algorithm 1).
 
     Args:
-      on_manifold: rows float [N, D]; or a sampler `key -> [B, D]`; or a `jaml.sources.Source`.
+      on_manifold: rows float [N, D]; or a sampler `key -> [B, D]`; or a `jaml.sources.Source`;
+        or the path of a .npy / .csv file of rows.
       config: see `Config`.
       priors: optional heuristics h_k(τ [..., D]) -> [...]: g_k is first pre-trained to output
         tanh(h_k) on- and off-manifold (end of paper §3.2), then trained as usual.

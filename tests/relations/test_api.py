@@ -290,3 +290,32 @@ def test_a_pre_mined_relation_that_fails_is_trained_again_without_its_rows(bad, 
     assert ("non-finite" in again[0]) == (bad == "nan")
     assert rs.num_relations == 2
     assert np.isfinite(np.asarray(relations.evaluate(rs, rows[:16]))).all()
+
+
+def test_a_relation_set_without_relations_is_refused_where_it_would_mislead(tmp_path):
+    """No relation: `holds` would accept every point, `penalty` be 0 everywhere, `project`
+    call every point converged, and Orbax cannot save zero-size arrays (it left a temporary
+    directory and hung at exit). Each refuses in one line instead."""
+    rs = relations.RelationSet.empty(3, 2, 1.5, low=(0.0,) * 3, high=(1.0,) * 3)
+    tau = np.full((4, 3), 10.0, np.float32)
+    for call, name in ((lambda: relations.holds(rs, tau), "holds"),
+                       (lambda: relations.penalty(rs, tau), "penalty"),
+                       (lambda: relations.project(rs, tau), "project"),
+                       (lambda: relations.save(rs, tmp_path / "rs"), "save")):
+        with pytest.raises(ValueError, match=f"^{name}: this RelationSet has no relations"):
+            call()
+    assert not list(tmp_path.iterdir())
+    assert relations.evaluate(rs, tau).shape == (4, 0)  # the values, an empty set of them
+
+
+def test_fit_takes_the_path_of_a_csv_file_as_the_docs_say(tmp_path):
+    """A path (str or Path) is read as `sources.make` reads it: the same rows as the array."""
+    from jaml.relations import data
+
+    rows = np.random.default_rng(0).normal(size=(64, 3)).astype(np.float32)
+    np.savetxt(tmp_path / "rows.csv", rows, delimiter=",", header="a,b,c", comments="")
+    for given in (tmp_path / "rows.csv", str(tmp_path / "rows.csv")):
+        batches = data.prepare(given, 16, 0.0, jax.random.key(0), 2)
+        got = np.concatenate([np.asarray(batches.held_out), np.asarray(batches.rows)])
+        np.testing.assert_allclose(np.sort(got, axis=0), np.sort(rows, axis=0), rtol=1e-6)
+        assert batches.dim_names == ("a", "b", "c")

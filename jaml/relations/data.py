@@ -158,10 +158,16 @@ def padded_box(low: np.ndarray, high: np.ndarray, names=()) -> tuple[np.ndarray,
     thin = width < THIN * widest
     for i in np.nonzero(thin)[0]:
         name = names[i] if i < len(names) else f"column {i}"
-        log.warning(
-            "%s is %s (%.4g): it is the relation %s = %.4g; its off-manifold box is padded to "
-            "±%.3g", name, "constant" if width[i] == 0 else "nearly constant",
-            (low[i] + high[i]) / 2, name, (low[i] + high[i]) / 2, PADDED * widest / 2)
+        centre_i = (low[i] + high[i]) / 2
+        if width[i] == 0:
+            log.warning("%s is constant (%.4g): it is the relation %s = %.4g; its off-manifold "
+                        "box is padded to ±%.3g", name, centre_i, name, centre_i,
+                        PADDED * widest / 2)
+        else:
+            log.warning("%s spans %.3g, under %g%% of the widest column's %.3g: taken as the "
+                        "relation %s ≈ %.4g, its off-manifold box padded to ±%.3g (columns on "
+                        "very different scales: divide each by its spread first)", name,
+                        width[i], 100 * THIN, widest, name, centre_i, PADDED * widest / 2)
     centre = (low + high) / 2
     half = np.where(thin, PADDED * widest / 2, width / 2)
     return (centre - half).astype(np.float32), (centre + half).astype(np.float32)

@@ -49,6 +49,16 @@ def test_a_constant_column_pads_its_box_and_says_which_relation_it_is(caplog):
     np.testing.assert_allclose((low + high)[2] / 2, 0.3, atol=1e-6)
 
 
+def test_a_narrow_column_is_named_by_its_spread_not_its_mean(caplog):
+    """A column ×1000 makes the others "nearly constant": the warning gives their spread
+    against the widest column's and says to divide each by its spread."""
+    rows = np.stack([1000 * np.cos(np.linspace(0, 6, 500)), np.sin(np.linspace(0, 6, 500))], 1)
+    with caplog.at_level(logging.WARNING, logger="jaml.relations.data"):
+        padded_box(rows.min(0), rows.max(0), ("x", "y"))
+    assert "y spans 2, under 1% of the widest column's 2e+03" in caplog.text
+    assert "divide each by its spread first" in caplog.text
+
+
 def test_a_constant_columns_figure_box_is_padded_as_the_fits_box():
     """The zero-set figure's box: a constant column gets the side the fit pads it to (a zero
     side made matplotlib warn of a singular transform), the others their range × scale."""

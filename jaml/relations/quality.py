@@ -29,6 +29,7 @@ LANDING_SPACING = 3.0  # ... or this many times the data sample's own spacing, i
 RECALL = 0.99  # `holds`' tolerance: this quantile of held-out rows' largest |g_k| / on-mean
 DEPENDENT_COS = 0.9  # a pair of relations whose gradients' median |cos| exceeds this: dependent
 SPURIOUS = 0.1  # warn when more than this share of converged box points lands off the data
+SPARSE = 0.1  # warn when the landing distance exceeds this share of the box diagonal
 TANGENT_NEIGHBOURS = 32  # rows of the local PCA that gives the data's tangent space at a row
 TANGENT_RTOL = 0.2  # its directions: singular values above this share of the largest
 
@@ -139,7 +140,7 @@ def calibrated_tolerance(rs: RelationSet, held_out) -> float:
 
 
 def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
-           data_codim: int | None = None) -> Report:
+           data_codim: int | None = None, data_codim_from: str = "by local PCA") -> Report:
     """The quality report of `rs` on held-out rows [H, D]; `reference` [R, D] are training rows
     (where "on the data" is measured), `statuses` each relation's end ("done" / "capped")."""
     k_box, k_off = jax.random.split(key)
@@ -163,6 +164,7 @@ def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
     ranks = np.asarray(codim["rank_fractions"])
     within = landing_distance(reference, held_out, low, high)
     land, _, _ = landing(rs, k_box, low, high, reference, within)
+    land["box_diagonal"] = float(np.linalg.norm(np.asarray(high) - np.asarray(low)))
     holds_on = float(np.mean(np.all(g_on < rs.tolerance * np.asarray(rs.on_means), -1)))
     holds_off = float(np.mean(np.all(g_off < rs.tolerance * np.asarray(rs.on_means), -1)))
     report = {
@@ -174,6 +176,7 @@ def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
             # The codimension the relations cut: the median rank of their Jacobian.
             "codimension": int(np.searchsorted(np.cumsum(ranks), 0.5)),
             "data_codimension": data_codim,
+            "data_codimension_from": data_codim_from,
             "median_abs_cos": cos.tolist(),
             "max_pair_cos": float(upper.max()) if upper.size else None,
         },
@@ -198,6 +201,11 @@ def _warnings(report: dict) -> list[str]:
                        f"order): their gradients' median |cos| on held-out rows is "
                        f"{cos[i, j]:.2f}")
     land = report["landing"]
+    if land["within"] > SPARSE * land.get("box_diagonal", np.inf):
+        share = 100 * land["within"] / land["box_diagonal"]
+        out.append(f"the rows are sparse for their box: a point counts as on the data within "
+                   f"{land['within']:.3g} of a row, {share:.0f}% of the box diagonal, so the "
+                   "landing shares are loose (more rows tighten them)")
     if land["converged"] > 0 and land["spurious"] > SPURIOUS * land["converged"]:
         out.append(f"the zero set has parts away from the data: {100 * land['spurious']:.0f}% of "
                    f"projected box points land on it farther than {land['within']:.3g} from "
@@ -213,8 +221,9 @@ def _lines(report: dict) -> list[str]:
         f"quality on {report['held_out_rows']} held-out rows: {rel}",
         f"independence: rank {len(ind['median_abs_cos'])} on "
         f"{100 * ind['full_rank_fraction']:.0f}% of rows (codimension {ind['codimension']}"
-        + (f"; the data's, by local PCA: {ind['data_codimension']}"
-           if ind.get("data_codimension") is not None else "") + "), "
+        + (f"; the data's, {ind.get('data_codimension_from', 'by local PCA')}: "
+           f"{ind['data_codimension']}" if ind.get("data_codimension") is not None else "")
+        + "), "
         + (f"largest pairwise median |cos| {ind['max_pair_cos']:.2f}"
            if ind["max_pair_cos"] is not None else "one relation"),
         f"projection: {100 * land['landed']:.0f}% of {land['points']} box points land on the "

@@ -714,6 +714,11 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
     mining = cfg.mined_weight > 0
     within = quality.landing_distance(batches.dense, batches.held_out, batches.low, batches.high)
     codim = cfg.codimension or quality.data_codimension(batches.dense, jax.random.fold_in(key, 5))
+    codim_from = "given" if cfg.codimension else "by local PCA"
+    if codim == 0:  # the local PCA saw the data fill its neighbourhoods: noise, or too few rows
+        log.warning("the data's local PCA finds no codimension (its neighbourhoods are full: "
+                    "noisy or few rows); fitting as codimension 1 (Config.codimension sets it)")
+        codim, codim_from = 1, "by local PCA 0, taken as 1"
     log.info("the data's codimension: %d%s", codim, "" if cfg.codimension else
              " (local PCA of the data; Config.codimension overrides it)")
     for k in range(rs.num_relations, cfg.max_relations):
@@ -950,7 +955,8 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             break
     if rs.num_relations:
         report = quality.assess(rs, jax.random.fold_in(key, 10_000), batches.held_out,
-                                batches.dense, batches.low, batches.high, statuses, codim)
+                                batches.dense, batches.low, batches.high, statuses, codim,
+                                codim_from)
         rs = rs.replace(quality=report)
         for line in report["lines"]:
             (log.warning if line.startswith("warning") else log.info)("%s", line)

@@ -199,3 +199,34 @@ def test_a_codimension_one_relation_landing_away_from_the_data_is_tried_from_ano
         eval_batches=2, refine_rounds=0, premine_attempts=attempts))
     assert trainings == ["relation"] * min(attempts, 2)
     assert rs.num_relations == 1
+
+
+def test_sparse_rows_are_warned_of_and_a_given_codimension_is_named_so():
+    """The landing distance grows with the sample's spacing: past a tenth of the box diagonal
+    the report says its shares are loose; the data's codimension is labelled by its source."""
+    report = {"relations": [{"index": 1, "status": "done", "ratio": 9.0}],
+              "independence": {"median_abs_cos": [[1.0]]},
+              "landing": {"converged": 1.0, "spurious": 0.0, "within": 0.74,
+                          "box_diagonal": 3.6}}
+    assert quality._warnings(report) == [
+        "the rows are sparse for their box: a point counts as on the data within 0.74 of a row, "
+        "21% of the box diagonal, so the landing shares are loose (more rows tighten them)"]
+    report["landing"]["within"] = 0.05
+    assert quality._warnings(report) == []
+    rows = jnp.asarray(_circle(400))
+    low, high = np.asarray(rows.min(0)) - 0.1, np.asarray(rows.max(0)) + 0.1
+    line = quality.assess(_random_set(), jax.random.key(3), rows[:200], rows[200:], low, high,
+                          ("done",), 2, "given")["lines"][1]
+    assert "; the data's, given: 2)" in line
+
+
+def test_a_local_pca_codimension_of_0_is_fitted_as_1(monkeypatch, caplog):
+    """Noisy or few rows fill their neighbourhoods and the local PCA reads codimension 0, which
+    made every relation one "beyond the codimension" (dropped below off/on 5, not 2)."""
+    monkeypatch.setattr(quality, "data_codimension", lambda rows, key: 0)
+    with caplog.at_level(logging.INFO, logger="jaml.relations"):
+        rs = relations.fit(sources.make("circle"), relations.Config(
+            max_relations=1, max_steps=40, chunk_steps=20, batch_size=64, stop_patience=1,
+            eval_batches=2, refine_rounds=0, premine_attempts=1, separation_ratio=1e-3))
+    assert "finds no codimension" in caplog.text and "the data's codimension: 1" in caplog.text
+    assert "the data's, by local PCA 0, taken as 1: 1)" in rs.quality.to_dict()["lines"][1]

@@ -24,6 +24,9 @@ SYZYGY_TRAINING: tuple[str, ...] = get_args(SyzygyTraining)
 LEGACY_FIELDS = {"mined_weight": 0.0, "refine_rounds": 0, "stop_when_complete": False,
                  "codimension": None, "premine": False, "premine_attempts": 1,
                  "mined_patience": None}
+# Fields runs recorded that no longer exist, with the one value that meant what runs do now (a
+# record with another value ran code that is gone, and is refused).
+RETIRED_FIELDS = {"cut_beyond_codim": False}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,7 +64,9 @@ class Config:
         that passes (the reference).
       min_angle: transversality mode also waits for the mean angle between ∇g_k and earlier
         gradients to exceed this (radians; reference 0.4·π/2).
-      tolerance: `holds` accepts τ when every |g_k(τ)| < tolerance × its recorded on-manifold mean.
+      tolerance: `holds` accepts τ when every |g_k(τ)| < tolerance × its recorded on-manifold
+        mean. This is the starting value only: `fit` calibrates it after each relation so that
+        99 % of training rows hold (`rs.tolerance`); `rs.replace(tolerance=t)` sets another.
       noise_scale: uniform noise, as a fraction of the data box, added to on and off rows.
       mined_weight: weight of jaml's mined-rows term (0 turns mining off: the paper's
         algorithm). From the data's codimension-th relation on, box points are projected onto
@@ -127,7 +132,6 @@ class Config:
     premine_steps: int | None = None
     premine_attempts: int = 3
     mined_patience: int | None = 4000
-    cut_beyond_codim: bool = False
     codimension: int | None = None
     stop_when_complete: bool = True
     pretrain_steps: int = 2_000
@@ -231,8 +235,11 @@ class Config:
 
     @classmethod
     def from_record(cls, values: dict) -> Config:
-        """A config as a run recorded it: fields added since read as what that run did."""
-        return cls.from_dict(LEGACY_FIELDS | values)
+        """A config as a run recorded it: fields added since read as what that run did, retired
+        fields at their one remaining value dropped."""
+        kept = {k: v for k, v in values.items()
+                if not (k in RETIRED_FIELDS and v == RETIRED_FIELDS[k])}
+        return cls.from_dict(LEGACY_FIELDS | kept)
 
     @classmethod
     def from_dict(cls, values: dict) -> Config:

@@ -319,3 +319,14 @@ def test_fit_takes_the_path_of_a_csv_file_as_the_docs_say(tmp_path):
         got = np.concatenate([np.asarray(batches.held_out), np.asarray(batches.rows)])
         np.testing.assert_allclose(np.sort(got, axis=0), np.sort(rows, axis=0), rtol=1e-6)
         assert batches.dim_names == ("a", "b", "c")
+
+
+def test_a_retired_field_reads_at_its_one_remaining_value_and_is_refused_at_another():
+    """`cut_beyond_codim` (an experiment whose code is gone) stays readable in old records at
+    False, what every fit does now; True ran code that no longer exists."""
+    old = relations.Config.from_record({"max_relations": 2, "cut_beyond_codim": False})
+    assert old.max_relations == 2 and "cut_beyond_codim" not in old.to_dict()
+    with pytest.raises(ValueError, match=r"unknown relations.Config fields: \['cut_beyond"):
+        relations.Config.from_record({"cut_beyond_codim": True})
+    with pytest.raises(TypeError):
+        relations.Config(cut_beyond_codim=False)

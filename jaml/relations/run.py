@@ -19,7 +19,7 @@ from jaml import sources
 from jaml._rundir import RunLog, claim, lock, write_json
 from jaml.configs.relations import Config
 from jaml.relations import checkpoint, plots
-from jaml.relations.relation_set import RelationSet
+from jaml.relations.relation_set import RelationSet, Report
 from jaml.relations.training import RelationSummary, fit, phase_budgets
 
 log = logging.getLogger("jaml.relations")
@@ -181,6 +181,9 @@ def run(
             done = recorded[: start.num_relations] + [
                 _restored_summary(start, k) for k in range(len(recorded), start.num_relations)
             ]
+            if start.quality is None:  # checkpointed mid-fit: the ends are in summary.json
+                start = start.replace(quality=Report(
+                    {"relations": [{"index": r["index"], "status": r["status"]} for r in done]}))
             logging.getLogger("jaml.resume").info(
                 "%s: resumed from its checkpoint with %d of %d relations", out,
                 start.num_relations, cfg.max_relations)

@@ -84,6 +84,10 @@ def test_an_interrupted_run_resumes_after_its_last_finished_relation(tmp_path, m
     np.testing.assert_array_equal(relations.evaluate(resumed, tau)[:, 0],
                                   relations.evaluate(first, tau)[:, 0])
     assert [r["index"] for r in summary["relations"]] == [1, 2]
+    # g1's end is the one its first call recorded, not "restored" (its checkpoint was written
+    # mid-fit, before any quality report).
+    assert summary["quality"]["relations"][0]["status"] == summary["relations"][0]["status"]
+    assert summary["relations"][0]["status"] != "restored"
 
 
 def test_a_relation_interrupted_mid_training_resumes_step_for_step(tmp_path, monkeypatch):

@@ -128,7 +128,7 @@ def plot_zero_sets_3d(rs: RelationSet, on: np.ndarray, path, key=None, names=("x
         f"Agreement with the data: distance from a projected point to the nearest of "
         f"{len(on)} data points, median {median:.3f}, 90th percentile {p90:.3f} "
         f"({100 * median / diag:.1f}% / {100 * p90 / diag:.1f}% of the diagonal); points on the "
-        "data curve have ≈ 0 (the data's own spacing). Other panels: each relation's zero-level "
+        "data have ≈ 0 (the data's own spacing). Other panels: each relation's zero-level "
         f"set, drawn the same way (2,000 box points projected onto g_k = 0). {note}"
     )
     _caption(fig, caption, 0.17)

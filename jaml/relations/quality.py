@@ -75,23 +75,28 @@ def data_codimension(rows, key, sample: int = 1024, queries: int = 256, neighbou
     return int(rows.shape[1] - np.median(dims))
 
 
-def tangent_offsets(points, tree: cKDTree, nearest) -> np.ndarray:
+def tangent_offsets(points, tree: cKDTree, nearest, dim: int | None = None) -> np.ndarray:
     """[M]: how far each point [M, D] lies off the data's tangent space at its nearest row
     (`nearest` [M], indices into the tree's rows): the part of its offset from that row's
-    neighbourhood outside the neighbourhood's principal directions (local PCA)."""
+    neighbourhood outside the neighbourhood's principal directions (local PCA): its `dim`
+    leading ones (the data's dimension, where known), else those above TANGENT_RTOL × the
+    largest singular value (on noisy rows the noise can pass that bar, and the tangent space
+    then fills the neighbourhood)."""
     rows = tree.data
     _, idx = tree.query(rows[np.asarray(nearest)], k=min(TANGENT_NEIGHBOURS, len(rows)))
     patch = rows[idx]  # [M, k, D]
     centre = patch.mean(axis=1)
     _, sv, vt = np.linalg.svd(patch - centre[:, None], full_matrices=False)
-    along = (sv > TANGENT_RTOL * sv[:, :1])[..., None] * vt  # [M, r, D], unused rows zero
+    keep = (sv > TANGENT_RTOL * sv[:, :1]) if dim is None else np.arange(sv.shape[1]) < dim
+    along = keep[..., None] * vt  # [M, r, D], unused rows zero
     offset = np.asarray(points, np.float64) - centre
     tangential = np.einsum("mrd,md->mr", along, offset)
     return np.sqrt(np.maximum((offset**2).sum(-1) - (tangential**2).sum(-1), 0.0))
 
 
 def landing(relations, key, low, high, reference, within: float, n: int = BOX_POINTS,
-            steps: int = PROJECTION_STEPS, tolerance: float = 1e-3) -> dict:
+            steps: int = PROJECTION_STEPS, tolerance: float = 1e-3,
+            codim: int | None = None) -> dict:
     """Project n uniform points of the box [low, high] onto {g = 0}; where do they land?
 
     Returns (shares, spurious points [M, D], their distances [M]): the shares of the n points
@@ -101,7 +106,8 @@ def landing(relations, key, low, high, reference, within: float, n: int = BOX_PO
     distance between rows along the data, not across it); landed if also within `within` of
     that row; extends if farther (the zero set going on past the sample's edge, as a plane
     goes on past the rows drawn of it); spurious if off the tangent space (a part of the zero
-    set that is not the data's).
+    set that is not the data's). `codim`: the data's codimension, which fixes the tangent
+    space's dimension (else local PCA decides it, point by point).
     """
     low, high = np.asarray(low, np.float32), np.asarray(high, np.float32)
     start = _uniform(key, n, low, high)
@@ -113,7 +119,9 @@ def landing(relations, key, low, high, reference, within: float, n: int = BOX_PO
     along = np.zeros_like(converged)
     if converged.any():
         across = LANDING_FRACTION * float(np.linalg.norm(high - low))
-        along[converged] = tangent_offsets(points[converged], tree, nearest[converged]) <= across
+        dim = None if codim is None else max(points.shape[1] - codim, 0)
+        along[converged] = tangent_offsets(points[converged], tree, nearest[converged],
+                                           dim) <= across
     near = dist <= within
     spurious = converged & ~along
     return {
@@ -163,7 +171,7 @@ def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
     upper = cos[np.triu_indices(k, 1)]
     ranks = np.asarray(codim["rank_fractions"])
     within = landing_distance(reference, held_out, low, high)
-    land, _, _ = landing(rs, k_box, low, high, reference, within)
+    land, _, _ = landing(rs, k_box, low, high, reference, within, codim=data_codim)
     land["box_diagonal"] = float(np.linalg.norm(np.asarray(high) - np.asarray(low)))
     holds_on = float(np.mean(np.all(g_on < rs.tolerance * np.asarray(rs.on_means), -1)))
     holds_off = float(np.mean(np.all(g_off < rs.tolerance * np.asarray(rs.on_means), -1)))

@@ -269,13 +269,15 @@ def draw_mined(key, rows, count, data, n: int):
     return jnp.concatenate([picked[:, :dim] + MINED_JITTER * jitter, picked[:, dim:]], -1)
 
 
-def mine(cfg: Config, rs: RelationSet, batches: Batches, key, within: float, pool=None):
+def mine(cfg: Config, rs: RelationSet, batches: Batches, key, within: float, pool=None,
+         codim: int | None = None):
     """Points of {g_1 = … = g_K = 0} away from the data: n box points projected onto the zero
     set, kept where they converged farther than `within` from the training rows. Returns the
     pool (rows [C, D], count) with earlier pool rows after the new ones, and the landing shares.
     """
     land, points, distances = quality.landing(rs, key, batches.low, batches.high,
-                                              batches.dense, within, n=cfg.mine_points)
+                                              batches.dense, within, n=cfg.mine_points,
+                                              codim=codim)
     found = np.concatenate([points, distances[:, None] / within], -1)
     old = pool[0][: pool[1]] if pool is not None else np.zeros((0, batches.dim + 1), np.float32)
     rows = np.concatenate([found, old])[: cfg.mine_points]
@@ -647,7 +649,8 @@ def _refine(cfg, batches, rs, module, width, fitted: _Fitted, within, codim, pro
     its budget.
     """
     k = rs.num_relations
-    pool, land = mine(cfg, fitted.grown, batches, jax.random.fold_in(k_mine, 1), within, pool)
+    pool, land = mine(cfg, fitted.grown, batches, jax.random.fold_in(k_mine, 1), within, pool,
+                      codim)
     kept, spent = 0, 0
     for r in range(cfg.refine_rounds if cfg.mined_weight > 0 else 0):
         if land["spurious"] <= COMPLETE:
@@ -665,7 +668,7 @@ def _refine(cfg, batches, rs, module, width, fitted: _Fitted, within, codim, pro
         grown, on_mean, off_mean = _grow(cfg, batches, rs, module, refined.params, width, k_eval)
         candidate = _Fitted(refined, grown, on_mean, off_mean, fitted.status)
         new_pool, new_land = mine(cfg, grown, batches, jax.random.fold_in(k_mine, 2 + r),
-                                  within, pool)
+                                  within, pool, codim)
         # Separation may give way to landing, down to the stopping rule's.
         if (quality.on_data(new_land) <= quality.on_data(land)
                 or candidate.ratio < min(fitted.ratio, cfg.separation_ratio)):
@@ -757,7 +760,8 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             if resuming:  # the mined rows are not kept: go on the paper's way
                 compiled = None
             else:
-                premined, _ = mine(cfg, rs, batches, jax.random.fold_in(k_mine, 0), within)
+                premined, _ = mine(cfg, rs, batches, jax.random.fold_in(k_mine, 0), within,
+                                   codim=codim)
                 clip = cfg.premine_clip
                 log.info("relation %d: %d points of the earlier relations' zero set away from "
                          "the data mined before training", k + 1, premined[1])

@@ -230,3 +230,19 @@ def test_a_local_pca_codimension_of_0_is_fitted_as_1(monkeypatch, caplog):
             eval_batches=2, refine_rounds=0, premine_attempts=1, separation_ratio=1e-3))
     assert "finds no codimension" in caplog.text and "the data's codimension: 1" in caplog.text
     assert "the data's, by local PCA 0, taken as 1: 1)" in rs.quality.to_dict()["lines"][1]
+
+
+def test_on_noisy_rows_the_tangent_space_takes_the_datas_dimension_not_the_noise():
+    """Rows of the plane z = 0 with noise in z of 0.4 × a neighbourhood's in-plane spread: by
+    the singular-value bar alone z counts as a tangent direction and a point 0.3 off the plane
+    reads as on it; with the data's dimension (2) it reads 0.3 off."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(8)
+    rows = np.concatenate([rng.uniform(0, 1, (4000, 2)), rng.normal(0, 0.01, (4000, 1))], 1)
+    tree = cKDTree(rows)
+    point = np.array([[0.5, 0.5, 0.3]])
+    _, nearest = tree.query(point)
+    assert quality.tangent_offsets(point, tree, nearest)[0] < 0.05  # the noise passed the bar
+    np.testing.assert_allclose(quality.tangent_offsets(point, tree, nearest, dim=2), 0.3,
+                               atol=0.02)

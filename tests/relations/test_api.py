@@ -271,9 +271,9 @@ def test_a_pre_mined_relation_that_fails_is_trained_again_without_its_rows(bad, 
     rows = sources.make("ellipse").sample(jax.random.key(0), 512)
     real_mine = training.mine
 
-    def mine(cfg, rs, batches, key, within, pool=None):
+    def mine(cfg, rs, batches, key, within, pool=None, codim=None):
         if rs.num_relations != 1:  # refinement: as usual
-            return real_mine(cfg, rs, batches, key, within, pool)
+            return real_mine(cfg, rs, batches, key, within, pool, codim)
         found = (np.full((cfg.mine_points, 3), np.nan, np.float32) if bad == "nan"
                  else np.asarray(rows[: cfg.mine_points], np.float32))
         padded = np.concatenate([found, np.full((cfg.mine_points, 1), 50.0, np.float32)], -1)

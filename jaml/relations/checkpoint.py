@@ -114,13 +114,11 @@ def load(path) -> RelationSet:
         high=tuple(meta.get("high") or ()),
         quality=Report(meta["quality"]) if meta.get("quality") else None,
     )
-    log.info(
-        "AML loaded %d relations, %d syzygies, on/off means:\n%s\n%s",
-        rs.num_relations,
-        sum(rs.syzygies),
-        np.round(np.asarray(rs.on_means), 4),
-        np.round(np.asarray(rs.off_means), 4),
-    )
+    log.info("loaded %d relation%s (%d syzygies) from %s; mean |g| on / off the data: %s",
+             rs.num_relations, "" if rs.num_relations == 1 else "s", sum(rs.syzygies), path,
+             ", ".join(f"g{k + 1} {on:.4g} / {off:.4g}" for k, (on, off) in enumerate(
+                 zip(np.asarray(rs.on_means).tolist(), np.asarray(rs.off_means).tolist(),
+                     strict=True))))
     return rs
 
 

@@ -67,7 +67,10 @@ def test_checkpoint_round_trip(tiny_set, tmp_path, caplog):
     relations.save(rs, tmp_path / "rs")
     with caplog.at_level("INFO", logger="jaml.relations"):
         loaded = relations.load(tmp_path / "rs")
-    assert "AML loaded 2 relations, 0 syzygies" in caplog.text
+    on, off = np.asarray(rs.on_means).tolist(), np.asarray(rs.off_means).tolist()
+    assert (f"loaded 2 relations (0 syzygies) from {tmp_path / 'rs'}; mean |g| on / off the "
+            f"data: g1 {on[0]:.4g} / {off[0]:.4g}, g2 {on[1]:.4g} / {off[1]:.4g}"
+            ) in caplog.text and "\n[" not in caplog.text  # one line, no numpy arrays
     np.testing.assert_array_equal(relations.evaluate(loaded, rows), relations.evaluate(rs, rows))
     np.testing.assert_array_equal(loaded.on_means, rs.on_means)
     assert (loaded.widths, loaded.depth, loaded.tolerance) == (rs.widths, rs.depth, rs.tolerance)

@@ -318,7 +318,7 @@ def _main(argv, commands: Callable[[list[str]], dict[str, type]], description: s
     args = parse(argv, commands, description)
     captured = _import_mjx_quietly()
     logging.basicConfig(
-        level=logging.INFO if args.verbose else logging.WARNING,
+        level=logging.WARNING,
         format="%(asctime)s %(name)s %(message)s",
         datefmt="%H:%M:%S",
         # Importing orbax-checkpoint logs through absl (ArrayHandler's vlog), and absl calls
@@ -326,6 +326,8 @@ def _main(argv, commands: Callable[[list[str]], dict[str, type]], description: s
         # and `-v` silent: replace that handler.
         force=True,
     )
+    # -v: jaml's own INFO lines; other libraries' (absl, Orbax, JAX) stay at WARNING.
+    logging.getLogger("jaml").setLevel(logging.INFO if args.verbose else logging.NOTSET)
     for line in captured:
         logging.getLogger("jaml.cli").info("import mujoco.mjx: %s", line)
     # What a resumed run resumed from (jaml.stream.run), shown without -v.

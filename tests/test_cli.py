@@ -270,6 +270,21 @@ def test_a_bad_value_beside_help_is_refused_without_a_traceback(capsys):
     assert cli._one_line("") == "invalid arguments"
 
 
+def test_verbose_shows_jamls_info_lines_not_other_libraries(capsys):
+    """-v turned the root logger to INFO and Orbax / absl filled the output; now only jaml's
+    loggers go to INFO, and a later call without -v is quiet again."""
+    import logging
+
+    assert cli.main(["-v", "envs", "list"]) == 0
+    assert logging.getLogger("jaml.relations").getEffectiveLevel() == logging.INFO
+    for other in ("absl", "orbax", "jax"):
+        assert logging.getLogger(other).getEffectiveLevel() >= logging.WARNING, other
+    assert cli.main(["envs", "list"]) == 0
+    assert logging.getLogger("jaml.relations").getEffectiveLevel() == logging.WARNING
+    assert logging.getLogger("jaml.resume").getEffectiveLevel() == logging.INFO
+    capsys.readouterr()
+
+
 def test_debug_shows_the_traceback(tmp_path, capsys):
     argv = ["relations", "--source", str(tmp_path / "missing.csv"), "--out", str(tmp_path / "r")]
     assert cli.main(argv) == 2

@@ -245,7 +245,8 @@ def _root(argv: list[str], commands: Callable[[list[str]], dict[str, type]],
         ("debug", Annotated[bool, tyro.conf.CascadeSubcommandArgs,
                             tyro.conf.arg(help=help_debug)], False),
         ("verbose", Annotated[bool, tyro.conf.CascadeSubcommandArgs,
-                              tyro.conf.arg(aliases=("-v",), help="log at INFO level")], False),
+                              tyro.conf.arg(aliases=("-v",),
+                                            help="jaml's own logs at INFO level")], False),
     ], frozen=True, namespace={"__doc__": description, "__module__": __name__})
     return jaml
 

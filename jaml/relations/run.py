@@ -188,6 +188,8 @@ def run(
                 "%s: resumed from its checkpoint with %d of %d relations", out,
                 start.num_relations, cfg.max_relations)
 
+        # Seconds of the calls before this one (summary.json's "seconds" counts every call).
+        earlier = float(previous.get("seconds", 0.0)) if previous is not None else 0.0
         started = time.perf_counter()
         recorder = _Recorder(out, cfg, len(done), sum(r["steps"] for r in done), progress,
                              partial.step(len(done)))
@@ -201,7 +203,7 @@ def run(
                     "source": source_name,
                     "status": status,
                     "num_relations": len(summaries),
-                    "seconds": time.perf_counter() - started,
+                    "seconds": earlier + time.perf_counter() - started,
                     # Rank of the K×D Jacobian of all K relations on on-manifold rows.
                     "codimension": summaries[-1].get("codimension", {}) if summaries else {},
                     "relations": summaries,

@@ -67,6 +67,8 @@ def test_an_interrupted_run_resumes_after_its_last_finished_relation(tmp_path, m
         run_module.run("ellipse", cfg, out, progress=False, figures=False)
     first = relations.load(out / "checkpoint")
     assert first.num_relations == 1
+    recorded = json.loads((out / "summary.json").read_text())
+    (out / "summary.json").write_text(json.dumps(recorded | {"seconds": 1000.0}))
     # A line g_2 logged before the kill, after the checkpoint: the resumed run drops it.
     with (out / "metrics.jsonl").open("a") as f:
         f.write(json.dumps({"phase": "relation", "relation": 2, "step": 999}) + "\n")
@@ -88,6 +90,7 @@ def test_an_interrupted_run_resumes_after_its_last_finished_relation(tmp_path, m
     # mid-fit, before any quality report).
     assert summary["quality"]["relations"][0]["status"] == summary["relations"][0]["status"]
     assert summary["relations"][0]["status"] != "restored"
+    assert summary["seconds"] > 1000.0  # every call's seconds, not the last one's
 
 
 def test_a_relation_interrupted_mid_training_resumes_step_for_step(tmp_path, monkeypatch):

@@ -100,7 +100,7 @@ def _chunks(stream: Stream, state: StreamState, key, pi_rand_key) -> dict[str, l
     analysis.encoded_replay(stream, states, k_train[None], cfg.eval.train, store=out["train"])
     analysis.encoded_rollouts(stream, states, pi_rand_key[None], cfg.eval.rand, random=True,
                               store=out["pi_rand"])
-    if "pi_curr" in _set_names(stream):
+    if "pi_curr" in analysis.set_names(stream):
         out["pi_curr"] = []
         analysis.encoded_rollouts(stream, states, k_curr[None], cfg.eval.curr, random=False,
                                   store=out["pi_curr"])
@@ -155,7 +155,7 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
              jnp.zeros((config.num_envs, stream.seq_len, stream.env.action_size), jnp.float32))
     _checked(encode(*probe), config.num_envs, stream.seq_len, "a chunk of zero frames")
     stream, state, key, pi_rand_key = _prepare(config, stream, state, phase)
-    phase(f"drawing the test sets ({', '.join(_set_names(stream))})")
+    phase(f"drawing the test sets ({', '.join(analysis.set_names(stream))})")
     chunks = _chunks(stream, state, key, pi_rand_key)
     phase(f"encoding {sum(len(c) for c in chunks.values())} chunks")
     width = None
@@ -216,12 +216,6 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
     phase("done")
     return report
 
-
-def _set_names(stream: Stream) -> tuple[str, ...]:
-    """The test sets a run's analysis draws: the replay's, π_rand's and, under PPO, π_curr's."""
-    cfg = stream.config
-    return ("train", "pi_rand") + (("pi_curr",) if cfg.policy == "ppo" and cfg.eval.curr > 0
-                                   else ())
 
 
 def _pixels(stream: Stream, test_set: TestSet) -> np.ndarray:

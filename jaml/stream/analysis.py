@@ -152,6 +152,14 @@ def evaluate(stream: Stream, s: StreamState, key: jax.Array, pi_rand_key: jax.Ar
                          references=references)[0]
 
 
+def set_names(stream: Stream) -> tuple[str, ...]:
+    """The sets an analysis draws: the replay's ("train"), π_rand's and, under PPO with
+    `eval.curr` > 0, π_curr's."""
+    cfg = stream.config
+    return ("train", "pi_rand") + (("pi_curr",) if cfg.policy == "ppo" and cfg.eval.curr > 0
+                                   else ())
+
+
 def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
                   pi_rand_keys: jax.Array, *, seconds: dict | None = None,
                   pi_rand_sets: list[PiRandSet] | None = None,
@@ -183,7 +191,7 @@ def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
                             **({"store": stored["pi_rand"]} if references and not pi_rand_sets
                                else {}))
     tests = {"pi_rand": (lat, st)}
-    if cfg.policy == "ppo" and cfg.eval.curr > 0:
+    if "pi_curr" in set_names(stream):
         tests["pi_curr"] = _part(seconds, "pi_curr", encoded_rollouts, stream, states, k_curr,
                                  cfg.eval.curr, random=False,
                                  **({"store": stored["pi_curr"]} if references else {}))

@@ -19,7 +19,7 @@ import os
 import subprocess
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 VARIANTS = {  # name: (source, Config fields beside the seed)
@@ -43,6 +43,17 @@ VARIANTS = {  # name: (source, Config fields beside the seed)
                                      "jaml.relations.training:RETRY_SPURIOUS": 0.05}),
     "circle-retry-5pct": ("circle", {"jaml.relations.training:RETRY_SPURIOUS": 0.05}),
     "drag-retry-5pct": ("block-drag-range", {"jaml.relations.training:RETRY_SPURIOUS": 0.05}),
+    # 4,000 rows of the unit sphere in R³ with Gaussian noise of this std per coordinate (a
+    # first user's data).
+    **{f"sphere{n}-defaults": (f"sphere:0.{n}", {}) for n in ("01", "02", "05")},
+    # Retries from another start without the −log‖∇g‖ cap (as before 2026-11-29).
+    "sphere02-uncapped-retry": ("sphere:0.02", {"jaml.relations.training:RETRY_GRADIENT_CAP":
+                                                None}),
+    # The paper's −log‖∇g‖ pushing only while ‖∇g‖ < 0.1 (the reference's floor at B = 1024).
+    **{f"{name}-gradcap": (source, fields | {"gradient_cap": 0.1}) for name, (source, fields) in {
+        "ellipse": ("ellipse", {"max_relations": 2}), "block": ("block45", {"max_relations": 2}),
+        "circle": ("circle", {}), "drag": ("block-drag-range", {}),
+        **{f"sphere{n}": (f"sphere:0.{n}", {}) for n in ("01", "02", "05")}}.items()},
     "ellipse-premine-12k": ("ellipse", {"max_relations": 2, "premine_steps": 12_500}),
     "ellipse-premine-25k": ("ellipse", {"max_relations": 2, "premine_steps": 25_000}),
     "ellipse-attempts-5": ("ellipse", {"max_relations": 2, "premine_attempts": 5}),
@@ -77,12 +88,15 @@ def one(source_name: str, seed: int, fields: dict) -> dict:
 
     from jaml import relations, sources
 
-    source = sources.make(source_name)
+    source = _noisy_sphere(source_name) or sources.make(source_name)
     started = time.perf_counter()
     summaries = []
     rs = relations.fit(source, relations.Config(seed=seed, **fields),
                        on_relation=lambda _, summary: summaries.append(summary))
     fit_s = time.perf_counter() - started
+    if rs.num_relations == 0:  # the fit found none: nothing lands anywhere
+        return {"seed": seed, "fit_s": fit_s, "relations": 0, "landed": 0.0, "on_truth": 0.0,
+                "status": [], "off_on": []}
     dense = np.asarray(source.sample(jax.random.key(99), 200_000))
     low, high = dense.min(0), dense.max(0)
     box = np.random.default_rng(seed).uniform(low, high, (512, dense.shape[1]))
@@ -94,6 +108,8 @@ def one(source_name: str, seed: int, fields: dict) -> dict:
     return {"seed": seed, "fit_s": fit_s, "relations": rs.num_relations,
             "landed": float(np.mean(distance < 0.05)), "rank2": float(np.mean(ranks >= 2)),
             "on_truth": None if truth is None else float(np.mean(truth < 0.05)),
+            "truth_median": None if truth is None else float(np.median(truth)),
+            "noise": report.get("noise"), "holds": report.get("holds"),
             "report_landing": report.get("landing"),
             "cos": report.get("independence", {}).get("median_abs_cos"),
             # A syzygy fitted after each relation: its residual as a share of mean |g_k|.
@@ -103,13 +119,33 @@ def one(source_name: str, seed: int, fields: dict) -> dict:
             "off_on": [round(r["ratio"], 1) for r in report.get("relations", [])]}
 
 
+def _noisy_sphere(source_name: str):
+    """"sphere:STD": 4,000 rows of the unit sphere in R³ plus Gaussian noise of that std per
+    coordinate (the same rows for every seed), as a file source; None for other names."""
+    if not source_name.startswith("sphere:"):
+        return None
+    import tempfile
+
+    import numpy as np
+
+    from jaml import sources
+
+    rng = np.random.default_rng(7)
+    rows = rng.normal(size=(4000, 3))
+    rows /= np.linalg.norm(rows, axis=1, keepdims=True)
+    rows += float(source_name.partition(":")[2]) * rng.normal(size=rows.shape)
+    path = Path(tempfile.mkdtemp()) / "sphere.npy"
+    np.save(path, rows.astype(np.float32))
+    return sources.make(str(path))
+
+
 def _truth(source_name: str, points):
     """[N] distance of projected points to the true manifold, where a closed form knows it
     (the data's sample ends at its box; the true block plane and circle do not; the drag row's
     flow, sampled densely over every incline it allows and wider starts), else None."""
     import numpy as np
 
-    if source_name == "circle":
+    if source_name == "circle" or source_name.startswith("sphere:"):
         return np.abs(np.linalg.norm(points, axis=-1) - 1.0)
     if source_name == "block-drag-range":  # the same flow for every θ with c > 0 and wider starts
         import dataclasses
@@ -209,9 +245,9 @@ def main() -> None:
     if unknown:
         parser.error(f"unknown variants {unknown}; choose from {list(VARIANTS)}")
     runs = [(n, s) for n in names for s in range(args.seeds)]
-    with ThreadPoolExecutor(args.jobs) as pool:
-        for record in pool.map(lambda r: launch(*r, args.timeout_s), runs):
-            print(json.dumps(record), flush=True)
+    with ThreadPoolExecutor(args.jobs) as pool:  # each record printed as its run ends
+        for done in as_completed([pool.submit(launch, *r, args.timeout_s) for r in runs]):
+            print(json.dumps(done.result()), flush=True)
 
 
 if __name__ == "__main__":

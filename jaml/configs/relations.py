@@ -47,6 +47,9 @@ class Config:
       base_width: hidden width of g_1; g_k's layers have base_width·2^(k−1) units (capped).
       max_width: cap on the hidden width of every g_k.
       depth: hidden layers of every g_k.
+      gradient_cap: the paper objective's −log‖∇g‖ pushes only while ‖∇g‖ is below this (None:
+        always, the paper). d_g is scale-free, so past it steepening g gains nothing on the data
+        and saturates tanh off it.
       transversality_weight: β of eq. 2; None picks the objective's default (paper 1e3, ref. 1).
       syzygies_per_relation: rounds S of {fit f, push g_k} per relation in syzygy mode.
       syzygy_width: hidden width of the syzygy network f.
@@ -111,6 +114,7 @@ class Config:
     base_width: int = 4
     max_width: int = 256
     depth: int = 3
+    gradient_cap: float | None = None
     transversality_weight: float | None = None
     syzygies_per_relation: int = 3
     syzygy_width: int = 32
@@ -184,6 +188,11 @@ class Config:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
                 problems.append(f"{name} must be a positive finite number, got {value!r}")
+        if self.gradient_cap is not None and not (
+                isinstance(self.gradient_cap, int | float) and math.isfinite(self.gradient_cap)
+                and self.gradient_cap > 0):
+            problems.append(f"gradient_cap must be None or a positive number, got "
+                            f"{self.gradient_cap!r}")
         if self.transversality_weight is not None and not (
             math.isfinite(self.transversality_weight) and self.transversality_weight >= 0
         ):

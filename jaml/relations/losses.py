@@ -43,9 +43,11 @@ def distance(y: jax.Array, v: jax.Array) -> jax.Array:
     return jnp.abs(y) / jnp.maximum(_norm(v), EPS)
 
 
-def log_gradient_norm(v: jax.Array) -> jax.Array:
-    """−log ‖∇g‖ [B]: keeps g away from the trivial relation g ≡ 0 (eq. 1)."""
-    return -jnp.log(jnp.maximum(_norm(v), EPS))
+def log_gradient_norm(v: jax.Array, cap: float | None = None) -> jax.Array:
+    """−log ‖∇g‖ [B]: keeps g away from the trivial relation g ≡ 0 (eq. 1); with a `cap`,
+    −log min(‖∇g‖, cap): no push to steepen g past it."""
+    norm = jnp.maximum(_norm(v), EPS)
+    return -jnp.log(norm if cap is None else jnp.minimum(norm, cap))
 
 
 def sin_squared(u: jax.Array, v: jax.Array) -> jax.Array:

@@ -75,6 +75,45 @@ def data_codimension(rows, key, sample: int = 1024, queries: int = 256, neighbou
     return int(rows.shape[1] - np.median(dims))
 
 
+def separation_floor(rows, codim: int, key, low, high, top_fraction: float = 0.2,
+                     sample: int = 4096, queries: int = 1024) -> dict:
+    """How far the rows [N, D] scatter across the manifold they sample, and so the stopping
+    statistic (mean |g| on box rows over the mean of the largest `top_fraction` of |g| on the
+    data) an exact relation, |g| = distance to the manifold, can reach on them.
+
+    Each of `queries` rows' scatter is its offset across a local quadratic fit to its
+    neighbourhood (the D − codim leading local-PCA directions as coordinates, the rest
+    regressed on their quadratic polynomial): curvature is fitted away, noise is not. Box
+    rows' distance to the manifold is their distance to the nearest row. Returns "across"
+    (that top mean over the box diagonal) and "separation" (box mean over top mean)."""
+    rows = np.asarray(rows, np.float64)
+    rng = _rng(key)
+    sub = rows[rng.permutation(rows.shape[0])[:sample]]
+    n, width = sub.shape
+    dim = max(width - codim, 0)
+    terms = 1 + dim + dim * (dim + 1) // 2
+    k = min(max(TANGENT_NEIGHBOURS, 3 * terms), n)
+    tree = cKDTree(sub)
+    _, idx = tree.query(sub[:queries], k=k)  # each query row is its own nearest neighbour
+    patch = sub[idx]
+    centred = patch - patch.mean(axis=1, keepdims=True)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    local = np.einsum("mkd,mrd->mkr", centred, vt)  # [M, k, D] in the local PCA frame
+    along, across = local[..., :dim], local[..., dim:]
+    upper = np.triu_indices(dim)
+    quadratic = (along[..., :, None] * along[..., None, :])[..., upper[0], upper[1]]
+    design = np.concatenate([np.ones_like(along[..., :1]), along, quadratic], axis=-1)
+    gram = np.einsum("mkp,mkq->mpq", design, design) + 1e-12 * np.eye(terms)
+    beta = np.linalg.solve(gram, np.einsum("mkp,mkc->mpc", design, across))
+    scatter = np.linalg.norm(across[:, 0] - np.einsum("mp,mpc->mc", design[:, 0], beta), axis=-1)
+    top = np.sort(scatter)[::-1][: max(1, int(top_fraction * scatter.size))].mean()
+    low, high = np.asarray(low, np.float64), np.asarray(high, np.float64)
+    box = rng.uniform(low, high, (sample, width))
+    off = float(tree.query(box)[0].mean())
+    diag = float(np.linalg.norm(high - low))
+    return {"across": float(top) / diag, "separation": off / max(float(top), 1e-12 * diag)}
+
+
 def tangent_offsets(points, tree: cKDTree, nearest, dim: int | None = None) -> np.ndarray:
     """[M]: how far each point [M, D] lies off the data's tangent space at its nearest row
     (`nearest` [M], indices into the tree's rows): the part of its offset from that row's
@@ -148,9 +187,12 @@ def calibrated_tolerance(rs: RelationSet, held_out) -> float:
 
 
 def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
-           data_codim: int | None = None, data_codim_from: str = "by local PCA") -> Report:
+           data_codim: int | None = None, data_codim_from: str = "by local PCA",
+           noise: dict | None = None) -> Report:
     """The quality report of `rs` on held-out rows [H, D]; `reference` [R, D] are training rows
-    (where "on the data" is measured), `statuses` each relation's end ("done" / "capped")."""
+    (where "on the data" is measured), `statuses` each relation's end ("done" / "capped"),
+    `noise` the rows' scatter and the stopping bar (`separation_floor`, with
+    "separation_ratio")."""
     k_box, k_off = jax.random.split(key)
     k = rs.num_relations
     held_out = jnp.asarray(held_out)
@@ -191,6 +233,8 @@ def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
         "landing": land,
         "holds": {"tolerance": rs.tolerance, "recall": holds_on, "off_acceptance": holds_off},
     }
+    if noise is not None:
+        report["noise"] = {k: float(v) for k, v in noise.items()}
     report["warnings"] = _warnings(report)
     report["lines"] = _lines(report)
     return Report(report)
@@ -198,10 +242,13 @@ def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
 
 def _warnings(report: dict) -> list[str]:
     out = []
+    noise = report.get("noise")
+    noisy = noise is not None and noise["separation"] < noise["separation_ratio"]
     for r in report["relations"]:
         if r["status"] not in ("done", "restored"):  # restored: its end is not known here
             out.append(f"g{r['index']} {r['status']}: it did not meet the stopping rule "
-                       f"(held-out off/on {r['ratio']:.1f})")
+                       f"(held-out off/on {r['ratio']:.1f}"
+                       + ("; out of reach on these rows, see noise)" if noisy else ")"))
     cos = np.asarray(report["independence"]["median_abs_cos"])
     for i, j in zip(*np.triu_indices(len(cos), 1), strict=True):
         if cos[i, j] > DEPENDENT_COS:
@@ -243,6 +290,12 @@ def _lines(report: dict) -> list[str]:
         f"holds: recall {100 * hold['recall']:.1f}% of held-out rows, accepts "
         f"{100 * hold['off_acceptance']:.1f}% of box rows (tolerance {hold['tolerance']:.3g})",
     ]
+    noise = report.get("noise")
+    if noise is not None and noise["separation"] < noise["separation_ratio"]:
+        lines.append(f"noise: the rows scatter {100 * noise['across']:.2g}% of the box diagonal "
+                     f"across their manifold; an exact relation separates them only "
+                     f"{noise['separation']:.1f}x, below the stopping bar "
+                     f"({noise['separation_ratio']:g}), so a capped relation is expected")
     return lines + [f"warning: {w}" for w in report["warnings"]]
 
 
@@ -254,5 +307,6 @@ __all__ = [
     "landing_distance",
     "nearest_distances",
     "on_data",
+    "separation_floor",
     "tangent_offsets",
 ]

@@ -116,7 +116,8 @@ def _relation_objective(
         }
         if cfg.objective == "paper":
             first = jnp.mean(losses.distance(y_on, v))
-            grad_term = losses.clip_to(jnp.mean(losses.log_gradient_norm(v)), first)
+            grad_term = losses.clip_to(
+                jnp.mean(losses.log_gradient_norm(v, cfg.gradient_cap)), first)
         else:
             first = jnp.mean(losses.reference_distance_term(y_on, v, B))
             grad_term = jnp.mean(losses.reference_gradient_term(v, B))
@@ -338,7 +339,7 @@ def _fit_relation(
     if compiled is not None:  # the same loop, compiled ahead of time by `_compile_ahead`
         chunk = compiled
     if programs is not None and syz_params is None:
-        chunk = programs.setdefault((k, clip), chunk)
+        chunk = programs.setdefault((k, clip, cfg.gradient_cap), chunk)
     start = 0
     if budget is not None:
         start = max(max_steps - budget, 0)
@@ -606,6 +607,8 @@ def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, 
     return {k_next: pool.submit(chunk.lower(state, args).compile, LOOP_COMPILER_OPTIONS)}
 
 
+RETRY_GRADIENT_CAP = 0.1  # ‖∇g‖ past which a last resort's −log‖∇g‖ stops pushing (None: no
+# last resort)
 DROP_RATIO = 2.0  # off/on below which a capped relation up to the codimension is dropped
 REFINE_SHARE = 5  # a refinement round's step budget: this fraction of max_steps
 RETRY_SPURIOUS = 0.1  # a pre-mined relation with more box points landing away: tried again
@@ -711,6 +714,21 @@ def _start_statuses(rs: RelationSet) -> list[str]:
             for j in range(rs.num_relations)]
 
 
+def _noise_floor(cfg: Config, batches: Batches, codim: int, key) -> dict:
+    """What an exact relation's stopping statistic reaches on the data's rows
+    (`quality.separation_floor`), beside the bar; says so where the rows' scatter puts the bar
+    out of reach (the relations then end capped however well they fit)."""
+    floor = quality.separation_floor(batches.dense, codim, key, batches.low, batches.high,
+                                     cfg.separation_top_fraction)
+    floor["separation_ratio"] = cfg.separation_ratio
+    if floor["separation"] < cfg.separation_ratio:
+        log.warning("the rows scatter %.2g%% of the box diagonal across their manifold: an exact "
+                    "relation separates them from the box only %.1fx, below the stopping bar "
+                    "(%g), so relations end capped; judge them by where projected points land",
+                    100 * floor["across"], floor["separation"], cfg.separation_ratio)
+    return floor
+
+
 def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partial=None):
     ahead, programs = {}, {}
     statuses = _start_statuses(rs)
@@ -724,6 +742,7 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
         codim, codim_from = 1, "by local PCA 0, taken as 1"
     log.info("the data's codimension: %d%s", codim, "" if cfg.codimension else
              " (local PCA of the data; Config.codimension overrides it)")
+    noise = _noise_floor(cfg, batches, codim, jax.random.fold_in(key, 6))
     for k in range(rs.num_relations, cfg.max_relations):
         started = time.perf_counter()
         k_key = jax.random.fold_in(key, k)
@@ -743,12 +762,12 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
         completing = k + 1 >= codim
         compiled = ahead.pop(k, None)
 
-        def plain_fit(params, rs=rs, k_train=k_train):  # g_k the paper's way, no mined rows
+        def plain_fit(params, rs=rs, k_train=k_train, cfg=cfg):  # the paper's way, no mined rows
             return _fit_relation(cfg, batches, rs, params, k_train, cfg.max_steps,
                                  callback=callback, programs=programs, codim=codim)
 
         def refine(state, pool=None, clip=MINED_CLIP, rs=rs, module=module, width=width,
-                   keys=(k_train, k_mine, k_eval)):
+                   keys=(k_train, k_mine, k_eval), cfg=cfg):
             """g_k as trained: its means recorded, then `_refine`d."""
             grown = _grow(cfg, batches, rs, module, state.params, width, keys[2])
             return _refine(cfg, batches, rs, module, width,
@@ -903,6 +922,26 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
                     break
                 fitted, land, refined_rounds, spent = refine(state)
                 steps += spent
+            # No start separated, so the relation would be dropped. Starts tend to settle in
+            # one basin there: a g_k with zeros everywhere (steep and wiggly, d_g small on and
+            # off the data), which −log‖∇g‖ rewards. The same starts again, that push capped.
+            capped = None if cfg.gradient_cap is not None or RETRY_GRADIENT_CAP is None \
+                else dataclasses.replace(cfg, gradient_cap=RETRY_GRADIENT_CAP)
+            for attempt in range(1, cfg.premine_attempts if retried and capped else 1):
+                if fitted.ratio >= DROP_RATIO:
+                    break
+                log.info("relation %d: no start separates (off/on %.1f); start %d once more, "
+                         "the push of −log‖∇g‖ capped at ‖∇g‖ = %g", k + 1, fitted.ratio,
+                         attempt + 1, RETRY_GRADIENT_CAP)
+                again = plain_fit(init(jax.random.fold_in(k_init, attempt), example_tau),
+                                  k_train=jax.random.fold_in(k_train, attempt), cfg=capped)
+                steps += int(again.step)
+                if int(again.status) == NONFINITE:
+                    continue
+                other, other_land, other_rounds, spent = refine(again, cfg=capped)
+                steps += spent
+                if other.ratio > fitted.ratio:
+                    fitted, land, refined_rounds = other, other_land, other_rounds
             state, grown, on_mean, off_mean, status = fitted
             if premined is not None and status == CAPPED and fitted.ratio >= \
                     cfg.separation_ratio:
@@ -960,7 +999,7 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
     if rs.num_relations:
         report = quality.assess(rs, jax.random.fold_in(key, 10_000), batches.held_out,
                                 batches.dense, batches.low, batches.high, statuses, codim,
-                                codim_from)
+                                codim_from, noise)
         rs = rs.replace(quality=report)
         for line in report["lines"]:
             (log.warning if line.startswith("warning") else log.info)("%s", line)

@@ -62,6 +62,11 @@ def test_paper_terms_on_hand_values():
     v = jnp.array([[3.0, 4.0], [0.0, 0.5]])  # norms 5 and 0.5
     np.testing.assert_allclose(losses.distance(y, v), [0.06, 0.4], rtol=1e-6)
     np.testing.assert_allclose(losses.log_gradient_norm(v), [-math.log(5), math.log(2)], rtol=1e-6)
+    # Capped at ‖∇g‖ = 1: no push past it (and no gradient: the min is flat there).
+    np.testing.assert_allclose(losses.log_gradient_norm(v, 1.0), [0.0, math.log(2)], atol=1e-7)
+    push = jax.grad(lambda v: losses.log_gradient_norm(v, 1.0).sum())(v)
+    np.testing.assert_allclose(push[0], [0.0, 0.0])
+    np.testing.assert_allclose(push[1], [0.0, -2.0], rtol=1e-6)  # −d log‖v‖/dv = −v/‖v‖²
 
 
 def test_reference_terms_on_hand_values():

@@ -6,7 +6,6 @@ checked on fresh data never seen in training.
 
 import contextlib
 import io
-import math
 
 import jax
 import jax.numpy as jnp
@@ -15,8 +14,6 @@ import pytest
 
 from jaml import relations, sources
 from jaml.relations import losses
-from jaml.relations.data import prepare
-from jaml.relations.training import fit_syzygy
 
 # Thousands of training steps per test: compiled at XLA's full level (185 s → 118 s here).
 # One of the default suite's longest modules: scheduled early (tests/conftest.py).
@@ -157,46 +154,6 @@ def test_block_relations_generalize_beyond_the_training_range(preset):
     assert (_fresh_ratio(rs, src, jax.random.key(21)) >= 5).all()
     # Initial positions and velocities from twice the training range.
     assert (_fresh_ratio(rs, src, jax.random.key(22), scale=2.0) >= 3).all()
-
-
-def test_syzygy_network_expresses_a_dependent_relation_but_not_an_independent_one():
-    cfg = relations.Config(syzygy_max_steps=6000, separation_ratio=20.0)
-    batches = prepare(sources.make("ellipse"), cfg.batch_size, 0.0, jax.random.key(0), 4)
-    plane = lambda t: 0.2 * (t[..., 1] - 2 * t[..., 2] - 1)  # noqa: E731
-    multiple = lambda t: (1.0 + 0.5 * t[..., 0] ** 2) * plane(t)  # noqa: E731  h·g1
-    hyperboloid = lambda t: 0.1 * (t[..., 0] ** 2 + t[..., 1] ** 2 - 2 * t[..., 2] ** 2 - 1)  # noqa: E731
-    _, found, dep = fit_syzygy(cfg, batches, [plane], multiple, jax.random.key(1), 0.5)
-    assert found and dep["residual"] < 0.05 * dep["g_scale"], dep
-    _, found, ind = fit_syzygy(cfg, batches, [plane], hyperboloid, jax.random.key(1), 0.5)
-    assert not found and ind["residual"] > 0.2 * ind["g_scale"], ind
-
-
-def test_algorithm_1_with_syzygies_learns_separating_relations():
-    src = sources.make("ellipse")
-    cfg = relations.Config(
-        max_relations=2,
-        independence="syzygy",
-        syzygies_per_relation=1,
-        max_steps=30_000,
-        syzygy_max_steps=4000,
-        syzygy_push_steps=8000,
-    )
-    rs = relations.fit(src, cfg)
-    assert rs.num_relations == 2
-    assert (_fresh_ratio(rs, src, jax.random.key(31)) >= 5).all()
-    assert math.isfinite(float(rs.on_means.sum()))
-
-
-def test_joint_syzygy_training_trains_f_beside_g_k_and_judges_it_afresh():
-    summaries = []
-    cfg = relations.Config(max_relations=2, independence="syzygy", syzygy_training="joint",
-                           max_steps=2000, syzygy_max_steps=1000, mined_weight=0.0)
-    rs = relations.fit(sources.make("ellipse"), cfg,
-                       on_relation=lambda _, summary: summaries.append(summary))
-    assert rs.num_relations == 2
-    (judged,) = summaries[1].syzygy_rounds  # one fresh syzygy, fitted after the joint training
-    assert judged["steps"] >= 100 and judged["g_scale"] > 0
-    assert judged["found"] == (judged["residual"] * cfg.separation_ratio < judged["g_scale"])
 
 
 def test_the_seeds_figure_draws_each_seeds_projected_box_points(ellipse, tmp_path):

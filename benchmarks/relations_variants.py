@@ -1,14 +1,14 @@
 """Config variants of `relations.fit` side by side on 8 seeds, one single-threaded process a run.
 
 A quick screen beside `relations_quality.py` (which runs the authors' code too): each run fits
-the ellipse, the 45° block or the circle with `relations.Config(seed=s, **variant)` and
-measures where 512 uniform box points land under `relations.project` at its defaults
-(distance to a 200,000-row sample of the true manifold, share within 0.05; and, where a closed
-form knows the whole manifold, its share within 0.05 of that), the Jacobian's rank ≥ 2 share on
-the data and the quality report's statuses, off/on ratios and landing. One JSON line per run on
-stdout.
+the ellipse, the 45° block, the circle, the drag row or a noisy sphere ("sphere:STD", 4,000
+rows) with `relations.Config(seed=s, **variant)` and measures where 512 uniform box points land
+under `relations.project` at its defaults (distance to a 200,000-row sample of the true
+manifold, share within 0.05; and, where a closed form knows the whole manifold, its share
+within 0.05 of that), the Jacobian's rank ≥ 2 share on the data and the quality report's
+statuses, off/on ratios and landing. One JSON line per run on stdout, as each run ends.
 
-    python3 benchmarks/relations_variants.py paper,defaults --jobs 16
+    python3 benchmarks/relations_variants.py ellipse-defaults,sphere05-defaults --jobs 16
 """
 
 from __future__ import annotations

@@ -927,7 +927,7 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             # off the data), which −log‖∇g‖ rewards. The same starts again, that push capped.
             capped = None if cfg.gradient_cap is not None or RETRY_GRADIENT_CAP is None \
                 else dataclasses.replace(cfg, gradient_cap=RETRY_GRADIENT_CAP)
-            for attempt in range(1, cfg.premine_attempts if retried and capped else 1):
+            for attempt in range(1, cfg.premine_attempts if retried and capped is not None else 1):
                 if fitted.ratio >= DROP_RATIO:
                     break
                 log.info("relation %d: no start separates (off/on %.1f); start %d once more, "

@@ -217,7 +217,6 @@ def evaluate(encode: Callable, config: StreamConfig, state: StreamState | None =
     return report
 
 
-
 def _pixels(stream: Stream, test_set: TestSet) -> np.ndarray:
     """uint8 [N, P]: each sequence's last input frame, flattened (the pixel references')."""
     frames = test_set.frames[:, stream.hist - 1]

@@ -240,10 +240,15 @@ def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
     return Report(report)
 
 
+def _bar_out_of_reach(report: dict) -> bool:
+    """Whether the rows scatter so that an exact relation cannot meet the stopping rule."""
+    noise = report.get("noise")
+    return noise is not None and noise["separation"] < noise["separation_ratio"]
+
+
 def _warnings(report: dict) -> list[str]:
     out = []
-    noise = report.get("noise")
-    noisy = noise is not None and noise["separation"] < noise["separation_ratio"]
+    noisy = _bar_out_of_reach(report)
     for r in report["relations"]:
         if r["status"] not in ("done", "restored"):  # restored: its end is not known here
             out.append(f"g{r['index']} {r['status']}: it did not meet the stopping rule "
@@ -290,8 +295,8 @@ def _lines(report: dict) -> list[str]:
         f"holds: recall {100 * hold['recall']:.1f}% of held-out rows, accepts "
         f"{100 * hold['off_acceptance']:.1f}% of box rows (tolerance {hold['tolerance']:.3g})",
     ]
-    noise = report.get("noise")
-    if noise is not None and noise["separation"] < noise["separation_ratio"]:
+    if _bar_out_of_reach(report):
+        noise = report["noise"]
         lines.append(f"noise: the rows scatter {100 * noise['across']:.2g}% of the box diagonal "
                      f"across their manifold; an exact relation separates them only "
                      f"{noise['separation']:.1f}x, below the stopping bar "

@@ -607,8 +607,8 @@ def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, 
     return {k_next: pool.submit(chunk.lower(state, args).compile, LOOP_COMPILER_OPTIONS)}
 
 
-RETRY_GRADIENT_CAP = 0.1  # ‖∇g‖ past which a last resort's −log‖∇g‖ stops pushing (None: no
-# last resort)
+# ‖∇g‖ past which −log‖∇g‖ stops pushing in a relation's last resort (None: no last resort).
+RETRY_GRADIENT_CAP = 0.1
 DROP_RATIO = 2.0  # off/on below which a capped relation up to the codimension is dropped
 REFINE_SHARE = 5  # a refinement round's step budget: this fraction of max_steps
 RETRY_SPURIOUS = 0.1  # a pre-mined relation with more box points landing away: tried again
@@ -712,6 +712,14 @@ def _start_statuses(rs: RelationSet) -> list[str]:
     recorded = (rs.quality or {}).get("relations", [])
     return [recorded[j]["status"] if j < len(recorded) else "restored"
             for j in range(rs.num_relations)]
+
+
+def _last_resort(cfg: Config) -> Config | None:
+    """The config a relation no start separates trains its starts again with: −log‖∇g‖
+    capped at RETRY_GRADIENT_CAP; None where the user caps it already or the cap is off."""
+    if cfg.gradient_cap is not None or RETRY_GRADIENT_CAP is None:
+        return None
+    return dataclasses.replace(cfg, gradient_cap=RETRY_GRADIENT_CAP)
 
 
 def _noise_floor(cfg: Config, batches: Batches, codim: int, key) -> dict:
@@ -925,9 +933,8 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
             # No start separated, so the relation would be dropped. Starts tend to settle in
             # one basin there: a g_k with zeros everywhere (steep and wiggly, d_g small on and
             # off the data), which −log‖∇g‖ rewards. The same starts again, that push capped.
-            capped = None if cfg.gradient_cap is not None or RETRY_GRADIENT_CAP is None \
-                else dataclasses.replace(cfg, gradient_cap=RETRY_GRADIENT_CAP)
-            for attempt in range(1, cfg.premine_attempts if retried and capped is not None else 1):
+            capped = _last_resort(cfg) if retried else None
+            for attempt in range(1, cfg.premine_attempts) if capped is not None else ():
                 if fitted.ratio >= DROP_RATIO:
                     break
                 log.info("relation %d: no start separates (off/on %.1f); start %d once more, "
@@ -943,8 +950,8 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
                 if other.ratio > fitted.ratio:
                     fitted, land, refined_rounds = other, other_land, other_rounds
             state, grown, on_mean, off_mean, status = fitted
-            if premined is not None and status == CAPPED and fitted.ratio >= \
-                    cfg.separation_ratio:
+            if (premined is not None and status == CAPPED
+                    and fitted.ratio >= cfg.separation_ratio):
                 # Its loop also waits for the mined rows to clear, which is jaml's target, not
                 # Algorithm 1's rule: that rule (off/on ≥ separation_ratio) holds, so it is done.
                 status = CONVERGED

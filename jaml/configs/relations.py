@@ -23,7 +23,7 @@ SYZYGY_TRAINING: tuple[str, ...] = get_args(SyzygyTraining)
 # (no mining, no refinement, every one of max_relations trained).
 LEGACY_FIELDS = {"mined_weight": 0.0, "refine_rounds": 0, "stop_when_complete": False,
                  "codimension": None, "premine": False, "premine_attempts": 1,
-                 "mined_patience": None}
+                 "mined_patience": None, "transversal_first": False}
 # Fields runs recorded that no longer exist, with the one value that meant what runs do now (a
 # record with another value ran code that is gone, and is refused).
 RETIRED_FIELDS = {"cut_beyond_codim": False}
@@ -55,6 +55,10 @@ class Config:
       syzygy_width: hidden width of the syzygy network f.
       syzygy_max_steps: cap on f's steps per round; None ⇒ max_steps // 2 (reference).
       syzygy_push_steps: g_k steps per push round; None ⇒ max_steps // syzygies_per_relation.
+      transversal_first: in syzygy mode, the relations up to the data's codimension train
+        with transversality (eq. 2, which implies restricted independence, Lemma 3.1) and cut
+        the data; restricted syzygies from the next one on, each such relation kept only if a
+        fresh syzygy network leaves it unexplained. False: syzygies from g_2 on (the paper).
       syzygy_training: "rounds": the paper's alternation of {fit f, push g_k away from that
         frozen f}, `syzygies_per_relation` times. "joint": f fits alongside g_k, both on the
         residual relative to |g_k|, so g_k cannot escape f by rescaling (`syzygy.py`).
@@ -121,6 +125,7 @@ class Config:
     syzygy_max_steps: int | None = None
     syzygy_push_steps: int | None = None
     syzygy_training: SyzygyTraining = "rounds"
+    transversal_first: bool = True
     syzygy_clip: float = 20.0
     separation_ratio: float = 5.0
     separation_top_fraction: float = 0.2

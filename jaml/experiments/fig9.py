@@ -77,7 +77,8 @@ COORDINATES = dict(static=("theta",), dynamic=("s", "v"))
 # experiment's time (the stopping rule usually ends a relation well before them).
 # Pinned to the algorithm the committed relation sets were learned with (no mining or
 # refinement, all three relations trained): `jaml.configs.relations.LEGACY_FIELDS`.
-_LEGACY = dict(mined_weight=0.0, refine_rounds=0, stop_when_complete=False, premine=False)
+_LEGACY = dict(mined_weight=0.0, refine_rounds=0, stop_when_complete=False, premine=False,
+               transversal_first=False)
 RELATIONS = {
     "trnsv": dict(max_relations=3, independence="transversality", max_steps=20_000, **_LEGACY),
     "syz": dict(max_relations=3, independence="syzygy", max_steps=20_000,

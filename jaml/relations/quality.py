@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.spatial import cKDTree
 
+from jaml.configs.relations import Config
 from jaml.relations.geometry import independence, project
 from jaml.relations.relation_set import RelationSet, Report, evaluate
 
@@ -188,11 +189,12 @@ def calibrated_tolerance(rs: RelationSet, held_out) -> float:
 
 def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
            data_codim: int | None = None, data_codim_from: str = "by local PCA",
-           noise: dict | None = None) -> Report:
+           noise: dict | None = None, unexplained=()) -> Report:
     """The quality report of `rs` on held-out rows [H, D]; `reference` [R, D] are training rows
     (where "on the data" is measured), `statuses` each relation's end ("done" / "capped"),
     `noise` the rows' scatter and the stopping bar (`separation_floor`, with
-    "separation_ratio")."""
+    "separation_ratio"), `unexplained` the share of each relation a fresh restricted syzygy
+    left unexplained (None where not judged)."""
     k_box, k_off = jax.random.split(key)
     k = rs.num_relations
     held_out = jnp.asarray(held_out)
@@ -209,6 +211,8 @@ def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
             "off_mean": off_mean,
             "ratio": off_mean / max(on_mean, 1e-30),
         })
+        if j < len(unexplained) and unexplained[j] is not None:
+            relations[-1]["unexplained"] = float(unexplained[j])
     codim, cos = independence(rs, held_out[:2048])
     upper = cos[np.triu_indices(k, 1)]
     ranks = np.asarray(codim["rank_fractions"])
@@ -249,11 +253,16 @@ def _bar_out_of_reach(report: dict) -> bool:
 def _warnings(report: dict) -> list[str]:
     out = []
     noisy = _bar_out_of_reach(report)
+    bar = report.get("noise", {}).get("separation_ratio", Config.separation_ratio)
     for r in report["relations"]:
         if r["status"] not in ("done", "restored"):  # restored: its end is not known here
             out.append(f"g{r['index']} {r['status']}: it did not meet the stopping rule "
                        f"(held-out off/on {r['ratio']:.1f}"
                        + ("; out of reach on these rows, see noise)" if noisy else ")"))
+        if "unexplained" in r and r["unexplained"] * bar < 1:  # `fit_syzygy`'s test
+            out.append(f"g{r['index']} is a restricted syzygy of the earlier relations: a "
+                       f"fresh syzygy network explains all but {100 * r['unexplained']:.0f}% "
+                       f"of it (not new; {100 / bar:.0f}% would be)")
     cos = np.asarray(report["independence"]["median_abs_cos"])
     for i, j in zip(*np.triu_indices(len(cos), 1), strict=True):
         if cos[i, j] > DEPENDENT_COS:
@@ -275,6 +284,8 @@ def _warnings(report: dict) -> list[str]:
 
 def _lines(report: dict) -> list[str]:
     rel = "; ".join(f"g{r['index']} {r['status']} off/on {r['ratio']:.1f}"
+                    + (f", {100 * r['unexplained']:.0f}% unexplained by a syzygy"
+                       if "unexplained" in r else "")
                     for r in report["relations"])
     ind, land, hold = report["independence"], report["landing"], report["holds"]
     lines = [

@@ -68,6 +68,9 @@ class RelationSummary:
     # `quality.landing` of g_1..g_index: where projected box points land (mining's measure).
     landing: dict = dataclasses.field(default_factory=dict)
     refined: int = 0  # refinement rounds kept (they moved more projected points onto the data)
+    # Share of mean |g_k| a fresh restricted syzygy of the earlier relations leaves unexplained
+    # (`_unexplained`), for relations trained against syzygies; None where not judged.
+    unexplained: float | None = None
 
     @property
     def ratio(self) -> float:
@@ -706,12 +709,32 @@ def _joint_syzygy(cfg, batches, rs: RelationSet, module, state: LoopState, key, 
     return state, int(joint.step), [info]
 
 
-def _start_statuses(rs: RelationSet) -> list[str]:
-    """How the relations a fit starts from ended, as their quality report says ("restored"
-    where it has none: a checkpoint written before the fit's report)."""
+def _unexplained(cfg, batches, rs: RelationSet, module, params, key, callback) -> float:
+    """Share of mean |g_k| that a restricted syzygy of the earlier relations, fitted afresh
+    (Algorithm 1's f, on thickened rows), leaves unexplained on test rows: near 0, g_k is a
+    copy of them (Σ_j f_j g_j); at least 1/separation_ratio, it is new."""
+    level = choose_thickening(cfg, batches, rs, key)
+    _, _, info = fit_syzygy(cfg, batches, _frozen_relations(rs), module.bind(params),
+                            jax.random.fold_in(key, 1), level, callback, rs.num_relations)
+    return info["residual"] / max(info["g_scale"], 1e-30)
+
+
+def _relation_config(cfg: Config, k: int, codim: int) -> Config:
+    """The config g_{k+1} trains with: in a syzygy fit with `transversal_first`, the relations
+    up to the data's codimension train as a transversality fit's."""
+    if cfg.independence == "syzygy" and cfg.transversal_first and k + 1 <= codim:
+        return dataclasses.replace(cfg, independence="transversality")
+    return cfg
+
+
+def _start_ends(rs: RelationSet) -> tuple[list[str], list[float | None]]:
+    """How the relations a fit starts from ended, as their quality report says: statuses
+    ("restored" where it has none: a checkpoint written before the fit's report) and the
+    shares a fresh syzygy left unexplained."""
     recorded = (rs.quality or {}).get("relations", [])
-    return [recorded[j]["status"] if j < len(recorded) else "restored"
+    ends = [recorded[j] if j < len(recorded) else {"status": "restored"}
             for j in range(rs.num_relations)]
+    return [e["status"] for e in ends], [e.get("unexplained") for e in ends]
 
 
 def _last_resort(cfg: Config) -> Config | None:
@@ -737,21 +760,23 @@ def _noise_floor(cfg: Config, batches: Batches, codim: int, key) -> dict:
     return floor
 
 
-def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partial=None):
+def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, partial=None):
     ahead, programs = {}, {}
-    statuses = _start_statuses(rs)
-    mining = cfg.mined_weight > 0
+    statuses, unexplained = _start_ends(rs)
+    mining = fit_cfg.mined_weight > 0
     within = quality.landing_distance(batches.dense, batches.held_out, batches.low, batches.high)
-    codim = cfg.codimension or quality.data_codimension(batches.dense, jax.random.fold_in(key, 5))
-    codim_from = "given" if cfg.codimension else "by local PCA"
+    codim = fit_cfg.codimension or quality.data_codimension(batches.dense,
+                                                            jax.random.fold_in(key, 5))
+    codim_from = "given" if fit_cfg.codimension else "by local PCA"
     if codim == 0:  # the local PCA saw the data fill its neighbourhoods: noise, or too few rows
         log.warning("the data's local PCA finds no codimension (its neighbourhoods are full: "
                     "noisy or few rows); fitting as codimension 1 (Config.codimension sets it)")
         codim, codim_from = 1, "by local PCA 0, taken as 1"
-    log.info("the data's codimension: %d%s", codim, "" if cfg.codimension else
+    log.info("the data's codimension: %d%s", codim, "" if fit_cfg.codimension else
              " (local PCA of the data; Config.codimension overrides it)")
-    noise = _noise_floor(cfg, batches, codim, jax.random.fold_in(key, 6))
-    for k in range(rs.num_relations, cfg.max_relations):
+    noise = _noise_floor(fit_cfg, batches, codim, jax.random.fold_in(key, 6))
+    for k in range(rs.num_relations, fit_cfg.max_relations):
+        cfg = _relation_config(fit_cfg, k, codim)
         started = time.perf_counter()
         k_key = jax.random.fold_in(key, k)
         k_init, k_pre, k_train, k_syz, k_eval = jax.random.split(k_key, 5)
@@ -761,7 +786,8 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
         init = jax.jit(module.init, compiler_options=ONCE_COMPILER_OPTIONS)
         example_tau = jnp.zeros((1, batches.dim))
         params = init(k_init, example_tau)
-        ahead |= _compile_ahead(cfg, batches, rs, params, k + 1, pool, codim)
+        ahead |= _compile_ahead(_relation_config(fit_cfg, k + 1, codim), batches, rs, params,
+                                k + 1, pool, codim)
         resuming = partial is not None and partial.holds(k)
         if priors is not None and k < len(priors) and priors[k] is not None and not resuming:
             params = _pretrain(cfg, batches, module, params, priors[k], k_pre)
@@ -979,12 +1005,24 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
                 "stopping with %d relations", k + 1, steps, summary.ratio, needed,
                 rs.num_relations)
             break
+        if syzygies:
+            summary.unexplained = _unexplained(cfg, batches, rs, module, state.params,
+                                               jax.random.fold_in(k_syz, 1_000), callback)
+            log.info("relation %d: a fresh syzygy of the earlier relations leaves %.0f%% of it "
+                     "unexplained", k + 1, 100 * summary.unexplained)
+            if cfg.transversal_first and summary.unexplained * cfg.separation_ratio < 1:
+                log.warning("relation %d is a restricted syzygy of the earlier ones (a fresh "
+                            "syzygy network explains all but %.0f%% of it): not new; dropped, "
+                            "stopping with %d relations", k + 1, 100 * summary.unexplained,
+                            rs.num_relations)
+                break
         rows = batches.on(jax.random.fold_in(k_eval, 1), batches.data, RANK_ROWS)
         summary.codimension = codimension(grown, rows)
         if land is not None:
             summary.landing = land
         rs = grown.replace(syzygies=(*rs.syzygies, summary.syzygies_found))
         statuses.append(summary.status)
+        unexplained.append(summary.unexplained)
         log.info(
             "relation %d %s after %d steps (%.1fs): mean |g| on %.4g off %.4g (x%.1f)",
             k + 1,
@@ -1006,7 +1044,7 @@ def _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partia
     if rs.num_relations:
         report = quality.assess(rs, jax.random.fold_in(key, 10_000), batches.held_out,
                                 batches.dense, batches.low, batches.high, statuses, codim,
-                                codim_from, noise)
+                                codim_from, noise, unexplained)
         rs = rs.replace(quality=report)
         for line in report["lines"]:
             (log.warning if line.startswith("warning") else log.info)("%s", line)

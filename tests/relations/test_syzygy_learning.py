@@ -33,6 +33,7 @@ def test_algorithm_1_with_syzygies_learns_separating_relations():
     cfg = relations.Config(
         max_relations=2,
         independence="syzygy",
+        transversal_first=False,  # syzygies from g_2 on, the paper's way
         syzygies_per_relation=1,
         max_steps=30_000,
         syzygy_max_steps=4000,
@@ -47,7 +48,8 @@ def test_algorithm_1_with_syzygies_learns_separating_relations():
 def test_joint_syzygy_training_trains_f_beside_g_k_and_judges_it_afresh():
     summaries = []
     cfg = relations.Config(max_relations=2, independence="syzygy", syzygy_training="joint",
-                           max_steps=2000, syzygy_max_steps=1000, mined_weight=0.0)
+                           transversal_first=False, max_steps=2000, syzygy_max_steps=1000,
+                           mined_weight=0.0)
     rs = relations.fit(sources.make("ellipse"), cfg,
                        on_relation=lambda _, summary: summaries.append(summary))
     assert rs.num_relations == 2

@@ -225,18 +225,32 @@ def plot(records_path: str, variants: list[str], out: str, metric: str = "landed
         colour = colours.setdefault(label, f"C{len(colours)}")
         within = sum(1 for other in variants[: variants.index(item)]
                      if VARIANTS[other.partition("=")[0].partition("@")[0]][0] == source)
-        ax.plot([10 * g + r["seed"] + 0.2 * within for r in rows], [r[metric] for r in rows],
+        values = [_field(r, metric) for r in rows]
+        ax.plot([10 * g + r["seed"] + 0.2 * within for r in rows], values,
                 "o", color=colour, ms=4, label=label if label not in ticks else None)
         ticks.append(label)
-        lowest = min([lowest] + [r[metric] for r in rows])
+        lowest = min([lowest] + [v for v in values if v == v])
     ax.set_xticks([10 * g + 3.5 for g in range(len(groups))], groups)
-    ax.axhline(0.9, color="grey", lw=0.8, ls="--")
+    ax.axhline(0.2 if metric.startswith("unexplained") else 0.9, color="grey", lw=0.8, ls="--")
     ax.set(xlabel="seeds 0–7 of each source", ylim=(max(0.0, int(lowest * 10) / 10 - 0.1), 1.02),
-           ylabel="box points within 0.05 of the manifold" if metric != "landed" else
-           "box points landing within 0.05 of the curve")
+           ylabel=YLABELS.get(metric.partition(".")[0], metric))
     ax.legend(fontsize=7, loc="lower left")
     fig.tight_layout()
     fig.savefig(out, dpi=110)
+
+
+YLABELS = {"landed": "box points landing within 0.05 of the data",
+           "on_truth": "box points within 0.05 of the manifold",
+           "unexplained": "share of g_k a fresh syzygy leaves unexplained"}
+
+
+def _field(record: dict, metric: str) -> float:
+    """A record's `metric`: a field, or "field.i" for item i of a list field (nan if absent)."""
+    name, _, index = metric.partition(".")
+    value = record.get(name)
+    if index:
+        value = value[int(index)] if value and len(value) > int(index) else None
+    return float("nan") if value is None else float(value)
 
 
 def main() -> None:
@@ -247,7 +261,9 @@ def main() -> None:
     parser.add_argument("--timeout-s", type=float, default=540.0)
     parser.add_argument("--plot", nargs=2, metavar=("RECORDS", "PNG"),
                         help="draw the per-seed landing of the named variants from RECORDS")
-    parser.add_argument("--metric", default="landed", help="the record's field --plot draws")
+    parser.add_argument("--metric", default="landed",
+                        help="the record's field --plot draws; FIELD.i: item i of a list field "
+                             "(unexplained.0: g_2's share)")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.plot:

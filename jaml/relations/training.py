@@ -719,6 +719,23 @@ def _unexplained(cfg, batches, rs: RelationSet, module, params, key, callback) -
     return info["residual"] / max(info["g_scale"], 1e-30)
 
 
+def _beyond_codimension_unneeded(cfg: Config, unexplained: float, land, before) -> str:
+    """Why a syzygy-trained relation of a `transversal_first` fit (so beyond the data's
+    codimension) is not kept, or "" if it is: a fresh syzygy explains it, or no more projected
+    box points land on the data with it than without."""
+    if not cfg.transversal_first:
+        return ""
+    if unexplained * cfg.separation_ratio < 1:
+        return (f"is a restricted syzygy of the earlier ones (a fresh syzygy network explains "
+                f"all but {100 * unexplained:.0f}% of it): not new")
+    if land is not None and before is not None and quality.on_data(land) <= quality.on_data(
+            before):
+        return (f"is new, but no more projected box points land on the data with it "
+                f"({100 * quality.on_data(land):.0f}% against {100 * quality.on_data(before):.0f}"
+                f"% without it)")
+    return ""
+
+
 def _relation_config(cfg: Config, k: int, codim: int) -> Config:
     """The config g_{k+1} trains with: in a syzygy fit with `transversal_first`, the relations
     up to the data's codimension train as a transversality fit's."""
@@ -763,6 +780,7 @@ def _noise_floor(cfg: Config, batches: Batches, codim: int, key) -> dict:
 def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, partial=None):
     ahead, programs = {}, {}
     statuses, unexplained = _start_ends(rs)
+    kept_land = None  # where projected box points land on the relations kept so far
     mining = fit_cfg.mined_weight > 0
     within = quality.landing_distance(batches.dense, batches.held_out, batches.low, batches.high)
     codim = fit_cfg.codimension or quality.data_codimension(batches.dense,
@@ -1010,16 +1028,17 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
                                                jax.random.fold_in(k_syz, 1_000), callback)
             log.info("relation %d: a fresh syzygy of the earlier relations leaves %.0f%% of it "
                      "unexplained", k + 1, 100 * summary.unexplained)
-            if cfg.transversal_first and summary.unexplained * cfg.separation_ratio < 1:
-                log.warning("relation %d is a restricted syzygy of the earlier ones (a fresh "
-                            "syzygy network explains all but %.0f%% of it): not new; dropped, "
-                            "stopping with %d relations", k + 1, 100 * summary.unexplained,
+            # Beyond the codimension the data is cut already: a relation earns its place by
+            # being new and by moving more projected points onto the data (off a spurious part).
+            why = _beyond_codimension_unneeded(cfg, summary.unexplained, land, kept_land)
+            if why:
+                log.warning("relation %d %s: dropped, stopping with %d relations", k + 1, why,
                             rs.num_relations)
                 break
         rows = batches.on(jax.random.fold_in(k_eval, 1), batches.data, RANK_ROWS)
         summary.codimension = codimension(grown, rows)
         if land is not None:
-            summary.landing = land
+            summary.landing = kept_land = land
         rs = grown.replace(syzygies=(*rs.syzygies, summary.syzygies_found))
         statuses.append(summary.status)
         unexplained.append(summary.unexplained)

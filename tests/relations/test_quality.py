@@ -325,3 +325,26 @@ def test_on_noisy_rows_the_tangent_space_takes_the_datas_dimension_not_the_noise
     assert quality.tangent_offsets(point, tree, nearest)[0] < 0.05  # the noise passed the bar
     np.testing.assert_allclose(quality.tangent_offsets(point, tree, nearest, dim=2), 0.3,
                                atol=0.02)
+
+
+def test_a_relation_a_fresh_syzygy_explains_is_warned_of_and_its_share_reported():
+    """A syzygy-trained relation's unexplained share is on its line; below 1/separation_ratio
+    (a fresh f writes it as Σ_j f_j g_j, a copy) the report warns."""
+    report = {"relations": [{"index": 1, "status": "done", "ratio": 90.0},
+                            {"index": 2, "status": "done", "ratio": 80.0, "unexplained": 0.1}],
+              "independence": {"median_abs_cos": [[1.0, 0.2], [0.2, 1.0]]},
+              "landing": {"converged": 1.0, "spurious": 0.0, "within": 0.05}}
+    assert quality._warnings(report) == [
+        "g2 is a restricted syzygy of the earlier relations: a fresh syzygy network explains all "
+        "but 10% of it (not new; 20% would be)"]
+    report["relations"][1]["unexplained"] = 0.3
+    assert quality._warnings(report) == []
+    rows = jnp.asarray(_circle(400))
+    low, high = np.asarray(rows.min(0)) - 0.1, np.asarray(rows.max(0)) + 0.1
+    two = _random_set().append(_random_set(1).params[0], 0.05, 1.0, 8)
+    report = quality.assess(two, jax.random.key(3), rows[:200], rows[200:], low, high,
+                            ("done", "done"), 2, "given", unexplained=(None, 0.1))
+    assert "unexplained" not in report["relations"][0]
+    assert "g2 done off/on" in report["lines"][0]
+    assert ", 10% unexplained by a syzygy" in report["lines"][0]
+    assert any("g2 is a restricted syzygy" in line for line in report["lines"])

@@ -150,9 +150,9 @@ def test_a_finished_run_started_again_trains_nothing_and_keeps_no_partial_state(
     from jaml.relations import training
 
     ended = [r["status"] for r in first["relations"]]
-    assert training._start_statuses(relations.load(out / "checkpoint")) == ended
-    assert training._start_statuses(relations.load(out / "checkpoint").replace(quality=None)) == [
-        "restored"]
+    assert training._start_ends(relations.load(out / "checkpoint"))[0] == ended
+    assert training._start_ends(relations.load(out / "checkpoint").replace(quality=None)) == (
+        ["restored"], [None])
 
 
 def test_a_different_configuration_in_the_same_directory_is_refused(tmp_path, capsys):

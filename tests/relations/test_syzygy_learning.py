@@ -56,3 +56,48 @@ def test_joint_syzygy_training_trains_f_beside_g_k_and_judges_it_afresh():
     (judged,) = summaries[1].syzygy_rounds  # one fresh syzygy, fitted after the joint training
     assert judged["steps"] >= 100 and judged["g_scale"] > 0
     assert judged["found"] == (judged["residual"] * cfg.separation_ratio < judged["g_scale"])
+
+
+def test_syzygy_mode_trains_up_to_the_codimension_with_transversality_and_judges_beyond(
+        monkeypatch, caplog):
+    """With `transversal_first` (the default), g_2 of the ellipse (codimension 2) trains with
+    eq. 2 (its loop reports the angle, no syzygy round) and only g_3 is judged by a fresh
+    syzygy; one that explains g_3 drops it."""
+    import logging
+
+    from jaml.relations import training
+
+    judged, phases = [], set()
+
+    def explained(cfg, batches, rs, module, params, key, callback):
+        judged.append(rs.num_relations)
+        return 0.05
+
+    monkeypatch.setattr(training, "_unexplained", explained)
+    cfg = relations.Config(max_relations=3, independence="syzygy", codimension=2,
+                           max_steps=400, chunk_steps=100, batch_size=128, stop_patience=10,
+                           eval_batches=2, syzygies_per_relation=1, syzygy_max_steps=100,
+                           syzygy_push_steps=100, mined_weight=0.0, stop_when_complete=False,
+                           pretrain_steps=0)
+    with caplog.at_level(logging.WARNING, logger="jaml.relations"):
+        rs = relations.fit(sources.make("ellipse"), cfg,
+                           callback=lambda phase, k, m: phases.add((phase, k, "angle" in m)))
+    assert judged == [2] and rs.num_relations == 2
+    assert ("relation", 1, True) in phases and not any(p[0] == "syzygy" and p[1] == 1
+                                                        for p in phases)
+    assert ("syzygy", 2, False) in phases  # g_3's round against a frozen f
+    assert "relation 3 is a restricted syzygy of the earlier ones" in caplog.text
+
+
+def test_a_relation_beyond_the_codimension_must_be_new_and_land_more_points():
+    from jaml.relations.training import _beyond_codimension_unneeded
+
+    cfg = relations.Config(independence="syzygy")
+    before = {"landed": 0.90, "extends": 0.0}
+    assert "not new" in _beyond_codimension_unneeded(cfg, 0.1, {"landed": 0.99}, before)
+    assert "no more projected box points" in _beyond_codimension_unneeded(
+        cfg, 0.5, {"landed": 0.85, "extends": 0.05}, before)
+    assert _beyond_codimension_unneeded(cfg, 0.5, {"landed": 0.95}, before) == ""
+    assert _beyond_codimension_unneeded(cfg, 0.5, None, before) == ""
+    paper = cfg.replace(transversal_first=False)
+    assert _beyond_codimension_unneeded(paper, 0.1, {"landed": 0.5}, before) == ""

@@ -81,6 +81,17 @@ def checkpoint_due(epoch: int, last_checkpoint: int | None, every: int | None, *
     return epoch - (last_checkpoint or 0) >= every
 
 
+def checkpoints(block: Block, last: Sequence[int | None], every: int | None, epochs: int,
+                final: bool) -> list[bool]:
+    """Whether each run of `block` checkpoints with the analysis at the block's end, decided
+    before the block trains: never without an analysis there; else `checkpoint_due` of the
+    run's last checkpoint (`last[i]`, by run), the run's last epoch (`epochs`) counting as its
+    last analysis where `final` (`final_checkpoint`)."""
+    return [block.analysis and checkpoint_due(block.end, last[i], every,
+                                              last=final and block.end == epochs)
+            for i in block.runs]
+
+
 def first_non_finite(metrics: dict[str, np.ndarray]) -> int | None:
     """Index of the first epoch of these whose learner loss is NaN/inf while training, else
     None (before the replay fills the learner does not train and its loss is NaN by design)."""

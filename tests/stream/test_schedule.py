@@ -98,3 +98,15 @@ def test_the_first_non_finite_loss_counts_only_while_the_learner_trains():
                                       "learner/loss": np.array([nan, 1.0, inf])}) == 2
     assert schedule.first_non_finite({"learner/training": np.array([0.0, 0.0]),
                                       "learner/loss": np.array([nan, nan])}) is None
+
+
+def test_a_blocks_checkpoints_are_decided_before_it_trains():
+    """Only an analysis at the block's end checkpoints: thinned by `every` from each run's last
+    checkpoint, and at the run's last epoch only where `final` asks for it."""
+    analysing, between = Block((0, 2), 4, 6, True), Block((0, 2), 3, 5, False)
+    last = [4, None, 0]  # run 1 is not in the blocks
+    assert schedule.checkpoints(analysing, last, None, 10, True) == [True, True]
+    assert schedule.checkpoints(analysing, last, 5, 10, True) == [False, True]
+    assert schedule.checkpoints(between, last, None, 10, True) == [False, False]
+    assert schedule.checkpoints(analysing, last, 100, 6, True) == [True, True]
+    assert schedule.checkpoints(analysing, last, 100, 6, False) == [False, False]

@@ -72,6 +72,34 @@ def run_of(states: StreamState, i: int) -> StreamState:
     return jax.tree.map(lambda x: x[i], states)
 
 
+class Stacked:
+    """The stacked states of the runs last trained together (`members`, indices into
+    `holders`), kept stacked from one block to the next while the group stays the same (the
+    common case: all runs at one epoch); the other runs' states are held by their `holders`
+    (each a run's `RunDir`), in its `state`."""
+
+    def __init__(self, holders: list):
+        self.holders, self.members, self.states = holders, (), None
+
+    def of(self, members: tuple[int, ...]) -> StreamState:
+        """The stacked states of `members`, regrouped if they are not the last group."""
+        if members != self.members:
+            if self.states is not None:
+                for i, state in zip(self.members, unstack_runs(self.states), strict=True):
+                    self.holders[i].state = state
+            self.states = stack_runs([self.holders[i].state for i in members])
+            self.members = members
+            for i in members:
+                self.holders[i].state = None
+        return self.states
+
+    def state(self, i: int) -> StreamState:
+        """Run i's state, from the stack or its holder."""
+        if i not in self.members:
+            return self.holders[i].state
+        return run_of(self.states, self.members.index(i))
+
+
 @functools.partial(jax.jit, static_argnums=(1, 2, 3))
 def _take(tree, index: tuple[int, ...], axis: int = 0, rows: int | None = None):
     """`tree`'s leaves at `index` along `axis`, of their first `rows` along axis 0 where given."""

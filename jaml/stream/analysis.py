@@ -23,7 +23,7 @@ from jaml.evaluation import alignment, rotation
 from jaml.evaluation import references as references_lib
 from jaml.stream import collect
 from jaml.stream import replay as replay_lib
-from jaml.stream.executor import one_run_stacked
+from jaml.stream.executor import one_run_stacked, run_of
 from jaml.stream.loop import Stream, StreamState
 
 
@@ -231,6 +231,89 @@ def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
         for report, row in zip(reports, rows, strict=True):
             report["references"] = {"constant": report["baseline"], **row}
     return reports
+
+
+@dataclasses.dataclass(frozen=True)
+class RunAnalysis:
+    """One run's analysis at an epoch, for its run directory (`RunDir.analysed`): its report
+    (`evaluate_runs`) and the names of its errors (`error_names`), reconstructions
+    (`reconstructions`) and state (what a checkpoint beside the records saves), and its time:
+    its share of the wall seconds, and by part."""
+
+    report: dict
+    names: list[str]
+    frames: tuple[np.ndarray, np.ndarray]
+    state: StreamState
+    seconds: float
+    parts: dict[str, float]
+
+
+def analyse_runs(stream: Stream, states: StreamState, due: list[int], eval_keys: list,
+                 pi_rand_keys: list, pi_rand_sets: list, references: list[bool]
+                 ) -> list[RunAnalysis]:
+    """The runs `due` (indices into the stacked `states`) analysed at their (common) epoch,
+    each with its keys, its kept π_rand set (`PiRandSet`, or None) and whether it asks for the
+    reference rows (`evaluate_runs`): one `RunAnalysis` per due run.
+
+    The runs that one device holds are evaluated by one `evaluate_runs` call on that device (on
+    a GPU about the cost of one run's `evaluate`: the analysis is latency bound), the time
+    shared among them; with the runs split across devices that is one call per device, the
+    devices taken in turn. Not one host thread per device: the analysis traces its programs as
+    it goes, and a worker thread does not see the caller's JAX config contexts (e.g.
+    `jax.threefry_partitionable`, which decides the random bits of the test sets and the
+    regressor)."""
+    shared = {}
+    for device_states, members in due_by_device(states, [(i, n) for n, i in enumerate(due)]):
+        tic = time.perf_counter()
+        picks = [n for _, n in members]
+        parts: dict[str, float] = {}
+        kept = [pi_rand_sets[n] for n in picks]
+        # The reference rows at a run's first analysis in this call only: three more fits.
+        reports = evaluate_runs(stream, device_states, jnp.stack([eval_keys[n] for n in picks]),
+                                jnp.stack([pi_rand_keys[n] for n in picks]), seconds=parts,
+                                pi_rand_sets=None if None in kept else kept,
+                                references=any(references[n] for n in picks))
+        share = (time.perf_counter() - tic) / len(members)
+        for n, report in zip(picks, reports, strict=True):
+            shared[n] = report, share, {k: v / len(members) for k, v in parts.items()}
+    names = error_names(stream)
+    results = []
+    for n, i in enumerate(due):
+        report, share, parts = shared[n]
+        state = run_of(states, i)
+        tic = time.perf_counter()
+        frames = reconstructions(stream, state, jax.random.fold_in(eval_keys[n], 7))
+        parts["reconstructions"] = time.perf_counter() - tic
+        results.append(RunAnalysis(report, names, frames, state,
+                                   share + parts["reconstructions"], parts))
+    return results
+
+
+def due_by_device(states: StreamState, due: list) -> list[tuple[StreamState, list]]:
+    """The runs `due` [(index into the stacked `states`, anything)] grouped by the device that
+    holds them (the first, where the states are replicated): per device, its due runs' states
+    stacked on it and their entries of `due`.
+
+    Taken from each device's own shard, so nothing crosses devices; a device's whole shard is
+    used as is (no copy of its replays) when every run in it is due."""
+    owner = {}
+    for shard in states.epoch.addressable_shards:
+        start, stop, _ = shard.index[0].indices(states.epoch.shape[0])
+        for i in range(start, stop):
+            owner.setdefault(i, shard.device)
+    groups: dict = {}
+    for i, r in due:
+        groups.setdefault(owner[i], []).append((i, r))
+
+    def local(x, device, index):
+        shard = next(s for s in x.addressable_shards if s.device == device)
+        start, stop, _ = shard.index[0].indices(x.shape[0])
+        if index == list(range(start, stop)):
+            return shard.data
+        return shard.data[np.asarray(index) - start]
+
+    return [(jax.tree.map(lambda x, d=device, m=members: local(x, d, [i for i, _ in m]), states),
+             members) for device, members in groups.items()]
 
 
 class _LastInputFrames(list):

@@ -8,32 +8,24 @@ import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
 from jaml import _interrupts
 from jaml.configs.stream import StreamConfig
 from jaml.stream import analysis
-from jaml.stream.executor import (
-    BLOCK,
-    held_runs,
-    run_of,
-    run_stacked_epochs,
-    runs_mesh,
-    stack_runs,
-    unstack_runs,
-)
+from jaml.stream.executor import BLOCK, Stacked, held_runs, run_stacked_epochs, runs_mesh
 from jaml.stream.loop import Stream, StreamState, build
 from jaml.stream.rundir import FigureWriter, RunDir, claim_run, open_runs
 from jaml.stream.schedule import (
     analysis_epochs,
     checkpoint_due,
+    checkpoints,
     in_time,
     next_block,
     stop_epoch,
 )
-from jaml.stream.timing import Stopwatch, timed
+from jaml.stream.timing import Stopwatch
 
 __all__ = ["DEADLINE_BLOCK", "NonFiniteLoss", "analysis_epochs", "checkpoint_due", "claim_run",
            "run", "run_many"]
@@ -105,8 +97,8 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     held = held_runs(len(configs), mesh) if processes else range(len(configs))
     figures = FigureWriter()
     runs = open_runs(stream, [resolved[i] for i in held], [outs[i] for i in held],
-                     figures=figures, final_checkpoint=final_checkpoint, keep_pi_rand=keep_pi_rand)
-    stacked = _Stacked(runs)
+                     figures=figures, keep_pi_rand=keep_pi_rand)
+    stacked = Stacked(runs)
     epochs = stream.config.epochs
     analyses = analysis_epochs(stream.config.fill_epochs, epochs, stream.config.eval.every)
     stops = [stop_epoch(r.epoch, epochs, stop_after) for r in runs]
@@ -125,6 +117,8 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                                stops, analyses, None if deadline is None else DEADLINE_BLOCK)
             if block is None:
                 break
+            saves = checkpoints(block, [r.checkpoint_epoch for r in runs], checkpoint_every,
+                                epochs, final_checkpoint)
             if not in_time(block, _clock(), deadline, pace, analysis_seconds):
                 for i, r in enumerate(runs):  # every run still going stops where it is
                     if r.status == "running":
@@ -147,7 +141,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                                           watch.wall / len(block.runs))]
             if block.analysis:
                 with Stopwatch() as analysing:
-                    _analyse_together(stream, states, trained, checkpoint_every)
+                    _analyse(stream, states, trained, saves)
                 analysis_seconds = analysing.steady if trained else analysis_seconds
             for j, r in trained:  # stopped by `stop_after` between analyses: resumable here
                 if r.epoch == stops[block.runs[j]] < epochs:
@@ -189,34 +183,6 @@ def _checked(count: int, outs: list, checkpoint_every: int | None) -> list[Path]
     return outs
 
 
-class _Stacked:
-    """The stacked states of the runs last trained together (`members`, indices into `runs`),
-    kept stacked from one block to the next while the group stays the same (the common case:
-    all runs at one epoch); the other runs hold theirs in `run.state`."""
-
-    def __init__(self, runs: list[RunDir]):
-        self.runs, self.members, self.states = runs, (), None
-
-    def of(self, members: tuple[int, ...]) -> StreamState:
-        """The stacked states of `members`, regrouped if they are not the last group."""
-        if members != self.members:
-            if self.states is not None:
-                for i, state in zip(self.members, unstack_runs(self.states), strict=True):
-                    self.runs[i].state = state
-            self.states = stack_runs([self.runs[i].state for i in members])
-            self.members = members
-            for i in members:
-                self.runs[i].state = None
-        return self.states
-
-    def state(self, i: int) -> StreamState:
-        """Run i's state, from the stack or its own."""
-        if i not in self.members:
-            return self.runs[i].state
-        j = self.members.index(i)
-        return run_of(self.states, j)
-
-
 def _mark(runs: list[RunDir], status: str) -> None:
     """The runs still going, marked as ended by an exception."""
     for r in runs:
@@ -236,67 +202,14 @@ def _last_finite(values: np.ndarray) -> float:
     return float(finite[-1]) if finite.size else float("nan")
 
 
-def _analyse_together(stream: Stream, states: StreamState, due: list,
-                      checkpoint_every: int | None = None) -> None:
-    """Analyses the runs `due` [(index in the stacked states, run)] at their (common) epoch.
-
-    The runs that one device holds are evaluated by one `analysis.evaluate_runs` call on that
-    device (on a GPU about the cost of one run's `evaluate`: the analysis is latency bound), the
-    time shared among them; with the runs split across devices that is one call per device, the
-    devices taken in turn. Not one host thread per device: the analysis traces its programs as
-    it goes, and a worker thread does not see the caller's JAX config contexts (e.g.
-    `jax.threefry_partitionable`, which decides the random bits of the test sets and the
-    regressor). Each run then writes its records, figures and checkpoint as
-    alone."""
-    reports = {}
-    for device_states, members in due_by_device(states, due):
-        tic = time.perf_counter()
-        runs = [r for _, r in members]
-        parts: dict[str, float] = {}
-        kept = [r.pi_rand_set for r in runs]
-        # The reference rows at a run's first analysis in this call only: three more fits.
-        evaluated = analysis.evaluate_runs(stream, device_states,
-                                           jnp.stack([r.eval_key() for r in runs]),
-                                           jnp.stack([r.pi_rand_key for r in runs]),
-                                           seconds=parts,
-                                           pi_rand_sets=None if None in kept else kept,
-                                           references=any(r.references is None for r in runs))
-        share = (time.perf_counter() - tic) / len(members)
-        for (i, r), report in zip(members, evaluated, strict=True):
-            r.seconds["analysis"] += share
-            for part, seconds in parts.items():
-                r.analysis_parts[part] = r.analysis_parts.get(part, 0.0) + seconds / len(members)
-            reports[i] = report
-    names = analysis.error_names(stream)
-    for i, r in due:
-        state = run_of(states, i)
-        with timed(r.seconds, "analysis"), timed(r.analysis_parts, "reconstructions"):
-            frames = analysis.reconstructions(stream, state, jax.random.fold_in(r.eval_key(), 7))
-            r.save_reconstructions(frames)
-        r.analyse(state, reports[i], names, checkpoint_every)
-
-
-def due_by_device(states: StreamState, due: list) -> list[tuple[StreamState, list]]:
-    """The runs `due` grouped by the device that holds them (the first, where the states are
-    replicated): per device, its due runs' states stacked on it and their entries of `due`.
-
-    Taken from each device's own shard, so nothing crosses devices; a device's whole shard is
-    used as is (no copy of its replays) when every run in it is due."""
-    owner = {}
-    for shard in states.epoch.addressable_shards:
-        start, stop, _ = shard.index[0].indices(states.epoch.shape[0])
-        for i in range(start, stop):
-            owner.setdefault(i, shard.device)
-    groups: dict = {}
-    for i, r in due:
-        groups.setdefault(owner[i], []).append((i, r))
-
-    def local(x, device, index):
-        shard = next(s for s in x.addressable_shards if s.device == device)
-        start, stop, _ = shard.index[0].indices(x.shape[0])
-        if index == list(range(start, stop)):
-            return shard.data
-        return shard.data[np.asarray(index) - start]
-
-    return [(jax.tree.map(lambda x, d=device, m=members: local(x, d, [i for i, _ in m]), states),
-             members) for device, members in groups.items()]
+def _analyse(stream: Stream, states: StreamState, trained: list[tuple[int, RunDir]],
+             saves: list[bool]) -> None:
+    """The runs `trained` [(index in the stacked states, run)] analysed together at their
+    (common) epoch (`analysis.analyse_runs`), each run's directory keeping its analysis, with a
+    checkpoint where `saves` (by index) says so (`schedule.checkpoints`)."""
+    results = analysis.analyse_runs(
+        stream, states, [j for j, _ in trained], [r.eval_key() for _, r in trained],
+        [r.pi_rand_key for _, r in trained], [r.pi_rand_set for _, r in trained],
+        [r.references is None for _, r in trained])
+    for (j, r), result in zip(trained, results, strict=True):
+        r.analysed(result, checkpoint=saves[j])

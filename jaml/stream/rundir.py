@@ -23,7 +23,7 @@ from jaml.configs.stream import SMOKE_NOTE, RunConfig, changed_fields, resolve, 
 from jaml.evaluation import plots
 from jaml.stream import analysis, checkpoint
 from jaml.stream.loop import Stream, StreamState
-from jaml.stream.schedule import checkpoint_due, first_non_finite
+from jaml.stream.schedule import first_non_finite
 from jaml.stream.timing import timed
 
 # What a run resumed from: the command line shows this logger at INFO (`jaml.cli.main`).
@@ -141,9 +141,8 @@ class RunDir:
     background."""
 
     def __init__(self, stream: Stream, config: RunConfig, out: Path, figures: FigureWriter,
-                 final_checkpoint: bool = True, keep_pi_rand: bool = True):
+                 keep_pi_rand: bool = True):
         self.config, self.out, self.figures = config, out, figures
-        self.final_checkpoint = final_checkpoint
         self.scale = _scale(config)  # summary.json's "scale" (and "note")
         # The run's π_rand sequences, kept on the host after its first analysis in this call.
         self.pi_rand_set = analysis.PiRandSet() if keep_pi_rand else None
@@ -216,19 +215,29 @@ class RunDir:
             self.save(state)
         self.status = "interrupted"
 
+    @property
+    def checkpoint_epoch(self) -> int | None:
+        """The epoch of the run's latest checkpoint (None before its first)."""
+        return self.manager.latest_step()
+
     def eval_key(self) -> jax.Array:
         """The analysis key of the current epoch."""
         return jax.random.fold_in(self.k_eval, self.epoch)
 
-    def analyse(self, state: StreamState, report: dict, names: list[str],
-                checkpoint_every: int | None = None) -> None:
-        """Records, figures and (see `checkpoint_due`) an atomic checkpoint at the current
-        epoch, from this run's `analysis.evaluate_runs` report and its error names (the driver,
-        `jaml.stream.run`, analyses the runs trained together)."""
+    def analysed(self, result: analysis.RunAnalysis, *, checkpoint: bool) -> None:
+        """The run's analysis at the current epoch (`analysis.analyse_runs`) kept: its time,
+        records, reconstructions, figures and, with `checkpoint` (`schedule.checkpoints`), an
+        atomic checkpoint of the state it analysed."""
+        report, names = result.report, result.names
+        self.seconds["analysis"] += result.seconds
+        for part, seconds in result.parts.items():
+            self.analysis_parts[part] = self.analysis_parts.get(part, 0.0) + seconds
         if "references" in report:
             self.references = {"epoch": self.epoch, "validation_split":
                                report["validation_split"], **report["references"]}
+        floor = _floor(self.references, names)
         with timed(self.seconds, "analysis"), timed(self.analysis_parts, "records"):
+            _save_png(self.out / "recon" / f"epoch_{self.epoch:06d}.png", list(result.frames))
             records = _records(self.config.learner, names, self.epoch, report,
                                seed=self.config.seed)
             self.history += records
@@ -237,17 +246,12 @@ class RunDir:
                 # skips an unterminated line) almost never sees part of an epoch's records.
                 f.write("".join(json.dumps(r) + "\n" for r in records))
             self.logs.analysis(self.epoch, records)
-            self.figures.submit(self.out, list(self.history), _floor(self.references, names))
-        if checkpoint_due(self.epoch, self.manager.latest_step(), checkpoint_every,
-                          last=self.epoch == self.config.epochs and self.final_checkpoint):
-            self.save(state)
+            self.figures.submit(self.out, list(self.history), floor)
+        if checkpoint:
+            self.save(result.state)
         # A progress summary (status "running"): a process that dies without reaching `close`
         # (a machine taken back, SIGKILL) still leaves its epoch, phase times and last records.
         write_json(self.out / "summary.json", self.summary())
-
-    def save_reconstructions(self, frames: np.ndarray) -> None:
-        """recon/epoch_N.png at the current epoch: rows of frames (`analysis.reconstructions`)."""
-        _save_png(self.out / "recon" / f"epoch_{self.epoch:06d}.png", list(frames))
 
     def save(self, state: StreamState) -> None:
         """An atomic checkpoint of `state` at the current epoch."""

@@ -230,7 +230,7 @@ def test_due_runs_are_analysed_in_one_call_per_device():
     def grouped(states, due):
         return [(sorted(d.id for d in s.replay.devices()), np.asarray(s.replay).tolist(),
                  [i for i, _ in members])
-                for s, members in run_lib.due_by_device(states,
+                for s, members in run_lib.analysis.due_by_device(states,
                                                          [(i, f"run{i}") for i in due])]
 
     rows = runs.replay.tolist()

@@ -18,6 +18,9 @@ torch networks):
   independence: on 2,048 fresh on-manifold rows, `relations.jacobian_ranks` (share of rows of
     rank ≥ 2) and the |cos| between relations' input gradients (median over rows per pair;
     the median and the largest over pairs).
+  unexplained: for g_2, g_3, …, the share of mean |g_k| a restricted syzygy of the earlier
+    relations, fitted afresh (`syzygy_unexplained`, at most 10,000 steps), leaves unexplained
+    on fresh thickened rows: below 0.2 g_k is a copy of them (Algorithm 1's "f ≈ 0").
   per relation: steps, how it ended (done: the stopping rule; capped: the step cap; cut: the
     wall budget), the stack's own off/on ratio (jaml: fresh data; reference: its EMA) and the
     same fresh-data ratio for both; fit wall seconds (jaml's include compilation).

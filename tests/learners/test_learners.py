@@ -289,8 +289,9 @@ def test_sequence_nll_combines_the_decoded_frames(runs, frame_nll):
     key = jax.random.key(3)
     _, metrics = jax.jit(learner.loss)(variables, key, frames, actions)
     x = frames.astype(np.float64) / 255.0
-    out, _ = learner.module.apply(variables, jnp.asarray(x, jnp.float32), jnp.asarray(actions),
-                                  key, train=True, mutable=["batch_stats"])
+    apply = jax.jit(lambda v, x, a, k: learner.module.apply(v, x, a, k, train=True,
+                                                            mutable=["batch_stats"]))
+    out, _ = apply(variables, jnp.asarray(x, jnp.float32), jnp.asarray(actions), key)
     per_frame = 0.5 * np.sum((x - np.asarray(out.recon, np.float64)) ** 2, axis=(2, 3, 4))
     combine = np.sum if frame_nll == "sum" else np.mean
     np.testing.assert_allclose(metrics["nll"], np.mean(combine(per_frame, axis=1)), rtol=1e-4)

@@ -287,10 +287,10 @@ def test_cartpole_under_gymnasiums_conventions_pays_1_a_step_and_allows_a_wider_
     rewards, dones = {}, {}
     for conventions in ("reference", "gymnasium"):
         env = envs_mjx.make("CartPole", conventions=conventions, pixels="off")
-        state = env.reset(jax.random.PRNGKey(0))
+        state = jax.jit(env.reset)(jax.random.PRNGKey(0))  # one program, not op by op
         data = state.pipeline_state
         state = state.replace(pipeline_state=data.replace(qpos=data.qpos.at[0].set(0.5)))
-        state = env.step(state, np.zeros(1, np.float32))
+        state = jax.jit(env.step)(state, np.zeros(1, np.float32))
         rewards[conventions], dones[conventions] = float(state.reward), float(state.done)
     assert rewards == {"reference": pytest.approx(1 / 200), "gymnasium": 1.0}
     assert dones == {"reference": 1.0, "gymnasium": 0.0}

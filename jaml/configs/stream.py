@@ -355,6 +355,25 @@ def resolve(config: StreamConfig, ld_dim: int, backend: str) -> RunConfig:
     return RunConfig(**fields | {"replay": replay, "learner_config": learner})
 
 
+def resolve_runs(configs: list[StreamConfig], ld_dim: int, backend: str) -> list[RunConfig]:
+    """Each of `configs` resolved (`resolve`) as a run of one program, the first's: they may
+    differ only in their seeds, so one Stream trains them all (`one_program` checks)."""
+    runs = []
+    for config in configs:
+        runs.append(resolve(config, ld_dim, backend))
+        one_program(runs[-1], runs[0])
+    return runs
+
+
+def one_program(run: RunConfig, program: RunConfig) -> None:
+    """Raises ValueError, naming the fields, where `run` differs from `program` in more than
+    its seed: a Stream compiled for one serves only its own seeds."""
+    if run.replace(seed=program.seed) != program:
+        differ = ", ".join(changed_fields(run, program))
+        raise ValueError(f"runs of one Stream differ only in their seeds; this config differs "
+                         f"in {differ}: build a Stream for it (jaml.stream.build)")
+
+
 def _fields(config) -> dict[str, Any]:
     """A dataclass's fields by name, as they are (not copied: `dataclasses.asdict` would)."""
     return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}

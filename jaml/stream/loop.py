@@ -32,7 +32,14 @@ from flax import struct
 import envs_mjx
 from envs_mjx.base import Env, State
 from jaml import learners
-from jaml.configs.stream import PenaltyConfig, RunConfig, StreamConfig, changed_fields, resolve
+from jaml.configs.stream import (
+    PenaltyConfig,
+    RunConfig,
+    StreamConfig,
+    one_program,
+    resolve,
+    resolve_runs,
+)
 from jaml.evaluation import rotation
 from jaml.stream import collect
 from jaml.stream import ppo as ppo_lib
@@ -107,10 +114,7 @@ class Stream:
         """`config` resolved for this Stream's env and backend (`config.resolve`): one of its
         runs, which may differ from the Stream's own config only in the seed."""
         run = resolve(config, len(self.env.ld_state_names), jax.default_backend())
-        if run.replace(seed=self.config.seed) != self.config:
-            differ = ", ".join(changed_fields(run, self.config))
-            raise ValueError(f"runs of one Stream differ only in their seeds; this config differs "
-                             f"in {differ}: build a Stream for it (jaml.stream.build)")
+        one_program(run, self.config)
         return run
 
     @property
@@ -362,6 +366,13 @@ def build(config: StreamConfig) -> Stream:
     (`config.resolve`), its penalty built from `config.penalty`; every size problem is reported
     here, before anything compiles. Build one per config and keep it while its programs serve:
     another Stream compiles its own."""
+    return build_runs([config])[0]
+
+
+def build_runs(configs: list[StreamConfig]) -> tuple[Stream, list[RunConfig]]:
+    """`build` of the first of `configs`, and every config resolved as one of its runs
+    (`config.resolve_runs`: they may differ only in their seeds), before anything compiles."""
+    config = configs[0]
     if config.env not in envs_mjx.ALL_ENVS:
         raise ValueError(f"unknown env {config.env!r}; valid names: {list(envs_mjx.ALL_ENVS)}")
     if config.learner not in learners.ALL_LEARNERS and ":" not in config.learner:
@@ -369,7 +380,8 @@ def build(config: StreamConfig) -> Stream:
                          f"{list(learners.ALL_LEARNERS)}, or your own as MODULE:FACTORY")
     env = envs_mjx.load(config.env, config.env_config)
     ld_dim = len(env.ld_state_names)
-    config = resolve(config, ld_dim, jax.default_backend())  # the learner's ld_dim the env's
+    runs = resolve_runs(configs, ld_dim, jax.default_backend())  # the learner's ld_dim the env's
+    config = runs[0]
     unknown = sorted(set(config.eval.distortion_dims) - set(env.ld_state_names))
     if unknown:
         raise ValueError(f"eval.distortion_dims {unknown} are not LD-state names of "
@@ -408,7 +420,7 @@ def build(config: StreamConfig) -> Stream:
     optimizer = learners.default_optimizer(learner)
     penalty = None if config.penalty is None else latent_penalty(config.penalty, learner, env)
     train_step = learners.make_train_step(learner, optimizer, penalty)
-    return Stream(config, env, learner, ppo, optimizer, train_step)
+    return Stream(config, env, learner, ppo, optimizer, train_step), runs
 
 
 def latent_penalty(penalty: PenaltyConfig, learner: learners.Learner, env: Env):

@@ -15,7 +15,7 @@ from jaml import _interrupts
 from jaml.configs.stream import StreamConfig
 from jaml.stream import analysis
 from jaml.stream.executor import BLOCK, Stacked, held_runs, run_stacked_epochs, runs_mesh
-from jaml.stream.loop import Stream, StreamState, build
+from jaml.stream.loop import Stream, StreamState, build_runs
 from jaml.stream.rundir import FigureWriter, RunDir, claim_run, open_runs
 from jaml.stream.schedule import (
     analysis_epochs,
@@ -56,7 +56,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
              deadline: float | None = None) -> list[dict]:
     """Runs (or resumes) several runs of one program, each in its own directory, trained
     together: the configs may differ only in their seeds (one Stream is built for the first and
-    resolves them all, `Stream.run_config`), and their states are stacked and
+    resolves them all, `build_runs`), and their states are stacked and
     advanced by one compiled loop (`run_stacked_epochs`; several devices split the runs, see
     `mesh`). Runs resumed at different epochs first advance in groups by epoch until they meet.
     Returns one summary per run; a run whose loss turns non-finite stops alone (status
@@ -89,8 +89,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
     is not started: every run still going checkpoints where it is and stops ("interrupted").
     Leave a margin for those checkpoints."""
     outs = _checked(len(configs), outs, checkpoint_every)
-    stream = build(configs[0])  # every config problem surfaces before any file
-    resolved = [stream.run_config(c) for c in configs]  # and every config is a run of it
+    stream, resolved = build_runs(configs)  # every config problem surfaces before any file
     processes = jax.process_count() > 1
     if processes and mesh is None:
         mesh = runs_mesh(len(configs))
@@ -169,7 +168,7 @@ _clock = time.monotonic  # what deadlines are read against
 
 def _checked(count: int, outs: list, checkpoint_every: int | None) -> list[Path]:
     """`run_many`'s arguments checked: one out directory for each of its `count` configs, each
-    its own; the directories as Paths (that the configs are one program, `Stream.run_config`
+    its own; the directories as Paths (that the configs are one program, `build_runs`
     checks)."""
     if count != len(outs) or not count:
         raise ValueError(f"run_many needs one out directory per config, got {count} "

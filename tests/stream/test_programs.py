@@ -12,6 +12,7 @@ import pytest
 
 from jaml import stream
 from jaml.experiments import _runs
+from jaml.stream import loop
 from jaml.stream import run as run_lib
 from tests.stream.test_loop import tiny
 
@@ -47,13 +48,13 @@ def test_a_streams_programs_and_their_memory_mappings_go_with_it():
 def test_a_figure_cell_keeps_no_stream_even_when_it_fails(monkeypatch):
     built = []
 
-    def build(*args):
-        built_stream = stream.build(*args)
+    def build_runs(configs):
+        built_stream, runs = loop.build_runs(configs)
         built_stream.jit(_program)  # a program of its own, which must not keep it either
         built.append(weakref.ref(built_stream))
-        return built_stream
+        return built_stream, runs
 
-    monkeypatch.setattr(run_lib, "build", build)
+    monkeypatch.setattr(run_lib, "build_runs", build_runs)
     monkeypatch.setattr(run_lib, "open_runs", lambda *_, **__: 1 / 0)
     with pytest.raises(ZeroDivisionError):
         _runs.train_seeds("cell", [tiny()], ["unused"])

@@ -32,12 +32,18 @@ log = logging.getLogger("jaml.stream")
 
 
 def claim_run(out: Path, config: RunConfig, stream: Stream) -> bool:
-    """`_rundir.claim` for a run of `stream`: config.json holds the run's `config` whole
-    (`RunConfig.to_dict`). A recorded run is this one when its record (`records.read`: older
-    records, and a `penalty.json` beside them, read as the runs they were) resolves to this
-    `config` (`Stream.run_config`). A learner of your own (MODULE:FACTORY) is recorded by the
-    config its factory gave (`_own_learner_config`), compared when both records have it. A
-    refusal names the fields that differ."""
+    """`_rundir.claim` for a run of `stream` (`run_record`)."""
+    return claim(out, *run_record(out, config, stream))
+
+
+def run_record(out: Path, config: RunConfig, stream: Stream):
+    """What `_rundir.claim` is given for a run of `stream` in `out`: (record, same,
+    differences). config.json holds the run's `config` whole (`RunConfig.to_dict`). A recorded
+    run is this one when its record (`records.read`: older records, and a `penalty.json`
+    beside them, read as the runs they were) resolves to this `config` (`Stream.run_config`). A
+    learner of your own (MODULE:FACTORY) is recorded by the config its factory gave
+    (`_own_learner_config`), compared when both records have it. A refusal names the fields
+    that differ."""
     record = config.to_dict()
     own = _own_learner_config(stream)
     if own is not None:
@@ -66,7 +72,7 @@ def claim_run(out: Path, config: RunConfig, stream: Stream) -> bool:
             named += differing(before, own, "learner_config.")
         return describe(named)
 
-    return claim(out, record, same, differences)
+    return record, same, differences
 
 
 def _own_learner_config(stream: Stream) -> dict | None:
@@ -146,30 +152,34 @@ class RunDir:
         self.scale = _scale(config)  # summary.json's "scale" (and "note")
         # The run's π_rand sequences, kept on the host after its first analysis in this call.
         self.pi_rand_set = analysis.PiRandSet() if keep_pi_rand else None
-        self.lock = lock(out)  # released by `close` (or when the process ends)
+        self.lock = None  # released by `close` (or when the process ends)
         try:
             self._open(stream)
         except BaseException:  # a refused config or unreadable checkpoint: let the directory go
-            self.lock.close()
+            if self.lock is not None:
+                self.lock.close()
             raise
 
     def _open(self, stream: Stream) -> None:
+        """Locked and claimed (`run_record`), its logs cut back to its latest checkpoint's
+        epoch, then its state: that checkpoint restored, or a fresh one."""
         config, out = self.config, self.out
-        claim_run(out, config, stream)
+        record, same, differences = run_record(out, config, stream)
+        self.lock = lock(out)
+        claim(out, record, same, differences)
         (out / "recon").mkdir(exist_ok=True)
         k_init, self.k_eval, self.pi_rand_key = jax.random.split(jax.random.PRNGKey(config.seed), 3)
         self.manager = checkpoint.manager(out)
-        self.resumed_from: int | None = None
-        if self.manager.latest_step() is not None:
+        self.resumed_from: int | None = self.manager.latest_step()  # a checkpoint's step: its epoch
+        self.epoch = self.resumed_from or 0
+        self.history = truncate_jsonl(out / "history.jsonl", lambda r: r["step"] <= self.epoch)
+        self.logs = _Logs(out, keep=lambda r: r["epoch"] <= self.epoch)
+        if self.resumed_from is not None:
             self.state = checkpoint.restore(self.manager, jax.eval_shape(stream.init, k_init))
-            self.resumed_from = int(self.state.epoch)
             resume_log.info("%s: resumed from its checkpoint at epoch %d of %d", out,
                             self.resumed_from, config.epochs)
         else:
             self.state = stream.init(k_init)
-        self.epoch = int(self.state.epoch)
-        self.history = truncate_jsonl(out / "history.jsonl", lambda r: r["step"] <= self.epoch)
-        self.logs = _Logs(out, keep=lambda r: r["epoch"] <= self.epoch)
         self.status = "running"
         self.error: str | None = None  # why a "nonfinite" run stopped
         self.started = time.perf_counter()

@@ -23,7 +23,7 @@ from jaml.evaluation import alignment, rotation
 from jaml.evaluation import references as references_lib
 from jaml.stream import collect
 from jaml.stream import replay as replay_lib
-from jaml.stream.executor import one_run_stacked, run_of
+from jaml.stream.executor import one_run_stacked
 from jaml.stream.loop import Stream, StreamState
 
 
@@ -237,13 +237,11 @@ def evaluate_runs(stream: Stream, states: StreamState, keys: jax.Array,
 class RunAnalysis:
     """One run's analysis at an epoch, for its run directory (`RunDir.analysed`): its report
     (`evaluate_runs`) and the names of its errors (`error_names`), reconstructions
-    (`reconstructions`) and state (what a checkpoint beside the records saves), and its time:
-    its share of the wall seconds, and by part."""
+    (`reconstructions`), and its time: its share of the wall seconds, and by part."""
 
     report: dict
     names: list[str]
     frames: tuple[np.ndarray, np.ndarray]
-    state: StreamState
     seconds: float
     parts: dict[str, float]
 
@@ -280,12 +278,11 @@ def analyse_runs(stream: Stream, states: StreamState, due: list[int], eval_keys:
     results = []
     for n, i in enumerate(due):
         report, share, parts = shared[n]
-        state = run_of(states, i)
         tic = time.perf_counter()
-        frames = reconstructions(stream, state, jax.random.fold_in(eval_keys[n], 7))
+        frames = reconstructions(stream, states, i, jax.random.fold_in(eval_keys[n], 7))
         parts["reconstructions"] = time.perf_counter() - tic
-        results.append(RunAnalysis(report, names, frames, state,
-                                   share + parts["reconstructions"], parts))
+        results.append(RunAnalysis(report, names, frames, share + parts["reconstructions"],
+                                   parts))
     return results
 
 
@@ -375,14 +372,16 @@ def distortion_columns(stream: Stream) -> np.ndarray:
                       range(len(names)))
 
 
-def reconstructions(stream: Stream, s: StreamState, key: jax.Array, num: int = 8):
-    """(true, decoded) last frames of `num` replay sequences of one run, uint8 [num, 64, 64, 3]
-    each; a learner with boxes (SPAIR) has them drawn over the true frames."""
-    seqs = replay_lib.sample(s.replay, key, num, stream.seq_len)
-    recon = stream.jit(_reconstruct)(s.learner.variables, seqs.frames, seqs.actions)
+def reconstructions(stream: Stream, states: StreamState, i: int, key: jax.Array, num: int = 8):
+    """(true, decoded) last frames of `num` replay sequences of run i of the stacked `states`,
+    uint8 [num, 64, 64, 3] each; a learner with boxes (SPAIR) has them drawn over the true
+    frames. Only the run's replay and learner variables are taken from the stack."""
+    replay, variables = jax.tree.map(lambda x: x[i], (states.replay, states.learner.variables))
+    seqs = replay_lib.sample(replay, key, num, stream.seq_len)
+    recon = stream.jit(_reconstruct)(variables, seqs.frames, seqs.actions)
     truth = np.asarray(seqs.frames[:, -1])
     if hasattr(stream.learner, "draw_boxes"):
-        truth = stream.learner.draw_boxes(s.learner.variables, truth)
+        truth = stream.learner.draw_boxes(variables, truth)
     return truth, np.asarray(jnp.round(recon[:, -1] * 255)).astype(np.uint8)
 
 

@@ -18,12 +18,14 @@ from jaml.stream.executor import BLOCK, Stacked, held_runs, run_stacked_epochs, 
 from jaml.stream.loop import Stream, StreamState, build_runs
 from jaml.stream.rundir import FigureWriter, RunDir, claim_run, open_runs
 from jaml.stream.schedule import (
+    Block,
     analysis_epochs,
     checkpoint_due,
     checkpoints,
     in_time,
     next_block,
     stop_epoch,
+    stopped_here,
 )
 from jaml.stream.timing import Stopwatch
 
@@ -118,6 +120,7 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
                 break
             saves = checkpoints(block, [r.checkpoint_epoch for r in runs], checkpoint_every,
                                 epochs, final_checkpoint)
+            stopping = stopped_here(block, stops, epochs)
             if not in_time(block, _clock(), deadline, pace, analysis_seconds):
                 for i, r in enumerate(runs):  # every run still going stops where it is
                     if r.status == "running":
@@ -138,13 +141,10 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
             trained = [(j, runs[i]) for j, i in enumerate(block.runs)
                        if runs[i].trained({k: v[:, j] for k, v in metrics.items()},
                                           watch.wall / len(block.runs))]
-            if block.analysis:
-                with Stopwatch() as analysing:
-                    _analyse(stream, states, trained, saves)
-                analysis_seconds = analysing.steady if trained else analysis_seconds
-            for j, r in trained:  # stopped by `stop_after` between analyses: resumable here
-                if r.epoch == stops[block.runs[j]] < epochs:
-                    r.stop(stacked.state(block.runs[j]))
+            with Stopwatch() as analysing:
+                _ended(stream, states, stacked, block, trained, saves, stopping)
+            if block.analysis and trained:
+                analysis_seconds = analysing.steady
             bar.set_postfix(_shown(metrics))
     except KeyboardInterrupt:
         _interrupts.delivered()
@@ -201,14 +201,25 @@ def _last_finite(values: np.ndarray) -> float:
     return float(finite[-1]) if finite.size else float("nan")
 
 
-def _analyse(stream: Stream, states: StreamState, trained: list[tuple[int, RunDir]],
-             saves: list[bool]) -> None:
-    """The runs `trained` [(index in the stacked states, run)] analysed together at their
-    (common) epoch (`analysis.analyse_runs`), each run's directory keeping its analysis, with a
-    checkpoint where `saves` (by index) says so (`schedule.checkpoints`)."""
-    results = analysis.analyse_runs(
-        stream, states, [j for j, _ in trained], [r.eval_key() for _, r in trained],
-        [r.pi_rand_key for _, r in trained], [r.pi_rand_set for _, r in trained],
-        [r.references is None for _, r in trained])
+def _ended(stream: Stream, states: StreamState, stacked: Stacked, block: Block,
+           trained: list[tuple[int, RunDir]], saves: list[bool], stopping: list[bool]) -> None:
+    """The runs `trained` [(index in the block's stacked `states`, run)] at the end of `block`
+    (`stacked` holds those states): where it ends at their analysis, analysed together
+    (`analysis.analyse_runs`), each run's directory keeping its analysis with a checkpoint
+    where `saves` (by index) says so (`schedule.checkpoints`); a run `stopping` there
+    (`schedule.stopped_here`) stops with a checkpoint, resumable. A run's state is taken from
+    the stack as its turn comes, one at a time."""
+    results = [None] * len(trained)
+    if block.analysis:
+        results = analysis.analyse_runs(
+            stream, states, [j for j, _ in trained], [r.eval_key() for _, r in trained],
+            [r.pi_rand_key for _, r in trained], [r.pi_rand_set for _, r in trained],
+            [r.references is None for _, r in trained])
     for (j, r), result in zip(trained, results, strict=True):
-        r.analysed(result, checkpoint=saves[j])
+        if result is None and not stopping[j]:
+            continue
+        state = stacked.state(block.runs[j])
+        if result is not None:
+            r.analysed(result, state, checkpoint=saves[j])
+        if stopping[j]:
+            r.stop(state)

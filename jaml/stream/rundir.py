@@ -234,10 +234,11 @@ class RunDir:
         """The analysis key of the current epoch."""
         return jax.random.fold_in(self.k_eval, self.epoch)
 
-    def analysed(self, result: analysis.RunAnalysis, *, checkpoint: bool) -> None:
+    def analysed(self, result: analysis.RunAnalysis, state: StreamState, *,
+                 checkpoint: bool) -> None:
         """The run's analysis at the current epoch (`analysis.analyse_runs`) kept: its time,
         records, reconstructions, figures and, with `checkpoint` (`schedule.checkpoints`), an
-        atomic checkpoint of the state it analysed."""
+        atomic checkpoint of the `state` it analysed."""
         report, names = result.report, result.names
         self.seconds["analysis"] += result.seconds
         for part, seconds in result.parts.items():
@@ -258,7 +259,7 @@ class RunDir:
             self.logs.analysis(self.epoch, records)
             self.figures.submit(self.out, list(self.history), floor)
         if checkpoint:
-            self.save(result.state)
+            self.save(state)
         # A progress summary (status "running"): a process that dies without reaching `close`
         # (a machine taken back, SIGKILL) still leaves its epoch, phase times and last records.
         write_json(self.out / "summary.json", self.summary())

@@ -92,6 +92,13 @@ def checkpoints(block: Block, last: Sequence[int | None], every: int | None, epo
             for i in block.runs]
 
 
+def stopped_here(block: Block, stops: Sequence[int], epochs: int) -> list[bool]:
+    """Whether each run of `block` stops at the block's end before its last epoch (`epochs`),
+    at its stop (`stops[i]`, by run: `stop_epoch`'s): it checkpoints there, so that the next
+    call resumes where this one stopped."""
+    return [block.end == stops[i] < epochs for i in block.runs]
+
+
 def first_non_finite(metrics: dict[str, np.ndarray]) -> int | None:
     """Index of the first epoch of these whose learner loss is NaN/inf while training, else
     None (before the replay fills the learner does not train and its loss is NaN by design)."""

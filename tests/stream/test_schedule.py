@@ -110,3 +110,9 @@ def test_a_blocks_checkpoints_are_decided_before_it_trains():
     assert schedule.checkpoints(between, last, None, 10, True) == [False, False]
     assert schedule.checkpoints(analysing, last, 100, 6, True) == [True, True]
     assert schedule.checkpoints(analysing, last, 100, 6, False) == [False, False]
+
+
+def test_a_run_stopped_here_is_one_whose_stop_ends_the_block_before_its_last_epoch():
+    block = Block((0, 1, 2), 2, 4, False)
+    assert schedule.stopped_here(block, [4, 6, 4], 4) == [False, False, False]
+    assert schedule.stopped_here(block, [4, 6, 4], 10) == [True, False, True]

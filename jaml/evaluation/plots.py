@@ -10,12 +10,14 @@ may be None or absent. Records of several runs at one step are shown as their me
 90 % confidence interval of the mean (Student's t: mean ± t₀.₉₅(n−1)·s/√n, which for the
 paper's 6 runs is 1.23× wider than the normal approximation), as the paper's figures show 90 %
 confidence intervals over runs. Figures use matplotlib's Agg canvas; no global state is touched.
+A run directory's figures (`run_figures`) are drawn on a background thread (`FigureWriter`).
 """
 
 from __future__ import annotations
 
 from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -274,3 +276,41 @@ def distortion_figure(history: Iterable[Mapping]) -> Figure:
     if drawn:
         ax.legend(fontsize=8)
     return fig
+
+
+def run_figures(history: list[dict], out: Path, floor: dict | None = None) -> None:
+    """A run directory's alignment.png (with the true state's `floor`) and distortion.png of
+    `history`, in `out`: both drawn, then both written."""
+    figures = {"alignment.png": alignment_figure(history, floor=floor),
+               "distortion.png": distortion_figure(history)}
+    for name, fig in figures.items():
+        save_figure(fig, Path(out) / name)
+
+
+class FigureWriter:
+    """Draws the runs' figures (`run_figures`) on one background thread, so the loop's next
+    epochs run while matplotlib draws (drawn in line, they held up every analysis of every
+    run; docs/notes/stream.md). A run's figures are drawn from its newest history only: a
+    request still queued when a newer one for the same run arrives is skipped. `wait` drains
+    the queue; `check` raises the first drawing error."""
+
+    def __init__(self):
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaml-figures")
+        self._newest: dict[Path, object] = {}
+        self._futures: list[Future] = []
+
+    def submit(self, out: Path, history: list[dict], floor: dict | None = None) -> None:
+        token = self._newest[out] = object()
+
+        def draw():
+            if self._newest.get(out) is token:
+                run_figures(history, out, floor)
+
+        self._futures.append(self._pool.submit(draw))
+
+    def wait(self) -> None:
+        self._pool.shutdown(wait=True)
+
+    def check(self) -> None:
+        for future in self._futures:
+            future.result()

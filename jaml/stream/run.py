@@ -13,10 +13,11 @@ from tqdm.auto import tqdm
 
 from jaml import _interrupts
 from jaml.configs.stream import StreamConfig
+from jaml.evaluation.plots import FigureWriter
 from jaml.stream import analysis
 from jaml.stream.executor import BLOCK, Stacked, held_runs, run_stacked_epochs, runs_mesh
 from jaml.stream.loop import Stream, StreamState, build_runs
-from jaml.stream.rundir import FigureWriter, RunDir, claim_run, open_runs
+from jaml.stream.rundir import RunDir, claim_run, open_runs
 from jaml.stream.schedule import (
     Block,
     analysis_epochs,

@@ -10,7 +10,6 @@ import dataclasses
 import json
 import logging
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import jax
@@ -112,41 +111,12 @@ class _Logs(RunLog):
         self.flush()
 
 
-class FigureWriter:
-    """Draws the runs' figures (alignment.png, distortion.png) on one background thread, so the
-    loop's next epochs run while matplotlib draws (drawn in line, they held up every analysis
-    of every run; docs/notes/stream.md). A run's figures are drawn from its newest history
-    only: a request still queued when a newer one for the same run arrives is skipped. `wait`
-    drains the queue; `check` raises the first drawing error."""
-
-    def __init__(self):
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaml-figures")
-        self._newest: dict[Path, object] = {}
-        self._futures: list[Future] = []
-
-    def submit(self, out: Path, history: list[dict], floor: dict | None = None) -> None:
-        token = self._newest[out] = object()
-
-        def draw():
-            if self._newest.get(out) is token:
-                _figures(history, out, floor)
-
-        self._futures.append(self._pool.submit(draw))
-
-    def wait(self) -> None:
-        self._pool.shutdown(wait=True)
-
-    def check(self) -> None:
-        for future in self._futures:
-            future.result()
-
-
 class RunDir:
     """One run's directory: its config check, keys, state (restored or fresh), logs, analyses,
     reconstructions, checkpoints and summary. Its figures go to `figures`, drawn in the
-    background."""
+    background (`plots.FigureWriter`)."""
 
-    def __init__(self, stream: Stream, config: RunConfig, out: Path, figures: FigureWriter,
+    def __init__(self, stream: Stream, config: RunConfig, out: Path, figures: plots.FigureWriter,
                  keep_pi_rand: bool = True):
         self.config, self.out, self.figures = config, out, figures
         self.scale = _scale(config)  # summary.json's "scale" (and "note")
@@ -256,8 +226,8 @@ class RunDir:
                 # One write per analysis, so a report read beside it (`_runs.read_history`
                 # skips an unterminated line) almost never sees part of an epoch's records.
                 f.write("".join(json.dumps(r) + "\n" for r in records))
-            self.logs.analysis(self.epoch, records)
             self.figures.submit(self.out, list(self.history), floor)
+            self.logs.analysis(self.epoch, records)
         if checkpoint:
             self.save(state)
         # A progress summary (status "running"): a process that dies without reaching `close`
@@ -352,12 +322,3 @@ def _floor(references: dict | None, names: list[str]) -> dict | None:
         return None
     return {test_set: dict(zip(names, errors, strict=True))
             for test_set, errors in references["true_state"].items()}
-
-
-def _figures(history: list[dict], out: Path, floor: dict | None = None) -> None:
-    """alignment.png (with the true state's `floor`) and distortion.png of `history`: both
-    drawn, then both written."""
-    figures = {"alignment.png": plots.alignment_figure(history, floor=floor),
-               "distortion.png": plots.distortion_figure(history)}
-    for name, fig in figures.items():
-        plots.save_figure(fig, out / name)

@@ -1,9 +1,10 @@
-"""A stream run's directory: its figures, drawn in the background."""
+"""A stream run's directory: its figures, drawn in the background (`plots.FigureWriter`)."""
 
 from pathlib import Path
 
 import pytest
 
+from jaml.evaluation import plots
 from jaml.stream import rundir, schedule
 
 
@@ -20,8 +21,8 @@ def test_figures_are_drawn_in_the_background_from_each_runs_newest_history(monke
             release.wait(5)  # the first drawing is slow: the next requests queue behind it
         drawn.append((out, len(history), floor))
 
-    monkeypatch.setattr(rundir, "_figures", figures)
-    writer = rundir.FigureWriter()
+    monkeypatch.setattr(plots, "run_figures", figures)
+    writer = plots.FigureWriter()
     writer.submit(Path("a"), [{}])
     assert started.wait(5)
     for n in (2, 3):
@@ -33,8 +34,8 @@ def test_figures_are_drawn_in_the_background_from_each_runs_newest_history(monke
     assert drawn == [(Path("a"), 1, None), (Path("a"), 3, None),
                      (Path("b"), 1, {"pi_rand": {"x": 0.1}})]
 
-    monkeypatch.setattr(rundir, "_figures", lambda history, out, floor: 1 / 0)
-    failing = rundir.FigureWriter()
+    monkeypatch.setattr(plots, "run_figures", lambda history, out, floor: 1 / 0)
+    failing = plots.FigureWriter()
     failing.submit(Path("a"), [])
     failing.wait()
     with pytest.raises(ZeroDivisionError):

@@ -10,6 +10,7 @@ import dataclasses
 import json
 import logging
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import jax
@@ -35,7 +36,8 @@ def claim_run(out: Path, config: RunConfig, stream: Stream) -> bool:
     return claim(out, *run_record(out, config, stream))
 
 
-def run_record(out: Path, config: RunConfig, stream: Stream):
+def run_record(out: Path, config: RunConfig, stream: Stream
+               ) -> tuple[dict, Callable[[dict], bool], Callable[[dict], str]]:
     """What `_rundir.claim` is given for a run of `stream` in `out`: (record, same,
     differences). config.json holds the run's `config` whole (`RunConfig.to_dict`). A recorded
     run is this one when its record (`records.read`: older records, and a `penalty.json`
@@ -122,12 +124,14 @@ class RunDir:
         self.scale = _scale(config)  # summary.json's "scale" (and "note")
         # The run's π_rand sequences, kept on the host after its first analysis in this call.
         self.pi_rand_set = analysis.PiRandSet() if keep_pi_rand else None
-        self.lock = None  # released by `close` (or when the process ends)
+        # Taken by `_open`; released by `close` (or, the lock, when the process ends).
+        self.lock, self.logs = None, None
         try:
             self._open(stream)
         except BaseException:  # a refused config or unreadable checkpoint: let the directory go
-            if self.lock is not None:
-                self.lock.close()
+            for held in (self.logs, self.lock):
+                if held is not None:
+                    held.close()
             raise
 
     def _open(self, stream: Stream) -> None:

@@ -58,7 +58,8 @@ class Config:
       transversal_first: in syzygy mode, the relations up to the data's codimension train
         with transversality (eq. 2, which implies restricted independence, Lemma 3.1) and cut
         the data; restricted syzygies from the next one on, each such relation kept only if a
-        fresh syzygy network leaves it unexplained. False: syzygies from g_2 on (the paper).
+        fresh syzygy network leaves it unexplained and more projected points land on the data
+        with it. False: syzygies from g_2 on (the paper).
       syzygy_training: "rounds": the paper's alternation of {fit f, push g_k away from that
         frozen f}, `syzygies_per_relation` times. "joint": f fits alongside g_k, both on the
         residual relative to |g_k|, so g_k cannot escape f by rescaling (`syzygy.py`).

@@ -728,11 +728,12 @@ def _beyond_codimension_unneeded(cfg: Config, unexplained: float, land, before) 
     if unexplained * cfg.separation_ratio < 1:
         return (f"is a restricted syzygy of the earlier ones (a fresh syzygy network explains "
                 f"all but {100 * unexplained:.0f}% of it): not new")
-    if land is not None and before is not None and quality.on_data(land) <= quality.on_data(
-            before):
+    if land is None or before is None:
+        return ""
+    with_it, without = quality.on_data(land), quality.on_data(before)
+    if with_it <= without:
         return (f"is new, but no more projected box points land on the data with it "
-                f"({100 * quality.on_data(land):.0f}% against {100 * quality.on_data(before):.0f}"
-                f"% without it)")
+                f"({100 * with_it:.0f}% against {100 * without:.0f}% without it)")
     return ""
 
 
@@ -794,7 +795,7 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
              " (local PCA of the data; Config.codimension overrides it)")
     noise = _noise_floor(fit_cfg, batches, codim, jax.random.fold_in(key, 6))
     for k in range(rs.num_relations, fit_cfg.max_relations):
-        cfg = _relation_config(fit_cfg, k, codim)
+        cfg = _relation_config(fit_cfg, k, codim)  # g_{k+1}'s: by the fit's, or transversal
         started = time.perf_counter()
         k_key = jax.random.fold_in(key, k)
         k_init, k_pre, k_train, k_syz, k_eval = jax.random.split(k_key, 5)

@@ -288,7 +288,7 @@ def fresh_means(relations_, source, low, high, seed: int) -> list[dict]:
 
 def syzygy_unexplained(rs, source, seed: int, judged=(), steps: int | None = None) -> list:
     """For g_2, g_3, …: the share of mean |g_k| a restricted syzygy of the earlier relations,
-    fitted afresh (Algorithm 1's f on thickened rows, `training.fit_syzygy`, judged on fresh
+    fitted afresh (`training.unexplained_share`: Algorithm 1's f on thickened rows, judged on fresh
     ones), leaves unexplained: near 0, g_k is a copy of them (Σ_j f_j g_j); from
     1/separation_ratio (0.2) on, new. Where `judged` (a jaml report's relations) holds the
     fit's own judgement of g_k, that is taken instead."""
@@ -302,14 +302,11 @@ def syzygy_unexplained(rs, source, seed: int, judged=(), steps: int | None = Non
     batches = data.prepare(source, cfg.batch_size, cfg.noise_scale, k_data, cfg.eval_batches)
     shares = []
     for k in range(1, rs.num_relations):
-        if k < len(judged) and "unexplained" in judged[k]:
-            shares.append(round(judged[k]["unexplained"], 3))
-            continue
-        k_f = jax.random.fold_in(key, 20_000 + k)
-        level = training.choose_thickening(cfg, batches, rs.select(range(k)), k_f)
-        _, _, info = training.fit_syzygy(cfg, batches, [rs.relation(j) for j in range(k)],
-                                         rs.relation(k), jax.random.fold_in(k_f, 1), level)
-        shares.append(round(info["residual"] / max(info["g_scale"], 1e-30), 3))
+        share = judged[k].get("unexplained") if k < len(judged) else None
+        if share is None:
+            share = training.unexplained_share(cfg, batches, rs.select(range(k)), rs.relation(k),
+                                               jax.random.fold_in(key, 20_000 + k))
+        shares.append(round(share, 3))
     return shares
 
 

@@ -69,7 +69,7 @@ class RelationSummary:
     landing: dict = dataclasses.field(default_factory=dict)
     refined: int = 0  # refinement rounds kept (they moved more projected points onto the data)
     # Share of mean |g_k| a fresh restricted syzygy of the earlier relations leaves unexplained
-    # (`_unexplained`), for relations trained against syzygies; None where not judged.
+    # (`unexplained_share`), for relations trained against syzygies; None where not judged.
     unexplained: float | None = None
 
     @property
@@ -709,13 +709,14 @@ def _joint_syzygy(cfg, batches, rs: RelationSet, module, state: LoopState, key, 
     return state, int(joint.step), [info]
 
 
-def _unexplained(cfg, batches, rs: RelationSet, module, params, key, callback) -> float:
-    """Share of mean |g_k| that a restricted syzygy of the earlier relations, fitted afresh
+def unexplained_share(cfg, batches, rs: RelationSet, g_k: Callable, key,
+                      callback: Callback | None = None) -> float:
+    """Share of mean |g_k| that a restricted syzygy of the relations `rs`, fitted afresh
     (Algorithm 1's f, on thickened rows), leaves unexplained on test rows: near 0, g_k is a
     copy of them (Σ_j f_j g_j); at least 1/separation_ratio, it is new."""
     level = choose_thickening(cfg, batches, rs, key)
-    _, _, info = fit_syzygy(cfg, batches, _frozen_relations(rs), module.bind(params),
-                            jax.random.fold_in(key, 1), level, callback, rs.num_relations)
+    _, _, info = fit_syzygy(cfg, batches, _frozen_relations(rs), g_k, jax.random.fold_in(key, 1),
+                            level, callback, rs.num_relations)
     return info["residual"] / max(info["g_scale"], 1e-30)
 
 
@@ -1025,8 +1026,8 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
                 rs.num_relations)
             break
         if syzygies:
-            summary.unexplained = _unexplained(cfg, batches, rs, module, state.params,
-                                               jax.random.fold_in(k_syz, 1_000), callback)
+            summary.unexplained = unexplained_share(cfg, batches, rs, module.bind(state.params),
+                                                    jax.random.fold_in(k_syz, 1_000), callback)
             log.info("relation %d: a fresh syzygy of the earlier relations leaves %.0f%% of it "
                      "unexplained", k + 1, 100 * summary.unexplained)
             # Beyond the codimension the data is cut already: a relation earns its place by
@@ -1079,4 +1080,5 @@ __all__ = [
     "fit_syzygy",
     "record_means",
     "relation_trainer",
+    "unexplained_share",
 ]

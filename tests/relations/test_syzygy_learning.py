@@ -50,16 +50,16 @@ def test_syzygy_mode_trains_up_to_the_codimension_with_transversality_and_judges
     """With `transversal_first` (the default), g_2 of the ellipse (codimension 2) trains with
     eq. 2 (its loop reports the angle, no syzygy network) and only g_3 trains against syzygies,
     here jointly with its f ("push"), then judged afresh the paper's way, and by the fit's
-    fresh syzygy (`_unexplained`, stubbed here: new) whose share the report carries."""
+    fresh syzygy (`unexplained_share`, stubbed here: new) whose share the report carries."""
     from jaml.relations import training
 
     judged, phases, summaries = [], set(), []
 
-    def new(cfg, batches, rs, module, params, key, callback):
+    def new(cfg, batches, rs, g_k, key, callback):
         judged.append(rs.num_relations)
         return 0.9
 
-    monkeypatch.setattr(training, "_unexplained", new)
+    monkeypatch.setattr(training, "unexplained_share", new)
     cfg = relations.Config(max_relations=3, independence="syzygy", syzygy_training="joint",
                            codimension=2, max_steps=400, chunk_steps=100, batch_size=128,
                            stop_patience=10, eval_batches=2, syzygy_max_steps=200,

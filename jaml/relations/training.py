@@ -342,7 +342,7 @@ def _fit_relation(
     if compiled is not None:  # the same loop, compiled ahead of time by `_compile_ahead`
         chunk = compiled
     if programs is not None and syz_params is None:
-        chunk = programs.setdefault((k, clip, cfg.gradient_cap), chunk)
+        chunk = programs.setdefault((k, clip, cfg), chunk)  # a last resort's cfg differs
     start = 0
     if budget is not None:
         start = max(max_steps - budget, 0)
@@ -610,8 +610,9 @@ def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, 
     return {k_next: pool.submit(chunk.lower(state, args).compile, LOOP_COMPILER_OPTIONS)}
 
 
-# ‖∇g‖ past which −log‖∇g‖ stops pushing in a relation's last resort (None: no last resort).
+# ‖∇g‖ past which −log‖∇g‖ stops pushing in a relation's first last resort (None: not tried).
 RETRY_GRADIENT_CAP = 0.1
+RETRY_STEP_FACTOR = 0.3  # the step size's factor in its second last resort (None: not tried)
 DROP_RATIO = 2.0  # off/on below which a capped relation up to the codimension is dropped
 REFINE_SHARE = 5  # a refinement round's step budget: this fraction of max_steps
 RETRY_SPURIOUS = 0.1  # a pre-mined relation with more box points landing away: tried again
@@ -756,12 +757,20 @@ def _start_ends(rs: RelationSet) -> tuple[list[str], list[float | None]]:
     return [e["status"] for e in ends], [e.get("unexplained") for e in ends]
 
 
-def _last_resort(cfg: Config) -> Config | None:
-    """The config a relation no start separates trains its starts again with: −log‖∇g‖
-    capped at RETRY_GRADIENT_CAP; None where the user caps it already or the cap is off."""
-    if cfg.gradient_cap is not None or RETRY_GRADIENT_CAP is None:
-        return None
-    return dataclasses.replace(cfg, gradient_cap=RETRY_GRADIENT_CAP)
+def _last_resorts(cfg: Config) -> list[tuple[Config, int, str]]:
+    """What a relation no start separates trains again with, in turn: each config, its first
+    start and what it changes. First the starts after the first with −log‖∇g‖ capped at
+    RETRY_GRADIENT_CAP (not where the user caps it already), then every start at
+    RETRY_STEP_FACTOR of the step size."""
+    resorts = []
+    if cfg.gradient_cap is None and RETRY_GRADIENT_CAP is not None:
+        resorts.append((dataclasses.replace(cfg, gradient_cap=RETRY_GRADIENT_CAP), 1,
+                        f"the push of −log‖∇g‖ capped at ‖∇g‖ = {RETRY_GRADIENT_CAP:g}"))
+    if RETRY_STEP_FACTOR is not None:
+        resorts.append((dataclasses.replace(cfg, learning_rate=cfg.learning_rate
+                                            * RETRY_STEP_FACTOR), 0,
+                        f"at {RETRY_STEP_FACTOR:g} of the step size"))
+    return resorts
 
 
 def _noise_floor(cfg: Config, batches: Batches, codim: int, key) -> dict:
@@ -978,23 +987,27 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
                 steps += spent
             # No start separated, so the relation would be dropped. Starts tend to settle in
             # one basin there: a g_k with zeros everywhere (steep and wiggly, d_g small on and
-            # off the data), which −log‖∇g‖ rewards. The same starts again, that push capped.
-            capped = _last_resort(cfg) if retried else None
-            for attempt in range(1, cfg.premine_attempts) if capped is not None else ():
-                if fitted.ratio >= DROP_RATIO:
-                    break
-                log.info("relation %d: no start separates (off/on %.1f); start %d once more, "
-                         "the push of −log‖∇g‖ capped at ‖∇g‖ = %g", k + 1, fitted.ratio,
-                         attempt + 1, RETRY_GRADIENT_CAP)
-                again = plain_fit(init(jax.random.fold_in(k_init, attempt), example_tau),
-                                  k_train=jax.random.fold_in(k_train, attempt), cfg=capped)
-                steps += int(again.step)
-                if int(again.status) == NONFINITE:
-                    continue
-                other, other_land, other_rounds, spent = refine(again, cfg=capped)
-                steps += spent
-                if other.ratio > fitted.ratio:
-                    fitted, land, refined_rounds = other, other_land, other_rounds
+            # off the data), which −log‖∇g‖ rewards and a large step reaches early. The same
+            # starts again, that push capped; then every start at a smaller step.
+            resorts = [(resort, range(first, cfg.premine_attempts), how)
+                       for resort, first, how in (_last_resorts(cfg) if retried else ())]
+            for resort, attempts, how in resorts:
+                for attempt in attempts:
+                    if fitted.ratio >= DROP_RATIO:
+                        break
+                    log.info("relation %d: no start separates (off/on %.1f); start %d once "
+                             "more, %s", k + 1, fitted.ratio, attempt + 1, how)
+                    start, k_start = ((params, k_train) if attempt == 0 else
+                                      (init(jax.random.fold_in(k_init, attempt), example_tau),
+                                       jax.random.fold_in(k_train, attempt)))
+                    again = plain_fit(start, k_train=k_start, cfg=resort)
+                    steps += int(again.step)
+                    if int(again.status) == NONFINITE:
+                        continue
+                    other, other_land, other_rounds, spent = refine(again, cfg=resort)
+                    steps += spent
+                    if other.ratio > fitted.ratio:
+                        fitted, land, refined_rounds = other, other_land, other_rounds
             state, grown, on_mean, off_mean, status = fitted
             if (premined is not None and status == CAPPED
                     and fitted.ratio >= cfg.separation_ratio):

@@ -203,24 +203,30 @@ def test_a_codimension_one_relation_landing_away_from_the_data_is_tried_from_ano
     assert rs.num_relations == 1
 
 
-@pytest.mark.parametrize("ratios, caps, kept", [
-    ((1.5, 1.5, 100.0), [None, None, 0.1], 1),  # the capped start separates: kept
-    ((1.5, 100.0), [None, None], 1),  # the second start separates: nothing more
-    ((1.5, 1.5, 1.5), [None, None, 0.1], 0),  # none does: dropped, as before
+PLAIN, CAPPED, SLOWER = (None, 1e-3), (0.1, 1e-3), (None, 3e-4)  # (gradient cap, step size)
+
+
+@pytest.mark.parametrize("ratios, trainings, kept", [
+    ((1.5, 1.5, 100.0), [PLAIN, PLAIN, CAPPED], 1),  # the capped start separates: kept
+    ((1.5, 100.0), [PLAIN, PLAIN], 1),  # the second start separates: nothing more
+    ((1.5, 1.5, 1.5, 100.0), [PLAIN, PLAIN, CAPPED, SLOWER], 1),  # the slower first start does
+    ((1.5,) * 5, [PLAIN, PLAIN, CAPPED, SLOWER, SLOWER], 0),  # none does: dropped, as before
 ])
-def test_when_no_start_separates_the_starts_train_again_with_the_gradient_push_capped(
-        monkeypatch, ratios, caps, kept):
+def test_when_no_start_separates_the_starts_train_again_capped_then_at_a_smaller_step(
+        monkeypatch, ratios, trainings, kept):
     """A relation that would be dropped (no start reaches off/on 2) gets its other starts
-    again with −log‖∇g‖ pushing only up to ‖∇g‖ = RETRY_GRADIENT_CAP; a fit where a start
+    again with −log‖∇g‖ pushing only up to ‖∇g‖ = RETRY_GRADIENT_CAP, then every start, the
+    first one's parameters included, at RETRY_STEP_FACTOR of the step size; a fit where a start
     separates trains as it did (the recorded ratios stand in for the trainings')."""
     from jaml.relations import training
 
-    seen, given = [], iter(ratios)
+    seen, starts, given = [], [], iter(ratios)
     real_fit_relation, real_refine = training._fit_relation, training._refine
 
-    def counting(cfg, *args, **kwargs):
-        seen.append(cfg.gradient_cap)
-        return real_fit_relation(cfg, *args, **kwargs)
+    def counting(cfg, batches, rs, params, *args, **kwargs):
+        seen.append((cfg.gradient_cap, cfg.learning_rate))
+        starts.append(np.concatenate([np.ravel(x) for x in jax.tree.leaves(params)]))
+        return real_fit_relation(cfg, batches, rs, params, *args, **kwargs)
 
     def landing(*args, **kwargs):  # each training lands a little more than the one before
         fitted, land, rounds, spent = real_refine(*args, **kwargs)
@@ -233,9 +239,11 @@ def test_when_no_start_separates_the_starts_train_again_with_the_gradient_push_c
     rs = relations.fit(sources.make("circle"), relations.Config(
         max_relations=1, max_steps=40, chunk_steps=20, batch_size=64, stop_patience=1,
         eval_batches=2, refine_rounds=0, premine_attempts=2))
-    assert seen == caps
+    assert [(cap, pytest.approx(rate)) for cap, rate in seen] == trainings
     assert rs.num_relations == kept
-    assert training.RETRY_GRADIENT_CAP == 0.1
+    for slower, plain in zip(starts[3:], starts):  # the slower starts are the plain ones
+        np.testing.assert_array_equal(slower, plain)
+    assert (training.RETRY_GRADIENT_CAP, training.RETRY_STEP_FACTOR) == (0.1, 0.3)
 
 
 def test_the_noise_floor_matches_the_closed_form_on_a_noisy_sphere():

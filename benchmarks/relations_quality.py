@@ -696,6 +696,40 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def plot(records_path: Path, out: Path, budget_s, cases: list[str]) -> None:
+    """Per-seed landing and g_2's unexplained share of each (case, stack) among `cases` whose
+    runs had `budget_s`, from a file of run records (one JSON line each) into `out`."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    records = [json.loads(line) for line in records_path.read_text().splitlines()
+               if line.startswith("{")]
+    records = [r for r in records if r.get("case") in cases and r.get("budget_s") == budget_s
+               and "error" not in r]
+    groups = sorted({(r["case"], r["stack"]) for r in records},
+                    key=lambda g: (cases.index(g[0]), g[1] == "jaml"))
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4))
+    panels = (("landed", "landed within 0.05 of the curve", 0.9),
+              ("unexplained", "g_2 unexplained by a fresh syzygy", 0.2))
+    for ax, (field, label, line) in zip(axes, panels, strict=True):
+        for g, (case, stack) in enumerate(groups):
+            runs = sorted((r for r in records if (r["case"], r["stack"]) == (case, stack)),
+                          key=lambda r: r["seed"])
+            values = [r[field] if field == "landed" else (r.get(field) or [None])[0]
+                      for r in runs]
+            ax.plot([g + 0.08 * (r["seed"] - 3.5) for r in runs],
+                    [math.nan if v is None else v for v in values], "o", ms=4, color=f"C{g}")
+        ax.axhline(line, color="grey", lw=0.8, ls="--")
+        ax.set_xticks(range(len(groups)),
+                      [f"{'authors' if stack == 'reference' else 'jaml'}\n{case}"
+                       for case, stack in groups], fontsize=8)
+        ax.set(ylim=(0, 1.02), ylabel=label)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+
+
 def parse_seeds(text: str) -> list[int]:
     """'0..7' → 0–7 inclusive; '0,3,5' → those."""
     if ".." in text:
@@ -719,8 +753,14 @@ def main(argv=None) -> int:
     parser.add_argument("--smoke", action="store_true",
                         help="1 seed, 20 s budgets, into OUT/smoke, nothing recorded")
     parser.add_argument("--no-record", action="store_true", help="print only")
+    parser.add_argument("--plot", nargs=2, type=Path, metavar=("RECORDS", "PNG"),
+                        help="draw per-seed landing and g_2's unexplained share of --cases' "
+                             "runs with --budget-s from RECORDS (a JSON line a run)")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.plot:
+        plot(*args.plot, args.budget_s, args.cases.split(","))
+        return 0
     if "jax" not in sys.modules:  # the table's device is the runs' (CPU), on a GPU host too
         os.environ["JAX_PLATFORMS"] = "cpu"
     budget = args.budget_s or None

@@ -616,6 +616,9 @@ RETRY_STEP_FACTOR = 0.3  # the step size's factor in its second last resort (Non
 DROP_RATIO = 2.0  # off/on below which a capped relation up to the codimension is dropped
 REFINE_SHARE = 5  # a refinement round's step budget: this fraction of max_steps
 RETRY_SPURIOUS = 0.1  # a pre-mined relation with more box points landing away: tried again
+# A start separating this share of what an exact relation reaches on the rows (the noise
+# floor) is not tried again for separation, where that is below the stopping bar (None: the bar).
+RETRY_FLOOR_SHARE = None
 COMPLETE = 0.02  # at most this share of projected box points on spurious zeros: complete
 CALIBRATION_ROWS = 4096  # training rows `holds`' tolerance is calibrated on
 
@@ -804,6 +807,8 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
     log.info("the data's codimension: %d%s", codim, "" if fit_cfg.codimension else
              " (local PCA of the data; Config.codimension overrides it)")
     noise = _noise_floor(fit_cfg, batches, codim, jax.random.fold_in(key, 6))
+    retry_bar = fit_cfg.separation_ratio if RETRY_FLOOR_SHARE is None else min(
+        fit_cfg.separation_ratio, RETRY_FLOOR_SHARE * noise["separation"])
     for k in range(rs.num_relations, fit_cfg.max_relations):
         cfg = _relation_config(fit_cfg, k, codim)  # g_{k+1}'s: by the fit's, or transversal
         started = time.perf_counter()
@@ -945,7 +950,7 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
             retried = premined is not None or (
                 k == 0 and codim == 1 and (not priors or priors[0] is None))
             while retried and attempt < cfg.premine_attempts and (
-                    fitted.ratio < cfg.separation_ratio or land["spurious"] > RETRY_SPURIOUS):
+                    fitted.ratio < retry_bar or land["spurious"] > RETRY_SPURIOUS):
                 # Where g_k starts decides which surface through the data it settles on: from
                 # another initialisation the zero set may have no spurious part. (A sign that
                 # changes away from the data, as a near-linear start leaves it, puts a zero

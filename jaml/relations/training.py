@@ -618,7 +618,7 @@ REFINE_SHARE = 5  # a refinement round's step budget: this fraction of max_steps
 RETRY_SPURIOUS = 0.1  # a pre-mined relation with more box points landing away: tried again
 # A start separating this share of what an exact relation reaches on the rows (the noise
 # floor) is not tried again for separation, where that is below the stopping bar (None: the bar).
-RETRY_FLOOR_SHARE = None
+RETRY_FLOOR_SHARE = 0.5
 COMPLETE = 0.02  # at most this share of projected box points on spurious zeros: complete
 CALIBRATION_ROWS = 4096  # training rows `holds`' tolerance is calibrated on
 

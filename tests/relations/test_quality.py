@@ -246,6 +246,38 @@ def test_when_no_start_separates_the_starts_train_again_capped_then_at_a_smaller
     assert (training.RETRY_GRADIENT_CAP, training.RETRY_STEP_FACTOR) == (0.1, 0.3)
 
 
+@pytest.mark.parametrize("floor, trainings", [(4.0, 1), (100.0, 2)])
+def test_a_start_reaching_half_the_noise_floor_is_not_tried_again(monkeypatch, floor, trainings):
+    """Where the rows' scatter lets an exact relation separate only `floor`× (4: below the
+    stopping bar of 5), a start at off/on 3 (over half of it) lands cleanly and is kept without
+    another start; on clean rows (100) it is tried again for separation, as before."""
+    from jaml.relations import training
+
+    seen = []
+    real_fit_relation, real_refine, real_floor = (training._fit_relation, training._refine,
+                                                  training._noise_floor)
+
+    def counting(*args, **kwargs):
+        seen.append(1)
+        return real_fit_relation(*args, **kwargs)
+
+    def separating(*args, **kwargs):  # off/on 3, no projected point on a spurious zero
+        fitted, land, rounds, spent = real_refine(*args, **kwargs)
+        return (fitted._replace(off_mean=3.0 * fitted.on_mean),
+                {**land, "spurious": 0.0, "landed": 1.0}, rounds, spent)
+
+    monkeypatch.setattr(training, "_fit_relation", counting)
+    monkeypatch.setattr(training, "_refine", separating)
+    monkeypatch.setattr(training, "_noise_floor",
+                        lambda *args: real_floor(*args) | {"separation": floor})
+    rs = relations.fit(sources.make("circle"), relations.Config(
+        max_relations=1, max_steps=40, chunk_steps=20, batch_size=64, stop_patience=1,
+        eval_batches=2, refine_rounds=0, premine_attempts=2))
+    assert len(seen) == trainings
+    assert rs.num_relations == 1
+    assert training.RETRY_FLOOR_SHARE == 0.5
+
+
 def test_the_noise_floor_matches_the_closed_form_on_a_noisy_sphere():
     """Unit sphere rows with Gaussian noise σ: the offset across the sphere is σ·|z| (the
     tangent part is fitted away), so the largest fifth averages 1.755σ (E[|z| : |z| > 1.2816]);

@@ -93,8 +93,10 @@ class Config:
         rarely all clear, so it usually runs to the budget; less is faster, at some landing.
       premine_attempts: trainings of the codimension-th relation (pre-mined where there is an
         earlier zero set) at most, each from another initialisation, while more than a tenth
-        of the projected box points land away from the data (or it separates <
-        separation_ratio); the one landing most is kept.
+        of the projected box points land away from the data (or it separates less than
+        separation_ratio, or than half what an exact relation reaches on noisy rows); the one
+        landing most is kept. Where none separates, the same starts train again with
+        −log‖∇g‖ capped, then at a smaller step, before the relation is dropped.
       mined_patience: a training on mined rows ends once g_k separates and the share of
         mined rows it clears has not risen for this many steps (None: it runs until they clear
         or to its budget).

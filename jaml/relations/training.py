@@ -806,6 +806,10 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
         codim, codim_from = 1, "by local PCA 0, taken as 1"
     log.info("the data's codimension: %d%s", codim, "" if fit_cfg.codimension else
              " (local PCA of the data; Config.codimension overrides it)")
+    if fit_cfg.independence == "syzygy" and fit_cfg.transversal_first:
+        log.info("syzygy mode: g_1..g_%d (the data's codimension) train with transversality, "
+                 "restricted syzygies train the relations beyond (Config.transversal_first)",
+                 codim)
     noise = _noise_floor(fit_cfg, batches, codim, jax.random.fold_in(key, 6))
     retry_bar = fit_cfg.separation_ratio if RETRY_FLOOR_SHARE is None else min(
         fit_cfg.separation_ratio, RETRY_FLOOR_SHARE * noise["separation"])

@@ -86,6 +86,7 @@ VARIANTS = {  # name: (source, Config fields beside the seed)
         "syz-defaults": ("ellipse", {"independence": "syzygy"}),
         "syz-joint-defaults": ("ellipse", {"independence": "syzygy",
                                            "syzygy_training": "joint"}),
+        "syz-defaults-n05": ("ellipse", {"independence": "syzygy", "noise_scale": 0.05}),
         "block-syz-defaults": ("block45", {"independence": "syzygy"}),
         "ellipse-3": ("ellipse", {}),
         "block-3": ("block45", {})}.items()},

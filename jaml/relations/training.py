@@ -691,8 +691,8 @@ def _refine(cfg, batches, rs, module, width, fitted: _Fitted, within, codim, pro
 
 
 def _joint_syzygy(cfg, batches, rs: RelationSet, module, state: LoopState, key, callback):
-    """g_k trained on with its syzygy network f alongside (`syzygy.joint_trainer`), then judged
-    by a fresh f fitted the paper's way on test data. Returns (state, steps, [round info])."""
+    """g_k trained on with its syzygy network f alongside (`syzygy.joint_trainer`); the fit
+    judges it afterwards, as kept, by a fresh f (`unexplained_share`). Returns (state, steps)."""
     k = rs.num_relations
     earlier = [Relation(w, rs.depth) for w in rs.widths]
     level = choose_thickening(cfg, batches, rs, key)
@@ -704,13 +704,9 @@ def _joint_syzygy(cfg, batches, rs: RelationSet, module, state: LoopState, key, 
     if callback is not None:
         report = lambda s, m, n: callback("push", k, {"step": int(s.step), "steps": n, **m})  # noqa: E731
     joint = run_until_done(chunk, joint, args, report)
-    state = state.replace(params=joint.params["g"], status=joint.status)
-    _, found, info = fit_syzygy(cfg, batches, _frozen_relations(rs), module.bind(state.params),
-                                jax.random.fold_in(key, 2), level, callback, k)
-    log.info("relation %d: trained beside its syzygy network (%d steps); a fresh syzygy "
-             "leaves %.0f%% of it unexplained -> %s", k + 1, int(joint.step),
-             100 * info["residual"] / max(info["g_scale"], 1e-30), "found" if found else "none")
-    return state, int(joint.step), [info]
+    log.info("relation %d: trained beside its syzygy network (%d steps)", k + 1,
+             int(joint.step))
+    return state.replace(params=joint.params["g"], status=joint.status), int(joint.step)
 
 
 def unexplained_share(cfg, batches, rs: RelationSet, g_k: Callable, key,
@@ -875,7 +871,7 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
         steps, status, rounds = int(state.step), int(state.status), []
         syzygies = cfg.independence == "syzygy" and k > 0 and status != NONFINITE
         if syzygies and cfg.syzygy_training == "joint":
-            state, spent, rounds = _joint_syzygy(cfg, batches, rs, module, state, k_syz, callback)
+            state, spent = _joint_syzygy(cfg, batches, rs, module, state, k_syz, callback)
             steps += spent
             status = int(state.status)
         elif syzygies:

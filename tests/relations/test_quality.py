@@ -242,16 +242,15 @@ def test_when_no_start_separates_the_starts_train_again_capped_then_at_a_smaller
         eval_batches=2, refine_rounds=0, premine_attempts=2))
     assert [(cap, pytest.approx(rate)) for cap, rate in seen] == trainings
     assert rs.num_relations == kept
-    for slower, plain in zip(starts[3:], starts):  # the slower starts are the plain ones
+    for slower, plain in zip(starts[3:], starts[: len(starts) - 3], strict=True):  # same starts
         np.testing.assert_array_equal(slower, plain)
     assert (training.RETRY_GRADIENT_CAP, training.RETRY_STEP_FACTOR) == (0.1, 0.3)
 
 
-@pytest.mark.parametrize("floor, trainings", [(4.0, 1), (100.0, 2)])
-def test_a_start_reaching_half_the_noise_floor_is_not_tried_again(monkeypatch, floor, trainings):
-    """Where the rows' scatter lets an exact relation separate only `floor`× (4: below the
-    stopping bar of 5), a start at off/on 3 (over half of it) lands cleanly and is kept without
-    another start; on clean rows (100) it is tried again for separation, as before."""
+def test_a_start_reaching_half_the_noise_floor_is_not_tried_again(monkeypatch):
+    """Where the rows' scatter lets an exact relation separate only 4× (below the stopping bar
+    of 5), a start at off/on 3 (over half of it) that lands cleanly is kept without another
+    start (on clean rows it is tried again: the test of the last resorts above)."""
     from jaml.relations import training
 
     seen = []
@@ -270,11 +269,11 @@ def test_a_start_reaching_half_the_noise_floor_is_not_tried_again(monkeypatch, f
     monkeypatch.setattr(training, "_fit_relation", counting)
     monkeypatch.setattr(training, "_refine", separating)
     monkeypatch.setattr(training, "_noise_floor",
-                        lambda *args: real_floor(*args) | {"separation": floor})
+                        lambda *args: real_floor(*args) | {"separation": 4.0})
     rs = relations.fit(sources.make("circle"), relations.Config(
         max_relations=1, max_steps=40, chunk_steps=20, batch_size=64, stop_patience=1,
         eval_batches=2, refine_rounds=0, premine_attempts=2))
-    assert len(seen) == trainings
+    assert len(seen) == 1
     assert rs.num_relations == 1
     assert training.RETRY_FLOOR_SHARE == 0.5
 

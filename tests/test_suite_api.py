@@ -27,6 +27,12 @@ pytestmark = [pytest.mark.first]
 RTOL = 1e-4
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _fast_compiling_prng():
+    with jax.threefry_partitionable(False):  # see tests/learners/conftest.py
+        yield
+
+
 @pytest.fixture(scope="module")
 def run():
     """A smoke-scale CartPole run at the end of its replay fill: (config, stream, state)."""

@@ -16,6 +16,12 @@ from envs_mjx.gym import _flags, _Packing, _Report
 N = 4
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _fast_compiling_prng():
+    with jax.threefry_partitionable(False):  # see tests/learners/conftest.py
+        yield
+
+
 @pytest.fixture(scope="module")
 def single():
     return envs_mjx.to_gymnasium("CartPole", None, seed=0)

@@ -60,7 +60,8 @@ VARIANTS = {  # name: (source, Config fields beside the seed)
     # The whole fit at a smaller step (Adam's 1e-3 → 3e-4), its first starts included.
     **{f"{name}-lr3e4": (source, fields | {"learning_rate": 3e-4})
        for name, (source, fields) in EVERY_SOURCE.items()},
-    # Starts not tried again for separation once they reach half the noise floor.
+    # Starts not tried again for separation once they reach half the noise floor (screened
+    # while off; the default since, so now the same fits as X-defaults).
     **{f"{name}-retry-floor": (source, fields | {"jaml.relations.training:RETRY_FLOOR_SHARE": 0.5})
        for name, (source, fields) in EVERY_SOURCE.items()},
     "ellipse-premine-12k": ("ellipse", {"max_relations": 2, "premine_steps": 12_500}),

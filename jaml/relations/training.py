@@ -756,18 +756,19 @@ def _start_ends(rs: RelationSet) -> tuple[list[str], list[float | None]]:
     return [e["status"] for e in ends], [e.get("unexplained") for e in ends]
 
 
-def _last_resorts(cfg: Config) -> list[tuple[Config, int, str]]:
-    """What a relation no start separates trains again with, in turn: each config, its first
-    start and what it changes. First the starts after the first with −log‖∇g‖ capped at
-    RETRY_GRADIENT_CAP (not where the user caps it already), then every start at
-    RETRY_STEP_FACTOR of the step size."""
+def _last_resorts(cfg: Config) -> list[tuple[Config, range, str]]:
+    """What a relation no start separates trains again with, in turn: each config, the starts
+    it trains (their indices) and what it changes. First the starts after the first with
+    −log‖∇g‖ capped at RETRY_GRADIENT_CAP (not where the user caps it already), then every start
+    at RETRY_STEP_FACTOR of the step size."""
     resorts = []
     if cfg.gradient_cap is None and RETRY_GRADIENT_CAP is not None:
-        resorts.append((dataclasses.replace(cfg, gradient_cap=RETRY_GRADIENT_CAP), 1,
+        resorts.append((dataclasses.replace(cfg, gradient_cap=RETRY_GRADIENT_CAP),
+                        range(1, cfg.premine_attempts),
                         f"the push of −log‖∇g‖ capped at ‖∇g‖ = {RETRY_GRADIENT_CAP:g}"))
     if RETRY_STEP_FACTOR is not None:
         resorts.append((dataclasses.replace(cfg, learning_rate=cfg.learning_rate
-                                            * RETRY_STEP_FACTOR), 0,
+                                            * RETRY_STEP_FACTOR), range(cfg.premine_attempts),
                         f"at {RETRY_STEP_FACTOR:g} of the step size"))
     return resorts
 
@@ -829,6 +830,15 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
         # from the data are spurious, and g_k is refined not to vanish there (below).
         completing = k + 1 >= codim
         compiled = ahead.pop(k, None)
+
+        def start_of(attempt, params=params, keys=(k_init, k_train), init=init,
+                     example=example_tau):
+            """Start `attempt` of g_k: its initial parameters and training key (0: the first)."""
+            k_init, k_train = keys
+            if attempt == 0:
+                return params, k_train
+            return (init(jax.random.fold_in(k_init, attempt), example),
+                    jax.random.fold_in(k_train, attempt))
 
         def plain_fit(params, rs=rs, k_train=k_train, cfg=cfg):  # the paper's way, no mined rows
             return _fit_relation(cfg, batches, rs, params, k_train, cfg.max_steps,
@@ -959,14 +969,14 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
                          "(off/on %.1f); %s again from another initialisation", k + 1,
                          100 * land["spurious"], fitted.ratio,
                          "pre-mined" if premined is not None else "trained")
-                start = init(jax.random.fold_in(k_init, attempt), example_tau)
+                start, k_start = start_of(attempt)
                 if premined is None:
-                    again = plain_fit(start, k_train=jax.random.fold_in(k_train, attempt))
+                    again = plain_fit(start, k_train=k_start)
                 else:
                     again = _fit_relation(
-                        cfg, batches, rs, start, jax.random.fold_in(k_train, attempt),
-                        cfg.max_steps, callback=callback, programs=programs, codim=codim,
-                        pool=premined, clip=clip, budget=cfg.premine_steps)
+                        cfg, batches, rs, start, k_start, cfg.max_steps, callback=callback,
+                        programs=programs, codim=codim, pool=premined, clip=clip,
+                        budget=cfg.premine_steps)
                 attempt += 1
                 steps += int(again.step)
                 if int(again.status) == NONFINITE:
@@ -994,17 +1004,13 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
             # one basin there: a g_k with zeros everywhere (steep and wiggly, d_g small on and
             # off the data), which −log‖∇g‖ rewards and a large step reaches early. The same
             # starts again, that push capped; then every start at a smaller step.
-            resorts = [(resort, range(first, cfg.premine_attempts), how)
-                       for resort, first, how in (_last_resorts(cfg) if retried else ())]
-            for resort, attempts, how in resorts:
+            for resort, attempts, how in _last_resorts(cfg) if retried else ():
                 for attempt in attempts:
                     if fitted.ratio >= DROP_RATIO:
                         break
                     log.info("relation %d: no start separates (off/on %.1f); start %d once "
                              "more, %s", k + 1, fitted.ratio, attempt + 1, how)
-                    start, k_start = ((params, k_train) if attempt == 0 else
-                                      (init(jax.random.fold_in(k_init, attempt), example_tau),
-                                       jax.random.fold_in(k_train, attempt)))
+                    start, k_start = start_of(attempt)
                     again = plain_fit(start, k_train=k_start, cfg=resort)
                     steps += int(again.step)
                     if int(again.status) == NONFINITE:

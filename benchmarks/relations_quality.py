@@ -100,6 +100,7 @@ CASES = {
                              "the reference 2 (its syzygy rounds are slow: ~7 min for g1 + g2 "
                              "on one core)"),
     "ellipse-syz-now": Case("ellipse", {"max_relations": 3, "independence": "syzygy"}, None,
+                            noisy=True,
                             note="jaml only, syzygy mode's defaults: transversality up to the "
                                  "data's codimension, restricted syzygies beyond it"),
     "ellipse-syz-joint": Case("ellipse", {"max_relations": 3, "independence": "syzygy",
@@ -696,9 +697,9 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def plot(records_path: Path, out: Path, budget_s, cases: list[str]) -> None:
+def plot(records_path: Path, out: Path, budget_s, cases: list[str], noise: float = 0.0) -> None:
     """Per-seed landing and g_2's unexplained share of each (case, stack) among `cases` whose
-    runs had `budget_s`, from a file of run records (one JSON line each) into `out`."""
+    runs had `budget_s` and `noise`, from a file of run records (one JSON line each) into `out`."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -707,7 +708,7 @@ def plot(records_path: Path, out: Path, budget_s, cases: list[str]) -> None:
     records = [json.loads(line) for line in records_path.read_text().splitlines()
                if line.startswith("{")]
     records = [r for r in records if r.get("case") in cases and r.get("budget_s") == budget_s
-               and "error" not in r]
+               and r.get("noise", 0.0) == noise and "error" not in r]
     groups = sorted({(r["case"], r["stack"]) for r in records},
                     key=lambda g: (cases.index(g[0]), g[1] == "jaml"))
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.4))
@@ -745,7 +746,8 @@ def main(argv=None) -> int:
                         help=f"comma-separated, of {', '.join(CASES)}")
     parser.add_argument("--stacks", default=",".join(STACKS))
     parser.add_argument("--seeds", default="0..7", help="'0..7' or '0,1,2'")
-    parser.add_argument("--noise", default="0,0.05", help="noise levels of ellipse-syz")
+    parser.add_argument("--noise", default="0,0.05",
+                        help="noise levels of the noisy cases (--plot: the first)")
     parser.add_argument("--budget-s", type=float, default=900.0,
                         help="wall-clock budget of each fit, both stacks (0: none)")
     parser.add_argument("--jobs", type=int, default=2, help="runs at a time (one core each)")
@@ -759,7 +761,7 @@ def main(argv=None) -> int:
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.plot:
-        plot(*args.plot, args.budget_s, args.cases.split(","))
+        plot(*args.plot, args.budget_s, args.cases.split(","), float(args.noise.split(",")[0]))
         return 0
     if "jax" not in sys.modules:  # the table's device is the runs' (CPU), on a GPU host too
         os.environ["JAX_PLATFORMS"] = "cpu"

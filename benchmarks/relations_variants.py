@@ -6,7 +6,8 @@ rows) with `relations.Config(seed=s, **variant)` and measures where 512 uniform 
 under `relations.project` at its defaults (distance to a 200,000-row sample of the true
 manifold, share within 0.05; and, where a closed form knows the whole manifold, its share
 within 0.05 of that), the Jacobian's rank ≥ 2 share on the data and the quality report's
-statuses, off/on ratios and landing. One JSON line per run on stdout, as each run ends.
+statuses, off/on ratios and landing, and the fit's own log lines (what it tried and kept). One
+JSON line per run on stdout, as each run ends.
 
     python3 benchmarks/relations_variants.py ellipse-defaults,sphere05-defaults --jobs 16
 """
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import subprocess
 import sys
@@ -99,6 +101,17 @@ THREADS = {"JAX_PLATFORMS": "cpu", "OMP_NUM_THREADS": "1",
            "XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"}
 
 
+class _FitLog(logging.Handler):
+    """The fit's own log lines (what it tried and kept), for the run's record."""
+
+    def __init__(self):
+        super().__init__(logging.INFO)
+        self.lines = []
+
+    def emit(self, record):
+        self.lines.append(record.getMessage())
+
+
 def one(source_name: str, seed: int, fields: dict) -> dict:
     """Fit and measure one run (in this process); a field "module:NAME" sets that module
     constant first instead of a Config field."""
@@ -119,13 +132,16 @@ def one(source_name: str, seed: int, fields: dict) -> dict:
 
     source = _noisy_sphere(source_name) or sources.make(source_name)
     started = time.perf_counter()
-    summaries = []
+    summaries, fit_log = [], _FitLog()
+    logging.getLogger("jaml.relations").addHandler(fit_log)
+    logging.getLogger("jaml.relations").setLevel(logging.INFO)
     rs = relations.fit(source, relations.Config(seed=seed, **fields),
                        on_relation=lambda _, summary: summaries.append(summary))
     fit_s = time.perf_counter() - started
+    logged = list(fit_log.lines)
     if rs.num_relations == 0:  # the fit found none: nothing lands anywhere
         return {"seed": seed, "fit_s": fit_s, "relations": 0, "landed": 0.0, "on_truth": 0.0,
-                "status": [], "off_on": []}
+                "status": [], "off_on": [], "log": logged}
     dense = np.asarray(source.sample(jax.random.key(99), 200_000))
     low, high = dense.min(0), dense.max(0)
     box = np.random.default_rng(seed).uniform(low, high, (512, dense.shape[1]))
@@ -147,7 +163,8 @@ def one(source_name: str, seed: int, fields: dict) -> dict:
             "unexplained": syzygy_unexplained(rs, source, seed, report.get("relations", []),
                                               relations.Config(**fields).syzygy_steps),
             "status": [r["status"] for r in report.get("relations", [])],
-            "off_on": [round(r["ratio"], 1) for r in report.get("relations", [])]}
+            "off_on": [round(r["ratio"], 1) for r in report.get("relations", [])],
+            "log": logged}
 
 
 def _noisy_sphere(source_name: str):

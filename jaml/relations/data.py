@@ -63,6 +63,10 @@ class Batches(NamedTuple):
         width = data.high - data.low
         return x + (jax.random.uniform(key, x.shape) - 0.5) * width * self.noise_scale
 
+    def noisy(self, key, x: jax.Array) -> jax.Array:
+        """Rows `x` [N, D] with the noise training adds to its on and off rows (none at 0)."""
+        return self._noise(key, x, self.data)
+
     def clean_on(self, key, data: Data, n: int | None = None) -> jax.Array:
         n = n or self.batch_size
         if self.sampler is not None:

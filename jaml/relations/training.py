@@ -773,11 +773,21 @@ def _last_resorts(cfg: Config) -> list[tuple[Config, range, str]]:
     return resorts
 
 
+def _lands_better(other: _Fitted, other_land: dict, kept: _Fitted, land: dict,
+                  bar: float) -> bool:
+    """Whether another training of g_k replaces the one kept: more projected box points on
+    the data, separating on- from off-rows no less than the kept one (or the bar)."""
+    return (quality.on_data(other_land) > quality.on_data(land)
+            and other.ratio >= min(kept.ratio, bar))
+
+
 def _noise_floor(cfg: Config, batches: Batches, codim: int, key) -> dict:
-    """What an exact relation's stopping statistic reaches on the data's rows
-    (`quality.separation_floor`), beside the bar; says so where the rows' scatter puts the bar
-    out of reach (the relations then end capped however well they fit)."""
-    floor = quality.separation_floor(batches.dense, codim, key, batches.low, batches.high,
+    """What an exact relation's stopping statistic reaches on the rows training sees (the
+    data's, with `noise_scale`'s noise; `quality.separation_floor`), beside the bar; says so
+    where their scatter puts the bar out of reach (relations then end capped however well
+    they fit)."""
+    rows = batches.noisy(jax.random.fold_in(key, 1), batches.dense)
+    floor = quality.separation_floor(rows, codim, key, batches.low, batches.high,
                                      cfg.separation_top_fraction)
     floor["separation_ratio"] = cfg.separation_ratio
     if floor["separation"] < cfg.separation_ratio:
@@ -983,23 +993,32 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
                     continue
                 other, other_land, other_rounds, spent = refine(again, premined, clip)
                 steps += spent
-                if (quality.on_data(other_land) > quality.on_data(land)
-                        and other.ratio >= min(fitted.ratio, cfg.separation_ratio)):
+                if _lands_better(other, other_land, fitted, land, cfg.separation_ratio):
                     fitted, land, refined_rounds = other, other_land, other_rounds
-            if premined is not None and fitted.ratio < cfg.separation_ratio:
+            if premined is not None and fitted.ratio < retry_bar:
                 # Pushed off the earlier zero set, g_k no longer separates on- from off-rows
                 # (rows mined "away from the data" can lie on it where the data are sparse):
                 # trained again the paper's way, then refined.
+                # Kept only where it is better: under noise no start reaches the bar, and a
+                # pre-mined start with no spurious zeros is worth more than a separation.
                 log.info("relation %d: trained on mined rows it separates only %.1fx; trained "
                          "again without them", k + 1, fitted.ratio)
-                premined, state = None, plain_fit(params)
+                state = plain_fit(params)
                 steps += int(state.step)
                 if int(state.status) == NONFINITE:
                     log.error("relation %d: loss became non-finite at step %d; stopping with "
                               "the %d relations learned so far", k + 1, steps, rs.num_relations)
                     break
-                fitted, land, refined_rounds, spent = refine(state)
+                plain, plain_land, plain_rounds, spent = refine(state)
                 steps += spent
+                if (fitted.ratio < DROP_RATIO < plain.ratio
+                        or _lands_better(plain, plain_land, fitted, land, cfg.separation_ratio)):
+                    premined, fitted, land, refined_rounds = None, plain, plain_land, plain_rounds
+                else:
+                    log.info("relation %d: without them %.0f%% of projected box points land on "
+                             "the data (off/on %.1f) against %.0f%%: the pre-mined one kept",
+                             k + 1, 100 * quality.on_data(plain_land), plain.ratio,
+                             100 * quality.on_data(land))
             # No start separated, so the relation would be dropped. Starts tend to settle in
             # one basin there: a g_k with zeros everywhere (steep and wiggly, d_g small on and
             # off the data), which −log‖∇g‖ rewards and a large step reaches early. The same

@@ -248,6 +248,45 @@ def test_when_no_start_separates_the_starts_train_again_capped_then_at_a_smaller
     assert (training.RETRY_GRADIENT_CAP, training.RETRY_STEP_FACTOR) == (0.1, 0.3)
 
 
+@pytest.mark.parametrize("trainings, kept", [
+    (((2.2, 0.58), (2.25, 0.0), (2.6, 0.55)), 2.25),  # the clean pre-mined start stays
+    (((2.2, 0.58), (2.25, 0.5), (2.6, 0.1)), 2.6),  # the plain training lands more: it replaces
+    (((1.5, 0.0), (1.6, 0.0), (2.6, 0.5)), 2.6),  # the pre-mined one would be dropped
+])
+def test_training_again_without_mined_rows_replaces_a_pre_mined_relation_only_if_better(
+        monkeypatch, trainings, kept):
+    """The ellipse's g_2 (pre-mined, 2 starts) separates less than the bar, so it trains once
+    more without mined rows; that training is kept only where more projected box points land
+    on the data, or where the pre-mined one separates too little to be kept at all (the
+    recorded (off/on, spurious share) pairs stand in for the three trainings', and g_1
+    separates)."""
+    from jaml.relations import training
+
+    given = iter(trainings)
+    real_refine, real_grow = training._refine, training._grow
+
+    def separating(*args, **kwargs):  # g_1 (not refined) separates
+        grown, on_mean, _ = real_grow(*args, **kwargs)
+        return grown, on_mean, 100 * on_mean
+
+    def landing(*args, **kwargs):
+        fitted, land, rounds, spent = real_refine(*args, **kwargs)
+        ratio, spurious = next(given)
+        return (fitted._replace(off_mean=ratio * fitted.on_mean),
+                {**land, "spurious": spurious, "landed": 1 - spurious, "extends": 0.0},
+                rounds, spent)
+
+    monkeypatch.setattr(training, "_grow", separating)
+    monkeypatch.setattr(training, "_refine", landing)
+    summaries = []
+    relations.fit(sources.make("ellipse"), relations.Config(
+        max_relations=2, codimension=2, max_steps=40, chunk_steps=20, batch_size=64,
+        stop_patience=1, eval_batches=2, refine_rounds=0, premine_steps=40,
+        premine_attempts=2), on_relation=lambda _, summary: summaries.append(summary))
+    assert next(given, None) is None  # all three trained
+    assert summaries[1].ratio == pytest.approx(kept, rel=1e-5)
+
+
 def test_a_start_reaching_half_the_noise_floor_is_not_tried_again(monkeypatch):
     """Where the rows' scatter lets an exact relation separate only 4× (below the stopping bar
     of 5), a start at off/on 3 (over half of it) that lands cleanly is kept without another
@@ -277,6 +316,31 @@ def test_a_start_reaching_half_the_noise_floor_is_not_tried_again(monkeypatch):
     assert len(seen) == 1
     assert rs.num_relations == 1
     assert training.RETRY_FLOOR_SHARE == 0.5
+
+
+def test_the_fit_takes_its_noise_floor_from_the_rows_with_its_training_noise():
+    """`Config.noise_scale` adds uniform noise (±noise_scale/2 of the box's width per axis) to
+    the rows training sees; the floor is theirs: on clean unit-sphere rows at noise 0.05 its
+    scatter is that of ‖x + ε‖ − 1 (the top fifth's mean, by sampling the same noise), where
+    the clean rows alone scatter by rounding only."""
+    from jaml.relations import training
+
+    rng = np.random.default_rng(0)
+    sphere = rng.normal(size=(4000, 3))
+    sphere = (sphere / np.linalg.norm(sphere, axis=1, keepdims=True)).astype(np.float32)
+    cfg = relations.Config(noise_scale=0.05)
+    batches = prepare(sphere, 256, cfg.noise_scale, jax.random.key(0), 2)
+    floor = training._noise_floor(cfg, batches, 1, jax.random.key(1))
+    width = np.asarray(batches.high - batches.low)
+    diag = np.linalg.norm(width)
+    noisy = sphere + (rng.uniform(size=sphere.shape) - 0.5) * width * cfg.noise_scale
+    radial = np.sort(np.abs(np.linalg.norm(noisy, axis=1) - 1))[::-1]
+    np.testing.assert_allclose(floor["across"] * diag, radial[: len(radial) // 5].mean(),
+                               rtol=0.15)
+    clean = training._noise_floor(relations.Config(), prepare(sphere, 256, 0.0,
+                                                              jax.random.key(0), 2),
+                                  1, jax.random.key(1))
+    assert clean["separation"] > 1e3 > 10 * floor["separation"]
 
 
 def test_the_noise_floor_matches_the_closed_form_on_a_noisy_sphere():

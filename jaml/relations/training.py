@@ -996,24 +996,27 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
                 if _lands_better(other, other_land, fitted, land, cfg.separation_ratio):
                     fitted, land, refined_rounds = other, other_land, other_rounds
             if premined is not None and fitted.ratio < retry_bar:
-                # Pushed off the earlier zero set, g_k no longer separates on- from off-rows
+                # Pushed off the earlier zero set, g_k may no longer separate on- from off-rows
                 # (rows mined "away from the data" can lie on it where the data are sparse):
-                # trained again the paper's way, then refined.
-                # Kept only where it is better: under noise no start reaches the bar, and a
-                # pre-mined start with no spurious zeros is worth more than a separation.
+                # trained again the paper's way, then refined, and kept only where it lands
+                # more or the pre-mined one would be dropped (under noise no start reaches the
+                # bar, and a start without spurious zeros is worth more than a little more
+                # separation).
                 log.info("relation %d: trained on mined rows it separates only %.1fx; trained "
                          "again without them", k + 1, fitted.ratio)
                 state = plain_fit(params)
                 steps += int(state.step)
-                if int(state.status) == NONFINITE:
-                    log.error("relation %d: loss became non-finite at step %d; stopping with "
-                              "the %d relations learned so far", k + 1, steps, rs.num_relations)
-                    break
-                plain, plain_land, plain_rounds, spent = refine(state)
-                steps += spent
-                if (fitted.ratio < DROP_RATIO < plain.ratio
+                plain = None
+                if int(state.status) != NONFINITE:
+                    plain, plain_land, plain_rounds, spent = refine(state)
+                    steps += spent
+                if plain is not None and (
+                        fitted.ratio < DROP_RATIO < plain.ratio
                         or _lands_better(plain, plain_land, fitted, land, cfg.separation_ratio)):
                     premined, fitted, land, refined_rounds = None, plain, plain_land, plain_rounds
+                elif plain is None:
+                    log.info("relation %d: without them its loss became non-finite: the "
+                             "pre-mined one kept", k + 1)
                 else:
                     log.info("relation %d: without them %.0f%% of projected box points land on "
                              "the data (off/on %.1f) against %.0f%%: the pre-mined one kept",

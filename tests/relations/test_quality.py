@@ -252,18 +252,27 @@ def test_when_no_start_separates_the_starts_train_again_capped_then_at_a_smaller
     (((2.2, 0.58), (2.25, 0.0), (2.6, 0.55)), 2.25),  # the clean pre-mined start stays
     (((2.2, 0.58), (2.25, 0.5), (2.6, 0.1)), 2.6),  # the plain training lands more: it replaces
     (((1.5, 0.0), (1.6, 0.0), (2.6, 0.5)), 2.6),  # the pre-mined one would be dropped
+    (((2.2, 0.58), (2.25, 0.0), None), 2.25),  # without mined rows the loss turns non-finite
 ])
 def test_training_again_without_mined_rows_replaces_a_pre_mined_relation_only_if_better(
         monkeypatch, trainings, kept):
     """The ellipse's g_2 (pre-mined, 2 starts) separates less than the bar, so it trains once
     more without mined rows; that training is kept only where more projected box points land
-    on the data, or where the pre-mined one separates too little to be kept at all (the
-    recorded (off/on, spurious share) pairs stand in for the three trainings', and g_1
-    separates)."""
+    on the data, or where the pre-mined one separates too little to be kept at all, and never
+    where its loss turned non-finite (the recorded (off/on, spurious share) pairs stand in for
+    the trainings', None for a non-finite one; g_1 separates)."""
     from jaml.relations import training
+    from jaml.relations.loop import NONFINITE
 
-    given = iter(trainings)
-    real_refine, real_grow = training._refine, training._grow
+    given = iter([t for t in trainings if t is not None])
+    real_refine, real_grow, real_fit_relation = (training._refine, training._grow,
+                                                 training._fit_relation)
+
+    def plain(*args, **kwargs):  # the training without mined rows is the one given no pool
+        state = real_fit_relation(*args, **kwargs)
+        if "pool" not in kwargs and trainings[-1] is None:
+            return state.replace(status=jnp.asarray(NONFINITE))
+        return state
 
     def separating(*args, **kwargs):  # g_1 (not refined) separates
         grown, on_mean, _ = real_grow(*args, **kwargs)
@@ -278,12 +287,14 @@ def test_training_again_without_mined_rows_replaces_a_pre_mined_relation_only_if
 
     monkeypatch.setattr(training, "_grow", separating)
     monkeypatch.setattr(training, "_refine", landing)
+    monkeypatch.setattr(training, "_fit_relation", plain)
     summaries = []
     relations.fit(sources.make("ellipse"), relations.Config(
         max_relations=2, codimension=2, max_steps=40, chunk_steps=20, batch_size=64,
         stop_patience=1, eval_batches=2, refine_rounds=0, premine_steps=40,
         premine_attempts=2), on_relation=lambda _, summary: summaries.append(summary))
-    assert next(given, None) is None  # all three trained
+    assert next(given, None) is None  # every finite training refined
+    assert len(summaries) == 2
     assert summaries[1].ratio == pytest.approx(kept, rel=1e-5)
 
 

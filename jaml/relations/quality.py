@@ -30,6 +30,7 @@ LANDING_SPACING = 3.0  # ... or this many times the data sample's own spacing, i
 RECALL = 0.99  # `holds`' tolerance: this quantile of held-out rows' largest |g_k| / on-mean
 DEPENDENT_COS = 0.9  # a pair of relations whose gradients' median |cos| exceeds this: dependent
 SPURIOUS = 0.1  # warn when more than this share of converged box points lands off the data
+UNCONVERGED = 0.1  # warn when more than this share of projected box points reaches no zero
 SPARSE = 0.1  # warn when the landing distance exceeds this share of the box diagonal
 TANGENT_NEIGHBOURS = 32  # rows of the local PCA that gives the data's tangent space at a row
 TANGENT_RTOL = 0.2  # its directions: singular values above this share of the largest
@@ -279,6 +280,11 @@ def _warnings(report: dict) -> list[str]:
         out.append(f"the zero set has parts away from the data: {100 * land['spurious']:.0f}% of "
                    f"projected box points land on it farther than {land['within']:.3g} from "
                    f"the data")
+    if 1 - land["converged"] > UNCONVERGED:
+        out.append(f"{100 * (1 - land['converged']):.0f}% of projected box points reach no zero "
+                   "of the relations: `project` leaves them where the relations cannot all "
+                   "vanish (a relation level but not zero away from the data), with converged "
+                   "False")
     return out
 
 

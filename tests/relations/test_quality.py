@@ -173,6 +173,20 @@ def test_only_a_relation_known_to_have_missed_its_stopping_rule_is_warned_of():
         "g2 capped: it did not meet the stopping rule (held-out off/on 3.0)"]
 
 
+@pytest.mark.parametrize("converged, warned", [(0.68, True), (0.95, False)])
+def test_box_points_that_reach_no_zero_are_warned_of(converged, warned):
+    """Points `project` leaves unconverged are neither on the data nor spurious: more than a
+    tenth of them is a warning of its own (seed 2 of the noisy ellipse: 32 %, no other)."""
+    report = {"relations": [{"index": 1, "status": "done", "ratio": 160.0}],
+              "independence": {"median_abs_cos": [[1.0]]},
+              "landing": {"converged": converged, "spurious": 0.0, "within": 0.05}}
+    found = [w for w in quality._warnings(report) if "reach no zero" in w]
+    assert found == ([f"{100 * (1 - converged):.0f}% of projected box points reach no zero of "
+                      "the relations: `project` leaves them where the relations cannot all "
+                      "vanish (a relation level but not zero away from the data), with "
+                      "converged False"] if warned else [])
+
+
 @pytest.mark.parametrize("attempts", [1, 3])
 def test_a_codimension_one_relation_landing_away_from_the_data_is_tried_from_another_start(
         monkeypatch, attempts):

@@ -1022,16 +1022,22 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
                              "the data (off/on %.1f) against %.0f%%: the pre-mined one kept",
                              k + 1, 100 * quality.on_data(plain_land), plain.ratio,
                              100 * quality.on_data(land))
-            # No start separated, so the relation would be dropped. Starts tend to settle in
-            # one basin there: a g_k with zeros everywhere (steep and wiggly, d_g small on and
-            # off the data), which −log‖∇g‖ rewards and a large step reaches early. The same
-            # starts again, that push capped; then every start at a smaller step.
+            # No start separated, so the relation would be dropped, or every start leaves
+            # spurious zeros (or points that reach none). Starts tend to settle in one basin
+            # there: a g_k with zeros everywhere (steep and wiggly, d_g small on and off the
+            # data), which −log‖∇g‖ rewards and a large step reaches early (on noisy rows it
+            # still separates a little). The same starts again, that push capped; then every
+            # start at a smaller step. One that separates replaces one that does not; else one
+            # that lands more.
             for resort, attempts, how in _last_resorts(cfg) if retried else ():
                 for attempt in attempts:
-                    if fitted.ratio >= DROP_RATIO:
+                    separates, away = fitted.ratio >= DROP_RATIO, 1 - quality.on_data(land)
+                    if separates and away <= RETRY_SPURIOUS:
                         break
-                    log.info("relation %d: no start separates (off/on %.1f); start %d once "
-                             "more, %s", k + 1, fitted.ratio, attempt + 1, how)
+                    log.info("relation %d: %s; start %d once more, %s", k + 1,
+                             f"{100 * away:.0f}% of projected box points land away from the "
+                             "data or reach no zero on every start" if separates else
+                             f"no start separates (off/on {fitted.ratio:.1f})", attempt + 1, how)
                     start, k_start = start_of(attempt)
                     again = plain_fit(start, k_train=k_start, cfg=resort)
                     steps += int(again.step)
@@ -1039,7 +1045,8 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
                         continue
                     other, other_land, other_rounds, spent = refine(again, cfg=resort)
                     steps += spent
-                    if other.ratio > fitted.ratio:
+                    if (_lands_better(other, other_land, fitted, land, DROP_RATIO) if separates
+                            else other.ratio > fitted.ratio):
                         fitted, land, refined_rounds = other, other_land, other_rounds
             state, grown, on_mean, off_mean, status = fitted
             if (premined is not None and status == CAPPED

@@ -1046,8 +1046,9 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
                     other, other_land, other_rounds, spent = refine(again, cfg=resort)
                     steps += spent
                     if (_lands_better(other, other_land, fitted, land, DROP_RATIO) if separates
-                            else other.ratio > fitted.ratio):
-                        fitted, land, refined_rounds = other, other_land, other_rounds
+                            else other.ratio > fitted.ratio):  # trained without mined rows
+                        premined, fitted, land, refined_rounds = (None, other, other_land,
+                                                                  other_rounds)
             state, grown, on_mean, off_mean, status = fitted
             if (premined is not None and status == CAPPED
                     and fitted.ratio >= cfg.separation_ratio):

@@ -90,6 +90,10 @@ class Case:
 CASES = {
     "ellipse-2": Case("ellipse", {"max_relations": 2},
                       {"source": "Ellipse", "max_relations": 2, "max_syzygies": 0}),
+    "ellipse-2-noisy": Case("ellipse", {"max_relations": 2},
+                            {"source": "Ellipse", "max_relations": 2, "max_syzygies": 0},
+                            noisy=True, note="the two relations by transversality, at each "
+                                             "--noise level"),
     "ellipse-4": Case("ellipse", {"max_relations": 4},
                       {"source": "Ellipse", "max_relations": 4, "max_syzygies": 0}),
     "ellipse-syz": Case("ellipse", {"max_relations": 3, "independence": "syzygy",
@@ -538,12 +542,13 @@ def summary_line(r: dict) -> str:
     return "; ".join(parts)
 
 
-def plan(cases, stacks, seeds, noises) -> list[Run]:
+def plan(cases, stacks, seeds, noises, skip=()) -> list[Run]:
     runs = []
     for case in cases:
         spec = CASES[case]
         for stack in stacks:
-            if (spec.jaml if stack == "jaml" else spec.reference) is None:
+            if (spec.jaml if stack == "jaml" else spec.reference) is None or (
+                    f"{case}/{stack}" in skip):
                 continue
             for noise in (noises if spec.noisy else (0.0,)):
                 runs.extend(Run(case, stack, seed, float(noise)) for seed in seeds)
@@ -745,6 +750,8 @@ def main(argv=None) -> int:
     parser.add_argument("--cases", default=",".join(CASES),
                         help=f"comma-separated, of {', '.join(CASES)}")
     parser.add_argument("--stacks", default=",".join(STACKS))
+    parser.add_argument("--skip", default="",
+                        help="comma-separated CASE/STACK pairs not to run, e.g. ellipse-syz/jaml")
     parser.add_argument("--seeds", default="0..7", help="'0..7' or '0,1,2'")
     parser.add_argument("--noise", default="0,0.05",
                         help="noise levels of the noisy cases (--plot: the first)")
@@ -774,12 +781,16 @@ def main(argv=None) -> int:
         bad = [x for x in (cases if name == "case" else stacks) if x not in known]
         if bad:
             parser.error(f"unknown {name}(s) {bad}; choose from {list(known)}")
+    skip = {x for x in args.skip.split(",") if x}
+    bad = [x for x in skip if x.partition("/")[0] not in CASES or x.partition("/")[2] not in STACKS]
+    if bad:
+        parser.error(f"--skip {bad}: each must be CASE/STACK, e.g. ellipse-syz/jaml")
     seeds, noises = parse_seeds(args.seeds), [float(x) for x in args.noise.split(",")]
     out = args.out
     if args.smoke:
         seeds, budget, out, args.no_record = seeds[:1], 20.0, out / "smoke", True
     out.mkdir(parents=True, exist_ok=True)
-    runs = plan(cases, stacks, seeds, noises)
+    runs = plan(cases, stacks, seeds, noises, skip)
     # A child gets its budget, then time to compile and measure; past twice that it is killed.
     timeout = 2 * (budget or 3_600) + 600
     launch(runs, out, args.jobs, budget, timeout)

@@ -102,6 +102,11 @@ def test_aggregate_reads_worst_by_direction():
     assert (row["wall_s_worst"], row["wall_s_best"]) == (30.0, 10.0)
     assert row["cos_median_worst"] == 0.4 and row["seeds"] == "0/1/2"
     assert rq.parse_seeds("0..7") == list(range(8)) and rq.parse_seeds("2,5") == [2, 5]
-    assert [r.name for r in rq.plan(["ellipse-syz", "ellipse-auto"], rq.STACKS, [0], [0, 0.05])] \
-        == ["ellipse-syz-n0-jaml-s0", "ellipse-syz-n0.05-jaml-s0", "ellipse-syz-n0-reference-s0",
-            "ellipse-syz-n0.05-reference-s0", "ellipse-auto-jaml-s0"]
+    names = [r.name for r in rq.plan(["ellipse-syz", "ellipse-auto"], rq.STACKS, [0], [0, 0.05])]
+    assert names == ["ellipse-syz-n0-jaml-s0", "ellipse-syz-n0.05-jaml-s0",
+                     "ellipse-syz-n0-reference-s0", "ellipse-syz-n0.05-reference-s0",
+                     "ellipse-auto-jaml-s0"]
+    names = [r.name for r in rq.plan(["ellipse-syz", "ellipse-2-noisy"], rq.STACKS, [0], [0.05],
+                                     skip={"ellipse-syz/jaml"})]
+    assert names == ["ellipse-syz-n0.05-reference-s0", "ellipse-2-noisy-n0.05-jaml-s0",
+                     "ellipse-2-noisy-n0.05-reference-s0"]

@@ -169,7 +169,7 @@ class EvalConfig:
 @dataclasses.dataclass(frozen=True)
 class PenaltyConfig:
     """Relations imposed on the learner's latents (paper eq. 4; `relations.latent_penalty`,
-    docs/transfer.md), built by the stream (`loop.latent_penalty`) from these fields.
+    docs/transfer.md), built by the stream (`stream.penalty.latent_penalty`) from these fields.
 
     weight, form, ok_weight, ok_rows, ok_fraction: `relations.latent_penalty`'s.
     relations: the relation set's checkpoint directory (`jaml.relations.save`).

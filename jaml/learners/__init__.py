@@ -29,6 +29,7 @@ from jaml.configs.learners import (
     registered,
 )
 from jaml.learners.learner import LatentPenalty, Learner, Outputs
+from jaml.learners.own import own_learner
 from jaml.learners.train import (
     CPU_COMPILER_OPTIONS,
     Batch,
@@ -42,7 +43,14 @@ from jaml.learners.train import (
 
 def make(name: str, config: LearnerConfig | None = None, **overrides) -> Learner:
     """The learner `name` built from `config`, or from its defaults updated with `overrides`
-    (`jaml.configs.learners.configured`), by its registered builder (`LEARNERS`)."""
+    (`jaml.configs.learners.configured`), by its registered builder (`LEARNERS`); a name
+    "MODULE:FACTORY" is a learner of your own, `FACTORY(ld_dim=D)` (`jaml.learners.own`), whose
+    config is its factory's."""
+    if ":" in name:
+        if config is not None:
+            raise ValueError(f"learner {name!r}: a learner of your own makes its own config; "
+                             "give none")
+        return own_learner(name, **overrides)
     config = configured(name, config, **overrides)
     if config.ld_dim is None:
         raise ValueError(f"{name}: ld_dim is None; give the true LD-state size (a stream run sets "

@@ -19,8 +19,6 @@ Shapes: R runs, E envs, T rollout_len, L = learner.seq_len, B sequences per lear
 from __future__ import annotations
 
 import dataclasses
-import importlib
-import inspect
 import os
 import weakref
 from typing import Any
@@ -33,7 +31,6 @@ import envs_mjx
 from envs_mjx.base import Env, State
 from jaml import learners
 from jaml.configs.stream import (
-    PenaltyConfig,
     RunConfig,
     StreamConfig,
     one_program,
@@ -45,6 +42,7 @@ from jaml.stream import collect
 from jaml.stream import ppo as ppo_lib
 from jaml.stream import replay as replay_lib
 from jaml.stream.collect import Episodes
+from jaml.stream.penalty import latent_penalty
 
 
 @struct.dataclass
@@ -136,15 +134,18 @@ class Stream:
         """A fresh run from a raw uint32 key (`jax.random.PRNGKey(seed)`)."""
         cfg = self.config
         key, k_env, k_ppo, k_learner = jax.random.split(key, 4)
+        env = jax.jit(collect.reset, static_argnums=(0, 2))(self.env, k_env, cfg.num_envs)
+        ppo = jax.jit(self.ppo.init)(k_ppo)
+        # The learner's shapes: one batch of frames and actions.
         frames = jnp.zeros((self.batch_sequences, self.seq_len, *learners.learner.FRAME_SHAPE),
                            jnp.uint8)
         actions = jnp.zeros((self.batch_sequences, self.seq_len, self.env.action_size))
         state = StreamState(
             epoch=jnp.zeros((), jnp.int32),
             key=key,
-            env=jax.jit(collect.reset, static_argnums=(0, 2))(self.env, k_env, cfg.num_envs),
+            env=env,
             episodes=Episodes.zeros(cfg.num_envs),
-            ppo=jax.jit(self.ppo.init)(k_ppo),
+            ppo=ppo,
             learner=learners.init_train_state(self.learner, self.optimizer, k_learner,
                                               (frames, actions)),
             replay=replay_lib.init(
@@ -330,37 +331,6 @@ def _learn_step_runs(stream: Stream, learner_state, replay, keys):
     return jax.vmap(stream.learn_step)(learner_state, replay, keys)
 
 
-def make_learner(name: str, ld_dim: int,
-                 config: learners.LearnerConfig | None = None) -> learners.Learner:
-    """A registry learner from its `config` (its ld_dim set to `ld_dim`), or your own:
-    "MODULE:FACTORY" names `factory(ld_dim=D)` returning a `jaml.learners.Learner` (the
-    protocol: docs/own_learner.md)."""
-    if ":" not in name:
-        if config is None:
-            return learners.make(name, ld_dim=ld_dim)
-        return learners.make(name, config.replace(ld_dim=ld_dim))
-    module, _, attr = name.partition(":")
-    try:
-        factory = getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError) as error:
-        raise ValueError(f"learner {name!r}: cannot import {attr} from {module} ({error}); give "
-                         "MODULE:FACTORY with MODULE importable (on PYTHONPATH)") from None
-    try:
-        inspect.signature(factory).bind(ld_dim=ld_dim)
-    except TypeError:
-        raise ValueError(f"learner {name!r}: {attr} must take the keyword ld_dim (the stream "
-                         f"calls {attr}(ld_dim=D), D the env's LD-state size; "
-                         "docs/own_learner.md); define it as `def "
-                         f"{attr}(ld_dim): ...`") from None
-    except ValueError:  # no signature to read (a builtin): let the call say
-        pass
-    learner = factory(ld_dim=ld_dim)
-    if not isinstance(learner, learners.Learner):
-        raise ValueError(f"learner {name!r}: {attr}(ld_dim=...) returned a "
-                         f"{type(learner).__name__}, not a jaml.learners.Learner")
-    return learner
-
-
 def build(config: StreamConfig) -> Stream:
     """A new Stream for `config`, its config `config` resolved for its env and JAX's backend
     (`config.resolve`), its penalty built from `config.penalty`; every size problem is reported
@@ -386,7 +356,8 @@ def build_runs(configs: list[StreamConfig]) -> tuple[Stream, list[RunConfig]]:
     if unknown:
         raise ValueError(f"eval.distortion_dims {unknown} are not LD-state names of "
                          f"{config.env}: {list(env.ld_state_names)}")
-    learner = make_learner(config.learner, ld_dim, config.learner_config)
+    learner = learners.make(config.learner, config.learner_config, ld_dim=ld_dim)
+    ppo = ppo_lib.make(ld_dim, env.action_size, config.ppo, total_updates=config.epochs)
     problems = []
     if config.eval.regressor_normalize and rotation.ld_blocks(env.ld_state_names,
                                                               env.ld_state_groups)[0]:
@@ -416,33 +387,10 @@ def build_runs(configs: list[StreamConfig]) -> tuple[Stream, list[RunConfig]]:
         )
     if problems:
         raise ValueError("; ".join(problems))
-    ppo = ppo_lib.make(ld_dim, env.action_size, config.ppo, total_updates=config.epochs)
     optimizer = learners.default_optimizer(learner)
     penalty = None if config.penalty is None else latent_penalty(config.penalty, learner, env)
     train_step = learners.make_train_step(learner, optimizer, penalty)
     return Stream(config, env, learner, ppo, optimizer, train_step), runs
-
-
-def latent_penalty(penalty: PenaltyConfig, learner: learners.Learner, env: Env):
-    """`relations.latent_penalty` of `penalty`: its relations, loaded and selected, placed on
-    the slots the `learner` declares (`LearnerConfig.penalty_slots`), the env's action between
-    two steps."""
-    from jaml import relations  # here: a stream without a penalty needs none of it
-
-    if not penalty.relations:
-        raise ValueError("penalty.relations names no relation set: give the checkpoint "
-                         "directory jaml.relations.save wrote")
-    if not hasattr(learner.config, "penalty_slots"):
-        raise ValueError(f"penalty: the learner {type(learner).__name__} declares no latent "
-                         "slots for relations (LearnerConfig.penalty_slots); give no penalty")
-    rs = relations.load(penalty.relations)
-    rs = rs.select(list(penalty.used)) if penalty.used else rs
-    layout = relations.LatentLayout.place(learner.config.penalty_slots, static=penalty.static,
-                                          dynamic=penalty.dynamic)
-    return relations.latent_penalty(
-        rs, layout, latent_size=learner.config.penalty_dim, action_size=env.action_size,
-        weight=penalty.weight, form=penalty.form, ok_weight=penalty.ok_weight,
-        ok_rows=penalty.ok_rows, ok_fraction=penalty.ok_fraction)
 
 
 def _bound(stream: Stream, fun):

@@ -76,10 +76,10 @@ def not_a_learner(ld_dim: int):
 
 
 def test_a_factory_must_return_a_learner():
-    from jaml.stream.loop import make_learner
+    from jaml import learners
 
     with pytest.raises(ValueError, match=r"returned a dict, not a jaml\.learners\.Learner"):
-        make_learner(f"{__name__}:not_a_learner", 4, {})
+        learners.make(f"{__name__}:not_a_learner", ld_dim=4)
 
 
 def test_the_docs_learner_runs_as_written_and_needs_no_batchnorm():
@@ -124,7 +124,7 @@ def test_a_wrong_recon_or_factory_signature_is_one_line_naming_the_fix():
     import jax
     import numpy as np
 
-    from jaml.stream.loop import make_learner
+    from jaml import learners
 
     learner = Learner("Wrong", make_tiny(4).config, WrongRecon(6), kl_weights={})
     frames, actions = np.zeros((2, 1, 64, 64, 3), np.uint8), np.zeros((2, 1, 3), np.float32)
@@ -134,5 +134,5 @@ def test_a_wrong_recon_or_factory_signature_is_one_line_naming_the_fix():
         jax.jit(lambda v: learner.loss(v, jax.random.key(1), frames, actions))(variables)
     with pytest.raises(ValueError, match=r"no_ld_dim must take the keyword ld_dim .* calls "
                                          r"no_ld_dim\(ld_dim=D\)") as error:
-        make_learner(f"{__name__}:no_ld_dim", 4, None)
+        learners.make(f"{__name__}:no_ld_dim", ld_dim=4)
     assert "\n" not in str(error.value)

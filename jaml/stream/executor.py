@@ -12,6 +12,7 @@ Shapes: R runs.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
@@ -72,14 +73,16 @@ def run_of(states: StreamState, i: int) -> StreamState:
     return jax.tree.map(lambda x: x[i], states)
 
 
+@dataclasses.dataclass(eq=False)
 class Stacked:
     """The stacked states of the runs last trained together (`members`, indices into
     `holders`), kept stacked from one block to the next while the group stays the same (the
     common case: all runs at one epoch); the other runs' states are held by their `holders`
     (each a run's `RunDir`), in its `state`."""
 
-    def __init__(self, holders: list):
-        self.holders, self.members, self.states = holders, (), None
+    holders: list
+    members: tuple[int, ...] = ()
+    states: StreamState | None = None
 
     def of(self, members: tuple[int, ...]) -> StreamState:
         """The stacked states of `members`, regrouped if they are not the last group."""

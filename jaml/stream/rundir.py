@@ -192,6 +192,12 @@ class RunDir:
         self.epoch += len(next(iter(metrics.values())))
         return True
 
+    def abort(self, status: str) -> None:
+        """The run, if still going, ended by an exception: "interrupted" (Ctrl-C, SIGTERM) or
+        "failed"; its summary says so."""
+        if self.status == "running":
+            self.status = status
+
     def stop(self, state: StreamState) -> None:
         """Stops before the run's end: a checkpoint at the current epoch (unless the last one is
         there), so the next call resumes here; status "interrupted"."""

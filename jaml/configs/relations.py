@@ -96,7 +96,9 @@ class Config:
         of the projected box points land away from the data (or it separates less than
         separation_ratio, or than half what an exact relation reaches on noisy rows); the one
         landing most is kept. Where none separates, the same starts train again with
-        −log‖∇g‖ capped, then at a smaller step, before the relation is dropped.
+        −log‖∇g‖ capped, then at a smaller step, before the relation is dropped. A relation
+        below the codimension that ends capped separating less than that gets as many starts,
+        and the one separating most is kept.
       mined_patience: a training on mined rows ends once g_k separates and the share of
         mined rows it clears has not risen for this many steps (None: it runs until they clear
         or to its budget).

@@ -960,6 +960,23 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
         if not (completing and (mining or (cfg.stop_when_complete and not last))):
             grown, on_mean, off_mean = _grow(cfg, batches, rs, module, state.params, width,
                                              k_eval)
+            attempt = 1
+            while (not completing and not syzygies and status == CAPPED
+                   and attempt < cfg.premine_attempts and off_mean < retry_bar * on_mean):
+                # Below the codimension nothing is refined or tried again for landing, but a
+                # relation capped without separating may have settled where a steep g vanishes
+                # on the data yet not on its noisy rows: another start may separate.
+                log.info("relation %d: capped separating only %.1fx; trained again from another "
+                         "initialisation", k + 1, off_mean / max(on_mean, 1e-30))
+                start, k_start = start_of(attempt)
+                attempt += 1
+                again = plain_fit(start, k_train=k_start)
+                steps += int(again.step)
+                if int(again.status) == NONFINITE:
+                    continue
+                other = _grow(cfg, batches, rs, module, again.params, width, k_eval)
+                if other[2] * on_mean > off_mean * other[1]:  # separates more
+                    state, status, (grown, on_mean, off_mean) = again, int(again.status), other
         else:
             fitted, land, refined_rounds, spent = refine(state, premined, clip)
             steps += spent

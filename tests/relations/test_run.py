@@ -16,9 +16,11 @@ TINY_FLAGS = ["--max-steps", "40", "--chunk-steps", "20", "--batch-size", "64",
 
 
 def _tiny_config(**changes):
+    """Relations that end capped after 40 steps, each trained once (another start of a capped
+    one would log its steps again)."""
     return relations.Config(max_relations=2, max_steps=40, chunk_steps=20, batch_size=64,
                             stop_patience=1, eval_batches=2, mined_weight=0.0,
-                            stop_when_complete=False).replace(**changes)
+                            stop_when_complete=False, premine_attempts=1).replace(**changes)
 
 
 def test_cli_writes_the_run_directory(tmp_path, capsys):

@@ -117,6 +117,10 @@ CASES = {
     "block45-2": Case("block45", {"max_relations": 2},
                       {"source": "ConservativeBlock45Incline1D", "max_relations": 2,
                        "max_syzygies": 0}),
+    "block45-2-noisy": Case("block45", {"max_relations": 2},
+                            {"source": "ConservativeBlock45Incline1D", "max_relations": 2,
+                             "max_syzygies": 0}, noisy=True,
+                            note="the two relations by transversality, at each --noise level"),
 }
 STACKS = ("jaml", "reference")
 SYZYGY_STEPS = 10_000  # the step cap of the fresh syzygy network `syzygy_unexplained` fits

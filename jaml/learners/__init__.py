@@ -1,7 +1,7 @@
 """Unsupervised learners on 64×64 frames (paper §2.1, §4): VAE, β-VAE, SVAE, PRED, DSA, SPAIR.
 
     from jaml import learners
-    learner = learners.make("PRED", ld_dim=4)              # any of learners.ALL_LEARNERS
+    learner = learners.make("PRED", ld_dim=4)  # learners.ALL_LEARNERS, or "MODULE:FACTORY"
     opt = learners.default_optimizer(learner)
     state = learners.init_train_state(learner, opt, key, (frames, actions))
     step = jax.jit(learners.make_train_step(learner, opt, latent_penalty=None),

@@ -47,10 +47,10 @@ def make(name: str, config: LearnerConfig | None = None, **overrides) -> Learner
     "MODULE:FACTORY" is a learner of your own, `FACTORY(ld_dim=D)` (`jaml.learners.own`), whose
     config is its factory's."""
     if ":" in name:
-        if config is not None:
-            raise ValueError(f"learner {name!r}: a learner of your own makes its own config; "
-                             "give none")
-        return own_learner(name, **overrides)
+        if config is not None or set(overrides) != {"ld_dim"}:
+            raise ValueError(f"learner {name!r}: a learner of your own makes its own config "
+                             "from ld_dim alone; give make(name, ld_dim=D)")
+        return own_learner(name, overrides["ld_dim"])
     config = configured(name, config, **overrides)
     if config.ld_dim is None:
         raise ValueError(f"{name}: ld_dim is None; give the true LD-state size (a stream run sets "

@@ -82,6 +82,17 @@ def test_a_factory_must_return_a_learner():
         learners.make(f"{__name__}:not_a_learner", ld_dim=4)
 
 
+def test_a_learner_of_your_own_is_made_from_ld_dim_alone():
+    """Its factory makes its config: `learners.make` refuses one, or other options, for it."""
+    from jaml import learners
+
+    assert learners.make(f"{__name__}:make_tiny", ld_dim=4).config.ld_dim == 4
+    for config, options in ((SingleFrameConfig(ld_dim=4), {"ld_dim": 4}), (None, {}),
+                            (None, {"ld_dim": 4, "latent_dim": 3})):
+        with pytest.raises(ValueError, match=r"makes its own config from ld_dim alone"):
+            learners.make(f"{__name__}:make_tiny", config, **options)
+
+
 def test_the_docs_learner_runs_as_written_and_needs_no_batchnorm():
     """docs/own_learner.md's example runs as written (its imports from jaml.learners) and
     trains without a BatchNorm: the train step keeps an empty batch_stats."""

@@ -98,7 +98,7 @@ class Config:
         landing most is kept. Where none separates, the same starts train again with
         −log‖∇g‖ capped, then at a smaller step, before the relation is dropped. A relation
         below the codimension that ends capped separating less than that gets as many starts,
-        and the one separating most is kept.
+        then the same last resorts, and the one separating most is kept.
       mined_patience: a training on mined rows ends once g_k separates and the share of
         mined rows it clears has not risen for this many steps (None: it runs until they clear
         or to its budget).

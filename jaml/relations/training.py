@@ -960,17 +960,21 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
         if not (completing and (mining or (cfg.stop_when_complete and not last))):
             grown, on_mean, off_mean = _grow(cfg, batches, rs, module, state.params, width,
                                              k_eval)
-            attempt = 1
-            while (not completing and not syzygies and status == CAPPED
-                   and attempt < cfg.premine_attempts and off_mean < retry_bar * on_mean):
-                # Below the codimension nothing is refined or tried again for landing, but a
-                # relation capped without separating may have settled where a steep g vanishes
-                # on the data yet not on its noisy rows: another start may separate.
-                log.info("relation %d: capped separating only %.1fx; trained again from another "
-                         "initialisation", k + 1, off_mean / max(on_mean, 1e-30))
+            # Below the codimension nothing is refined or tried again for landing, but a
+            # relation capped without separating may have settled where a steep g vanishes on
+            # the data yet not on its noisy rows: other starts, then the last resorts, may
+            # separate.
+            tries = [(cfg, attempt, "from another initialisation")
+                     for attempt in range(1, cfg.premine_attempts)]
+            tries += [(resort, attempt, how) for resort, attempts, how in _last_resorts(cfg)
+                      for attempt in attempts] if cfg.premine_attempts > 1 else []
+            for resort, attempt, how in tries if not (completing or syzygies) else ():
+                if status != CAPPED or off_mean >= retry_bar * on_mean:
+                    break
+                log.info("relation %d: capped separating only %.1fx; start %d once more, %s",
+                         k + 1, off_mean / max(on_mean, 1e-30), attempt + 1, how)
                 start, k_start = start_of(attempt)
-                attempt += 1
-                again = plain_fit(start, k_train=k_start)
+                again = plain_fit(start, k_train=k_start, cfg=resort)
                 steps += int(again.step)
                 if int(again.status) == NONFINITE:
                     continue

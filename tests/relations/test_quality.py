@@ -219,27 +219,34 @@ def test_a_codimension_one_relation_landing_away_from_the_data_is_tried_from_ano
     assert rs.num_relations == 1
 
 
+PLAIN, CAPPED, SLOWER = (None, 1e-3), (0.1, 1e-3), (None, 3e-4)  # (gradient cap, step size)
+
+
 @pytest.mark.parametrize("ratios, kept", [
     ((3.0, 10.0), 10.0),  # the second start separates: kept, nothing more
-    ((3.0, 2.5, 4.0), 4.0),  # none reaches the bar: the one separating most
-    ((3.0, 2.5, 2.0), 3.0),  # the first separates most: kept
+    ((3.0, 2.5, 2.0, 12.0), 12.0),  # none of the starts does, the first capped one does
+    ((3.0, 2.5, 4.0, 1.0, 1.0, 1.0, 1.0, 1.0), 4.0),  # nothing does: the one separating most
+    ((3.0, 2.5, 2.0, 1.0, 1.0, 1.0, 1.0, 1.0), 3.0),  # the first separates most: kept
     ((8.0,), 8.0),  # the first separates: no other start
 ])
 def test_a_relation_below_the_codimension_capped_without_separating_gets_other_starts(
         monkeypatch, ratios, kept):
     """The ellipse's g_1 (codimension 2: nothing refined or landed yet) that ends capped
-    separating less than the bar trains again from another initialisation, up to
-    `premine_attempts` trainings, and the one separating most is kept (the recorded off/on of
-    each training stood in for; every training ends capped)."""
+    separating less than the bar trains again from other initialisations (up to
+    `premine_attempts` trainings), then as the last resorts train (−log‖∇g‖ capped from the
+    second start on, then every start at a smaller step), until one separates; the one
+    separating most is kept (the recorded off/on of each training stood in for; every
+    training ends capped)."""
     from jaml.relations import training
     from jaml.relations.loop import CAPPED as CAPPED_STATUS
 
     given, trainings = iter(ratios), []
     real_grow, real_fit_relation = training._grow, training._fit_relation
 
-    def capped(*args, **kwargs):
-        trainings.append(1)
-        return real_fit_relation(*args, **kwargs).replace(status=jnp.asarray(CAPPED_STATUS))
+    def capped(cfg, *args, **kwargs):
+        trainings.append((cfg.gradient_cap, cfg.learning_rate))
+        state = real_fit_relation(cfg, *args, **kwargs)
+        return state.replace(status=jnp.asarray(CAPPED_STATUS))
 
     def separating(*args, **kwargs):
         grown, on_mean, _ = real_grow(*args, **kwargs)
@@ -252,11 +259,12 @@ def test_a_relation_below_the_codimension_capped_without_separating_gets_other_s
         max_relations=1, codimension=2, max_steps=40, chunk_steps=20, batch_size=64,
         stop_patience=1, eval_batches=2, premine_attempts=3),
         on_relation=lambda _, summary: summaries.append(summary))
-    assert len(trainings) == len(ratios) and next(given, None) is None
+    assert next(given, None) is None
+    assert trainings == [PLAIN, PLAIN, PLAIN, CAPPED, CAPPED, SLOWER, SLOWER, SLOWER][
+        :len(ratios)]
     assert summaries[0].ratio == pytest.approx(kept, rel=1e-5)
 
 
-PLAIN, CAPPED, SLOWER = (None, 1e-3), (0.1, 1e-3), (None, 3e-4)  # (gradient cap, step size)
 
 
 @pytest.mark.parametrize("ratios, trainings, kept", [

@@ -96,6 +96,7 @@ VARIANTS = {  # name: (source, Config fields beside the seed)
     # Two relations by transversality under the paper's training noise: what syzygy mode's
     # noisy rows stand against.
     "ellipse-n05": ("ellipse", {"max_relations": 2, "noise_scale": 0.05}),
+    "ellipse-n02": ("ellipse", {"max_relations": 2, "noise_scale": 0.02}),
 }
 THREADS = {"JAX_PLATFORMS": "cpu", "OMP_NUM_THREADS": "1",
            "XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"}

@@ -615,6 +615,7 @@ RETRY_GRADIENT_CAP = 0.1
 RETRY_STEP_FACTOR = 0.3  # the step size's factor in its second last resort (None: not tried)
 DROP_RATIO = 2.0  # off/on below which a capped relation up to the codimension is dropped
 REFINE_SHARE = 5  # a refinement round's step budget: this fraction of max_steps
+REFINE_HALVES = 0.5  # a round leaving this share of the points landing away may separate less
 RETRY_SPURIOUS = 0.1  # a pre-mined relation with more box points landing away: tried again
 # A start separating this share of what an exact relation reaches on the rows (the noise
 # floor) is not tried again for separation, where that is below the stopping bar (None: the bar).
@@ -652,7 +653,9 @@ def _refine(cfg, batches, rs, module, width, fitted: _Fitted, within, codim, pro
     """Where the intersection with g_k has parts away from the data, train g_k on, pushed off
     the points that landed there (and those mined before), for up to `refine_rounds` rounds.
     A round is kept only if more projected points then land on the data and g_k still
-    separates (down to the stopping rule's ratio); otherwise g_k stays as it was.
+    separates (down to the stopping rule's ratio, or to DROP_RATIO where the round at least
+    halves the share landing away of the codimension-th relation); otherwise g_k stays as it
+    was.
 
     Returns (the relation as kept, its landing shares, rounds kept, steps spent). The status
     stays that of Algorithm 1's stopping rule: a round ends where its mined rows clear or at
@@ -679,9 +682,14 @@ def _refine(cfg, batches, rs, module, width, fitted: _Fitted, within, codim, pro
         candidate = _Fitted(refined, grown, on_mean, off_mean, fitted.status)
         new_pool, new_land = mine(cfg, grown, batches, jax.random.fold_in(k_mine, 2 + r),
                                   within, pool, codim)
-        # Separation may give way to landing, down to the stopping rule's.
-        if (quality.on_data(new_land) <= quality.on_data(land)
-                or candidate.ratio < min(fitted.ratio, cfg.separation_ratio)):
+        # Separation may give way to landing, down to the stopping rule's; for the relation
+        # completing the codimension, a round that at least halves the share landing away,
+        # down to what keeps it (under noise the push off a spurious branch near the data
+        # costs separation on the noisy rows).
+        away, new_away = 1 - quality.on_data(land), 1 - quality.on_data(new_land)
+        halves = new_away <= REFINE_HALVES * away and k + 1 <= codim
+        floor = DROP_RATIO if halves else cfg.separation_ratio
+        if new_away >= away or candidate.ratio < min(fitted.ratio, floor):
             log.info("relation %d: refining did not help (%.0f%% → %.0f%% land on the data, "
                      "off/on %.1f); kept as before", k + 1, 100 * quality.on_data(land),
                      100 * quality.on_data(new_land), candidate.ratio)

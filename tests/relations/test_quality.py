@@ -219,6 +219,38 @@ def test_a_codimension_one_relation_landing_away_from_the_data_is_tried_from_ano
     assert rs.num_relations == 1
 
 
+@pytest.mark.parametrize("away, ratio, codim, kept", [
+    (0.04, 2.7, 2, True),  # the round halves the share landing away: it may separate less
+    (0.20, 2.7, 2, False),  # it does not halve it: not below the stopping rule's ratio
+    (0.20, 6.0, 2, True),  # it separates at the bar: kept for landing more
+    (0.04, 1.5, 2, False),  # not below what keeps a relation
+    (0.04, 2.7, 1, False),  # beyond the codimension a relation must separate fully
+])
+def test_a_refining_round_that_halves_the_share_landing_away_may_separate_less(
+        monkeypatch, away, ratio, codim, kept):
+    """g_2 (off/on 5.5, 26 % of projected box points landing away) refined one round: the
+    round is kept where more points land on the data and g_2 separates down to the stopping
+    rule's ratio, or, for the relation completing the codimension, down to the ratio that keeps
+    a relation where the round at least halves the share landing away (the round's landing and
+    off/on stood in for)."""
+    from types import SimpleNamespace
+
+    from jaml.relations import training
+    from jaml.relations.loop import CAPPED as CAPPED_STATUS
+
+    lands = iter([{"landed": 0.74, "spurious": 0.26}, {"landed": 1 - away, "spurious": away}])
+    state = SimpleNamespace(step=jnp.asarray(10), status=jnp.asarray(CAPPED_STATUS), params={})
+    monkeypatch.setattr(training, "mine", lambda *args, **kwargs: (None, next(lands)))
+    monkeypatch.setattr(training, "_fit_relation", lambda *args, **kwargs: state)
+    monkeypatch.setattr(training, "_grow", lambda *args, **kwargs: ("refined", 1.0, ratio))
+    start = training._Fitted(state, "start", 1.0, 5.5, CAPPED_STATUS)
+    fitted, land, rounds, _ = training._refine(
+        relations.Config(refine_rounds=1), None, SimpleNamespace(num_relations=1), None, 8,
+        start, 0.05, codim, {}, None, *jax.random.split(jax.random.key(0), 3))
+    assert (fitted.grown, rounds) == (("refined", 1) if kept else ("start", 0))
+    assert land["spurious"] == (away if kept else 0.26)
+
+
 PLAIN, CAPPED, SLOWER = (None, 1e-3), (0.1, 1e-3), (None, 3e-4)  # (gradient cap, step size)
 
 

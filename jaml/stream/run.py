@@ -16,9 +16,10 @@ from jaml.configs.stream import StreamConfig
 from jaml.evaluation.plots import FigureWriter
 from jaml.stream import analysis
 from jaml.stream.executor import BLOCK, Stacked, held_runs, run_stacked_epochs, runs_mesh
-from jaml.stream.loop import build_runs
-from jaml.stream.rundir import claim_run, open_runs
+from jaml.stream.loop import Stream, StreamState, build_runs
+from jaml.stream.rundir import RunDir, claim_run, open_runs
 from jaml.stream.schedule import (
+    Block,
     analysis_epochs,
     checkpoint_due,
     checkpoints,
@@ -141,21 +142,8 @@ def run_many(configs: list[StreamConfig], outs: list, *, progress: bool = True,
             trained = [(j, runs[i]) for j, i in enumerate(block.runs)
                        if runs[i].trained({k: v[:, j] for k, v in metrics.items()},
                                           watch.wall / len(block.runs))]
-            with Stopwatch() as analysing:  # the runs trained, at their block's end
-                results = [None] * len(trained)
-                if block.analysis:  # analysed together, each with its keys and kept sets
-                    results = analysis.analyse_runs(
-                        stream, states, [j for j, _ in trained], [r.eval_key() for _, r in trained],
-                        [r.pi_rand_key for _, r in trained], [r.pi_rand_set for _, r in trained],
-                        [r.references is None for _, r in trained])
-                for (j, r), result in zip(trained, results, strict=True):
-                    if result is None and not stopping[j]:
-                        continue
-                    state = stacked.state(block.runs[j])  # one at a time, from the stack
-                    if result is not None:  # with a checkpoint where `saves` says so
-                        r.analysed(result, state, checkpoint=saves[j])
-                    if stopping[j]:  # at its stop_after stop: a checkpoint, resumable
-                        r.stop(state)
+            with Stopwatch() as analysing:
+                _ended(stream, states, stacked, block, trained, saves, stopping)
             if block.analysis and trained:
                 analysis_seconds = analysing.steady
             bar.set_postfix(_shown(metrics))
@@ -209,3 +197,26 @@ def _last_finite(values: np.ndarray) -> float:
     finite = values[np.isfinite(values)]
     return float(finite[-1]) if finite.size else float("nan")
 
+
+def _ended(stream: Stream, states: StreamState, stacked: Stacked, block: Block,
+           trained: list[tuple[int, RunDir]], saves: list[bool], stopping: list[bool]) -> None:
+    """The runs `trained` [(index in the block's stacked `states`, run)] at the end of `block`
+    (`stacked` holds those states): where it ends at their analysis, analysed together
+    (`analysis.analyse_runs`), each run's directory keeping its analysis with a checkpoint
+    where `saves` (by index) says so (`schedule.checkpoints`); a run `stopping` there
+    (`schedule.stopped_here`) stops with a checkpoint, resumable. A run's state is taken from
+    the stack as its turn comes, one at a time."""
+    results = [None] * len(trained)
+    if block.analysis:
+        results = analysis.analyse_runs(
+            stream, states, [j for j, _ in trained], [r.eval_key() for _, r in trained],
+            [r.pi_rand_key for _, r in trained], [r.pi_rand_set for _, r in trained],
+            [r.references is None for _, r in trained])
+    for (j, r), result in zip(trained, results, strict=True):
+        if result is None and not stopping[j]:
+            continue
+        state = stacked.state(block.runs[j])
+        if result is not None:
+            r.analysed(result, state, checkpoint=saves[j])
+        if stopping[j]:
+            r.stop(state)

@@ -11,9 +11,9 @@ from jaml import relations, sources
 from jaml.relations import loop
 
 # Plumbing, not quality: no mining, and capped relations kept (a real fit drops them).
-TINY = relations.Config(
+TINY = relations.Config(  # one start a relation: these capped fits are not about retries
     max_relations=2, max_steps=60, chunk_steps=30, batch_size=64, eval_batches=2, stop_patience=1,
-    mined_weight=0.0, stop_when_complete=False,
+    mined_weight=0.0, stop_when_complete=False, premine_attempts=1,
 )
 
 

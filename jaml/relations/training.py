@@ -986,9 +986,11 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
                 steps += int(again.step)
                 if int(again.status) == NONFINITE:
                     continue
-                other = _grow(cfg, batches, rs, module, again.params, width, k_eval)
-                if other[2] * on_mean > off_mean * other[1]:  # separates more
-                    state, status, (grown, on_mean, off_mean) = again, int(again.status), other
+                other, other_on, other_off = _grow(cfg, batches, rs, module, again.params, width,
+                                                   k_eval)
+                if other_off * on_mean > off_mean * other_on:  # separates more
+                    state, status = again, int(again.status)
+                    grown, on_mean, off_mean = other, other_on, other_off
         else:
             fitted, land, refined_rounds, spent = refine(state, premined, clip)
             steps += spent

@@ -972,17 +972,18 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
             # relation capped without separating may have settled where a steep g vanishes on
             # the data yet not on its noisy rows: other starts, then the last resorts, may
             # separate.
+            retries = not (completing or syzygies) and cfg.premine_attempts > 1
             tries = [(cfg, attempt, "from another initialisation")
-                     for attempt in range(1, cfg.premine_attempts)]
-            tries += [(resort, attempt, how) for resort, attempts, how in _last_resorts(cfg)
-                      for attempt in attempts] if cfg.premine_attempts > 1 else []
-            for resort, attempt, how in tries if not (completing or syzygies) else ():
+                     for attempt in range(1, cfg.premine_attempts)] + [
+                (resort, attempt, how) for resort, attempts, how in _last_resorts(cfg)
+                for attempt in attempts]
+            for try_cfg, attempt, how in tries if retries else ():
                 if status != CAPPED or off_mean >= retry_bar * on_mean:
                     break
                 log.info("relation %d: capped separating only %.1fx; start %d once more, %s",
                          k + 1, off_mean / max(on_mean, 1e-30), attempt + 1, how)
                 start, k_start = start_of(attempt)
-                again = plain_fit(start, k_train=k_start, cfg=resort)
+                again = plain_fit(start, k_train=k_start, cfg=try_cfg)
                 steps += int(again.step)
                 if int(again.status) == NONFINITE:
                     continue

@@ -214,6 +214,8 @@ def run(
 
         def on_relation(rs: RelationSet, summary: RelationSummary):
             recorder.relation_done(summary.steps)
+            # A fit that trains its first relations again reports the kept ones once more.
+            del summaries[summary.index - 1:]
             summaries.append(dataclasses.asdict(summary) | {"ratio": summary.ratio})
             # Summary first, then the checkpoint (atomic: Orbax renames a finished temporary
             # directory): a run killed in between resumes from the checkpoint it has, and the

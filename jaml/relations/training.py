@@ -578,9 +578,53 @@ def fit(
 
     pool = ThreadPoolExecutor(1, thread_name_prefix="jaml-compile")
     try:
-        return _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partial)
+        fitted = _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partial)
+        if rs.num_relations == 0 and cfg.premine_attempts > 1 and _lands_away(fitted.land):
+            fitted = _below_again(cfg, batches, rs, key, priors, callback, on_relation, pool,
+                                  fitted)
+        return fitted.rs
     finally:
         pool.shutdown(wait=False, cancel_futures=True)
+
+
+class _Loop(NamedTuple):
+    """What a fit's loop kept: the relations, where projected box points landed once the
+    codimension-th relation (of at least two) was kept, and each relation's summary."""
+
+    rs: RelationSet
+    land: dict | None
+    summaries: list
+
+
+def _lands_away(land: dict | None) -> bool:
+    """Whether more than RETRY_SPURIOUS of the projected box points land away from the data
+    (or reach no zero) with the codimension-th relation kept after all its starts."""
+    return land is not None and 1 - quality.on_data(land) > RETRY_SPURIOUS
+
+
+def _below_again(cfg, batches, empty, key, priors, callback, on_relation, pool,
+                 first: _Loop) -> _Loop:
+    """The fit once more with the relations below the codimension from other starts, kept
+    where more projected box points land on the data; the kept relations reach `on_relation`
+    again. Where every start of the codimension-th relation leaves box points on spurious
+    zeros, the surface it cuts (g_1's zero set, say) is often the cause."""
+    log.info("the codimension-th relation leaves %.0f%% of projected box points away from the "
+             "data on every start: the relations below it trained again from another "
+             "initialisation", 100 * (1 - quality.on_data(first.land)))
+    other = _fit_loop(cfg, batches, empty, key, priors, callback, None, pool, below_attempt=1)
+    if other.land is None or quality.on_data(other.land) <= quality.on_data(first.land):
+        log.info("trained again, %s: the first relations kept",
+                 "no relation completed the codimension" if other.land is None else
+                 f"{100 * quality.on_data(other.land):.0f}% land on the data against "
+                 f"{100 * quality.on_data(first.land):.0f}%")
+        return first
+    log.info("trained again, %.0f%% of projected box points land on the data against %.0f%%: "
+             "kept", 100 * quality.on_data(other.land), 100 * quality.on_data(first.land))
+    for summary in other.summaries if on_relation is not None else ():
+        index = summary.index
+        on_relation(other.rs if index == other.rs.num_relations
+                    else other.rs.select(range(index)), summary)
+    return other
 
 
 def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, pool,
@@ -621,6 +665,7 @@ RETRY_SPURIOUS = 0.1  # a pre-mined relation with more box points landing away: 
 # floor) is not tried again for separation, where that is below the stopping bar (None: the bar).
 RETRY_FLOOR_SHARE = 0.5
 COMPLETE = 0.02  # at most this share of projected box points on spurious zeros: complete
+BELOW_AGAIN_KEY = 1_000  # folded into the keys of relations below the codimension trained again
 CALIBRATION_ROWS = 4096  # training rows `holds`' tolerance is calibrated on
 
 
@@ -806,8 +851,12 @@ def _noise_floor(cfg: Config, batches: Batches, codim: int, key) -> dict:
     return floor
 
 
-def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, partial=None):
+def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, partial=None,
+              below_attempt: int = 0) -> _Loop:
+    """Algorithm 1 from `rs` on; `below_attempt` > 0 draws the relations below the data's
+    codimension from another start (every key of theirs folded with it)."""
     ahead, programs = {}, {}
+    kept_summaries, codim_land = [], None
     statuses, unexplained = _start_ends(rs)
     kept_land = None  # where projected box points land on the relations kept so far
     mining = fit_cfg.mined_weight > 0
@@ -832,6 +881,8 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
         cfg = _relation_config(fit_cfg, k, codim)  # g_{k+1}'s: by the fit's, or transversal
         started = time.perf_counter()
         k_key = jax.random.fold_in(key, k)
+        if below_attempt and k + 1 < codim:
+            k_key = jax.random.fold_in(k_key, BELOW_AGAIN_KEY + below_attempt)
         k_init, k_pre, k_train, k_syz, k_eval = jax.random.split(k_key, 5)
         k_mine = jax.random.fold_in(k_key, 7)
         width = relation_width(k, cfg.base_width, cfg.max_width)
@@ -1127,6 +1178,8 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
         summary.codimension = codimension(grown, rows)
         if land is not None:
             summary.landing = kept_land = land
+            if k + 1 == codim >= 2:
+                codim_land = land
         rs = grown.replace(syzygies=(*rs.syzygies, summary.syzygies_found))
         statuses.append(summary.status)
         unexplained.append(summary.unexplained)
@@ -1140,6 +1193,7 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
             off_mean,
             summary.ratio,
         )
+        kept_summaries.append(summary)
         if on_relation is not None:
             on_relation(rs, summary)
         if cfg.stop_when_complete and land is not None and land["spurious"] <= COMPLETE and \
@@ -1155,7 +1209,7 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
         rs = rs.replace(quality=report)
         for line in report["lines"]:
             (log.warning if line.startswith("warning") else log.info)("%s", line)
-    return rs
+    return _Loop(rs, codim_land, kept_summaries)
 
 
 __all__ = [

@@ -433,9 +433,14 @@ def fit_jaml(run: Run, budget_s: float | None) -> tuple[object, dict]:
     summaries, done = [], []
     started = time.perf_counter()
     keeper = _Keeper(started + (math.inf if budget_s is None else budget_s))
+
+    def kept(rs, summary):  # a fit that trains its first relations again reports them again
+        done.append(rs)
+        summaries[summary.index - 1:] = [summary]
+
     try:
         rs = relations.fit(source, cfg, callback=keeper.callback, partial=keeper,
-                           on_relation=lambda rs, s: (done.append(rs), summaries.append(s)))
+                           on_relation=kept)
         cut = False
     except _OutOfTime:
         rs, cut = (done[-1] if done else None), True

@@ -98,7 +98,10 @@ class Config:
         landing most is kept. Where none separates, the same starts train again with
         −log‖∇g‖ capped, then at a smaller step, before the relation is dropped. A relation
         below the codimension that ends capped separating less than that gets as many starts,
-        then the same last resorts, and the one separating most is kept.
+        then the same last resorts, and the one separating most is kept. Where every start of
+        the codimension-th relation still lands more than a tenth away, the fit runs once more
+        with the relations below the codimension from another start; the set landing more is
+        kept. 1 turns all of these off.
       mined_patience: a training on mined rows ends once g_k separates and the share of
         mined rows it clears has not risen for this many steps (None: it runs until they clear
         or to its budget).

@@ -372,25 +372,17 @@ def test_when_every_start_lands_away_from_the_data_the_starts_train_again_capped
     assert summaries[0].ratio == pytest.approx(50.0, rel=1e-5)
 
 
-@pytest.mark.parametrize("first, again, attempts, kept", [
-    (0.3, 0.0, 2, "again"),  # every g_2 start leaves 30 % away; under the other g_1 none: kept
-    (0.3, 0.5, 2, "first"),  # under the other g_1 half land away: the first relations stay
-    (0.05, 0.0, 2, None),  # the first lands (at most a tenth away): nothing trained again
-    (0.3, 0.0, 1, None),  # one attempt (the legacy configs): nothing trained again
-])
-def test_where_every_start_of_the_codimension_th_relation_lands_away_g1_trains_again(
-        monkeypatch, first, again, attempts, kept):
-    """The ellipse (codimension 2): where every start of g_2 leaves more than a tenth of the
-    projected box points away from the data, the fit runs again with g_1 from another start,
-    keeping the relations under which more land on the data; the kept ones reach on_relation
-    again (the fit's landing stood in for: every g_2 training lands `first` away under the
-    first g_1 and `again` under the other)."""
+def _landing_by_g1(monkeypatch, first, again):
+    """Every training separates (off/on 100), and every g_2 training lands `first` of the
+    projected box points away under the fit's first g_1 and `again` under the one trained again
+    (the fit's landing stood in for; no last resorts, for fewer compiles). Returns the
+    `below_attempt` of each loop the fit runs."""
     from jaml.relations import training
 
-    loops, seen = [], []
+    loops = []
     real_loop, real_refine, real_grow = training._fit_loop, training._refine, training._grow
 
-    def separating(*args, **kwargs):  # every training separates (off/on 100): none dropped
+    def separating(*args, **kwargs):
         grown, on_mean, _ = real_grow(*args, **kwargs)
         return grown, on_mean, 100 * on_mean
 
@@ -407,13 +399,32 @@ def test_where_every_start_of_the_codimension_th_relation_lands_away_g1_trains_a
     monkeypatch.setattr(training, "_fit_loop", loop)
     monkeypatch.setattr(training, "_refine", landing)
     monkeypatch.setattr(training, "_grow", separating)
-    monkeypatch.setattr(training, "RETRY_GRADIENT_CAP", None)  # no last resorts: fewer compiles
+    monkeypatch.setattr(training, "RETRY_GRADIENT_CAP", None)
     monkeypatch.setattr(training, "RETRY_STEP_FACTOR", None)
-    rs = relations.fit(sources.make("ellipse"), relations.Config(
-        max_relations=2, codimension=2, max_steps=40, chunk_steps=20, batch_size=64,
-        stop_patience=1, eval_batches=2, refine_rounds=0, premine_attempts=attempts),
-        on_relation=lambda rs, summary: seen.append((summary.index, rs.params[0],
-                                                     summary.landing)))
+    return loops
+
+
+_G1_AGAIN_CONFIG = relations.Config(
+    max_relations=2, codimension=2, max_steps=40, chunk_steps=20, batch_size=64,
+    stop_patience=1, eval_batches=2, refine_rounds=0, premine_attempts=2)
+
+
+@pytest.mark.parametrize("first, again, attempts, kept", [
+    (0.3, 0.0, 2, "again"),  # every g_2 start leaves 30 % away; under the other g_1 none: kept
+    (0.3, 0.5, 2, "first"),  # under the other g_1 half land away: the first relations stay
+    (0.05, 0.0, 2, None),  # the first lands (at most a tenth away): nothing trained again
+    (0.3, 0.0, 1, None),  # one attempt (the legacy configs): nothing trained again
+])
+def test_where_every_start_of_the_codimension_th_relation_lands_away_g1_trains_again(
+        monkeypatch, first, again, attempts, kept):
+    """The ellipse (codimension 2): where every start of g_2 leaves more than a tenth of the
+    projected box points away from the data, the fit runs again with g_1 from another start,
+    keeping the relations under which more land on the data; the kept ones reach on_relation
+    again."""
+    loops, seen = _landing_by_g1(monkeypatch, first, again), []
+    rs = relations.fit(sources.make("ellipse"), _G1_AGAIN_CONFIG.replace(
+        premine_attempts=attempts), on_relation=lambda rs, summary: seen.append(
+            (summary.index, rs.params[0], summary.landing)))
     assert loops == ([0] if kept is None else [0, 1])
     assert [index for index, _, _ in seen] == ([1, 2, 1, 2] if kept == "again" else [1, 2])
     g1_first, g1_kept = seen[0][1], seen[-1][1]
@@ -423,6 +434,21 @@ def test_where_every_start_of_the_codimension_th_relation_lands_away_g1_trains_a
             jax.tree.leaves(g1_first), jax.tree.leaves(g1_kept), strict=True))
     for a, b in zip(jax.tree.leaves(rs.params[0]), jax.tree.leaves(g1_kept), strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_a_run_directory_keeps_the_relations_trained_again_once(monkeypatch, tmp_path):
+    """`relations.run` with g_1 trained again and kept: summary.json lists relations 1 and 2
+    once, the kept ones (their landing), and the checkpoint holds them."""
+    from jaml.relations import run as run_module
+
+    loops = _landing_by_g1(monkeypatch, 0.3, 0.0)
+    summary = run_module.run("ellipse", _G1_AGAIN_CONFIG, tmp_path / "run", progress=False)
+    assert loops == [0, 1]
+    assert [r["index"] for r in summary["relations"]] == [1, 2]
+    assert summary["relations"][1]["landing"]["spurious"] == 0.0
+    saved = relations.load(tmp_path / "run" / "checkpoint")
+    np.testing.assert_allclose(saved.on_means, [r["on_mean"] for r in summary["relations"]],
+                               rtol=1e-6)
 
 
 @pytest.mark.parametrize("trainings, kept", [

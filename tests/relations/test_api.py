@@ -284,9 +284,10 @@ def test_a_pre_mined_relation_that_fails_is_trained_again_without_its_rows(bad, 
         return (padded, cfg.mine_points), {"landed": 0.0, "spurious": 1.0}
 
     monkeypatch.setattr(training, "mine", mine)
+    # One start: other starts, the last resorts and g_1 trained again are other tests'.
     cfg = relations.Config(max_relations=2, max_steps=300, chunk_steps=50, batch_size=64,
                            eval_batches=2, stop_patience=1, refine_rounds=0, codimension=2,
-                           stop_when_complete=False, mine_points=64)
+                           stop_when_complete=False, mine_points=64, premine_attempts=1)
     with caplog.at_level(logging.INFO, logger="jaml"):
         rs = relations.fit(rows, cfg)
     again = [r.getMessage() for r in caplog.records if "trained again" in r.getMessage()]

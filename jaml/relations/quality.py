@@ -32,6 +32,7 @@ DEPENDENT_COS = 0.9  # a pair of relations whose gradients' median |cos| exceeds
 SPURIOUS = 0.1  # warn when more than this share of converged box points lands off the data
 UNCONVERGED = 0.1  # warn when more than this share of projected box points reaches no zero
 SPARSE = 0.1  # warn when the landing distance exceeds this share of the box diagonal
+FAR_ACCEPTED = 0.1  # warn when `holds` accepts more than this share of box rows far from the data
 TANGENT_NEIGHBOURS = 32  # rows of the local PCA that gives the data's tangent space at a row
 TANGENT_RTOL = 0.2  # its directions: singular values above this share of the largest
 
@@ -221,7 +222,8 @@ def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
     land, _, _ = landing(rs, k_box, low, high, reference, within, codim=data_codim)
     land["box_diagonal"] = float(np.linalg.norm(np.asarray(high) - np.asarray(low)))
     holds_on = float(np.mean(np.all(g_on < rs.tolerance * np.asarray(rs.on_means), -1)))
-    holds_off = float(np.mean(np.all(g_off < rs.tolerance * np.asarray(rs.on_means), -1)))
+    accepted = np.all(g_off < rs.tolerance * np.asarray(rs.on_means), -1)
+    far = nearest_distances(off, reference) > within  # box rows off the data for landing too
     report = {
         "held_out_rows": int(held_out.shape[0]),
         "relations": relations,
@@ -236,7 +238,9 @@ def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
             "max_pair_cos": float(upper.max()) if upper.size else None,
         },
         "landing": land,
-        "holds": {"tolerance": rs.tolerance, "recall": holds_on, "off_acceptance": holds_off},
+        "holds": {"tolerance": rs.tolerance, "recall": holds_on,
+                  "off_acceptance": float(accepted.mean()),
+                  "far_acceptance": float(accepted[far].mean()) if far.any() else 0.0},
     }
     if noise is not None:
         report["noise"] = {k: float(v) for k, v in noise.items()}
@@ -280,6 +284,11 @@ def _warnings(report: dict) -> list[str]:
         out.append(f"the zero set has parts away from the data: {100 * land['spurious']:.0f}% of "
                    f"projected box points land on it farther than {land['within']:.3g} from "
                    f"the data")
+    far = report.get("holds", {}).get("far_acceptance", 0.0)
+    if far > FAR_ACCEPTED:
+        out.append(f"holds accepts {100 * far:.0f}% of box rows farther than "
+                   f"{land['within']:.3g} from the data: the relations stay near zero there "
+                   "(a lower `tolerance` rejects more of them, at some recall)")
     if 1 - land["converged"] > UNCONVERGED:
         out.append(f"{100 * (1 - land['converged']):.0f}% of projected box points reach no zero "
                    "of the relations: `project` leaves them where the relations cannot all "
@@ -310,7 +319,10 @@ def _lines(report: dict) -> list[str]:
         + f"{100 * land['spurious']:.0f}% on spurious zeros, "
         f"{100 * (1 - land['converged']):.0f}% not converged",
         f"holds: recall {100 * hold['recall']:.1f}% of held-out rows, accepts "
-        f"{100 * hold['off_acceptance']:.1f}% of box rows (tolerance {hold['tolerance']:.3g})",
+        f"{100 * hold['off_acceptance']:.1f}% of box rows"
+        + (f", {100 * hold['far_acceptance']:.1f}% of those farther than {land['within']:.3g} "
+           "from the data" if "far_acceptance" in hold else "")
+        + f" (tolerance {hold['tolerance']:.3g})",
     ]
     if _bar_out_of_reach(report):
         noise = report["noise"]

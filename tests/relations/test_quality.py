@@ -618,6 +618,29 @@ def test_sparse_rows_are_warned_of_and_a_given_codimension_is_named_so():
     assert "; the data's, given: 2)" in line
 
 
+def test_holds_accepting_box_rows_far_from_the_data_is_warned_of():
+    """Of the box rows farther than the landing distance from the data, the share `holds`
+    accepts: all of them at a tolerance that accepts every row (warned), none at tolerance 0;
+    the warning's rule at a tenth."""
+    rows = jnp.asarray(_circle(400))
+    low, high = np.asarray(rows.min(0)) - 0.1, np.asarray(rows.max(0)) + 0.1
+    for tolerance, share in ((1e9, 1.0), (0.0, 0.0)):
+        report = quality.assess(_random_set().replace(tolerance=tolerance), jax.random.key(3),
+                                rows[:200], rows[200:], low, high, ("done",), 2, "given")
+        assert report["holds"]["far_acceptance"] == share
+        assert any(w.startswith("holds accepts 100% of box rows farther than")
+                   for w in report["warnings"]) == (share == 1.0)
+    report = {"relations": [], "independence": {"median_abs_cos": [[1.0]]},
+              "landing": {"converged": 1.0, "spurious": 0.0, "within": 0.05,
+                          "box_diagonal": 3.6},
+              "holds": {"far_acceptance": 0.3}}
+    assert quality._warnings(report) == [
+        "holds accepts 30% of box rows farther than 0.05 from the data: the relations stay "
+        "near zero there (a lower `tolerance` rejects more of them, at some recall)"]
+    report["holds"]["far_acceptance"] = 0.1
+    assert quality._warnings(report) == []
+
+
 def test_a_local_pca_codimension_of_0_is_fitted_as_1(monkeypatch, caplog):
     """Noisy or few rows fill their neighbourhoods and the local PCA reads codimension 0, which
     made every relation one "beyond the codimension" (dropped below off/on 5, not 2)."""

@@ -320,8 +320,8 @@ def _lines(report: dict) -> list[str]:
         f"{100 * (1 - land['converged']):.0f}% not converged",
         f"holds: recall {100 * hold['recall']:.1f}% of held-out rows, accepts "
         f"{100 * hold['off_acceptance']:.1f}% of box rows"
-        + (f", {100 * hold['far_acceptance']:.1f}% of those farther than {land['within']:.3g} "
-           "from the data" if "far_acceptance" in hold else "")
+        + (f" and {100 * hold['far_acceptance']:.1f}% of the box rows farther than "
+           f"{land['within']:.3g} from the data" if "far_acceptance" in hold else "")
         + f" (tolerance {hold['tolerance']:.3g})",
     ]
     if _bar_out_of_reach(report):

@@ -589,11 +589,12 @@ def fit(
 
 class _Loop(NamedTuple):
     """What a fit's loop kept: the relations, where projected box points landed once the
-    codimension-th relation (of at least two) was kept, and each relation's summary."""
+    codimension-th relation (of at least two) was kept, and what `on_relation` was given as
+    each relation was kept (the set so far, its summary)."""
 
     rs: RelationSet
     land: dict | None
-    summaries: list
+    kept: list
 
 
 def _lands_away(land: dict | None) -> bool:
@@ -620,10 +621,8 @@ def _below_again(cfg, batches, empty, key, priors, callback, on_relation, pool,
         return first
     log.info("trained again, %.0f%% of projected box points land on the data against %.0f%%: "
              "kept", 100 * quality.on_data(other.land), 100 * quality.on_data(first.land))
-    for summary in other.summaries if on_relation is not None else ():
-        index = summary.index
-        on_relation(other.rs if index == other.rs.num_relations
-                    else other.rs.select(range(index)), summary)
+    for so_far, summary in other.kept if on_relation is not None else ():
+        on_relation(so_far, summary)
     return other
 
 
@@ -856,7 +855,7 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
     """Algorithm 1 from `rs` on; `below_attempt` > 0 draws the relations below the data's
     codimension from another start (every key of theirs folded with it)."""
     ahead, programs = {}, {}
-    kept_summaries, codim_land = [], None
+    kept, codim_land = [], None  # (the set so far, its summary) as each relation is kept
     statuses, unexplained = _start_ends(rs)
     kept_land = None  # where projected box points land on the relations kept so far
     mining = fit_cfg.mined_weight > 0
@@ -1193,7 +1192,7 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
             off_mean,
             summary.ratio,
         )
-        kept_summaries.append(summary)
+        kept.append((rs, summary))
         if on_relation is not None:
             on_relation(rs, summary)
         if cfg.stop_when_complete and land is not None and land["spurious"] <= COMPLETE and \
@@ -1209,7 +1208,7 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
         rs = rs.replace(quality=report)
         for line in report["lines"]:
             (log.warning if line.startswith("warning") else log.info)("%s", line)
-    return _Loop(rs, codim_land, kept_summaries)
+    return _Loop(rs, codim_land, kept)
 
 
 __all__ = [

@@ -136,8 +136,11 @@ def one(source_name: str, seed: int, fields: dict) -> dict:
     summaries, fit_log = [], _FitLog()
     logging.getLogger("jaml.relations").addHandler(fit_log)
     logging.getLogger("jaml.relations").setLevel(logging.INFO)
-    rs = relations.fit(source, relations.Config(seed=seed, **fields),
-                       on_relation=lambda _, summary: summaries.append(summary))
+
+    def kept(_, summary):  # a relation reported again replaces it and those after it
+        summaries[summary.index - 1:] = [summary]
+
+    rs = relations.fit(source, relations.Config(seed=seed, **fields), on_relation=kept)
     fit_s = time.perf_counter() - started
     logged = list(fit_log.lines)
     if rs.num_relations == 0:  # the fit found none: nothing lands anywhere

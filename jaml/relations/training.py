@@ -553,7 +553,9 @@ def fit(
       start: relations learned earlier (e.g. a loaded checkpoint): training continues with the
         next relation.
       callback: called as (phase, k, metrics) once per compiled chunk, for logging.
-      on_relation: called with the grown RelationSet and a summary after each relation.
+      on_relation: called with the grown RelationSet and a summary after each relation. A
+        fit that trains its first relations again and keeps them reports them again: a
+        summary whose index came before replaces that relation and those after it.
       partial: keeps the training state of the relation in progress (`Partial`); a fit
         started again with the same data, config and `start` continues that relation from its
         kept state, step for step as if it had not stopped (syzygy rounds restart).

@@ -580,10 +580,15 @@ def fit(
 
     pool = ThreadPoolExecutor(1, thread_name_prefix="jaml-compile")
     try:
-        fitted = _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partial)
-        if rs.num_relations == 0 and cfg.premine_attempts > 1 and _lands_away(fitted.land):
+        # A fresh fit pauses at the codimension where its relation lands away on every start:
+        # the relations below it train again before any relation beyond it is spent on them.
+        fitted = _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partial,
+                           pause_away=rs.num_relations == 0 and cfg.premine_attempts > 1)
+        if fitted.paused:
             fitted = _below_again(cfg, batches, rs, key, priors, callback, on_relation, pool,
                                   fitted)
+            fitted = _fit_loop(cfg, batches, fitted.rs, key, priors, callback, on_relation,
+                               pool, partial, after=fitted)
         return fitted.rs
     finally:
         pool.shutdown(wait=False, cancel_futures=True)
@@ -591,12 +596,15 @@ def fit(
 
 class _Loop(NamedTuple):
     """What a fit's loop kept: the relations, where projected box points landed once the
-    codimension-th relation (of at least two) was kept, and what `on_relation` was given as
-    each relation was kept (the set so far, its summary)."""
+    codimension-th relation (of at least two) was kept, what `on_relation` was given as each
+    relation was kept (the set so far, its summary), how each relation ended (statuses, shares
+    a fresh syzygy left unexplained: the quality report's), and whether it paused there."""
 
     rs: RelationSet
     land: dict | None
     kept: list
+    ends: tuple[list, list]
+    paused: bool = False
 
 
 def _lands_away(land: dict | None) -> bool:
@@ -614,7 +622,8 @@ def _below_again(cfg, batches, empty, key, priors, callback, on_relation, pool,
     log.info("the codimension-th relation leaves %.0f%% of projected box points away from the "
              "data on every start: the relations below it trained again from another "
              "initialisation", 100 * (1 - quality.on_data(first.land)))
-    other = _fit_loop(cfg, batches, empty, key, priors, callback, None, pool, below_attempt=1)
+    other = _fit_loop(cfg, batches, empty, key, priors, callback, None, pool, below_attempt=1,
+                      pause_at_codim=True)
     if other.land is None or quality.on_data(other.land) <= quality.on_data(first.land):
         log.info("trained again, %s: the first relations kept",
                  "no relation completed the codimension" if other.land is None else
@@ -853,13 +862,19 @@ def _noise_floor(cfg: Config, batches: Batches, codim: int, key) -> dict:
 
 
 def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, partial=None,
-              below_attempt: int = 0) -> _Loop:
+              below_attempt: int = 0, pause_away: bool = False, pause_at_codim: bool = False,
+              after: _Loop | None = None) -> _Loop:
     """Algorithm 1 from `rs` on; `below_attempt` > 0 draws the relations below the data's
-    codimension from another start (every key of theirs folded with it)."""
+    codimension from another start (every key of theirs folded with it). The loop pauses
+    (no report) once the codimension-th relation of at least two is kept, with `pause_at_codim`
+    always, with `pause_away` where it `_lands_away`; `after` (a paused loop's) goes on from
+    it, as if it had not paused."""
     ahead, programs = {}, {}
     kept, codim_land = [], None  # (the set so far, its summary) as each relation is kept
-    statuses, unexplained = _start_ends(rs)
+    statuses, unexplained = _start_ends(rs) if after is None else map(list, after.ends)
     kept_land = None  # where projected box points land on the relations kept so far
+    if after is not None:
+        kept_land = codim_land = after.land
     mining = fit_cfg.mined_weight > 0
     within = quality.landing_distance(batches.dense, batches.held_out, batches.low, batches.high)
     codim = fit_cfg.codimension or quality.data_codimension(batches.dense,
@@ -878,7 +893,9 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
     noise = _noise_floor(fit_cfg, batches, codim, jax.random.fold_in(key, 6))
     retry_bar = fit_cfg.separation_ratio if RETRY_FLOOR_SHARE is None else min(
         fit_cfg.separation_ratio, RETRY_FLOOR_SHARE * noise["separation"])
-    for k in range(rs.num_relations, fit_cfg.max_relations):
+    complete = (after is not None and fit_cfg.stop_when_complete and after.land is not None
+                and after.land["spurious"] <= COMPLETE)  # it would have stopped there
+    for k in range(rs.num_relations, rs.num_relations if complete else fit_cfg.max_relations):
         cfg = _relation_config(fit_cfg, k, codim)  # g_{k+1}'s: by the fit's, or transversal
         started = time.perf_counter()
         k_key = jax.random.fold_in(key, k)
@@ -1197,6 +1214,8 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
         kept.append((rs, summary))
         if on_relation is not None:
             on_relation(rs, summary)
+        if k + 1 == codim >= 2 and (pause_at_codim or (pause_away and _lands_away(land))):
+            return _Loop(rs, codim_land, kept, (statuses, unexplained), paused=True)
         if cfg.stop_when_complete and land is not None and land["spurious"] <= COMPLETE and \
                 k + 1 < cfg.max_relations:
             log.info("relations complete: %.0f%% of projected box points land on the data, "
@@ -1210,7 +1229,7 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
         rs = rs.replace(quality=report)
         for line in report["lines"]:
             (log.warning if line.startswith("warning") else log.info)("%s", line)
-    return _Loop(rs, codim_land, kept)
+    return _Loop(rs, codim_land, kept, (statuses, unexplained))
 
 
 __all__ = [

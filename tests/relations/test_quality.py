@@ -376,7 +376,7 @@ def _landing_by_g1(monkeypatch, first, again):
     """Every training separates (off/on 100), and every g_2 training lands `first` of the
     projected box points away under the fit's first g_1 and `again` under the one trained again
     (the fit's landing stood in for; no last resorts, for fewer compiles). Returns the
-    `below_attempt` of each loop the fit runs."""
+    `below_attempt` of each loop the fit runs (a paused loop's continuation: 0)."""
     from jaml.relations import training
 
     loops = []
@@ -425,7 +425,7 @@ def test_where_every_start_of_the_codimension_th_relation_lands_away_g1_trains_a
     rs = relations.fit(sources.make("ellipse"), _G1_AGAIN_CONFIG.replace(
         premine_attempts=attempts), on_relation=lambda rs, summary: seen.append(
             (summary.index, rs.params[0], summary.landing)))
-    assert loops == ([0] if kept is None else [0, 1])
+    assert loops == ([0] if kept is None else [0, 1, 0])
     assert [index for index, _, _ in seen] == ([1, 2, 1, 2] if kept == "again" else [1, 2])
     g1_first, g1_kept = seen[0][1], seen[-1][1]
     assert seen[-1][2]["spurious"] == (again if kept == "again" else first)
@@ -436,6 +436,20 @@ def test_where_every_start_of_the_codimension_th_relation_lands_away_g1_trains_a
         np.testing.assert_array_equal(a, b)
 
 
+def test_relations_beyond_the_codimension_train_once_on_the_relations_kept(monkeypatch):
+    """With a third relation asked, a fit whose g_2 lands away on every start pauses there:
+    g_1 and g_2 train again, and g_3 trains once, on the kept ones (not first on the set that
+    is dropped)."""
+    loops, seen = _landing_by_g1(monkeypatch, 0.3, 0.05), []
+    rs = relations.fit(sources.make("ellipse"), _G1_AGAIN_CONFIG.replace(max_relations=3),
+                       on_relation=lambda rs, summary: seen.append((summary.index, rs.params)))
+    assert loops == [0, 1, 0]
+    assert [index for index, _ in seen] == [1, 2, 1, 2, 3]
+    assert rs.num_relations == 3
+    for a, b in zip(jax.tree.leaves(rs.params[:2]), jax.tree.leaves(seen[3][1]), strict=True):
+        np.testing.assert_array_equal(a, b)  # g_3 grows the set trained again
+
+
 def test_a_run_directory_keeps_the_relations_trained_again_once(monkeypatch, tmp_path):
     """`relations.run` with g_1 trained again and kept: summary.json lists relations 1 and 2
     once, the kept ones (their landing), and the checkpoint holds them."""
@@ -443,7 +457,7 @@ def test_a_run_directory_keeps_the_relations_trained_again_once(monkeypatch, tmp
 
     loops = _landing_by_g1(monkeypatch, 0.3, 0.0)
     summary = run_module.run("ellipse", _G1_AGAIN_CONFIG, tmp_path / "run", progress=False)
-    assert loops == [0, 1]
+    assert loops == [0, 1, 0]
     assert [r["index"] for r in summary["relations"]] == [1, 2]
     assert summary["relations"][1]["landing"]["spurious"] == 0.0
     saved = relations.load(tmp_path / "run" / "checkpoint")

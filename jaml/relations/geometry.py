@@ -15,6 +15,7 @@ from jaml.relations.loop import ONCE_COMPILER_OPTIONS
 from jaml.relations.relation_set import (
     RelationSet,
     _check_tau,
+    canonical,
     evaluate,
     evaluate_raw,
     holds,
@@ -22,12 +23,6 @@ from jaml.relations.relation_set import (
 )
 
 DEFAULT_RANK_RTOL = 0.1  # σ_i / σ_1 of the row-normalised Jacobian; for K = 2, tan(θ/2) > 0.1
-
-
-def _canonical(rs: RelationSet) -> RelationSet:
-    """rs without the static fields no computation here reads (its tolerance, box, names,
-    report): one compiled program serves every set of the same shapes."""
-    return rs.replace(tolerance=1.0, syzygies=(), dim_names=(), low=(), high=(), quality=None)
 
 
 def _relations_fn(relations) -> Callable:
@@ -147,7 +142,7 @@ def project(relations, tau, steps: int = 50, free=None, max_step: float | None =
     low = jnp.where(mask > 0, low, -jnp.inf)
     high = jnp.where(mask > 0, high, jnp.inf)
     if isinstance(relations, RelationSet):
-        points, residuals = _project_set(_canonical(relations), flat, mask, low, high, steps,
+        points, residuals = _project_set(canonical(relations), flat, mask, low, high, steps,
                                          rtol, max_step)
         converged = holds(relations, points)
     else:
@@ -183,7 +178,7 @@ def _jacobian_geometry_set(rs: RelationSet, tau):
 def _geometry(relations, tau):
     tau = jnp.asarray(tau).reshape(-1, jnp.shape(tau)[-1])
     if isinstance(relations, RelationSet):
-        out = _jacobian_geometry_set(_canonical(relations), _check_tau(relations, tau))
+        out = _jacobian_geometry_set(canonical(relations), _check_tau(relations, tau))
     else:
         out = jax.jit(functools.partial(_jacobian_geometry, _relations_fn(relations)))(tau)
     return tuple(np.asarray(x) for x in out)

@@ -1,9 +1,9 @@
 """Figures like the paper's: zero-level sets of learned relations (Fig. 5) and phase space (Fig. 7).
 
 The learned manifold (g_1 ∩ … ∩ g_K) is drawn by moving points onto it (`geometry.project`); a
-single relation's zero-level set as the box points where |g_k| is within tolerance × its
-recorded on-manifold mean. Each figure carries a caption saying what is plotted and how well
-the learned manifold agrees with the data.
+single relation's zero-level set as the box points where it holds (`relations.holds`). Each
+figure carries a caption saying what is plotted and how well the learned manifold agrees with
+the data.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from PIL import Image
 
 from jaml.relations.data import PADDED
 from jaml.relations.geometry import project
-from jaml.relations.relation_set import RelationSet, evaluate
+from jaml.relations.relation_set import RelationSet, holds
 
 PROJECTION_STEPS = 30
 ARROWS = 250  # per phase-space panel
@@ -34,12 +34,11 @@ def level_set_points(rs: RelationSet, low, high, key, which=None, n_points=2500,
     """
     which = list(range(rs.num_relations)) if which is None else list(which)
     low, high = jnp.asarray(low), jnp.asarray(high)
-    limit = rs.tolerance * rs.on_means[jnp.asarray(which)]
+    chosen = rs.select(which)
 
-    @jax.jit
     def candidates(key):
         tau = jax.random.uniform(key, (10 * n_points, low.shape[0]), minval=low, maxval=high)
-        return tau, jnp.all(jnp.abs(evaluate(rs, tau)[..., jnp.asarray(which)]) < limit, axis=-1)
+        return tau, holds(chosen, tau)
 
     kept = []
     for r in range(rounds):
@@ -57,13 +56,16 @@ def _box(on: np.ndarray, scale=1.0):
     return centre - scale * half, centre + scale * half
 
 
+def _holding(rs: RelationSet, which: str = "every") -> str:
+    """`holds`' criterion in words, for `which` ("every" or "one") relation."""
+    if rs.holds_by == "value":
+        return f"{which} |g_k| < {rs.tolerance:.3g}× its on-manifold mean"
+    return (f"{which} |g_k| / ‖∇g_k‖ < {rs.tolerance:.3g} (within that of its zero set, to "
+            "first order)")
+
+
 def _intersection(rs: RelationSet) -> str:
     return "g" + "∩g".join(str(k + 1) for k in range(rs.num_relations))
-
-
-def _converged(rs: RelationSet, residuals) -> np.ndarray:
-    """bool [N]: every |g_k| within the tolerance `holds` uses (× recorded on-manifold mean)."""
-    return np.all(np.abs(np.asarray(residuals)) < rs.tolerance * np.asarray(rs.on_means), -1)
 
 
 def manifold_points(rs: RelationSet, low, high, key, n_points=2000):
@@ -72,9 +74,9 @@ def manifold_points(rs: RelationSet, low, high, key, n_points=2000):
     low, high = np.asarray(low), np.asarray(high)
     start = jax.random.uniform(key, (n_points, low.shape[0]), minval=low, maxval=high)
     max_step = 0.1 * float(np.linalg.norm(high - low))
-    points, residuals, _ = project(rs, start, steps=PROJECTION_STEPS, max_step=max_step)
+    points, _, converged = project(rs, start, steps=PROJECTION_STEPS, max_step=max_step)
     points = np.asarray(points)
-    ok = _converged(rs, residuals) & np.all((points >= low) & (points <= high), -1)
+    ok = np.asarray(converged) & np.all((points >= low) & (points <= high), -1)
     return points[ok], float(ok.mean())
 
 
@@ -123,8 +125,8 @@ def plot_zero_sets_3d(rs: RelationSet, on: np.ndarray, path, key=None, names=("x
     caption = (
         f"Box: the data's range × 1.2 per axis (diagonal {diag:.2f}). Panel 2: 2,000 uniform box "
         f"points moved onto {{{_intersection(rs)} = 0}} by {PROJECTION_STEPS} damped Gauss-Newton "
-        f"steps; {100 * share:.0f}% converged inside the box (|g_k| < {rs.tolerance:g}× its "
-        "on-manifold mean), drawn coloured by the 3rd coordinate over 400 data points (grey). "
+        f"steps; {100 * share:.0f}% converged inside the box ({_holding(rs)}), drawn "
+        "coloured by the 3rd coordinate over 400 data points (grey). "
         f"Agreement with the data: distance from a projected point to the nearest of "
         f"{len(on)} data points, median {median:.3f}, 90th percentile {p90:.3f} "
         f"({100 * median / diag:.1f}% / {100 * p90 / diag:.1f}% of the diagonal); points on the "
@@ -169,9 +171,9 @@ def learned_transitions(rs: RelationSet, on: np.ndarray):
     free = np.zeros(on.shape[-1], bool)
     free[2:4] = True
     max_step = 0.1 * float(np.linalg.norm(on.max(0) - on.min(0)))
-    points, residuals, _ = project(rs, start, steps=PROJECTION_STEPS, free=free,
+    points, _, converged = project(rs, start, steps=PROJECTION_STEPS, free=free,
                                    max_step=max_step)
-    return np.asarray(points), _converged(rs, residuals)
+    return np.asarray(points), np.asarray(converged)
 
 
 def plot_phase_space(rs: RelationSet, on_by_range: dict, path, key=None, note: str = ""):
@@ -215,9 +217,9 @@ def plot_phase_space(rs: RelationSet, on_by_range: dict, path, key=None, note: s
         "fit (the same scale within a row). Column 2: for each data row's start (s0, v0) the "
         f"next state solved from {{{_intersection(rs)} = 0}} ({PROJECTION_STEPS} damped "
         "Gauss-Newton steps on (s1, v1) only, from (s0, v0) + the data's mean change); "
-        f"'converged': every |g_k| < {rs.tolerance:g}× its on-manifold mean. The data's own "
-        "arrows in grey beneath: agreement means coloured arrows covering grey ones. Other "
-        f"columns: box points where one |g_k| < {rs.tolerance:g}× its on-manifold mean.\n"
+        f"'converged': {_holding(rs)}. The data's own arrows in grey beneath: agreement "
+        f"means coloured arrows covering grey ones. Other columns: box points where "
+        f"{_holding(rs, 'one')}.\n"
         + "\n".join(lines)
         + (f"\n{note}" if note else "")
     )

@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from jaml.configs.relations import Config
 from jaml.relations.geometry import independence, project
-from jaml.relations.relation_set import RelationSet, Report, evaluate
+from jaml.relations.relation_set import RelationSet, Report, evaluate, holds, holds_measure
 
 log = logging.getLogger("jaml.relations")
 
@@ -183,10 +183,20 @@ def on_data(land: dict) -> float:
 
 
 def calibrated_tolerance(rs: RelationSet, held_out) -> float:
-    """`holds`' tolerance (in units of each relation's on-manifold mean) under which the RECALL
-    quantile of held-out rows holds: recall ≈ RECALL on fresh rows by construction."""
-    ratio = np.asarray(jnp.max(jnp.abs(evaluate(rs, held_out)) / rs.on_means, axis=-1))
-    return float(np.quantile(ratio, RECALL))
+    """`holds`' tolerance (in the units of `holds_measure`) under which the RECALL quantile of
+    held-out rows holds: recall ≈ RECALL on fresh rows by construction."""
+    return float(np.quantile(np.asarray(holds_measure(rs, held_out)), RECALL))
+
+
+def calibrated(rs: RelationSet, rows) -> RelationSet:
+    """`rs` holding by distance, its tolerance calibrated on `rows`; by value where more than
+    1 - RECALL of the rows sit where a relation is flat (no finite distance)."""
+    by_distance = rs.replace(holds_by="distance")
+    tolerance = calibrated_tolerance(by_distance, rows)
+    if np.isfinite(tolerance):
+        return by_distance.replace(tolerance=tolerance)
+    by_value = rs.replace(holds_by="value")
+    return by_value.replace(tolerance=calibrated_tolerance(by_value, rows))
 
 
 def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
@@ -221,8 +231,8 @@ def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
     within = landing_distance(reference, held_out, low, high)
     land, _, _ = landing(rs, k_box, low, high, reference, within, codim=data_codim)
     land["box_diagonal"] = float(np.linalg.norm(np.asarray(high) - np.asarray(low)))
-    holds_on = float(np.mean(np.all(g_on < rs.tolerance * np.asarray(rs.on_means), -1)))
-    accepted = np.all(g_off < rs.tolerance * np.asarray(rs.on_means), -1)
+    holds_on = float(np.mean(np.asarray(holds(rs, held_out))))
+    accepted = np.asarray(holds(rs, off))
     far = nearest_distances(off, reference) > within  # box rows off the data for landing too
     report = {
         "held_out_rows": int(held_out.shape[0]),
@@ -238,7 +248,7 @@ def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
             "max_pair_cos": float(upper.max()) if upper.size else None,
         },
         "landing": land,
-        "holds": {"tolerance": rs.tolerance, "recall": holds_on,
+        "holds": {"tolerance": rs.tolerance, "by": rs.holds_by, "recall": holds_on,
                   "off_acceptance": float(accepted.mean()),
                   "far_acceptance": float(accepted[far].mean()) if far.any() else 0.0},
     }
@@ -322,7 +332,9 @@ def _lines(report: dict) -> list[str]:
         f"{100 * hold['off_acceptance']:.1f}% of box rows"
         + (f" and {100 * hold['far_acceptance']:.1f}% of the box rows farther than "
            f"{land['within']:.3g} from the data" if "far_acceptance" in hold else "")
-        + f" (tolerance {hold['tolerance']:.3g})",
+        + (f" (tolerance {hold['tolerance']:.3g} on |g_k| / its on-mean)"
+           if hold.get("by", "value") == "value" else
+           f" (within {hold['tolerance']:.3g} of every relation's zero set, to first order)"),
     ]
     if _bar_out_of_reach(report):
         noise = report["noise"]

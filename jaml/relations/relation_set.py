@@ -52,7 +52,10 @@ class RelationSet:
       params: per-relation Flax parameters, g_1 first.
       on_means, off_means: [K] mean |g_k| on fresh on- and off-manifold data after training.
       widths: hidden width of each g_k. depth: hidden layers. dim: D, the size of τ.
-      tolerance: `holds` accepts |g_k| < tolerance × on_means[k].
+      tolerance: `holds` accepts τ where `holds_measure` is below it.
+      holds_by: what `holds` measures: "distance", every relation's first-order distance
+        |g_k| / ‖∇g_k‖ to its zero set (τ's units; what fits record), or "value", every
+        |g_k| / on_means[k] (checkpoints written before it).
       syzygies: restricted syzygies found (and pushed away from) per relation.
       dim_names: names of τ's coordinates, when the source gave them.
       low, high: the box of the training data (per coordinate), `project`'s trust region.
@@ -71,6 +74,11 @@ class RelationSet:
     low: tuple[float, ...] = struct.field(pytree_node=False, default=())
     high: tuple[float, ...] = struct.field(pytree_node=False, default=())
     quality: Report | None = struct.field(pytree_node=False, default=None)
+    holds_by: str = struct.field(pytree_node=False, default="value")
+
+    def __post_init__(self):
+        if self.holds_by not in HOLDS_BY:
+            raise ValueError(f"holds_by must be one of {HOLDS_BY}, got {self.holds_by!r}")
 
     @property
     def num_relations(self) -> int:
@@ -88,7 +96,9 @@ class RelationSet:
         names = f" ({', '.join(self.dim_names)})" if self.dim_names else ""
         count = f"{self.num_relations} relation{'' if self.num_relations == 1 else 's'}"
         head = (f"RelationSet({count} of τ in R^{self.dim}{names}, depth {self.depth}, "
-                f"tolerance {self.tolerance:.3g}" + (f": {rows})" if rows else ")"))
+                f"tolerance {self.tolerance:.3g}"
+                + (" by distance" if self.holds_by == "distance" else "")
+                + (f": {rows})" if rows else ")"))
         if self.quality is None:
             return head
         return head + "\n" + "\n".join("  " + line for line in self.quality.get("lines", ()))
@@ -127,11 +137,15 @@ class RelationSet:
         )
 
     @classmethod
-    def empty(cls, dim: int, depth: int, tolerance: float, dim_names=(), low=(), high=()
-              ) -> RelationSet:
+    def empty(cls, dim: int, depth: int, tolerance: float, dim_names=(), low=(), high=(),
+              holds_by: str = "value") -> RelationSet:
         zeros = jnp.zeros((0,), jnp.float32)
         return cls((), zeros, zeros, (), depth, dim, tolerance, (), tuple(dim_names),
-                   tuple(float(x) for x in low), tuple(float(x) for x in high))
+                   tuple(float(x) for x in low), tuple(float(x) for x in high),
+                   holds_by=holds_by)
+
+
+HOLDS_BY = ("distance", "value")  # what `holds` measures (RelationSet.holds_by)
 
 
 def _check_tau(rs: RelationSet, tau) -> jax.Array:
@@ -173,8 +187,45 @@ def penalty(rs: RelationSet, tau) -> jax.Array:
     return jnp.sum(jnp.abs(evaluate(rs, tau)), axis=-1)
 
 
-def holds(rs: RelationSet, tau, tolerance: float | None = None) -> jax.Array:
-    """bool [...]: every |g_k(tau)| is below tolerance × its recorded on-manifold mean."""
+def canonical(rs: RelationSet) -> RelationSet:
+    """rs without the static fields no computation of g reads (its tolerance, box, names,
+    report): one compiled program serves every set of the same shapes."""
+    return rs.replace(tolerance=1.0, syzygies=(), dim_names=(), low=(), high=(), quality=None,
+                      holds_by="value")
+
+
+@jax.jit
+def _distances(rs: RelationSet, flat: jax.Array) -> jax.Array:
+    def one(t):
+        jac, g = jax.jacfwd(lambda x: (evaluate(rs, x),) * 2, has_aux=True)(t)
+        return jnp.abs(g) / jnp.linalg.norm(jac, axis=-1)
+
+    d = jax.vmap(one)(flat)
+    return jnp.where(jnp.isnan(d), jnp.inf, d)
+
+
+def distances(rs: RelationSet, tau) -> jax.Array:
+    """[..., K]: each relation's first-order distance to its zero set, |g_k| / ‖∇g_k‖ (the
+    length of a Newton step onto it; inf where g_k is flat). Unlike |g_k| it does not grow
+    where g_k is steep or shrink where it is flat, so one tolerance fits the whole manifold."""
+    tau = _check_tau(rs, tau)
+    if rs.num_relations == 0:
+        return jnp.zeros((*tau.shape[:-1], 0), tau.dtype)
+    d = _distances(canonical(rs), tau.reshape(-1, rs.dim))
+    return d.reshape(*tau.shape[:-1], rs.num_relations)
+
+
+def holds_measure(rs: RelationSet, tau) -> jax.Array:
+    """[...]: what `holds` compares with the tolerance: the largest of the relations'
+    `distances` (holds_by "distance") or of |g_k| / on_means[k] ("value")."""
     require_relations(rs, "holds")
+    if rs.holds_by == "value":
+        return jnp.max(jnp.abs(evaluate(rs, tau)) / rs.on_means, axis=-1)
+    return jnp.max(distances(rs, tau), axis=-1)
+
+
+def holds(rs: RelationSet, tau, tolerance: float | None = None) -> jax.Array:
+    """bool [...]: every relation holds at tau: `holds_measure` below `tolerance` (default the
+    fit's, calibrated so that 99 % of held-out rows hold)."""
     tol = rs.tolerance if tolerance is None else tolerance
-    return jnp.all(jnp.abs(evaluate(rs, tau)) < tol * rs.on_means, axis=-1)
+    return holds_measure(rs, tau) < tol

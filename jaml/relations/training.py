@@ -684,8 +684,7 @@ def _grow(cfg, batches: Batches, rs: RelationSet, module, params, width, key, sy
     `holds`' tolerance calibrated on training rows (`quality.calibrated_tolerance`)."""
     on_mean, off_mean = record_means(cfg, batches, module, params, key)
     grown = rs.append(params, on_mean, off_mean, width, syzygies)
-    tolerance = quality.calibrated_tolerance(grown, batches.dense[:CALIBRATION_ROWS])
-    return grown.replace(tolerance=tolerance), on_mean, off_mean
+    return quality.calibrated(grown, batches.dense[:CALIBRATION_ROWS]), on_mean, off_mean
 
 
 class _Fitted(NamedTuple):

@@ -155,6 +155,7 @@ def one(source_name: str, seed: int, fields: dict) -> dict:
     report = rs.quality.to_dict() if rs.quality is not None else {}
     truth = _truth(source_name, np.asarray(relations.project(rs, box.astype(np.float32)).points))
     return {"seed": seed, "fit_s": fit_s, "relations": rs.num_relations,
+            "holds_by": _holds_by(rs, source, dense, report.get("landing")),
             "landed": float(np.mean(distance < 0.05)), "rank2": float(np.mean(ranks >= 2)),
             "on_truth": None if truth is None else float(np.mean(truth < 0.05)),
             "truth_median": None if truth is None else float(np.median(truth)),
@@ -169,6 +170,29 @@ def one(source_name: str, seed: int, fields: dict) -> dict:
             "status": [r["status"] for r in report.get("relations", [])],
             "off_on": [round(r["ratio"], 1) for r in report.get("relations", [])],
             "log": logged}
+
+
+def _holds_by(rs, source, dense, landing) -> dict:
+    """`relations.holds` by distance and by value on the same rows: the share of fresh data
+    rows each accepts (recall), of 20,000 uniform points of the fit's box (off) and of those
+    farther than the report's landing distance from the data (far)."""
+    import jax
+    import numpy as np
+    from scipy.spatial import cKDTree
+
+    from jaml import relations
+
+    fresh = np.asarray(source.sample(jax.random.key(98), 4096), np.float32)
+    low, high = np.asarray(rs.low), np.asarray(rs.high)
+    box = np.random.default_rng(97).uniform(low, high, (20_000, len(low))).astype(np.float32)
+    far = cKDTree(dense).query(box)[0] > landing["within"] if landing else np.ones(len(box), bool)
+    out = {}
+    for by in ("distance", "value") if rs.distance_tolerance is not None else ("value",):
+        accepted = np.asarray(relations.holds(rs, box, by=by))
+        out[by] = {"recall": float(np.mean(np.asarray(relations.holds(rs, fresh, by=by)))),
+                   "off": float(accepted.mean()),
+                   "far": float(accepted[far].mean()) if far.any() else 0.0}
+    return out
 
 
 def _noisy_sphere(source_name: str):

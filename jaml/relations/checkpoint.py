@@ -33,7 +33,7 @@ def _describe(rs: RelationSet) -> dict:
         "depth": rs.depth,
         "widths": list(rs.widths),
         "tolerance": rs.tolerance,
-        "holds_by": rs.holds_by,
+        "distance_tolerance": rs.distance_tolerance,
         "syzygies": list(rs.syzygies),
         "dim_names": list(rs.dim_names),
         "on_means": np.asarray(rs.on_means).tolist(),
@@ -114,7 +114,7 @@ def load(path) -> RelationSet:
         low=tuple(meta.get("low") or ()),
         high=tuple(meta.get("high") or ()),
         quality=Report(meta["quality"]) if meta.get("quality") else None,
-        holds_by=meta.get("holds_by", "value"),  # written before it: by value
+        distance_tolerance=meta.get("distance_tolerance"),  # None: written before it
     )
     log.info("loaded %d relation%s (%d syzygies) from %s; mean |g| on / off the data: %s",
              rs.num_relations, "" if rs.num_relations == 1 else "s", sum(rs.syzygies), path,

@@ -144,7 +144,7 @@ def project(relations, tau, steps: int = 50, free=None, max_step: float | None =
     if isinstance(relations, RelationSet):
         points, residuals = _project_set(canonical(relations), flat, mask, low, high, steps,
                                          rtol, max_step)
-        converged = holds(relations, points)
+        converged = holds(relations, points, by="value")  # residuals at the data's level
     else:
         run = jax.jit(functools.partial(_gauss_newton, _relations_fn(relations), steps=steps))
         points, residuals = run(flat, mask, low, high, rtol=rtol, max_step=max_step)

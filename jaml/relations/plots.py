@@ -58,10 +58,14 @@ def _box(on: np.ndarray, scale=1.0):
 
 def _holding(rs: RelationSet, which: str = "every") -> str:
     """`holds`' criterion in words, for `which` ("every" or "one") relation."""
-    if rs.holds_by == "value":
+    if rs.distance_tolerance is None:
         return f"{which} |g_k| < {rs.tolerance:.3g}× its on-manifold mean"
-    return (f"{which} |g_k| / ‖∇g_k‖ < {rs.tolerance:.3g} (within that of its zero set, to "
-            "first order)")
+    return f"{which} |g_k| / ‖∇g_k‖ < {rs.distance_tolerance:.3g}"
+
+
+def _converging(rs: RelationSet) -> str:
+    """`project`'s converged in words."""
+    return f"every |g_k| < {rs.tolerance:.3g}× its on-manifold mean"
 
 
 def _intersection(rs: RelationSet) -> str:
@@ -125,7 +129,7 @@ def plot_zero_sets_3d(rs: RelationSet, on: np.ndarray, path, key=None, names=("x
     caption = (
         f"Box: the data's range × 1.2 per axis (diagonal {diag:.2f}). Panel 2: 2,000 uniform box "
         f"points moved onto {{{_intersection(rs)} = 0}} by {PROJECTION_STEPS} damped Gauss-Newton "
-        f"steps; {100 * share:.0f}% converged inside the box ({_holding(rs)}), drawn "
+        f"steps; {100 * share:.0f}% converged inside the box ({_converging(rs)}), drawn "
         "coloured by the 3rd coordinate over 400 data points (grey). "
         f"Agreement with the data: distance from a projected point to the nearest of "
         f"{len(on)} data points, median {median:.3f}, 90th percentile {p90:.3f} "
@@ -217,7 +221,7 @@ def plot_phase_space(rs: RelationSet, on_by_range: dict, path, key=None, note: s
         "fit (the same scale within a row). Column 2: for each data row's start (s0, v0) the "
         f"next state solved from {{{_intersection(rs)} = 0}} ({PROJECTION_STEPS} damped "
         "Gauss-Newton steps on (s1, v1) only, from (s0, v0) + the data's mean change); "
-        f"'converged': {_holding(rs)}. The data's own arrows in grey beneath: agreement "
+        f"'converged': {_converging(rs)}. The data's own arrows in grey beneath: agreement "
         f"means coloured arrows covering grey ones. Other columns: box points where "
         f"{_holding(rs, 'one')}.\n"
         + "\n".join(lines)

@@ -182,21 +182,18 @@ def on_data(land: dict) -> float:
     return land["landed"] + land.get("extends", 0.0)
 
 
-def calibrated_tolerance(rs: RelationSet, held_out) -> float:
-    """`holds`' tolerance (in the units of `holds_measure`) under which the RECALL quantile of
-    held-out rows holds: recall ≈ RECALL on fresh rows by construction."""
-    return float(np.quantile(np.asarray(holds_measure(rs, held_out)), RECALL))
+def calibrated_tolerance(rs: RelationSet, held_out, by: str = "value") -> float:
+    """`holds`' tolerance `by` "value" or "distance" (`holds_measure`) under which the RECALL
+    quantile of held-out rows holds: recall ≈ RECALL on fresh rows by construction."""
+    return float(np.quantile(np.asarray(holds_measure(rs, held_out, by)), RECALL))
 
 
 def calibrated(rs: RelationSet, rows) -> RelationSet:
-    """`rs` holding by distance, its tolerance calibrated on `rows`; by value where more than
+    """`rs` with both tolerances calibrated on `rows`; no distance_tolerance where more than
     1 - RECALL of the rows sit where a relation is flat (no finite distance)."""
-    by_distance = rs.replace(holds_by="distance")
-    tolerance = calibrated_tolerance(by_distance, rows)
-    if np.isfinite(tolerance):
-        return by_distance.replace(tolerance=tolerance)
-    by_value = rs.replace(holds_by="value")
-    return by_value.replace(tolerance=calibrated_tolerance(by_value, rows))
+    distance = calibrated_tolerance(rs, rows, "distance")
+    return rs.replace(tolerance=calibrated_tolerance(rs, rows, "value"),
+                      distance_tolerance=distance if np.isfinite(distance) else None)
 
 
 def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
@@ -248,7 +245,8 @@ def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
             "max_pair_cos": float(upper.max()) if upper.size else None,
         },
         "landing": land,
-        "holds": {"tolerance": rs.tolerance, "by": rs.holds_by, "recall": holds_on,
+        "holds": {"tolerance": rs.tolerance, "distance_tolerance": rs.distance_tolerance,
+                  "recall": holds_on,
                   "off_acceptance": float(accepted.mean()),
                   "far_acceptance": float(accepted[far].mean()) if far.any() else 0.0},
     }
@@ -332,9 +330,9 @@ def _lines(report: dict) -> list[str]:
         f"{100 * hold['off_acceptance']:.1f}% of box rows"
         + (f" and {100 * hold['far_acceptance']:.1f}% of the box rows farther than "
            f"{land['within']:.3g} from the data" if "far_acceptance" in hold else "")
-        + (f" (tolerance {hold['tolerance']:.3g} on |g_k| / its on-mean)"
-           if hold.get("by", "value") == "value" else
-           f" (within {hold['tolerance']:.3g} of every relation's zero set, to first order)"),
+        + (f" (tolerance {hold['tolerance']:.3g})" if hold.get("distance_tolerance") is None
+           else f" (within {hold['distance_tolerance']:.3g} of every relation's zero set, to "
+           "first order)"),
     ]
     if _bar_out_of_reach(report):
         noise = report["noise"]

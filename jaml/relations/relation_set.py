@@ -52,10 +52,11 @@ class RelationSet:
       params: per-relation Flax parameters, g_1 first.
       on_means, off_means: [K] mean |g_k| on fresh on- and off-manifold data after training.
       widths: hidden width of each g_k. depth: hidden layers. dim: D, the size of τ.
-      tolerance: `holds` accepts τ where `holds_measure` is below it.
-      holds_by: what `holds` measures: "distance", every relation's first-order distance
-        |g_k| / ‖∇g_k‖ to its zero set (τ's units; what fits record), or "value", every
-        |g_k| / on_means[k] (checkpoints written before it).
+      tolerance: every |g_k| < tolerance × on_means[k]: the residuals down to the data's own
+        level (`project`'s converged; `holds` where there is no distance_tolerance).
+      distance_tolerance: `holds` accepts τ where every relation's first-order distance
+        |g_k| / ‖∇g_k‖ to its zero set is below it (τ's units); None in checkpoints written
+        before it (and where the fit's rows sit where a relation is flat).
       syzygies: restricted syzygies found (and pushed away from) per relation.
       dim_names: names of τ's coordinates, when the source gave them.
       low, high: the box of the training data (per coordinate), `project`'s trust region.
@@ -74,11 +75,7 @@ class RelationSet:
     low: tuple[float, ...] = struct.field(pytree_node=False, default=())
     high: tuple[float, ...] = struct.field(pytree_node=False, default=())
     quality: Report | None = struct.field(pytree_node=False, default=None)
-    holds_by: str = struct.field(pytree_node=False, default="value")
-
-    def __post_init__(self):
-        if self.holds_by not in HOLDS_BY:
-            raise ValueError(f"holds_by must be one of {HOLDS_BY}, got {self.holds_by!r}")
+    distance_tolerance: float | None = struct.field(pytree_node=False, default=None)
 
     @property
     def num_relations(self) -> int:
@@ -97,7 +94,8 @@ class RelationSet:
         count = f"{self.num_relations} relation{'' if self.num_relations == 1 else 's'}"
         head = (f"RelationSet({count} of τ in R^{self.dim}{names}, depth {self.depth}, "
                 f"tolerance {self.tolerance:.3g}"
-                + (" by distance" if self.holds_by == "distance" else "")
+                + (f", holds within {self.distance_tolerance:.3g}"
+                   if self.distance_tolerance is not None else "")
                 + (f": {rows})" if rows else ")"))
         if self.quality is None:
             return head
@@ -137,15 +135,11 @@ class RelationSet:
         )
 
     @classmethod
-    def empty(cls, dim: int, depth: int, tolerance: float, dim_names=(), low=(), high=(),
-              holds_by: str = "value") -> RelationSet:
+    def empty(cls, dim: int, depth: int, tolerance: float, dim_names=(), low=(), high=()
+              ) -> RelationSet:
         zeros = jnp.zeros((0,), jnp.float32)
         return cls((), zeros, zeros, (), depth, dim, tolerance, (), tuple(dim_names),
-                   tuple(float(x) for x in low), tuple(float(x) for x in high),
-                   holds_by=holds_by)
-
-
-HOLDS_BY = ("distance", "value")  # what `holds` measures (RelationSet.holds_by)
+                   tuple(float(x) for x in low), tuple(float(x) for x in high))
 
 
 def _check_tau(rs: RelationSet, tau) -> jax.Array:
@@ -191,7 +185,7 @@ def canonical(rs: RelationSet) -> RelationSet:
     """rs without the static fields no computation of g reads (its tolerance, box, names,
     report): one compiled program serves every set of the same shapes."""
     return rs.replace(tolerance=1.0, syzygies=(), dim_names=(), low=(), high=(), quality=None,
-                      holds_by="value")
+                      distance_tolerance=None)
 
 
 @jax.jit
@@ -215,17 +209,31 @@ def distances(rs: RelationSet, tau) -> jax.Array:
     return d.reshape(*tau.shape[:-1], rs.num_relations)
 
 
-def holds_measure(rs: RelationSet, tau) -> jax.Array:
-    """[...]: what `holds` compares with the tolerance: the largest of the relations'
-    `distances` (holds_by "distance") or of |g_k| / on_means[k] ("value")."""
+def holds_measure(rs: RelationSet, tau, by: str | None = None) -> jax.Array:
+    """[...]: what `holds` compares with its tolerance: by "distance", the largest of the
+    relations' `distances`; by "value", of |g_k| / on_means[k]. Default: by distance where the
+    set records a distance_tolerance."""
     require_relations(rs, "holds")
-    if rs.holds_by == "value":
+    if (by or _by(rs)) == "value":
         return jnp.max(jnp.abs(evaluate(rs, tau)) / rs.on_means, axis=-1)
     return jnp.max(distances(rs, tau), axis=-1)
 
 
-def holds(rs: RelationSet, tau, tolerance: float | None = None) -> jax.Array:
+def _by(rs: RelationSet) -> str:
+    return "value" if rs.distance_tolerance is None else "distance"
+
+
+def holds(rs: RelationSet, tau, tolerance: float | None = None, by: str | None = None
+          ) -> jax.Array:
     """bool [...]: every relation holds at tau: `holds_measure` below `tolerance` (default the
-    fit's, calibrated so that 99 % of held-out rows hold)."""
-    tol = rs.tolerance if tolerance is None else tolerance
-    return holds_measure(rs, tau) < tol
+    fit's, calibrated so that 99 % of held-out rows hold). `by` "distance" or "value" (default:
+    by distance where the set records a distance_tolerance, as fits do)."""
+    if by not in (None, "distance", "value"):
+        raise ValueError(f"by must be 'distance' or 'value', got {by!r}")
+    by = by or _by(rs)
+    if tolerance is None:
+        tolerance = rs.tolerance if by == "value" else rs.distance_tolerance
+    if tolerance is None:
+        raise ValueError("holds by distance: this RelationSet records no distance_tolerance "
+                         "(a checkpoint written before it): pass tolerance=, or by='value'")
+    return holds_measure(rs, tau, by) < tolerance

@@ -72,9 +72,10 @@ class Config:
         that passes (the reference).
       min_angle: transversality mode also waits for the mean angle between ∇g_k and earlier
         gradients to exceed this (radians; reference 0.4·π/2).
-      tolerance: `holds` accepts τ when every |g_k(τ)| < tolerance × its recorded on-manifold
-        mean. This is the starting value only: `fit` calibrates it after each relation so that
-        99 % of training rows hold (`rs.tolerance`); `rs.replace(tolerance=t)` sets another.
+      tolerance: `project` counts τ converged when every |g_k(τ)| < tolerance × its recorded
+        on-manifold mean. The starting value only: `fit` calibrates it after each relation so
+        that 99 % of training rows pass (`rs.tolerance`), and `holds`' distance beside it
+        (`rs.distance_tolerance`); `rs.replace(tolerance=t)` sets another.
       noise_scale: uniform noise, as a fraction of the data box, added to on and off rows.
       mined_weight: weight of jaml's mined-rows term (0 turns mining off: the paper's
         algorithm). From the data's codimension-th relation on, box points are projected onto

@@ -81,6 +81,39 @@ def _random_set(seed=0):
     return RelationSet.empty(3, 2, 1.5).append(params, 0.05, 1.0, 8)
 
 
+def test_holds_by_distance_measures_the_distance_to_the_zero_set_to_first_order(tmp_path):
+    """A point of g = 0 moved by ε along the unit gradient is ε from the zero set: `distances`
+    reads ε (to first order, whatever g's slope there); `calibrated` sets both tolerances at
+    the RECALL quantile of their measures; a checkpoint keeps the distance tolerance, one written
+    before it holds by value, and by distance then needs a tolerance."""
+    rs = _random_set()
+    start = jax.random.normal(jax.random.key(4), (64, 3)) * 0.3
+    on = relations.project(rs, start, steps=50)
+    points = np.asarray(on.points)[np.asarray(on.converged)]
+    assert len(points) >= 32
+    g = rs.relation(0)
+    normals = np.array(jax.vmap(jax.grad(lambda t: g(t[None])[0]))(jnp.asarray(points)))
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    for eps in (1e-3, 1e-2):
+        got = np.asarray(relations.distances(rs, points + eps * normals))[:, 0]
+        np.testing.assert_allclose(got, eps, rtol=0.05)
+    rows = jax.random.normal(jax.random.key(1), (4096, 3)) * 0.2
+    fitted = quality.calibrated(rs, rows)
+    d = np.asarray(relations.distances(rs, rows))[:, 0]
+    assert fitted.distance_tolerance == pytest.approx(np.quantile(d, quality.RECALL), rel=1e-5)
+    assert fitted.tolerance == pytest.approx(quality.calibrated_tolerance(rs, rows), rel=1e-6)
+    assert float(np.mean(relations.holds(fitted, rows))) == pytest.approx(quality.RECALL,
+                                                                          abs=1e-3)
+    relations.save(fitted, tmp_path / "new")
+    assert relations.load(tmp_path / "new").distance_tolerance == fitted.distance_tolerance
+    relations.save(rs, tmp_path / "old")  # no distance tolerance: as written before it
+    old = relations.load(tmp_path / "old")
+    np.testing.assert_array_equal(relations.holds(old, rows),
+                                  relations.holds(old, rows, by="value"))
+    with pytest.raises(ValueError, match="no distance_tolerance"):
+        relations.holds(old, rows, by="distance")
+
+
 def test_holds_calibrated_on_rows_accepts_that_share_of_fresh_rows():
     """The tolerance is the RECALL quantile of max_k |g_k| / on-mean on calibration rows, so
     fresh rows of the same law pass at that rate (binomial spread: ±1 % at 8,192 rows)."""

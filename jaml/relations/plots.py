@@ -36,6 +36,7 @@ def level_set_points(rs: RelationSet, low, high, key, which=None, n_points=2500,
     low, high = jnp.asarray(low), jnp.asarray(high)
     chosen = rs.select(which)
 
+    @jax.jit
     def candidates(key):
         tau = jax.random.uniform(key, (10 * n_points, low.shape[0]), minval=low, maxval=high)
         return tau, holds(chosen, tau)

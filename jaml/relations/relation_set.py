@@ -236,4 +236,7 @@ def holds(rs: RelationSet, tau, tolerance: float | None = None, by: str | None =
     if tolerance is None:
         raise ValueError("holds by distance: this RelationSet records no distance_tolerance "
                          "(a checkpoint written before it): pass tolerance=, or by='value'")
+    if by == "value":
+        require_relations(rs, "holds")
+        return jnp.all(jnp.abs(evaluate(rs, tau)) < tolerance * rs.on_means, axis=-1)
     return holds_measure(rs, tau, by) < tolerance

@@ -304,7 +304,7 @@ def plot(records_path: str, variants: list[str], out: str, metric: str = "landed
                    ls="--")
         ax.set(ylim=(max(0.0, int(lowest * 10) / 10 - 0.1), 1.02))
     ax.set(xlabel="seeds 0–7 of each source", ylabel=YLABELS.get(metric.partition(".")[0], metric))
-    ax.legend(fontsize=7, loc="lower left")
+    ax.legend(fontsize=7, loc="upper left" if metric.startswith("holds_by") else "lower left")
     fig.tight_layout()
     fig.savefig(out, dpi=110)
 

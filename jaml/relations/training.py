@@ -676,12 +676,13 @@ RETRY_SPURIOUS = 0.1  # a pre-mined relation with more box points landing away: 
 RETRY_FLOOR_SHARE = 0.5
 COMPLETE = 0.02  # at most this share of projected box points on spurious zeros: complete
 BELOW_AGAIN_KEY = 1_000  # folded into the keys of relations below the codimension trained again
-CALIBRATION_ROWS = 4096  # training rows `holds`' tolerance is calibrated on
+CALIBRATION_ROWS = 4096  # training rows the tolerances (`quality.calibrated`) are set on
 
 
 def _grow(cfg, batches: Batches, rs: RelationSet, module, params, width, key, syzygies=0):
     """rs with g = module(params) appended: its on/off means recorded on fresh batches and
-    `holds`' tolerance calibrated on training rows (`quality.calibrated_tolerance`)."""
+    its two tolerances (`project`'s residual test, `holds`' distance) calibrated on training
+    rows (`quality.calibrated`)."""
     on_mean, off_mean = record_means(cfg, batches, module, params, key)
     grown = rs.append(params, on_mean, off_mean, width, syzygies)
     return quality.calibrated(grown, batches.dense[:CALIBRATION_ROWS]), on_mean, off_mean

@@ -292,11 +292,13 @@ def _warnings(report: dict) -> list[str]:
         out.append(f"the zero set has parts away from the data: {100 * land['spurious']:.0f}% of "
                    f"projected box points land on it farther than {land['within']:.3g} from "
                    f"the data")
-    far = report.get("holds", {}).get("far_acceptance", 0.0)
+    hold = report.get("holds", {})
+    far = hold.get("far_acceptance", 0.0)
     if far > FAR_ACCEPTED:
+        knob = "tolerance" if hold.get("distance_tolerance") is None else "distance_tolerance"
         out.append(f"holds accepts {100 * far:.0f}% of box rows farther than "
                    f"{land['within']:.3g} from the data: the relations stay near zero there "
-                   "(a lower `tolerance` rejects more of them, at some recall)")
+                   f"(a lower `{knob}` rejects more of them, at some recall)")
     if 1 - land["converged"] > UNCONVERGED:
         out.append(f"{100 * (1 - land['converged']):.0f}% of projected box points reach no zero "
                    "of the relations: `project` leaves them where the relations cannot all "

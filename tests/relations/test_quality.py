@@ -684,6 +684,9 @@ def test_holds_accepting_box_rows_far_from_the_data_is_warned_of():
     assert quality._warnings(report) == [
         "holds accepts 30% of box rows farther than 0.05 from the data: the relations stay "
         "near zero there (a lower `tolerance` rejects more of them, at some recall)"]
+    report["holds"]["distance_tolerance"] = 0.02  # a fit's: holds by distance
+    assert quality._warnings(report)[-1].endswith(
+        "(a lower `distance_tolerance` rejects more of them, at some recall)")
     report["holds"]["far_acceptance"] = 0.1
     assert quality._warnings(report) == []
 

@@ -57,11 +57,11 @@ def _box(on: np.ndarray, scale=1.0):
     return centre - scale * half, centre + scale * half
 
 
-def _holding(rs: RelationSet, which: str = "every") -> str:
-    """`holds`' criterion in words, for `which` ("every" or "one") relation."""
+def _one_holds(rs: RelationSet) -> str:
+    """`holds`' criterion for one relation, in words."""
     if rs.distance_tolerance is None:
-        return f"{which} |g_k| < {rs.tolerance:.3g}× its on-manifold mean"
-    return f"{which} |g_k| / ‖∇g_k‖ < {rs.distance_tolerance:.3g}"
+        return f"one |g_k| < {rs.tolerance:.3g}× its on-manifold mean"
+    return f"one |g_k| / ‖∇g_k‖ < {rs.distance_tolerance:.3g}"
 
 
 def _converging(rs: RelationSet) -> str:
@@ -224,7 +224,7 @@ def plot_phase_space(rs: RelationSet, on_by_range: dict, path, key=None, note: s
         "Gauss-Newton steps on (s1, v1) only, from (s0, v0) + the data's mean change); "
         f"'converged': {_converging(rs)}. The data's own arrows in grey beneath: agreement "
         f"means coloured arrows covering grey ones. Other columns: box points where "
-        f"{_holding(rs, 'one')}.\n"
+        f"{_one_holds(rs)}.\n"
         + "\n".join(lines)
         + (f"\n{note}" if note else "")
     )

@@ -188,12 +188,17 @@ def calibrated_tolerance(rs: RelationSet, held_out, by: str = "value") -> float:
     return float(np.quantile(np.asarray(holds_measure(rs, held_out, by)), RECALL))
 
 
-def calibrated(rs: RelationSet, rows) -> RelationSet:
-    """`rs` with both tolerances calibrated on `rows`; no distance_tolerance where more than
-    1 - RECALL of the rows sit where a relation is flat (no finite distance)."""
+def distance_tolerance(rs: RelationSet, rows) -> float | None:
+    """`holds`' distance tolerance calibrated on `rows`; None where more than 1 - RECALL of the
+    rows sit where a relation is flat (no finite distance: `holds` then goes by value)."""
     distance = calibrated_tolerance(rs, rows, "distance")
+    return distance if np.isfinite(distance) else None
+
+
+def calibrated(rs: RelationSet, rows) -> RelationSet:
+    """`rs` with both tolerances calibrated on `rows`."""
     return rs.replace(tolerance=calibrated_tolerance(rs, rows, "value"),
-                      distance_tolerance=distance if np.isfinite(distance) else None)
+                      distance_tolerance=distance_tolerance(rs, rows))
 
 
 def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
@@ -347,8 +352,10 @@ def _lines(report: dict) -> list[str]:
 
 __all__ = [
     "assess",
+    "calibrated",
     "calibrated_tolerance",
     "data_codimension",
+    "distance_tolerance",
     "landing",
     "landing_distance",
     "nearest_distances",

@@ -115,6 +115,7 @@ class RelationSet:
             widths=(*self.widths, width),
             syzygies=(*self.syzygies, syzygies),
             quality=None,
+            distance_tolerance=None,  # calibrated for the set without the new relation
         )
 
     def select(self, indices) -> RelationSet:
@@ -236,7 +237,7 @@ def holds(rs: RelationSet, tau, tolerance: float | None = None, by: str | None =
     if tolerance is None:
         raise ValueError("holds by distance: this RelationSet records no distance_tolerance "
                          "(a checkpoint written before it): pass tolerance=, or by='value'")
-    if by == "value":
+    if by == "value":  # as `project` has always compared, not via the ratio (same rounding)
         require_relations(rs, "holds")
         return jnp.all(jnp.abs(evaluate(rs, tau)) < tolerance * rs.on_means, axis=-1)
     return holds_measure(rs, tau, by) < tolerance

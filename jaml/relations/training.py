@@ -676,16 +676,17 @@ RETRY_SPURIOUS = 0.1  # a pre-mined relation with more box points landing away: 
 RETRY_FLOOR_SHARE = 0.5
 COMPLETE = 0.02  # at most this share of projected box points on spurious zeros: complete
 BELOW_AGAIN_KEY = 1_000  # folded into the keys of relations below the codimension trained again
-CALIBRATION_ROWS = 4096  # training rows the tolerances (`quality.calibrated`) are set on
+CALIBRATION_ROWS = 4096  # training rows both tolerances are calibrated on
 
 
 def _grow(cfg, batches: Batches, rs: RelationSet, module, params, width, key, syzygies=0):
     """rs with g = module(params) appended: its on/off means recorded on fresh batches and
-    its two tolerances (`project`'s residual test, `holds`' distance) calibrated on training
-    rows (`quality.calibrated`)."""
+    `project`'s residual tolerance calibrated on training rows (`holds`' distance tolerance is
+    set once the relation is kept: no decision of the fit reads it)."""
     on_mean, off_mean = record_means(cfg, batches, module, params, key)
     grown = rs.append(params, on_mean, off_mean, width, syzygies)
-    return quality.calibrated(grown, batches.dense[:CALIBRATION_ROWS]), on_mean, off_mean
+    tolerance = quality.calibrated_tolerance(grown, batches.dense[:CALIBRATION_ROWS])
+    return grown.replace(tolerance=tolerance), on_mean, off_mean
 
 
 class _Fitted(NamedTuple):
@@ -1198,7 +1199,9 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
             summary.landing = kept_land = land
             if k + 1 == codim >= 2:
                 codim_land = land
-        rs = grown.replace(syzygies=(*rs.syzygies, summary.syzygies_found))
+        rs = grown.replace(syzygies=(*rs.syzygies, summary.syzygies_found),
+                           distance_tolerance=quality.distance_tolerance(
+                               grown, batches.dense[:CALIBRATION_ROWS]))
         statuses.append(summary.status)
         unexplained.append(summary.unexplained)
         log.info(

@@ -65,6 +65,7 @@ import envs_mjx
 from benchmarks.harness import block, measure, parse_env, record, usable_cores
 from benchmarks.peers import pybullet_envs
 from envs_mjx.compile import CPU_COMPILER_OPTIONS
+from jaml import _huge_pages
 
 # Quoted, not measured: docs/reference/perf_anchors.md §2 [2-core], pybullet 3.2.7, 1 core.
 QUOTED_FPS = {"CartPole": (698.0, "docs/reference/perf_anchors.md §2 [2-core]: PyBullet "
@@ -455,6 +456,8 @@ def side_by_side_row(name, batch, steps, jaml_frames, jaml_times, pb_frames, pb_
 
 
 def main(argv=None):
+    if argv is None:  # a process of its own runs as jaml's commands do
+        _huge_pages.adopt()
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--envs", nargs="+", default=list(envs_mjx.ALL_ENVS),
                         help="domains, each optionally with config overrides, e.g. "

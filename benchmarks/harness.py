@@ -177,6 +177,8 @@ def environment() -> dict:
         # A pinned run (taskset) uses fewer; XLA:CPU sizes its thread pool by this too.
         "cpu_affinity": usable_cores(),
         "python": platform.python_version(),
+        # glibc's malloc tunables (jaml._huge_pages: huge pages or 4 KiB ones on a CPU step).
+        "glibc_tunables": os.environ.get("GLIBC_TUNABLES", ""),
         "versions": versions,
         "commit": commit,
         "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
@@ -224,16 +226,23 @@ def _identity(row: dict) -> tuple:
     """What a result is a result of: rows that share it supersede one another in RESULTS.md.
 
     Beside the benchmark, case and implementation: the device (for a CPU, its model: two CPU
-    machines both read "cpu:cpu") and its host's core count, and the settings a benchmark
-    varies within one case (stacked runs, devices, batch), so that a later row at other
-    settings does not hide an earlier one. A row from before a benchmark recorded runs and
-    devices ran one run on one device, and one from before it recorded its affinity could run
-    on every core (a pinned run, `taskset`, stands beside the unpinned one)."""
+    machines both read "cpu:cpu"; and whether malloc used huge pages) and its host's core
+    count, and the settings a benchmark varies within one case (stacked runs, devices,
+    batch), so that a later row at other settings does not hide an earlier one. A row from
+    before a benchmark recorded runs and devices ran one run on one device, and one from before
+    it recorded its affinity could run on every core (a pinned run, `taskset`, stands beside
+    the unpinned one)."""
     device = row["device"]
-    machine = row.get("cpu") if device.startswith("cpu") else None
+    machine = (row.get("cpu"), _huge_pages_row(row)) if device.startswith("cpu") else None
     return (row["benchmark"], row["case"], row.get("impl", ""), device, machine,
             row.get("cpu_cores"), _affinity(row), row.get("runs", 1), row.get("devices", 1),
             row.get("batch"))
+
+
+def _huge_pages_row(row: dict) -> bool:
+    """Whether malloc asked for huge pages in a row's process: a CPU step's rate moves with it,
+    so those rows stand beside the 4 KiB ones (rows from before it was recorded had 4 KiB)."""
+    return "glibc.malloc.hugetlb=1" in row.get("glibc_tunables", "")
 
 
 def _affinity(row: dict):
@@ -273,6 +282,7 @@ def write_markdown() -> None:
         "cpu_cores",
         "cpu_affinity",
         "python",
+        "glibc_tunables",
         "versions",
         "commit",
         "date",
@@ -296,6 +306,8 @@ def write_markdown() -> None:
                 device = f"{r['device']} ({r['cpu_cores']} cores {r['cpu']})"
                 if _affinity(r) != r["cpu_cores"]:
                     device += f", pinned to {_affinity(r)}"
+                if _huge_pages_row(r):
+                    device += ", malloc on huge pages"
             else:  # the host: rows of one GPU model on different machines stay told apart
                 count = r.get("device_count", 1)
                 device = (f"{r['device']} ({count} GPU{'s' * (count > 1)}, host of "

@@ -65,7 +65,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import flops, harness
-from jaml import learners
+from jaml import _huge_pages, learners
 from jaml.configs.learners import UPSAMPLE_FORMS, default_config
 from jaml.learners import networks
 
@@ -483,6 +483,8 @@ def _watch(case: Case, seconds: float | None, record: bool) -> threading.Timer |
 
 
 def main(argv=None) -> int:
+    if argv is None:  # a process of its own runs as jaml's commands do
+        _huge_pages.adopt()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--learners", nargs="+", default=["VAE_rpl"],
                         choices=["VAE_rpl", "PRED", "DSA", "SVAE"])

@@ -37,7 +37,7 @@ import jax
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import harness
-from jaml import learners
+from jaml import _huge_pages, learners
 from jaml.stream import analysis, build, for_env
 from jaml.stream.executor import run_stacked_epochs, runs_mesh, stack_runs
 from jaml.stream.loop import _act_runs, _learn_step_runs
@@ -167,6 +167,8 @@ def _speedups(rows: list[dict]) -> None:
 
 
 def main(argv=None) -> int:
+    if argv is None:  # a process of its own runs as jaml's commands do
+        _huge_pages.adopt()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", nargs="+", default=["CartPole"])
     parser.add_argument("--learners", nargs="+", default=["VAE_rpl"])

@@ -22,7 +22,7 @@ from typing import Annotated
 
 import tyro
 
-from jaml import _interrupts
+from jaml import _huge_pages, _interrupts
 
 
 def _import_mjx_quietly() -> list[str]:
@@ -299,7 +299,11 @@ CLOSED_STDOUT = 141
 def main(argv, commands: Callable[[list[str]], dict[str, type]], description: str) -> int:
     """Parses `argv` (sys.argv[1:] when None) over `commands(argv)` (name → dataclass with a
     `run()` returning the exit status) and runs the command: every failure one line on stderr
-    (status 2), an interrupt status 130, a stdout closed early quietly `CLOSED_STDOUT`."""
+    (status 2), an interrupt status 130, a stdout closed early quietly `CLOSED_STDOUT`. A
+    process's own arguments (`argv` None) may first re-execute it with malloc on huge pages
+    (`jaml._huge_pages`)."""
+    if argv is None:
+        _huge_pages.adopt()
     try:
         try:
             status = _main(argv, commands, description)

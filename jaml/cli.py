@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import os
+import platform
 import sys
 import textwrap
 from pathlib import Path
@@ -19,7 +21,7 @@ from typing import Annotated, Literal
 import tyro
 
 from envs_mjx.config import ALL_ENVS, default_config
-from jaml import _command
+from jaml import _command, _huge_pages
 from jaml._command import _SUITE_FIXED, _one_line, use_compilation_cache  # noqa: F401
 from jaml._options import KeyValues, key_value, key_values  # noqa: F401
 from jaml.configs.learners import ALL_LEARNERS
@@ -364,6 +366,8 @@ class Info:
         graphs = "on" if cuda_graphs_wanted() else "off"
         print(f"CUDA graphs of the stream's loops: {graphs if on_cuda() else 'no CUDA GPU'} "
               "(JAML_CUDA_GRAPHS)")
+        print("malloc: " + _huge_pages.describe(os.environ, platform.libc_ver(),
+                                                _huge_pages.thp_mode()))
         return 0
 
 

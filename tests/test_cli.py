@@ -5,6 +5,7 @@ import dataclasses
 import importlib.metadata
 import json
 import os
+import platform
 import subprocess
 import sys
 
@@ -12,7 +13,7 @@ import jax
 import numpy as np
 import pytest
 
-from jaml import cli
+from jaml import _huge_pages, cli
 from jaml.cli import _INFO_PACKAGES, main
 from jaml.configs.stream import for_env
 from jaml.experiments import _runs
@@ -44,17 +45,21 @@ def test_info_names_the_cpu_device_versions_and_mjx_imports(capsys):
 def test_cli_stdout_has_no_warp_probe_lines(tmp_path):
     """A fresh process: mujoco.mjx's 'Failed to import warp' prints are captured by main; the
     command line's compilation cache is where JAML_XLA_CACHE says."""
+    plain = {k: v for k, v in os.environ.items() if k != "GLIBC_TUNABLES"}
     result = subprocess.run(
         [sys.executable, "-m", "jaml.cli", "info"],
         capture_output=True,
         text=True,
         check=True,
         timeout=300,
-        env={**os.environ, "JAML_XLA_CACHE": str(tmp_path / "xla")},
+        env={**plain, "JAML_XLA_CACHE": str(tmp_path / "xla")},
     )
     assert "Failed to import" not in result.stdout + result.stderr
     assert result.stdout.startswith("jax ")
     assert f"XLA compilation cache: {tmp_path / 'xla'} (JAML_XLA_CACHE)" in result.stdout
+    # The command re-executed itself with malloc on huge pages where the machine gives them.
+    if _huge_pages.environment(plain, platform.libc_ver(), _huge_pages.thp_mode()):
+        assert "malloc: huge pages (GLIBC_TUNABLES glibc.malloc.hugetlb=1)" in result.stdout
 
 
 def test_a_stdout_closed_early_ends_quietly():

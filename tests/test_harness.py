@@ -44,7 +44,11 @@ def test_results_md_keeps_the_latest_row_per_case_machine_and_settings(tmp_path,
             # pinned to one core (taskset): beside the unpinned Xeon row, not over it; a row
             # that records every core as its affinity is the unpinned one (supersedes "2")
             base | {"cpu": "Intel Xeon", "cpu_affinity": 1, "value": 9.0},
-            base | {"cpu": "Intel Xeon", "cpu_affinity": 2, "value": 10.0}]
+            base | {"cpu": "Intel Xeon", "cpu_affinity": 2, "value": 10.0},
+            # malloc on huge pages: beside the 4 KiB row, whose later run (hugetlb=0, the
+            # same as unrecorded) supersedes "3"
+            base | {"cpu": "AMD EPYC", "glibc_tunables": "glibc.malloc.hugetlb=1", "value": 11.0},
+            base | {"cpu": "AMD EPYC", "glibc_tunables": "glibc.malloc.hugetlb=0", "value": 12.0}]
     (tmp_path / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     harness.write_markdown()
     table = [line for line in (tmp_path / "RESULTS.md").read_text().splitlines()
@@ -52,8 +56,9 @@ def test_results_md_keeps_the_latest_row_per_case_machine_and_settings(tmp_path,
     values = sorted(line.split(" | ")[-2] for line in table)
     # 1 superseded by 3 (same CPU); 4 (one device, recorded before the key) by 6: a GPU row's
     # host CPU model does not tell machines apart, its core count does (both 2 here).
-    assert values == ["10", "3", "5", "6", "7", "8", "9"]
+    assert values == ["10", "11", "12", "5", "6", "7", "8", "9"]
     assert sum("pinned to 1" in line for line in table) == 1
+    assert sum("malloc on huge pages" in line for line in table) == 1
 
 
 def test_a_commit_is_dirty_for_changed_code_not_for_the_harness_outputs(tmp_path):

@@ -38,11 +38,18 @@ and cuDNN already use TF32 for float32 convolutions on this class of GPU), fused
 on a GPU. With bfloat16, jaml's convolutions compute in bfloat16 (`compute_dtype`; parameters,
 batch norms, heads, loss and Adam float32) and the peer runs its forward pass under
 `torch.autocast(dtype=torch.bfloat16)`, the mixed precision a PyTorch user would reach for (it also
-casts the MLP, heads and RNNs). Case by case (learner, dtype, batch), the peer's variants run
-first and release their memory, then jaml's step (XLA_PYTHON_CLIENT_PREALLOCATE=false, set here
-unless already set), and the case's rows are recorded at once, so a run cut short keeps the
-cases it finished. A peer variant or jaml form that fails (out of memory, a compiler error) is a
-row with the error's first line, not fatal; jaml's compiled step is checked against the device's
+casts the MLP, heads and RNNs). Case by case (learner, dtype, batch), on a GPU
+(`--order peer-first`) the peer's variants run first and release their memory, then jaml's step
+(XLA_PYTHON_CLIENT_PREALLOCATE=false, set here unless already set); on the CPU (`--order
+interleaved`) every side is built and warmed up first, then the sides take turns within each
+repetition, so that load that comes and goes, and whatever the side before leaves behind, fall
+on all of them (run one after another, the side that ran second in a process ran slower,
+whichever it was). Rows carry each repetition's rate (`frames_per_s_rounds`), and jaml's
+interleaved rows the range of its per-repetition ratios to the peer (`speedup_vs_pytorch_rounds`,
+`speedup_vs_pytorch_compiled_rounds`). The
+case's rows are recorded at once, so a run cut short keeps the cases it finished. A peer
+variant or jaml form that fails (out of memory, a compiler error) is a row with the error's
+first line, not fatal; jaml's compiled step is checked against the device's
 free memory before it runs (`memory_shortfall`), and with `--case-timeout` a case that runs past
 it is recorded as far as it got, with an error row for the impl that did not finish.
 """
@@ -50,6 +57,7 @@ it is recorded as far as it got, with an error row for the impl that did not fin
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import os
 import platform
@@ -104,12 +112,21 @@ def matmul_ceiling(dtype: str, n: int = 8192, reps: int = 5) -> float:
 
 
 def _median_rate(run_steps, frames_per_step: int, reps: int, steps: int) -> float:
-    times = []
+    (rates,) = _round_rates([run_steps], frames_per_step, reps, steps)
+    return statistics.median(rates)
+
+
+def _round_rates(runners, frames_per_step: int, reps: int, steps: int) -> list[list[float]]:
+    """Frames/s of each runner (`run_steps(n)`, blocking) in each of `reps` rounds of `steps`
+    steps: the runners take their turns within a round, so load that comes and goes falls on
+    all of them."""
+    rates = [[] for _ in runners]
     for _ in range(reps):
-        t0 = time.perf_counter()
-        run_steps(steps)
-        times.append(time.perf_counter() - t0)
-    return frames_per_step * steps / statistics.median(times)
+        for run_steps, out in zip(runners, rates, strict=True):
+            t0 = time.perf_counter()
+            run_steps(steps)
+            out.append(frames_per_step * steps / (time.perf_counter() - t0))
+    return rates
 
 
 def step_shape(learner_name: str, frames: int) -> tuple[int, int]:
@@ -181,13 +198,13 @@ def jaml_step(learner_name: str, sequences: int, dtype: str = "float32",
     return step, state, batch
 
 
-def bench_jax(sequences: int, reps: int, steps: int, dtype: str = "float32",
-              learner_name: str = "VAE_rpl", upsample_form: str = "auto",
-              activation_dtype: str = "float32") -> dict:
-    """jaml's train step on `sequences` sequences: frames/s (median over reps of `steps` blocked
-    steps) after its compilation (timed apart) and one warm-up step. {"error": ...} when it
-    fails: a compiled step that needs more memory than the device has free (not run), or an
-    error from XLA (its first line)."""
+@contextlib.contextmanager
+def jaml_prepared(sequences: int, dtype: str = "float32", learner_name: str = "VAE_rpl",
+                  upsample_form: str = "auto", activation_dtype: str = "float32"):
+    """jaml's train step on `sequences` sequences compiled (timed apart) and warmed up by one
+    step: {"run_steps", "frames", "compile_s", "xla_gflop_per_frame", "temp_gib"}, or
+    {"error": ...} when it fails: a compiled step that needs more memory than the device has
+    free (not run), or an error from XLA (its first line)."""
     try:
         jitted, state, batch = jaml_step(learner_name, sequences, dtype, upsample_form,
                                          activation_dtype)
@@ -197,28 +214,57 @@ def bench_jax(sequences: int, reps: int, steps: int, dtype: str = "float32",
         analysis = step.memory_analysis()
         short = analysis and memory_shortfall(analysis, jax.devices()[0].memory_stats())
         if short:
-            return {"error": short}
-        holder = {"state": state, "i": 0}
-        del state  # donated to the first step
-        # XLA's own count for the program it compiled (on a GPU it leaves out cuDNN's
-        # convolutions).
-        cost = step.cost_analysis()
-        xla = (cost[0] if isinstance(cost, list) else cost or {}).get("flops", float("nan"))
+            prepared = {"error": short}
+        else:
+            holder = {"state": state, "i": 0}
+            del state  # donated to the first step
+            # XLA's own count for the program it compiled (on a GPU it leaves out cuDNN's
+            # convolutions).
+            cost = step.cost_analysis()
+            xla = (cost[0] if isinstance(cost, list) else cost or {}).get("flops",
+                                                                           float("nan"))
 
-        def run_steps(n):
-            for _ in range(n):
-                holder["i"] += 1
-                holder["state"], metrics = step(holder["state"], batch,
-                                                jax.random.key(holder["i"]))
-            jax.block_until_ready((holder["state"], metrics))
+            def run_steps(n):
+                for _ in range(n):
+                    holder["i"] += 1
+                    holder["state"], metrics = step(holder["state"], batch,
+                                                    jax.random.key(holder["i"]))
+                jax.block_until_ready((holder["state"], metrics))
 
-        run_steps(1)  # warm-up
-        frames = batch[0].shape[0] * batch[0].shape[1]
-        return {"compile_s": compile_s, "fps": _median_rate(run_steps, frames, reps, steps),
-                "xla_gflop_per_frame": xla / frames / 1e9,
-                "temp_gib": analysis.temp_size_in_bytes / 2**30 if analysis else float("nan")}
+            run_steps(1)  # warm-up
+            frames = batch[0].shape[0] * batch[0].shape[1]
+            prepared = {"run_steps": run_steps, "frames": frames, "compile_s": compile_s,
+                        "xla_gflop_per_frame": xla / frames / 1e9,
+                        "temp_gib": (analysis.temp_size_in_bytes / 2**30 if analysis
+                                     else float("nan"))}
     except Exception as e:  # XLA's RESOURCE_EXHAUSTED among them: a row, not the run's end
-        return {"error": _first_line(e)}
+        prepared = {"error": _first_line(e)}
+    yield prepared
+
+
+def bench_jax(sequences: int, reps: int, steps: int, dtype: str = "float32",
+              learner_name: str = "VAE_rpl", upsample_form: str = "auto",
+              activation_dtype: str = "float32") -> dict:
+    """jaml's train step on `sequences` sequences (`jaml_prepared`): frames/s, the median over
+    reps of `steps` blocked steps, or {"error": ...}."""
+    with jaml_prepared(sequences, dtype, learner_name, upsample_form,
+                       activation_dtype) as prepared:
+        return _timed(prepared, reps, steps)
+
+
+def _timed(prepared: dict, reps: int, steps: int) -> dict:
+    """A prepared side's result: its rates over `reps` rounds of `steps` steps, alone."""
+    if "error" in prepared:
+        return prepared
+    (rates,) = _round_rates([prepared["run_steps"]], prepared["frames"], reps, steps)
+    return _result(prepared, rates)
+
+
+def _result(prepared: dict, rates: list[float]) -> dict:
+    """A side's result: what it prepared (less its runner) with its rates per round and their
+    median as "fps"."""
+    kept = {k: v for k, v in prepared.items() if k not in ("run_steps", "frames")}
+    return {**kept, "fps": statistics.median(rates), "rounds": rates}
 
 
 # Inductor's autotuned kernels without CUDA graphs (its autotuning takes minutes a case on an
@@ -232,7 +278,10 @@ NOTES = ("Frames/s of one training step (forward, backward, Adam) on random 64×
          "learners.compiler_options(); bfloat16 rows: jaml's convolutions in bfloat16, the peer "
          "under torch.autocast(bfloat16). batch: sequences of seq_len frames, "
          "frames_per_step = batch × seq_len (frames // T sequences of a --frames size); "
-         "temp_gib: the compiled jaml step's temporaries (XLA's memory_analysis).")
+         "temp_gib: the compiled jaml step's temporaries (XLA's memory_analysis); "
+         "frames_per_s_rounds: each repetition's rate; speedup_…_rounds (where the sides took "
+         "turns within each repetition, the CPU's order): the range of jaml's per-repetition "
+         "ratios.")
 DEFAULT_COMPILE_MODES = ("max-autotune-no-cudagraphs",)
 MEMORY_FORMATS = ("channels_last", "contiguous")
 
@@ -259,13 +308,16 @@ def setup_torch(variants: int) -> None:
           "step", flush=True)
 
 
-def bench_torch(name: str, sequences: int, reps: int, steps: int, dtype: str = "float32",
-                compile_mode: str | None = None, warmup: int = 3,
-                memory_format: str = "channels_last") -> dict:
-    """The peer's train step on `sequences` sequences (jaml's): frames/s (median over reps of
-    `steps` synchronised steps) after its first step (timed apart: compilation, cuDNN
-    autotuning) and `warmup` more (CUDA graph recording under reduce-overhead). {"error": ...}
-    when it fails: out of memory, or a compiler error (its first line)."""
+@contextlib.contextmanager
+def torch_prepared(name: str, sequences: int, dtype: str = "float32",
+                   compile_mode: str | None = None, warmup: int = 3,
+                   memory_format: str = "channels_last"):
+    """The peer's train step on `sequences` sequences (jaml's), run once (timed apart:
+    compilation, cuDNN autotuning) and `warmup` more times (CUDA graph recording under
+    reduce-overhead): {"run_steps", "frames", "label", "version", "device", "threads",
+    "first_step_s"}, or those with "error" in place of the runner when it fails (out of memory,
+    a compiler error: its first line). The model, its optimizer state and compiled graphs are
+    released on leaving."""
     import torch
 
     tl = torch_peer()
@@ -277,31 +329,47 @@ def bench_torch(name: str, sequences: int, reps: int, steps: int, dtype: str = "
     torch._dynamo.reset()  # a fresh compile per case, free of earlier cases' guards
     peer = None
     try:
-        peer = tl.Peer(name, variant, ld_dim=LD_DIM, action_dim=ACTION_DIM, device=device)
-        batch = peer.batch(*_batch(sequences, tl.seq_len(name, LD_DIM)))
+        try:
+            peer = tl.Peer(name, variant, ld_dim=LD_DIM, action_dim=ACTION_DIM, device=device)
+            batch = peer.batch(*_batch(sequences, tl.seq_len(name, LD_DIM)))
 
-        def run_steps(n):
-            for _ in range(n):
-                peer.step(*batch)
-            if device.type == "cuda":
-                torch.cuda.synchronize()  # time the work, not the launches
+            def run_steps(n):
+                with peer.host_context():
+                    for _ in range(n):
+                        peer.step(*batch)
+                if device.type == "cuda":
+                    torch.cuda.synchronize()  # time the work, not the launches
 
-        with peer.host_context():
             t0 = time.perf_counter()
             run_steps(1)
             first_s = time.perf_counter() - t0
             run_steps(warmup)
-            fps = _median_rate(run_steps, sequences * tl.seq_len(name, LD_DIM), reps, steps)
-        return {**info, "first_step_s": first_s, "fps": fps}
-    except torch.OutOfMemoryError as e:
-        return {**info, "error": f"out of memory: {str(e).splitlines()[0][:120]}"}
-    except Exception as e:
-        return {**info, "error": _first_line(e)}
+            prepared = {**info, "run_steps": run_steps, "first_step_s": first_s,
+                        "frames": sequences * tl.seq_len(name, LD_DIM)}
+        except torch.OutOfMemoryError as e:
+            prepared = {**info, "error": f"out of memory: {str(e).splitlines()[0][:120]}"}
+        except Exception as e:
+            prepared = {**info, "error": _first_line(e)}
+        yield prepared
     finally:
         peer = None  # the model, its optimizer state and compiled graphs, released
         torch._dynamo.reset()
         if device.type == "cuda":
             torch.cuda.empty_cache()
+
+
+def bench_torch(name: str, sequences: int, reps: int, steps: int, dtype: str = "float32",
+                compile_mode: str | None = None, warmup: int = 3,
+                memory_format: str = "channels_last") -> dict:
+    """The peer's train step (`torch_prepared`): frames/s, the median over reps of `steps`
+    synchronised steps, or its info with {"error": ...}."""
+    with torch_prepared(name, sequences, dtype, compile_mode, warmup,
+                        memory_format) as prepared:
+        try:
+            return _timed(prepared, reps, steps)
+        except Exception as e:  # out of memory in a timed step, say
+            return {k: v for k, v in prepared.items() if k not in ("run_steps", "frames")} | {
+                "error": _first_line(e)}
 
 
 def _torch_device():
@@ -340,8 +408,9 @@ def _mfu_text(rates: dict) -> str:
 @dataclasses.dataclass
 class Case:
     """One learner at one step size and dtype: what its sides measured so far (`jaml`:
-    ((upsample form, activation dtype), `bench_jax` result); `peers`: `bench_torch` results)
-    and the impl now running, so that a case cut short still gives its rows (`rows`)."""
+    ((upsample form, activation dtype), `bench_jax` result); `peers`: `bench_torch` results;
+    each result's "rounds" its rate in each round) and the impl now running, so that a case
+    cut short still gives its rows (`rows`)."""
 
     learner: str
     sequences: int
@@ -354,6 +423,7 @@ class Case:
     jaml: list = dataclasses.field(default_factory=list)
     peers: list = dataclasses.field(default_factory=list)
     running: str | None = None
+    interleaved: bool = False  # the sides timed in turns, round by round
 
     @property
     def frames(self) -> int:
@@ -380,6 +450,7 @@ class Case:
                 rows.append({**row, "note": j["error"]})
                 continue
             row.update({"compile_s": j["compile_s"], "frames_per_s": j["fps"],
+                        **_rounds(j),
                         **_rates(self.gflop_per_frame, j["fps"], self.ceiling, self.peak),
                         "xla_gflop_per_frame": j["xla_gflop_per_frame"],
                         "temp_gib": j["temp_gib"]})
@@ -395,10 +466,10 @@ class Case:
                 continue
             eager = t["label"].startswith("eager")
             row.update({"first_step_s" if eager else "compile_s": t["first_step_s"],
-                        "frames_per_s": t["fps"],
+                        "frames_per_s": t["fps"], **_rounds(t),
                         **_rates(self.gflop_per_frame, t["fps"], self.ceiling, self.peak)})
             rows.append(row)
-            fastest["eager" if eager else "compiled"].append(t["fps"])
+            fastest["eager" if eager else "compiled"].append(t)
         if timeout_s is not None and self.running:
             rows.append({**base, "impl": self.running,
                          "note": f"did not finish within the case's {timeout_s:g} s "
@@ -406,9 +477,26 @@ class Case:
         for run, key in (("eager", "speedup_vs_pytorch"),
                          ("compiled", "speedup_vs_pytorch_compiled")):
             if fastest[run]:
+                peer = max(fastest[run], key=lambda t: t["fps"])
                 for r in jaml_rows:
-                    r[key] = r["frames_per_s"] / max(fastest[run])
+                    r[key] = r["frames_per_s"] / peer["fps"]
+                    if self.interleaved:  # each round's ratio: the spread a ratio has here
+                        ratios = [a / b for a, b in zip(r["frames_per_s_rounds"],
+                                                        peer["rounds"], strict=True)]
+                        r[f"{key}_rounds"] = [min(ratios), max(ratios)]
         return rows
+
+
+def _round_ranges(row: dict) -> list[tuple[str, tuple[float, float]]]:
+    """(eager or compiled, (lowest, highest) per-repetition ratio) of an interleaved jaml row."""
+    return [(run, tuple(row[key])) for run, key in (
+        ("eager", "speedup_vs_pytorch_rounds"),
+        ("compiled", "speedup_vs_pytorch_compiled_rounds")) if key in row]
+
+
+def _rounds(result: dict) -> dict:
+    """A row's rate in each round, where its result has them."""
+    return {"frames_per_s_rounds": result["rounds"]} if "rounds" in result else {}
 
 
 def _lines(rows: list[dict]) -> str:
@@ -424,7 +512,9 @@ def _lines(rows: list[dict]) -> str:
         elif jaml:
             lines.append(f"{head} {r['frames_per_s']:9.1f} frames/s (compile {r['compile_s']:.1f}"
                          f" s, {r['temp_gib']:.2f} GiB of temporaries; "
-                         f"{r['useful_gflop_per_frame']:.3f} useful GFLOP/frame, {_mfu_text(r)})")
+                         f"{r['useful_gflop_per_frame']:.3f} useful GFLOP/frame, {_mfu_text(r)})"
+                         + "".join(f"; {lo:.2f}–{hi:.2f}× the fastest {run} peer per repetition"
+                                   for run, (lo, hi) in _round_ranges(r)))
         else:
             eager = "first_step_s" in r
             ratio = f" | jaml/torch {first / r['frames_per_s']:.2f}×" if first else ""
@@ -435,28 +525,63 @@ def _lines(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def measure_case(case: Case, reps: int, steps: int, variants, jaml_variants) -> list[dict]:
-    """The peer's variants (each releasing its memory), then jaml's step in each (upsample form,
-    activation dtype)."""
-    for mode, fmt in variants:
-        import torch
-
-        label = torch_peer().Variant(mode, channels_last=fmt == "channels_last",
-                                     dtype=case.dtype).label
-        case.running = _peer_impl(torch.__version__, label, str(_torch_device()))
-        r = bench_torch(case.learner, case.sequences, reps, steps, case.dtype, mode,
-                        memory_format=fmt)
-        case.peers.append(r)
-        print(f"  {case.name} {r['label']}: "
-              + (r["error"] if "error" in r else f"{r['fps']:.1f} frames/s"), flush=True)
-    for form, act in jaml_variants:
-        case.running = _jaml_impl(form, act)
-        case.jaml.append(((form, act), bench_jax(case.sequences, reps, steps, case.dtype,
-                                                 case.learner, form, act)))
+def measure_case(case: Case, reps: int, steps: int, variants, jaml_variants,
+                 interleave: bool = False) -> list[dict]:
+    """The peer's variants, then jaml's step in each (upsample form, activation dtype). One
+    after another, each peer variant releasing its memory before the next side is built (a
+    GPU's way); or with `interleave`, every side built first and then timed in turns, round by
+    round (`_round_rates`: the CPU's way, where the side that runs second in a process ran
+    slower, whichever it was)."""
+    with contextlib.ExitStack() as held:
+        prepared = []  # (kind, key, prepared side), in the order they run
+        for mode, fmt in variants:
+            case.running = _peer_running(case.dtype, mode, fmt)
+            if interleave:
+                side = held.enter_context(torch_prepared(
+                    case.learner, case.sequences, case.dtype, mode, memory_format=fmt))
+            else:
+                side = bench_torch(case.learner, case.sequences, reps, steps, case.dtype, mode,
+                                   memory_format=fmt)
+                case.peers.append(side)
+                print(f"  {case.name} {side['label']}: "
+                      + (side["error"] if "error" in side else f"{side['fps']:.1f} frames/s"),
+                      flush=True)
+            prepared.append(("peer", None, side))
+        for form, act in jaml_variants:
+            case.running = _jaml_impl(form, act)
+            if interleave:
+                side = held.enter_context(jaml_prepared(case.sequences, case.dtype,
+                                                        case.learner, form, act))
+            else:
+                side = bench_jax(case.sequences, reps, steps, case.dtype, case.learner, form,
+                                 act)
+                case.jaml.append(((form, act), side))
+            prepared.append(("jaml", (form, act), side))
+        if interleave:
+            case.interleaved = True
+            case.running = "the sides' rounds, interleaved"
+            live = [side for _, _, side in prepared if "error" not in side]
+            rates = _round_rates([side["run_steps"] for side in live], case.frames, reps, steps)
+            done = {id(side): _result(side, r) for side, r in zip(live, rates, strict=True)}
+            for kind, key, side in prepared:
+                result = done.get(id(side), side)
+                if kind == "peer":
+                    case.peers.append(result)
+                else:
+                    case.jaml.append((key, result))
     case.running = None
     rows = case.rows()
     print(_lines(rows), flush=True)
     return rows
+
+
+def _peer_running(dtype: str, mode: str | None, memory_format: str) -> str:
+    """The impl a peer variant's row will name."""
+    import torch
+
+    label = torch_peer().Variant(mode, channels_last=memory_format == "channels_last",
+                                 dtype=dtype).label
+    return _peer_impl(torch.__version__, label, str(_torch_device()))
 
 
 def _watch(case: Case, seconds: float | None, record: bool) -> threading.Timer | None:
@@ -521,8 +646,15 @@ def main(argv=None) -> int:
                         help="seconds a case (peer variants and jaml forms) may take; past "
                         "them its rows so far and an error row for the impl still running are "
                         "recorded, and the run ends")
+    parser.add_argument("--order", choices=["auto", "interleaved", "peer-first"],
+                        default="auto", help="interleaved: every side built, then timed in "
+                        "turns round by round; peer-first: the peer's variants one after "
+                        "another, each released before jaml's step is built (auto: interleaved "
+                        "on the CPU, peer-first elsewhere, where the peer's memory must go)")
     parser.add_argument("--no-record", action="store_true", help="print only")
     args = parser.parse_args(argv)
+    interleave = args.order == "interleaved" or (args.order == "auto"
+                                                 and jax.default_backend() == "cpu")
     if args.max_unroll is not None:
         if args.max_unroll < 1:
             parser.error(f"--max-unroll must be ≥ 1, got {args.max_unroll}")
@@ -542,7 +674,8 @@ def main(argv=None) -> int:
         variants = []
     print(f"device: {jax.devices()[0].device_kind} ({jax.default_backend()}), "
           f"jax {jax.__version__}, python {platform.python_version()}, {platform.processor()}")
-    print(f"train steps (ld_dim {LD_DIM}, Adam), median of {args.reps} reps × {args.steps} steps")
+    print(f"train steps (ld_dim {LD_DIM}, Adam), median of {args.reps} reps × {args.steps} steps"
+          + (", the sides in turns within each rep" if interleave else ""))
     peer_gflop = {}  # the peer's own count, per learner (the same in every dtype)
     peered = [n for n in args.learners if variants and n in tl.LEARNERS]
     for name in (n for n in args.learners if variants and n not in peered):
@@ -565,7 +698,7 @@ def main(argv=None) -> int:
                 rows = measure_case(case, args.reps, args.steps,
                                     variants if name in peered else [],
                                     [(form, act) for act in args.activation_dtypes
-                                     for form in args.upsample_forms])
+                                     for form in args.upsample_forms], interleave)
                 if timer:
                     timer.cancel()
                 if args.max_unroll is not None:

@@ -117,7 +117,7 @@ def test_svae_has_no_torch_peer_and_gets_jaml_s_rows_alone(monkeypatch, capsys):
     monkeypatch.setattr(lt, "matmul_ceiling", lambda dtype, n: 1.0)
     monkeypatch.setattr(lt, "useful_gflop_per_frame", lambda *a: 1.0)
 
-    def measure_case(case, reps, steps, variants, forms):
+    def measure_case(case, reps, steps, variants, forms, interleave):
         seen[case.learner] = variants
         return []
 
@@ -138,7 +138,7 @@ def test_max_unroll_sets_the_recurrent_layers_cap_and_names_it_in_jaml_s_rows(mo
     monkeypatch.setattr(lt, "useful_gflop_per_frame", lambda *a: 1.0)
     caps = []
 
-    def measure_case(case, reps, steps, variants, forms):
+    def measure_case(case, reps, steps, variants, forms, interleave):
         caps.append(networks._MAX_UNROLL)
         return [{"impl": "jaml, bfloat16 activations"}, {"impl": "pytorch 2.13 eager (cpu)"}]
 
@@ -152,3 +152,51 @@ def test_max_unroll_sets_the_recurrent_layers_cap_and_names_it_in_jaml_s_rows(mo
                                             "pytorch 2.13 eager (cpu)"]
     with pytest.raises(SystemExit):
         lt.main(["--learners", "DSA", "--max-unroll", "0"])
+
+
+def test_interleaved_sides_take_turns_each_round_and_rows_keep_each_rounds_ratio(monkeypatch):
+    """`--order interleaved`: every side is built before any is timed, then the peer and jaml
+    take turns within each repetition; the rows carry each repetition's rate and jaml's the
+    range of its per-repetition ratios, against a clock the sides' steps advance by hand."""
+    clock, calls, built = [0.0], [], []
+    monkeypatch.setattr(lt.time, "perf_counter", lambda: clock[0])
+    monkeypatch.setattr(lt, "_peer_running", lambda dtype, mode, fmt: "pytorch 2.x eager (cpu)")
+    # Seconds a step takes in each round: the peer 2, 4, 2; jaml 1, 1, 3.
+    pace = {"peer": iter([2.0, 4.0, 2.0]), "jaml": iter([1.0, 1.0, 3.0])}
+
+    def side(kind, **info):
+        def run_steps(n):
+            calls.append(kind)
+            clock[0] += n * next(pace[kind])
+
+        @lt.contextlib.contextmanager
+        def prepared(*args, **kwargs):
+            built.append((kind, list(calls)))
+            yield {"run_steps": run_steps, "frames": 10, **info}
+            built.append((f"{kind} released", list(calls)))
+
+        return prepared
+
+    monkeypatch.setattr(lt, "torch_prepared", side(
+        "peer", label="eager", version="2.x", device="cpu", threads=2, first_step_s=0.1))
+    monkeypatch.setattr(lt, "jaml_prepared", side(
+        "jaml", compile_s=1.0, xla_gflop_per_frame=0.5, temp_gib=0.1))
+    case = lt.Case("VAE_rpl", 10, 1, "float32", ceiling=100.0, peak=None, gflop_per_frame=0.5)
+    rows = lt.measure_case(case, 3, 2, [(None, "channels_last")], [("auto", "float32")],
+                           interleave=True)
+    assert calls == ["peer", "jaml"] * 3
+    assert built[:2] == [("peer", []), ("jaml", [])]  # both built before either is timed
+    assert {k for k, _ in built[2:]} == {"peer released", "jaml released"}
+    jaml, peer = rows
+    assert peer["frames_per_s_rounds"] == [5.0, 2.5, 5.0]  # 10 frames / step seconds
+    assert jaml["frames_per_s_rounds"] == pytest.approx([10.0, 10.0, 10.0 / 3])
+    assert jaml["speedup_vs_pytorch"] == 10.0 / 5.0  # the medians
+    assert jaml["speedup_vs_pytorch_rounds"] == pytest.approx([2.0 / 3, 4.0])
+    assert "0.67–4.00× the fastest eager peer per repetition" in lt._lines(rows)
+    # One after another (a GPU's way), the rounds are not paired: no per-round ratio.
+    pace = {"peer": iter([2.0] * 4), "jaml": iter([1.0] * 4)}
+    case = lt.Case("VAE_rpl", 10, 1, "float32", ceiling=100.0, peak=None, gflop_per_frame=0.5)
+    calls.clear()
+    rows = lt.measure_case(case, 2, 1, [(None, "channels_last")], [("auto", "float32")])
+    assert calls == ["peer", "peer", "jaml", "jaml"]
+    assert "speedup_vs_pytorch_rounds" not in rows[0]

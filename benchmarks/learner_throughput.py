@@ -40,13 +40,14 @@ batch norms, heads, loss and Adam float32) and the peer runs its forward pass un
 `torch.autocast(dtype=torch.bfloat16)`, the mixed precision a PyTorch user would reach for (it also
 casts the MLP, heads and RNNs). Case by case (learner, dtype, batch), on a GPU
 (`--order peer-first`) the peer's variants run first and release their memory, then jaml's step
-(XLA_PYTHON_CLIENT_PREALLOCATE=false, set here unless already set); on the CPU (`--order
-interleaved`) every side is built and warmed up first, then the sides take turns within each
-repetition, so that load that comes and goes, and whatever the side before leaves behind, fall
-on all of them (run one after another, the side that ran second in a process ran slower,
-whichever it was). Rows carry each repetition's rate (`frames_per_s_rounds`), and jaml's
-interleaved rows the range of its per-repetition ratios to the peer (`speedup_vs_pytorch_rounds`,
-`speedup_vs_pytorch_compiled_rounds`). The
+(XLA_PYTHON_CLIENT_PREALLOCATE=false, set here unless already set). On the CPU (`--order
+separate`) each side runs alone in new processes of this script, `--processes` a side, the
+sides' processes taking turns: in one process the two sides slow each other (run one after the
+other, the second ran slower, whichever it was; in turns within each repetition, `--order
+interleaved`, jaml lost a sixth and the peer gained a quarter at 256 frames), and a user runs
+one of them alone. Rows carry each round's rate (`frames_per_s_rounds`: a repetition's, or with
+`paired: process` a process's median), and jaml's paired rows the range of its per-round ratios
+to the peer (`speedup_vs_pytorch_rounds`, `speedup_vs_pytorch_compiled_rounds`). The
 case's rows are recorded at once, so a run cut short keeps the cases it finished. A peer
 variant or jaml form that fails (out of memory, a compiler error) is a row with the error's
 first line, not fatal; jaml's compiled step is checked against the device's
@@ -59,9 +60,11 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import json
 import os
 import platform
 import statistics
+import subprocess
 import sys
 import threading
 import time
@@ -279,9 +282,9 @@ NOTES = ("Frames/s of one training step (forward, backward, Adam) on random 64×
          "under torch.autocast(bfloat16). batch: sequences of seq_len frames, "
          "frames_per_step = batch × seq_len (frames // T sequences of a --frames size); "
          "temp_gib: the compiled jaml step's temporaries (XLA's memory_analysis); "
-         "frames_per_s_rounds: each repetition's rate; speedup_…_rounds (where the sides took "
-         "turns within each repetition, the CPU's order): the range of jaml's per-repetition "
-         "ratios.")
+         "frames_per_s_rounds: each repetition's rate, or with paired = process each "
+         "process's (each side alone in new processes taking turns, the CPU's order); "
+         "speedup_…_rounds (paired rows): the range of jaml's per-round ratios.")
 DEFAULT_COMPILE_MODES = ("max-autotune-no-cudagraphs",)
 MEMORY_FORMATS = ("channels_last", "contiguous")
 
@@ -423,7 +426,7 @@ class Case:
     jaml: list = dataclasses.field(default_factory=list)
     peers: list = dataclasses.field(default_factory=list)
     running: str | None = None
-    interleaved: bool = False  # the sides timed in turns, round by round
+    paired: str | None = None  # "repetition" or "process": the sides' rounds taken in turns
 
     @property
     def frames(self) -> int:
@@ -442,7 +445,8 @@ class Case:
         and with `timeout_s`, an error row for the impl still running when the case's time ran
         out. jaml's speedups: each row against the peer's fastest eager and compiled rows."""
         base = {"case": self.name, "learner": self.learner, "batch": self.sequences,
-                "seq_len": self.seq_len, "frames_per_step": self.frames, "dtype": self.dtype}
+                "seq_len": self.seq_len, "frames_per_step": self.frames, "dtype": self.dtype,
+                **({"paired": self.paired} if self.paired else {})}
         jaml_rows, rows = [], []
         for form, j in self.jaml:
             row = {**base, "impl": _jaml_impl(*form)}
@@ -480,7 +484,7 @@ class Case:
                 peer = max(fastest[run], key=lambda t: t["fps"])
                 for r in jaml_rows:
                     r[key] = r["frames_per_s"] / peer["fps"]
-                    if self.interleaved:  # each round's ratio: the spread a ratio has here
+                    if self.paired:  # each round's ratio: the spread a ratio has here
                         ratios = [a / b for a, b in zip(r["frames_per_s_rounds"],
                                                         peer["rounds"], strict=True)]
                         r[f"{key}_rounds"] = [min(ratios), max(ratios)]
@@ -488,7 +492,7 @@ class Case:
 
 
 def _round_ranges(row: dict) -> list[tuple[str, tuple[float, float]]]:
-    """(eager or compiled, (lowest, highest) per-repetition ratio) of an interleaved jaml row."""
+    """(eager or compiled, (lowest, highest) per-round ratio) of a paired jaml row."""
     return [(run, tuple(row[key])) for run, key in (
         ("eager", "speedup_vs_pytorch_rounds"),
         ("compiled", "speedup_vs_pytorch_compiled_rounds")) if key in row]
@@ -513,7 +517,8 @@ def _lines(rows: list[dict]) -> str:
             lines.append(f"{head} {r['frames_per_s']:9.1f} frames/s (compile {r['compile_s']:.1f}"
                          f" s, {r['temp_gib']:.2f} GiB of temporaries; "
                          f"{r['useful_gflop_per_frame']:.3f} useful GFLOP/frame, {_mfu_text(r)})"
-                         + "".join(f"; {lo:.2f}–{hi:.2f}× the fastest {run} peer per repetition"
+                         + "".join(f"; {lo:.2f}–{hi:.2f}× the fastest {run} peer per "
+                                   f"{r.get('paired', 'round')}"
                                    for run, (lo, hi) in _round_ranges(r)))
         else:
             eager = "first_step_s" in r
@@ -525,54 +530,112 @@ def _lines(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+ORDERS = ("separate", "interleaved", "peer-first")
+
+
 def measure_case(case: Case, reps: int, steps: int, variants, jaml_variants,
-                 interleave: bool = False) -> list[dict]:
-    """The peer's variants, then jaml's step in each (upsample form, activation dtype). One
-    after another, each peer variant releasing its memory before the next side is built (a
-    GPU's way); or with `interleave`, every side built first and then timed in turns, round by
-    round (`_round_rates`: the CPU's way, where the side that runs second in a process ran
-    slower, whichever it was)."""
-    with contextlib.ExitStack() as held:
-        prepared = []  # (kind, key, prepared side), in the order they run
-        for mode, fmt in variants:
-            case.running = _peer_running(case.dtype, mode, fmt)
-            if interleave:
-                side = held.enter_context(torch_prepared(
-                    case.learner, case.sequences, case.dtype, mode, memory_format=fmt))
-            else:
-                side = bench_torch(case.learner, case.sequences, reps, steps, case.dtype, mode,
-                                   memory_format=fmt)
-                case.peers.append(side)
-                print(f"  {case.name} {side['label']}: "
-                      + (side["error"] if "error" in side else f"{side['fps']:.1f} frames/s"),
-                      flush=True)
-            prepared.append(("peer", None, side))
-        for form, act in jaml_variants:
-            case.running = _jaml_impl(form, act)
-            if interleave:
-                side = held.enter_context(jaml_prepared(case.sequences, case.dtype,
-                                                        case.learner, form, act))
-            else:
-                side = bench_jax(case.sequences, reps, steps, case.dtype, case.learner, form,
-                                 act)
-                case.jaml.append(((form, act), side))
-            prepared.append(("jaml", (form, act), side))
-        if interleave:
-            case.interleaved = True
-            case.running = "the sides' rounds, interleaved"
-            live = [side for _, _, side in prepared if "error" not in side]
-            rates = _round_rates([side["run_steps"] for side in live], case.frames, reps, steps)
-            done = {id(side): _result(side, r) for side, r in zip(live, rates, strict=True)}
-            for kind, key, side in prepared:
-                result = done.get(id(side), side)
-                if kind == "peer":
-                    case.peers.append(result)
+                 order: str = "peer-first", processes: int = 3) -> list[dict]:
+    """The peer's variants and jaml's step in each (upsample form, activation dtype), in one of
+    `ORDERS`. peer-first: in this process one after another, each peer variant releasing its
+    memory before the next side is built (a GPU's way). interleaved: every side built first,
+    then timed in turns within each repetition (`_round_rates`). separate: each side alone in
+    a new process of this script, `processes` of them a side, the sides' processes taking
+    turns (the CPU's way: in one process the side that ran second ran slower, whichever it
+    was, and taking turns moved both sides by up to a quarter)."""
+    sides = ([("peer", (mode, fmt)) for mode, fmt in variants]
+             + [("jaml", (form, act)) for form, act in jaml_variants])
+    if order == "separate":
+        runs = {side: [] for side in sides}
+        for _ in range(processes):
+            for side in sides:
+                case.running = _running(case, *side)
+                runs[side].append(_side_in_a_process(case, *side, reps, steps))
+        results = {side: _across_processes(found) for side, found in runs.items()}
+        case.paired = "process"
+    else:
+        with contextlib.ExitStack() as held:
+            built = {}
+            for side in sides:
+                case.running = _running(case, *side)
+                if order == "interleaved":
+                    built[side] = held.enter_context(_prepared(case, *side))
                 else:
-                    case.jaml.append((key, result))
+                    built[side] = _measured(case.learner, case.sequences, case.dtype, *side,
+                                            reps, steps)
+                    print(f"  {case.name} {case.running}: " + (
+                        built[side]["error"] if "error" in built[side]
+                        else f"{built[side]['fps']:.1f} frames/s"), flush=True)
+            results = built
+            if order == "interleaved":
+                case.running = "the sides' rounds, interleaved"
+                live = [side for side in sides if "error" not in built[side]]
+                rates = _round_rates([built[side]["run_steps"] for side in live], case.frames,
+                                     reps, steps)
+                results = {side: built[side] if side not in live else
+                           _result(built[side], rates[live.index(side)]) for side in sides}
+                case.paired = "repetition"
+    for (kind, key) in sides:
+        if kind == "peer":
+            case.peers.append(results[kind, key])
+        else:
+            case.jaml.append((key, results[kind, key]))
     case.running = None
     rows = case.rows()
     print(_lines(rows), flush=True)
     return rows
+
+
+def _running(case: Case, kind: str, key: tuple) -> str:
+    return _peer_running(case.dtype, *key) if kind == "peer" else _jaml_impl(*key)
+
+
+def _prepared(case: Case, kind: str, key: tuple):
+    """A side built and warmed up in this process (a context: the peer is released on
+    leaving)."""
+    if kind == "peer":
+        mode, fmt = key
+        return torch_prepared(case.learner, case.sequences, case.dtype, mode, memory_format=fmt)
+    return jaml_prepared(case.sequences, case.dtype, case.learner, *key)
+
+
+def _measured(learner: str, sequences: int, dtype: str, kind: str, key: tuple, reps: int,
+              steps: int) -> dict:
+    """A side's result, measured alone in this process."""
+    if kind == "peer":
+        mode, fmt = key
+        return bench_torch(learner, sequences, reps, steps, dtype, mode, memory_format=fmt)
+    return bench_jax(sequences, reps, steps, dtype, learner, *key)
+
+
+def _side_in_a_process(case: Case, kind: str, key: tuple, reps: int, steps: int) -> dict:
+    """A side's result measured in a new process of this script (`--side`), or its error."""
+    spec = [kind, list(key), case.learner, case.sequences, case.dtype, reps, steps,
+            networks._MAX_UNROLL]
+    out = subprocess.run([sys.executable, __file__, "--side", json.dumps(spec)],
+                         capture_output=True, text=True)
+    if out.returncode:
+        last = (out.stderr.strip().splitlines() or ["no output"])[-1]
+        return {"error": f"its process exited with status {out.returncode}: {last[:160]}"}
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _side_here(spec: list) -> dict:
+    """`--side`: one side of a case measured in this process (`_side_in_a_process`'s child)."""
+    kind, key, learner, sequences, dtype, reps, steps, unroll = spec
+    networks._MAX_UNROLL = unroll
+    if kind == "peer":
+        setup_torch(1)
+    return _measured(learner, sequences, dtype, kind, tuple(key), reps, steps)
+
+
+def _across_processes(found: list[dict]) -> dict:
+    """A side's result over its processes: the median process's rate, each process's rate as
+    its "rounds", the rest from the first process; the first error if any process failed."""
+    failed = [r for r in found if "error" in r]
+    if failed:
+        return failed[0]
+    rates = [r["fps"] for r in found]
+    return {**found[0], "fps": statistics.median(rates), "rounds": rates}
 
 
 def _peer_running(dtype: str, mode: str | None, memory_format: str) -> str:
@@ -646,15 +709,24 @@ def main(argv=None) -> int:
                         help="seconds a case (peer variants and jaml forms) may take; past "
                         "them its rows so far and an error row for the impl still running are "
                         "recorded, and the run ends")
-    parser.add_argument("--order", choices=["auto", "interleaved", "peer-first"],
-                        default="auto", help="interleaved: every side built, then timed in "
-                        "turns round by round; peer-first: the peer's variants one after "
-                        "another, each released before jaml's step is built (auto: interleaved "
-                        "on the CPU, peer-first elsewhere, where the peer's memory must go)")
+    parser.add_argument("--order", choices=["auto", *ORDERS], default="auto",
+                        help="separate: each side alone in new processes, --processes a side, "
+                        "taking turns; interleaved: every side built in this process, then "
+                        "timed in turns within each repetition; peer-first: the peer's variants "
+                        "one after another in this process, each released before jaml's step "
+                        "is built (auto: separate on the CPU, peer-first elsewhere)")
+    parser.add_argument("--processes", type=int, default=3,
+                        help="processes a side with --order separate")
+    parser.add_argument("--side", help=argparse.SUPPRESS)  # a --order separate child
     parser.add_argument("--no-record", action="store_true", help="print only")
     args = parser.parse_args(argv)
-    interleave = args.order == "interleaved" or (args.order == "auto"
-                                                 and jax.default_backend() == "cpu")
+    if args.side:  # one side in this process: its result on stdout's last line
+        print(json.dumps(_side_here(json.loads(args.side))), flush=True)
+        return 0
+    if args.processes < 1:
+        parser.error(f"--processes must be at least 1, got {args.processes}")
+    order = args.order if args.order != "auto" else (
+        "separate" if jax.default_backend() == "cpu" else "peer-first")
     if args.max_unroll is not None:
         if args.max_unroll < 1:
             parser.error(f"--max-unroll must be ≥ 1, got {args.max_unroll}")
@@ -675,7 +747,8 @@ def main(argv=None) -> int:
     print(f"device: {jax.devices()[0].device_kind} ({jax.default_backend()}), "
           f"jax {jax.__version__}, python {platform.python_version()}, {platform.processor()}")
     print(f"train steps (ld_dim {LD_DIM}, Adam), median of {args.reps} reps × {args.steps} steps"
-          + (", the sides in turns within each rep" if interleave else ""))
+          + {"separate": f", each side alone in {args.processes} processes taking turns",
+             "interleaved": ", the sides in turns within each rep", "peer-first": ""}[order])
     peer_gflop = {}  # the peer's own count, per learner (the same in every dtype)
     peered = [n for n in args.learners if variants and n in tl.LEARNERS]
     for name in (n for n in args.learners if variants and n not in peered):
@@ -698,7 +771,8 @@ def main(argv=None) -> int:
                 rows = measure_case(case, args.reps, args.steps,
                                     variants if name in peered else [],
                                     [(form, act) for act in args.activation_dtypes
-                                     for form in args.upsample_forms], interleave)
+                                     for form in args.upsample_forms], order,
+                                    args.processes)
                 if timer:
                     timer.cancel()
                 if args.max_unroll is not None:

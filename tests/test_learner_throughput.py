@@ -117,7 +117,7 @@ def test_svae_has_no_torch_peer_and_gets_jaml_s_rows_alone(monkeypatch, capsys):
     monkeypatch.setattr(lt, "matmul_ceiling", lambda dtype, n: 1.0)
     monkeypatch.setattr(lt, "useful_gflop_per_frame", lambda *a: 1.0)
 
-    def measure_case(case, reps, steps, variants, forms, interleave):
+    def measure_case(case, reps, steps, variants, forms, order, processes):
         seen[case.learner] = variants
         return []
 
@@ -138,7 +138,7 @@ def test_max_unroll_sets_the_recurrent_layers_cap_and_names_it_in_jaml_s_rows(mo
     monkeypatch.setattr(lt, "useful_gflop_per_frame", lambda *a: 1.0)
     caps = []
 
-    def measure_case(case, reps, steps, variants, forms, interleave):
+    def measure_case(case, reps, steps, variants, forms, order, processes):
         caps.append(networks._MAX_UNROLL)
         return [{"impl": "jaml, bfloat16 activations"}, {"impl": "pytorch 2.13 eager (cpu)"}]
 
@@ -154,7 +154,7 @@ def test_max_unroll_sets_the_recurrent_layers_cap_and_names_it_in_jaml_s_rows(mo
         lt.main(["--learners", "DSA", "--max-unroll", "0"])
 
 
-def test_interleaved_sides_take_turns_each_round_and_rows_keep_each_rounds_ratio(monkeypatch):
+def test_interleaved_sides_take_turns_each_repetition_and_rows_keep_each_ratio(monkeypatch):
     """`--order interleaved`: every side is built before any is timed, then the peer and jaml
     take turns within each repetition; the rows carry each repetition's rate and jaml's the
     range of its per-repetition ratios, against a clock the sides' steps advance by hand."""
@@ -183,7 +183,7 @@ def test_interleaved_sides_take_turns_each_round_and_rows_keep_each_rounds_ratio
         "jaml", compile_s=1.0, xla_gflop_per_frame=0.5, temp_gib=0.1))
     case = lt.Case("VAE_rpl", 10, 1, "float32", ceiling=100.0, peak=None, gflop_per_frame=0.5)
     rows = lt.measure_case(case, 3, 2, [(None, "channels_last")], [("auto", "float32")],
-                           interleave=True)
+                           order="interleaved")
     assert calls == ["peer", "jaml"] * 3
     assert built[:2] == [("peer", []), ("jaml", [])]  # both built before either is timed
     assert {k for k, _ in built[2:]} == {"peer released", "jaml released"}
@@ -192,6 +192,7 @@ def test_interleaved_sides_take_turns_each_round_and_rows_keep_each_rounds_ratio
     assert jaml["frames_per_s_rounds"] == pytest.approx([10.0, 10.0, 10.0 / 3])
     assert jaml["speedup_vs_pytorch"] == 10.0 / 5.0  # the medians
     assert jaml["speedup_vs_pytorch_rounds"] == pytest.approx([2.0 / 3, 4.0])
+    assert jaml["paired"] == "repetition"
     assert "0.67–4.00× the fastest eager peer per repetition" in lt._lines(rows)
     # One after another (a GPU's way), the rounds are not paired: no per-round ratio.
     pace = {"peer": iter([2.0] * 4), "jaml": iter([1.0] * 4)}
@@ -200,3 +201,40 @@ def test_interleaved_sides_take_turns_each_round_and_rows_keep_each_rounds_ratio
     rows = lt.measure_case(case, 2, 1, [(None, "channels_last")], [("auto", "float32")])
     assert calls == ["peer", "peer", "jaml", "jaml"]
     assert "speedup_vs_pytorch_rounds" not in rows[0]
+
+
+def test_separate_sides_run_alone_in_processes_taking_turns(monkeypatch):
+    """`--order separate` (the CPU's): each side in new processes, the sides' processes taking
+    turns; a side's rate is its median process's, each process's rate is a round, and a
+    process that fails makes the side an error row."""
+    calls = []
+    rates = {"peer": iter([100.0, 300.0, 200.0]), "jaml": iter([150.0, 150.0, 450.0])}
+
+    def in_a_process(case, kind, key, reps, steps):
+        calls.append((kind, key, reps, steps))
+        info = {"label": "eager", "version": "2.x", "device": "cpu", "threads": 2,
+                "first_step_s": 0.1} if kind == "peer" else {
+            "compile_s": 1.0, "xla_gflop_per_frame": 0.5, "temp_gib": 0.1}
+        return {**info, "fps": next(rates[kind]), "rounds": [0.0]}
+
+    monkeypatch.setattr(lt, "_side_in_a_process", in_a_process)
+    monkeypatch.setattr(lt, "_peer_running", lambda dtype, mode, fmt: "pytorch 2.x eager (cpu)")
+    case = lt.Case("VAE_rpl", 10, 1, "float32", ceiling=100.0, peak=None, gflop_per_frame=0.5)
+    jaml, peer = lt.measure_case(case, 5, 2, [(None, "channels_last")], [("auto", "float32")],
+                                 order="separate", processes=3)
+    assert [c[0] for c in calls] == ["peer", "jaml"] * 3
+    assert calls[0] == ("peer", (None, "channels_last"), 5, 2)
+    assert peer["frames_per_s"] == 200.0 and peer["frames_per_s_rounds"] == [100.0, 300.0, 200.0]
+    assert jaml["frames_per_s"] == 150.0 and jaml["paired"] == "process"
+    assert jaml["speedup_vs_pytorch"] == 150.0 / 200.0
+    assert jaml["speedup_vs_pytorch_rounds"] == pytest.approx([0.5, 2.25])
+    assert lt._across_processes([{"fps": 1.0}, {"error": "x"}]) == {"error": "x"}
+
+
+def test_a_side_measured_in_its_own_process_comes_back_as_its_result():
+    """The real child: this script with `--side`, jaml's VAE_rpl step on one frame."""
+    case = lt.Case("VAE_rpl", 1, 1, "float32", ceiling=1.0, peak=None, gflop_per_frame=0.5)
+    result = lt._side_in_a_process(case, "jaml", ("auto", "float32"), 1, 1)
+    assert result["fps"] > 0 and len(result["rounds"]) == 1 and result["compile_s"] > 0
+    bad = lt.Case("VAE_rpl", 0, 1, "float32", ceiling=1.0, peak=None, gflop_per_frame=0.5)
+    assert "error" in lt._side_in_a_process(bad, "jaml", ("auto", "float32"), 1, 1)

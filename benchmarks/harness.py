@@ -219,6 +219,8 @@ def record(benchmark: str, rows: list[dict], notes: str = "") -> None:
 def _fmt(value) -> str:
     if isinstance(value, float):
         return f"{value:.4g}"
+    if isinstance(value, list) and value and all(isinstance(v, float) for v in value):
+        return "[" + ", ".join(_fmt(v) for v in value) + "]"
     return str(value)
 
 

@@ -59,6 +59,8 @@ def test_results_md_keeps_the_latest_row_per_case_machine_and_settings(tmp_path,
     assert values == ["10", "11", "12", "5", "6", "7", "8", "9"]
     assert sum("pinned to 1" in line for line in table) == 1
     assert sum("malloc on huge pages" in line for line in table) == 1
+    # A list of rates (each round's) is written as the floats are, in four digits.
+    assert harness._fmt([186.93217, 0.5]) == "[186.9, 0.5]" and harness._fmt([1, 2]) == "[1, 2]"
 
 
 def test_a_commit_is_dirty_for_changed_code_not_for_the_harness_outputs(tmp_path):

@@ -42,17 +42,17 @@ casts the MLP, heads and RNNs). Case by case (learner, dtype, batch), on a GPU
 (`--order peer-first`) the peer's variants run first and release their memory, then jaml's step
 (XLA_PYTHON_CLIENT_PREALLOCATE=false, set here unless already set). On the CPU (`--order
 separate`) each side runs alone in new processes of this script, `--processes` a side, the
-sides' processes taking turns: in one process the two sides slow each other (run one after the
-other, the second ran slower, whichever it was; in turns within each repetition, `--order
-interleaved`, jaml lost a sixth and the peer gained a quarter at 256 frames), and a user runs
-one of them alone. Rows carry each round's rate (`frames_per_s_rounds`: a repetition's, or with
-`paired: process` a process's median), and jaml's paired rows the range of its per-round ratios
-to the peer (`speedup_vs_pytorch_rounds`, `speedup_vs_pytorch_compiled_rounds`). The
-case's rows are recorded at once, so a run cut short keeps the cases it finished. A peer
-variant or jaml form that fails (out of memory, a compiler error) is a row with the error's
-first line, not fatal; jaml's compiled step is checked against the device's
-free memory before it runs (`memory_shortfall`), and with `--case-timeout` a case that runs past
-it is recorded as far as it got, with an error row for the impl that did not finish.
+sides' processes taking turns: in one process the two sides move each other's rates, one
+after the other or in turns within each repetition (`--order interleaved`; measured in
+docs/notes/learners.md), and a user runs one of them alone. Rows carry each round's rate
+(`frames_per_s_rounds`: a repetition's, or with `paired: process` a process's median), and
+jaml's paired rows the range of its per-round ratios to the peer (`speedup_vs_pytorch_rounds`,
+`speedup_vs_pytorch_compiled_rounds`). The case's rows are recorded at once, so a run cut
+short keeps the cases it finished. A peer variant or jaml form that fails (out of memory, a
+compiler error) is a row with the error's first line, not fatal; jaml's compiled step is
+checked against the device's free memory before it runs (`memory_shortfall`), and with
+`--case-timeout` a case that runs past it is recorded as far as it got, with an error row for
+the impl that did not finish.
 """
 
 from __future__ import annotations
@@ -112,11 +112,6 @@ def matmul_ceiling(dtype: str, n: int = 8192, reps: int = 5) -> float:
         jax.block_until_ready(mm(a, b))
         times.append(time.perf_counter() - t0)
     return 2 * n**3 / statistics.median(times) / 1e12
-
-
-def _median_rate(run_steps, frames_per_step: int, reps: int, steps: int) -> float:
-    (rates,) = _round_rates([run_steps], frames_per_step, reps, steps)
-    return statistics.median(rates)
 
 
 def _round_rates(runners, frames_per_step: int, reps: int, steps: int) -> list[list[float]]:
@@ -540,8 +535,7 @@ def measure_case(case: Case, reps: int, steps: int, variants, jaml_variants,
     memory before the next side is built (a GPU's way). interleaved: every side built first,
     then timed in turns within each repetition (`_round_rates`). separate: each side alone in
     a new process of this script, `processes` of them a side, the sides' processes taking
-    turns (the CPU's way: in one process the side that ran second ran slower, whichever it
-    was, and taking turns moved both sides by up to a quarter)."""
+    turns (the CPU's way: in one process the two sides move each other's rates)."""
     sides = ([("peer", (mode, fmt)) for mode, fmt in variants]
              + [("jaml", (form, act)) for form, act in jaml_variants])
     if order == "separate":

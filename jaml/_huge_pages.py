@@ -54,13 +54,14 @@ def describe(environ: Mapping[str, str], libc: tuple[str, str], mode: str | None
     info`)."""
     tunables = environ.get("GLIBC_TUNABLES", "")
     setting = [item for item in tunables.split(":") if item.startswith(f"{TUNABLE}=")]
+    thp = f"transparent huge pages {mode or 'unknown'}"
     if mode == "always":
         return "huge pages (the kernel's transparent huge pages are always on)"
     if setting and setting[-1] != f"{TUNABLE}=0" and mode == "madvise":
         return f"huge pages (GLIBC_TUNABLES {setting[-1]})"
     if setting:
-        return f"4 KiB pages (GLIBC_TUNABLES {setting[-1]}, transparent huge pages {mode})"
-    return f"4 KiB pages ({libc[0] or 'libc'} {libc[1]}, transparent huge pages {mode})"
+        return f"4 KiB pages (GLIBC_TUNABLES {setting[-1]}, {thp})"
+    return f"4 KiB pages ({' '.join(filter(None, libc)) or 'libc unknown'}, {thp})"
 
 
 def adopt() -> None:

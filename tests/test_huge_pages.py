@@ -51,6 +51,8 @@ def test_describe_says_which_pages_and_why():
         "4 KiB pages (GLIBC_TUNABLES glibc.malloc.hugetlb=0, transparent huge pages madvise)")
     assert describe({}, GLIBC, "never") == "4 KiB pages (glibc 2.36, transparent huge pages never)"
     assert describe({}, GLIBC, "always").startswith("huge pages")
+    assert describe({}, ("", ""), None) == (
+        "4 KiB pages (libc unknown, transparent huge pages unknown)")
 
 
 HERE = _huge_pages.environment({}, platform.libc_ver(), thp_mode()) is not None

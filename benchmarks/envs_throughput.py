@@ -51,8 +51,6 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-import subprocess
-import sys
 import time
 
 import jax
@@ -62,7 +60,7 @@ import numpy as np
 from mujoco import mjx
 
 import envs_mjx
-from benchmarks.harness import block, measure, parse_env, record, usable_cores
+from benchmarks.harness import block, child_result, measure, parse_env, record, usable_cores
 from benchmarks.peers import pybullet_envs
 from envs_mjx.compile import CPU_COMPILER_OPTIONS
 from jaml import _huge_pages
@@ -304,15 +302,11 @@ def bench_vs_pybullet_in_processes(spec, batch, steps, rounds, processes, fresh)
     from the peer's noise; the spread across processes can."""
     rows = []
     for _ in range(fresh):
-        out = subprocess.run(
-            [sys.executable, __file__, "--side-by-side-child", json.dumps(
-                [spec, batch, steps, rounds, processes])],
-            capture_output=True, text=True)
-        if out.returncode:
-            last = (out.stderr.strip().splitlines() or ["no output"])[-1]
-            raise RuntimeError(f"a --fresh-processes child ({spec}, batch {batch}) exited "
-                               f"{out.returncode}: {last}")
-        rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
+        try:
+            rows.append(child_result(__file__, "--side-by-side-child", json.dumps(
+                [spec, batch, steps, rounds, processes])))
+        except RuntimeError as e:
+            raise RuntimeError(f"a --fresh-processes child ({spec}, batch {batch}): {e}") from e
     by_ratio = sorted(rows, key=lambda r: r["ratio_jaml_over_pybullet"])
     row = dict(by_ratio[(len(rows) - 1) // 2])  # the median process (the lower one of two)
     row.update({

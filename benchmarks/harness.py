@@ -16,10 +16,13 @@ import os
 import platform
 import statistics
 import subprocess
+import sys
 import time
 from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
+
+from jaml import _huge_pages
 
 HERE = Path(__file__).resolve().parent
 # JAML_BENCH_RESULTS redirects the raw results (e.g. to a remote machine's output folder).
@@ -201,6 +204,16 @@ def parse_env(spec: str) -> tuple[str, dict]:
     return name, overrides
 
 
+def child_result(script: str, *args: str) -> dict:
+    """The JSON a benchmark script prints on its stdout's last line, run with `args` in a new
+    Python process; RuntimeError with the status and stderr's last line if it fails."""
+    out = subprocess.run([sys.executable, script, *args], capture_output=True, text=True)
+    if out.returncode:
+        last = (out.stderr.strip().splitlines() or ["no output"])[-1]
+        raise RuntimeError(f"its process exited with status {out.returncode}: {last[:160]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def record(benchmark: str, rows: list[dict], notes: str = "") -> None:
     """Append result rows (each a dict with at least "case") and rebuild RESULTS.md.
 
@@ -244,7 +257,7 @@ def _identity(row: dict) -> tuple:
 def _huge_pages_row(row: dict) -> bool:
     """Whether malloc asked for huge pages in a row's process: a CPU step's rate moves with it,
     so those rows stand beside the 4 KiB ones (rows from before it was recorded had 4 KiB)."""
-    return "glibc.malloc.hugetlb=1" in row.get("glibc_tunables", "")
+    return f"{_huge_pages.TUNABLE}=1" in row.get("glibc_tunables", "")
 
 
 def _affinity(row: dict):

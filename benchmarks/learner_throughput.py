@@ -64,7 +64,6 @@ import json
 import os
 import platform
 import statistics
-import subprocess
 import sys
 import threading
 import time
@@ -605,12 +604,10 @@ def _side_in_a_process(case: Case, kind: str, key: tuple, reps: int, steps: int)
     """A side's result measured in a new process of this script (`--side`), or its error."""
     spec = [kind, list(key), case.learner, case.sequences, case.dtype, reps, steps,
             networks._MAX_UNROLL]
-    out = subprocess.run([sys.executable, __file__, "--side", json.dumps(spec)],
-                         capture_output=True, text=True)
-    if out.returncode:
-        last = (out.stderr.strip().splitlines() or ["no output"])[-1]
-        return {"error": f"its process exited with status {out.returncode}: {last[:160]}"}
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    try:
+        return harness.child_result(__file__, "--side", json.dumps(spec))
+    except RuntimeError as e:
+        return {"error": str(e)}
 
 
 def _side_here(spec: list) -> dict:

@@ -162,7 +162,7 @@ def test_fresh_processes_give_the_median_process_with_every_process_beside_it(mo
         return type("Done", (), {"returncode": 0,
                                  "stdout": "warp missing\n" + json.dumps(children[len(calls) - 1])})
 
-    monkeypatch.setattr(envs_throughput.subprocess, "run", run)
+    monkeypatch.setattr(harness.subprocess, "run", run)
     row = envs_throughput.bench_vs_pybullet_in_processes("CartPole", 256, 10, 7, 2, 3)
     assert calls == [["CartPole", 256, 10, 7, 2]] * 3
     assert row["ratio_jaml_over_pybullet"] == 2.5 and row["jaml_frames_per_s"] == 23_000.0
@@ -170,9 +170,10 @@ def test_fresh_processes_give_the_median_process_with_every_process_beside_it(mo
     assert row["jaml_frames_per_s_by_process"] == [23_000, 9_900, 23_100]
     assert (row["ratio_min"], row["ratio_max"], row["rounds"]) == (1.0, 2.7, 21)
     assert row["fresh_processes"] == 3
-    monkeypatch.setattr(envs_throughput.subprocess, "run", lambda cmd, **kw: type(
+    monkeypatch.setattr(harness.subprocess, "run", lambda cmd, **kw: type(
         "Failed", (), {"returncode": 1, "stdout": "", "stderr": "Traceback\nValueError: no"}))
-    with pytest.raises(RuntimeError, match=r"\(CartPole, batch 256\) exited 1: ValueError: no"):
+    with pytest.raises(RuntimeError, match=r"\(CartPole, batch 256\): its process exited with "
+                                            r"status 1: ValueError: no"):
         envs_throughput.bench_vs_pybullet_in_processes("CartPole", 256, 10, 7, 2, 3)
 
 

@@ -579,16 +579,19 @@ def fit(
         raise TypeError("priors must be a sequence of callables (or None entries)")
 
     pool = ThreadPoolExecutor(1, thread_name_prefix="jaml-compile")
+    # The compiled plain loop of each relation (`_fit_relation`), kept for the whole fit: the
+    # relations trained again from other starts run the loops their first starts compiled.
+    programs = {}
     try:
         # A fresh fit pauses at the codimension where its relation lands away on every start:
         # the relations below it train again before any relation beyond it is spent on them.
-        fitted = _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partial,
-                           pause_away=rs.num_relations == 0 and cfg.premine_attempts > 1)
+        fitted = _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, programs,
+                           partial, pause_away=rs.num_relations == 0 and cfg.premine_attempts > 1)
         if fitted.paused:
             fitted = _below_again(cfg, batches, rs, key, priors, callback, on_relation, pool,
-                                  fitted)
+                                  programs, fitted)
             fitted = _fit_loop(cfg, batches, fitted.rs, key, priors, callback, on_relation,
-                               pool, partial, after=fitted)
+                               pool, programs, partial, after=fitted)
         return fitted.rs
     finally:
         pool.shutdown(wait=False, cancel_futures=True)
@@ -613,7 +616,7 @@ def _lands_away(land: dict | None) -> bool:
     return land is not None and 1 - quality.on_data(land) > RETRY_SPURIOUS
 
 
-def _below_again(cfg, batches, empty, key, priors, callback, on_relation, pool,
+def _below_again(cfg, batches, empty, key, priors, callback, on_relation, pool, programs,
                  first: _Loop) -> _Loop:
     """The fit once more with the relations below the codimension from other starts, kept
     where more projected box points land on the data; the kept relations reach `on_relation`
@@ -622,8 +625,8 @@ def _below_again(cfg, batches, empty, key, priors, callback, on_relation, pool,
     log.info("the codimension-th relation leaves %.0f%% of projected box points away from the "
              "data on every start: the relations below it trained again from another "
              "initialisation", 100 * (1 - quality.on_data(first.land)))
-    other = _fit_loop(cfg, batches, empty, key, priors, callback, None, pool, below_attempt=1,
-                      pause_at_codim=True)
+    other = _fit_loop(cfg, batches, empty, key, priors, callback, None, pool, programs,
+                      below_attempt=1, pause_at_codim=True)
     if other.land is None or quality.on_data(other.land) <= quality.on_data(first.land):
         log.info("trained again, %s: the first relations kept",
                  "no relation completed the codimension" if other.land is None else
@@ -638,14 +641,17 @@ def _below_again(cfg, batches, empty, key, priors, callback, on_relation, pool,
 
 
 def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, pool,
-                   codim: int = 1):
-    """Compile g_{k_next+1}'s training loop in a background thread while g_{k_next} trains.
+                   codim: int = 1, programs: dict | None = None):
+    """Compile g_{k_next+1}'s training loop in a background thread while g_{k_next} trains,
+    unless `programs` (`_fit_relation`'s) holds it already.
 
     The loop depends on the frozen relations only through their shapes, so the still untrained
     `params` of g_{k_next} stand in for it. Only the plain transversality loop is compiled ahead
     (syzygy rounds have data-dependent shapes). Returns {k_next: future of the compiled chunk}.
     """
-    if cfg.independence != "transversality" or k_next >= cfg.max_relations:
+    clip = _clip(cfg, k_next, codim)
+    if (cfg.independence != "transversality" or k_next >= cfg.max_relations
+            or (k_next, clip, cfg) in (programs or {})):
         return {}
     width = relation_width(rs.num_relations, cfg.base_width, cfg.max_width)
     stand_in = rs.append(params, 0.0, 0.0, width)
@@ -659,7 +665,7 @@ def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, 
     next_params = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), next_params)
     chunk, state, args = relation_trainer(
         cfg, batches, stand_in, next_params, jax.random.key(0), cfg.max_steps,
-        with_mined=_with_mined(cfg, k_next, codim), clip=_clip(cfg, k_next, codim),
+        with_mined=_with_mined(cfg, k_next, codim), clip=clip,
     )
     return {k_next: pool.submit(chunk.lower(state, args).compile, LOOP_COMPILER_OPTIONS)}
 
@@ -862,15 +868,15 @@ def _noise_floor(cfg: Config, batches: Batches, codim: int, key) -> dict:
     return floor
 
 
-def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, partial=None,
-              below_attempt: int = 0, pause_away: bool = False, pause_at_codim: bool = False,
-              after: _Loop | None = None) -> _Loop:
+def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, programs: dict,
+              partial=None, below_attempt: int = 0, pause_away: bool = False,
+              pause_at_codim: bool = False, after: _Loop | None = None) -> _Loop:
     """Algorithm 1 from `rs` on; `below_attempt` > 0 draws the relations below the data's
     codimension from another start (every key of theirs folded with it). The loop pauses
     (no report) once the codimension-th relation of at least two is kept, with `pause_at_codim`
     always, with `pause_away` where it `_lands_away`; `after` (a paused loop's) goes on from
-    it, as if it had not paused."""
-    ahead, programs = {}, {}
+    it, as if it had not paused. `programs`: the fit's compiled loops (`_fit_relation`)."""
+    ahead = {}
     kept, codim_land = [], None  # (the set so far, its summary) as each relation is kept
     statuses, unexplained = _start_ends(rs) if after is None else map(list, after.ends)
     kept_land = None  # where projected box points land on the relations kept so far
@@ -910,7 +916,7 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
         example_tau = jnp.zeros((1, batches.dim))
         params = init(k_init, example_tau)
         ahead |= _compile_ahead(_relation_config(fit_cfg, k + 1, codim), batches, rs, params,
-                                k + 1, pool, codim)
+                                k + 1, pool, codim, programs)
         resuming = partial is not None and partial.holds(k)
         if priors is not None and k < len(priors) and priors[k] is not None and not resuming:
             params = _pretrain(cfg, batches, module, params, priors[k], k_pre)

@@ -453,12 +453,23 @@ def test_where_every_start_of_the_codimension_th_relation_lands_away_g1_trains_a
     """The ellipse (codimension 2): where every start of g_2 leaves more than a tenth of the
     projected box points away from the data, the fit runs again with g_1 from another start,
     keeping the relations under which more land on the data; the kept ones reach on_relation
-    again."""
-    loops, seen = _landing_by_g1(monkeypatch, first, again), []
+    again. Trained again, g_1 and g_2 run the loops compiled for them the first time (the fit
+    keeps its compiled loops): two programs, whatever ran."""
+    from jaml.relations import training
+
+    loops, seen, ran = _landing_by_g1(monkeypatch, first, again), [], []
+    real_run = training.run_until_done
+
+    def running(chunk, *args, **kwargs):
+        ran.append(chunk)
+        return real_run(chunk, *args, **kwargs)
+
+    monkeypatch.setattr(training, "run_until_done", running)
     rs = relations.fit(sources.make("ellipse"), _G1_AGAIN_CONFIG.replace(
         premine_attempts=attempts), on_relation=lambda rs, summary: seen.append(
             (summary.index, rs.params[0], summary.landing)))
     assert loops == ([0] if kept is None else [0, 1, 0])
+    assert len(set(map(id, ran))) == 2
     assert [index for index, _, _ in seen] == ([1, 2, 1, 2] if kept == "again" else [1, 2])
     g1_first, g1_kept = seen[0][1], seen[-1][1]
     assert seen[-1][2]["spurious"] == (again if kept == "again" else first)

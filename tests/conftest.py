@@ -12,7 +12,10 @@ programs), which cut the learner tests from 240 s to 172 s. Modules that run lon
 loops are marked `xla_optimized` and compile at XLA's full level: at level 0 the relation
 learning tests took 185 s against 118 s. `JAML_TEST_XLA=optimized|fast` forces one setting for
 every module (to compare). A test's own long loop in a cheap module compiles at the full level
-inside `xla_optimized()`. The persistent cache is shared by the xdist workers of one run
+inside `xla_optimized()`. In the cheap modules a program's own LLVM level (the relation loops
+ask for 1) is lowered to 0 as well: test_quality took 82 s against 110 s. A test whose relation
+loops run thousands of steps is marked `loop_level` and keeps the level it asks for. The
+persistent cache is shared by the xdist workers of one run
 (keyed by xdist's run id), so a program one worker compiled is read, not rebuilt, by the other.
 The cheap setting also compiles with XLA:CPU's older (elemental) fusion emitters, the option
 jaml already gives its env programs (`envs_mjx/compile.py`): the same HLO, emitted by the older
@@ -59,16 +62,20 @@ if _FORCED not in (None, "optimized", "fast"):
 
 
 _OLDER_EMITTERS = [False]  # the current module's setting, read at each compile
+_CHEAP = [False]  # the module compiles cheaply: no program's own backend level above 0
 _SETTING = [None]  # (optimized, older emitters) of the worker's previous module
 _get_compile_options = _compiler.get_compile_options
 
 
 def _compile_options(*args, env_options_overrides=None, **kwargs):
     """JAX's compile options, with the older fusion emitters while `_OLDER_EMITTERS` holds (a
-    program's own `compiler_options` still win)."""
+    program's own `compiler_options` still win), and LLVM's level 0 while `_CHEAP` holds, even
+    for a program that asks for more (the relation loops' level 1 is for long fits)."""
     if _OLDER_EMITTERS[0]:
         env_options_overrides = {"xla_cpu_use_fusion_emitters": False,
                                  **(env_options_overrides or {})}
+    if _CHEAP[0] and (env_options_overrides or {}).get("xla_backend_optimization_level"):
+        env_options_overrides = {**env_options_overrides, "xla_backend_optimization_level": 0}
     return _get_compile_options(*args, env_options_overrides=env_options_overrides, **kwargs)
 
 
@@ -92,7 +99,23 @@ def _xla_optimization(request):
     _SETTING[0] = (optimized, older)
     jax.config.update("jax_disable_most_optimizations", not optimized)
     _OLDER_EMITTERS[0] = older
+    _CHEAP[0] = not optimized
     yield
+
+
+@pytest.fixture(autouse=True)
+def _loop_level(request):
+    """A test marked `loop_level` in a cheap module compiles its programs at the LLVM level they
+    ask for (the relation loops' 1): its loops run thousands of steps, slower at level 0."""
+    if request.node.get_closest_marker("loop_level") is None:
+        yield
+        return
+    cheap = _CHEAP[0]
+    _CHEAP[0] = False
+    try:
+        yield
+    finally:
+        _CHEAP[0] = cheap
 
 
 @contextlib.contextmanager
@@ -106,12 +129,12 @@ def xla_optimized():
         return
     optimized, older = _SETTING[0]
     jax.config.update("jax_disable_most_optimizations", False)
-    _OLDER_EMITTERS[0] = False
+    _OLDER_EMITTERS[0] = _CHEAP[0] = False
     try:
         yield
     finally:
         jax.config.update("jax_disable_most_optimizations", not optimized)
-        _OLDER_EMITTERS[0] = older
+        _OLDER_EMITTERS[0], _CHEAP[0] = older, not optimized
 
 
 @pytest.hookimpl(trylast=True)  # after pytest's own unraisable-exception hook is in place

@@ -9,6 +9,7 @@ more than it saves (and the two modules balance across the workers).
 import math
 
 import jax
+import pytest
 
 from jaml import relations, sources
 from jaml.relations.data import prepare
@@ -16,6 +17,7 @@ from jaml.relations.training import fit_syzygy
 from tests.relations.test_learning import _fresh_ratio
 
 
+@pytest.mark.loop_level
 def test_syzygy_network_expresses_a_dependent_relation_but_not_an_independent_one():
     cfg = relations.Config(syzygy_max_steps=6000, separation_ratio=20.0)
     batches = prepare(sources.make("ellipse"), cfg.batch_size, 0.0, jax.random.key(0), 4)
@@ -28,6 +30,7 @@ def test_syzygy_network_expresses_a_dependent_relation_but_not_an_independent_on
     assert not found and ind["residual"] > 0.2 * ind["g_scale"], ind
 
 
+@pytest.mark.loop_level
 def test_algorithm_1_with_syzygies_learns_separating_relations():
     src = sources.make("ellipse")
     cfg = relations.Config(

@@ -13,10 +13,10 @@ loops are marked `xla_optimized` and compile at XLA's full level: at level 0 the
 learning tests took 185 s against 118 s. `JAML_TEST_XLA=optimized|fast` forces one setting for
 every module (to compare). A test's own long loop in a cheap module compiles at the full level
 inside `xla_optimized()`. In the cheap modules a program's own LLVM level (the relation loops
-ask for 1) is lowered to 0 as well: test_quality took 82 s against 110 s. A test whose relation
-loops run thousands of steps is marked `loop_level` and keeps the level it asks for. The
-persistent cache is shared by the xdist workers of one run
-(keyed by xdist's run id), so a program one worker compiled is read, not rebuilt, by the other.
+ask for 1) is lowered to 0 as well: their loops are short there. A test whose relation loops run
+thousands of steps is marked `loop_level` and keeps the level it asks for. The persistent cache
+is shared by the xdist workers of one run (keyed by xdist's run id), so a program one worker
+compiled is read, not rebuilt, by the other.
 The cheap setting also compiles with XLA:CPU's older (elemental) fusion emitters, the option
 jaml already gives its env programs (`envs_mjx/compile.py`): the same HLO, emitted by the older
 code generator, which compiles the stream's rendering rollouts and learner steps faster (on two

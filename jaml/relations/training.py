@@ -641,7 +641,7 @@ def _below_again(cfg, batches, empty, key, priors, callback, on_relation, pool, 
 
 
 def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, pool,
-                   codim: int = 1, programs: dict | None = None):
+                   codim: int, programs: dict):
     """Compile g_{k_next+1}'s training loop in a background thread while g_{k_next} trains,
     unless `programs` (`_fit_relation`'s) holds it already.
 
@@ -651,7 +651,7 @@ def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, 
     """
     clip = _clip(cfg, k_next, codim)
     if (cfg.independence != "transversality" or k_next >= cfg.max_relations
-            or (k_next, clip, cfg) in (programs or {})):
+            or (k_next, clip, cfg) in programs):
         return {}
     width = relation_width(rs.num_relations, cfg.base_width, cfg.max_width)
     stand_in = rs.append(params, 0.0, 0.0, width)

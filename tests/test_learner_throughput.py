@@ -231,8 +231,10 @@ def test_separate_sides_run_alone_in_processes_taking_turns(monkeypatch):
     assert lt._across_processes([{"fps": 1.0}, {"error": "x"}]) == {"error": "x"}
 
 
-def test_a_side_measured_in_its_own_process_comes_back_as_its_result():
-    """The real child: this script with `--side`, jaml's VAE_rpl step on one frame."""
+def test_a_side_measured_in_its_own_process_comes_back_as_its_result(monkeypatch):
+    """The real child: this script with `--side`, jaml's VAE_rpl step on one frame, compiled
+    cheaply as this module's own programs are (tests/conftest.py)."""
+    monkeypatch.setenv("JAX_DISABLE_MOST_OPTIMIZATIONS", "true")
     case = lt.Case("VAE_rpl", 1, 1, "float32", ceiling=1.0, peak=None, gflop_per_frame=0.5)
     result = lt._side_in_a_process(case, "jaml", ("auto", "float32"), 1, 1)
     assert result["fps"] > 0 and len(result["rounds"]) == 1 and result["compile_s"] > 0

@@ -260,8 +260,12 @@ def _timed(prepared: dict, reps: int, steps: int) -> dict:
 def _result(prepared: dict, rates: list[float]) -> dict:
     """A side's result: what it prepared (less its runner) with its rates per round and their
     median as "fps"."""
-    kept = {k: v for k, v in prepared.items() if k not in ("run_steps", "frames")}
-    return {**kept, "fps": statistics.median(rates), "rounds": rates}
+    return {**_described(prepared), "fps": statistics.median(rates), "rounds": rates}
+
+
+def _described(prepared: dict) -> dict:
+    """What a prepared side says of itself, less its runner and frame count."""
+    return {k: v for k, v in prepared.items() if k not in ("run_steps", "frames")}
 
 
 # Inductor's autotuned kernels without CUDA graphs (its autotuning takes minutes a case on an
@@ -365,8 +369,7 @@ def bench_torch(name: str, sequences: int, reps: int, steps: int, dtype: str = "
         try:
             return _timed(prepared, reps, steps)
         except Exception as e:  # out of memory in a timed step, say
-            return {k: v for k, v in prepared.items() if k not in ("run_steps", "frames")} | {
-                "error": _first_line(e)}
+            return _described(prepared) | {"error": _first_line(e)}
 
 
 def _torch_device():

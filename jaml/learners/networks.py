@@ -180,7 +180,12 @@ del _f, _bwd
 
 
 @jax.custom_vjp
-def _elu_from_output(x: jax.Array) -> jax.Array:
+def elu(x: jax.Array) -> jax.Array:
+    """`nn.elu`, whose backward pass reads its output alone: d elu / dx is 1 above zero and
+    exp(x) = elu(x) + 1 below, which is how JAX differentiates `expm1` too, so the gradients are
+    `nn.elu`'s bit for bit. Autodiff of `nn.elu` keeps expm1's output as a second
+    activation-sized array for the backward pass; this keeps only the output, which the next
+    layer keeps anyway (docs/learners.md, "The ELU's residual")."""
     return nn.elu(x)
 
 
@@ -190,18 +195,10 @@ def _elu_fwd(x):
 
 
 def _elu_bwd(y, g):
-    # d elu / dx = 1 for x > 0, exp(x) = y + 1 otherwise: the backward pass reads the output
-    # alone, so XLA keeps no second activation-sized array (exp(x)) for it.
     return (g * jnp.where(y > 0, 1, y + 1).astype(g.dtype),)
 
 
-_elu_from_output.defvjp(_elu_fwd, _elu_bwd)
-
-
-def elu(x: jax.Array, cpu_kernels: bool | None = None) -> jax.Array:
-    """`nn.elu`; with cpu_kernels (None: on the CPU) its gradient from the output (equal to
-    float32 rounding: exp(x) against expm1(x) + 1), cheaper on the CPU (docs/notes/learners.md)."""
-    return _elu_from_output(x) if _use_cpu_kernels(cpu_kernels) else nn.elu(x)
+elu.defvjp(_elu_fwd, _elu_bwd)
 
 
 def conv2d(x: jax.Array, kernel: jax.Array, strides: tuple[int, int] = (1, 1),
@@ -271,10 +268,10 @@ class ConvEncoder(nn.Module):
         for i, f in enumerate(self.filters):
             x = Conv(f, (4, 4), (2, 2), _HALVE, self.compute_dtype, self.cpu_kernels,
                      name=f"conv{i}")(x)
-            x = elu(_norm(f"bn{i}", train, self.activation_dtype)(x), self.cpu_kernels)
+            x = elu(_norm(f"bn{i}", train, self.activation_dtype)(x))
         x = Conv(self.features, (4, 4), dtype=self.compute_dtype, cpu_kernels=self.cpu_kernels,
                  name="conv_out")(x)
-        x = elu(_norm("bn_out", train, self.activation_dtype)(x), self.cpu_kernels)
+        x = elu(_norm("bn_out", train, self.activation_dtype)(x))
         return x.reshape(x.shape[0], self.features).astype(jnp.float32)
 
 
@@ -351,8 +348,6 @@ class ConvDecoder(nn.Module):
     channels: int = 3
     # As ConvEncoder's: the transposed convolutions' dtype; the output is float32.
     compute_dtype: jnp.dtype = jnp.float32
-    # As ConvEncoder's: the CPU formulation of its ELUs (`elu`); None: when tracing for the CPU.
-    cpu_kernels: bool | None = None
     # The transposed convolutions' formulation (`upsample2x`'s form; "auto": per backend).
     upsample_form: str = "auto"
     # As ConvEncoder's: the dtype between convolutions; the output is float32.
@@ -365,12 +360,12 @@ class ConvDecoder(nn.Module):
         # k4 s1 p0 on a 1×1 input is a dense layer onto a 4×4 map (no input dilation).
         x = nn.ConvTranspose(first, (4, 4), padding="VALID", dtype=dt, name="deconv0")(
             z.reshape(z.shape[0], 1, 1, z.shape[-1]))
-        x = _norm("bn0", train, at)(elu(x, self.cpu_kernels))
+        x = _norm("bn0", train, at)(elu(x))
         up = functools.partial(Upsample2x, compute_dtype=dt, form=self.upsample_form, dtype=at)
         for i, f in enumerate(middle, start=1):
-            x = elu(up(f, name=f"deconv{i}")(x), self.cpu_kernels)
+            x = elu(up(f, name=f"deconv{i}")(x))
             x = _norm(f"bn{i}", train, at)(x)
-        x = elu(up(last, name=f"deconv{len(middle) + 1}")(x), self.cpu_kernels)
+        x = elu(up(last, name=f"deconv{len(middle) + 1}")(x))
         out = up(self.channels, name="deconv_out", dtype=jnp.float32)(x)
         return nn.sigmoid(out)
 
@@ -383,7 +378,7 @@ class MLP(nn.Module):
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         for i, w in enumerate(self.widths):
-            x = nn.elu(nn.Dense(w, name=f"dense{i}")(x))
+            x = elu(nn.Dense(w, name=f"dense{i}")(x))
         return x
 
 
@@ -505,7 +500,7 @@ class GaussianHead(nn.Module):
 
     @nn.compact
     def __call__(self, h: jax.Array) -> tuple[jax.Array, jax.Array]:
-        act = {"none": lambda v: v, "elu": nn.elu, "sigmoid": nn.sigmoid}[self.mu_activation]
+        act = {"none": lambda v: v, "elu": elu, "sigmoid": nn.sigmoid}[self.mu_activation]
         mu = act(nn.Dense(self.size, name="mu")(h))
         logvar = jnp.clip(nn.Dense(self.size, name="logvar")(h), -self.logvar_limit,
                           self.logvar_limit)

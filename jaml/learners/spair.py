@@ -30,7 +30,7 @@ import numpy as np
 from jaml.configs.learners import CELL_FIXED, WHERE, SPAIRConfig  # noqa: F401
 from jaml.learners import elbo
 from jaml.learners.learner import FRAME_SHAPE, Learner, Outputs
-from jaml.learners.networks import _BN, _HALVE, MLP, Upsample2x
+from jaml.learners.networks import _BN, _HALVE, MLP, Upsample2x, elu
 
 # Neighbours a cell is conditioned on, as (row, col) offsets, in the order they are concatenated.
 NEIGHBOURS = ((-1, -1), (-1, 0), (-1, 1), (0, -1))  # up-left, up, up-right, left
@@ -247,7 +247,7 @@ class GridBackbone(nn.Module):
         for i, (f, size, stride, pad) in enumerate(layers):
             x = nn.Conv(f, (size, size), strides=stride, padding=pad, use_bias=False,
                         name=f"conv{i}")(x)
-            x = nn.elu(nn.BatchNorm(use_running_average=not train, name=f"bn{i}", **_BN)(x))
+            x = elu(nn.BatchNorm(use_running_average=not train, name=f"bn{i}", **_BN)(x))
         return x
 
 
@@ -260,8 +260,8 @@ class GlimpseEncoder(nn.Module):
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         for i, f in enumerate(self.filters):
-            x = nn.elu(nn.Conv(f, (4, 4), strides=2, padding=_HALVE, name=f"conv{i}")(x))
-        return nn.elu(nn.Dense(self.hidden, name="dense")(x.reshape(x.shape[0], -1)))
+            x = elu(nn.Conv(f, (4, 4), strides=2, padding=_HALVE, name=f"conv{i}")(x))
+        return elu(nn.Dense(self.hidden, name="dense")(x.reshape(x.shape[0], -1)))
 
 
 class GlimpseDecoder(nn.Module):
@@ -275,9 +275,9 @@ class GlimpseDecoder(nn.Module):
     @nn.compact
     def __call__(self, z: jax.Array) -> jax.Array:
         s, (f0, f1) = self.size // 4, self.filters
-        x = nn.elu(nn.Dense(self.hidden, name="dense0")(z))
-        x = nn.elu(nn.Dense(s * s * f1, name="dense1")(x)).reshape(z.shape[0], s, s, f1)
-        x = nn.elu(Upsample2x(f0, name="deconv0")(x))
+        x = elu(nn.Dense(self.hidden, name="dense0")(z))
+        x = elu(nn.Dense(s * s * f1, name="dense1")(x)).reshape(z.shape[0], s, s, f1)
+        x = elu(Upsample2x(f0, name="deconv0")(x))
         return Upsample2x(self.channels + 1, name="deconv1")(x)
 
 
@@ -299,7 +299,7 @@ class BackgroundDecoder(nn.Module):
     @nn.compact
     def __call__(self, z: jax.Array) -> jax.Array:
         r = self.resolution
-        x = nn.elu(nn.Dense(self.hidden, name="dense0")(z))
+        x = elu(nn.Dense(self.hidden, name="dense0")(z))
         # Zero kernel: the background starts flat grey whatever its latent, so that the sampled
         # background latent does not dominate the early loss with noise.
         x = nn.Dense(r * r * self.channels, kernel_init=nn.initializers.zeros, name="dense1")(x)

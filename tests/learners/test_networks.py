@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from jax._src.ad_checkpoint import saved_residuals  # what jax.ad_checkpoint.print_saved_residuals prints
 
 from jaml import learners, stream
 from jaml.learners import networks
@@ -310,7 +311,7 @@ def test_conv_module_is_nn_conv_without_bias():
 @pytest.mark.parametrize("stack", ["encoder", "decoder"])
 def test_cpu_stacks_are_the_same_functions_of_the_same_parameters(stack, dtype):
     """Encoder and decoder (train mode, batch norms) with and without the CPU formulation (the
-    decoder's: its ELUs and the phase pair, against the sub-pixel form and XLA's autodiff):
+    decoder's: the phase pair, against the sub-pixel form and XLA's autodiff):
     one parameter tree, equal outputs and parameter gradients (float32 gradients either way;
     with bfloat16 convolutions, equal to bfloat16 rounding)."""
     rng = np.random.default_rng(0)
@@ -323,7 +324,7 @@ def test_cpu_stacks_are_the_same_functions_of_the_same_parameters(stack, dtype):
         inp = jnp.asarray(rng.normal(size=(2, 5)), jnp.float32)
 
         def make(c):
-            return ConvDecoder((4, 4, 4, 4), compute_dtype=dtype, cpu_kernels=c,
+            return ConvDecoder((4, 4, 4, 4), compute_dtype=dtype,
                                upsample_form="phase" if c else "subpixel")
     # One compiled init (op by op, every operation compiles alone); the other stack's tree by
     # eval_shape, which compiles nothing.
@@ -348,11 +349,49 @@ def test_cpu_stacks_are_the_same_functions_of_the_same_parameters(stack, dtype):
         np.testing.assert_allclose(a, b, rtol=tol, atol=tol * max(1.0, float(jnp.max(jnp.abs(b)))))
 
 
-def test_cpu_elu_is_nn_elu_with_its_gradient_from_the_output():
-    x = jnp.asarray([-30.0, -3.0, -1e-3, 0.0, 1e-3, 2.0], jnp.float32)
-    np.testing.assert_array_equal(elu(x, cpu_kernels=True), nn.elu(x))
-    g = jax.vmap(jax.grad(lambda v: elu(v, cpu_kernels=True)))(x)
-    np.testing.assert_allclose(g, jax.vmap(jax.grad(nn.elu))(x), rtol=1e-6, atol=1e-7)
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.bfloat16])
+def test_elu_is_nn_elu_with_nn_elus_gradient_bit_for_bit(dtype):
+    """`elu`'s value and gradient (read from its output) are `nn.elu`'s and its autodiff's."""
+    x = jnp.concatenate([jnp.asarray([-30.0, -3.0, -1e-3, 0.0, 1e-3, 2.0]),
+                         3 * jax.random.normal(jax.random.key(0), (4096,))]).astype(dtype)
+    g = jax.random.normal(jax.random.key(1), x.shape).astype(dtype)
+    np.testing.assert_array_equal(elu(x), nn.elu(x))
+    ours, theirs = (jax.vjp(f, x)[1](g)[0] for f in (elu, nn.elu))
+    assert ours.dtype == theirs.dtype == dtype
+    np.testing.assert_array_equal(ours.astype(jnp.float32), theirs.astype(jnp.float32))
+
+
+@pytest.mark.parametrize("stack", ["encoder", "decoder"])
+def test_the_stacks_elus_keep_nothing_for_the_backward_beyond_their_outputs(monkeypatch, stack):
+    """In the GPU formulation (the CPU's too), the bytes a stack keeps for its backward pass
+    with its ELUs are what it keeps with the identity in their place, give or take one small
+    output, where `nn.elu`'s autodiff keeps an activation-sized expm1 output (and masks) per
+    ELU on top."""
+    if stack == "encoder":
+        inp = jnp.ones((2, 64, 64, 3))
+
+        def make():
+            return ConvEncoder((8, 8, 8, 8), 6, cpu_kernels=False)
+    else:
+        inp = jnp.ones((2, 5))
+
+        def make():
+            return ConvDecoder((8, 8, 8, 8), upsample_form="pair")
+
+    def kept(activation):
+        monkeypatch.setattr(networks, "elu", activation)
+        module = make()
+        variables = module.init(jax.random.key(0), inp, True)
+
+        def out(params):
+            return module.apply({**variables, "params": params}, inp, True,
+                                mutable=["batch_stats"])[0]
+        return sum(a.size * a.dtype.itemsize
+                   for a, _ in saved_residuals(out, variables["params"]))
+
+    ours, autodiff, identity = kept(elu), kept(nn.elu), kept(lambda v: v)
+    assert autodiff - identity > 2 * 2 * 32 * 32 * 8 * 4  # nn.elu: its widest layers' expm1
+    assert ours - identity < (autodiff - identity) / 8
 
 
 def _ynn_convolutions(hlo: str) -> int:

@@ -17,6 +17,7 @@ import numpy as np
 from jax import lax
 
 from jaml.configs.learners import UPSAMPLE_FORMS
+from jaml.learners.batch_norm import BatchNorm
 
 # PyTorch BatchNorm2d defaults (momentum 0.1 on the new statistic, eps 1e-5), as in the reference.
 _BN = {"momentum": 0.9, "epsilon": 1e-5}
@@ -275,10 +276,11 @@ class ConvEncoder(nn.Module):
         return x.reshape(x.shape[0], self.features).astype(jnp.float32)
 
 
-def _norm(name: str, train: bool, dtype: jnp.dtype) -> nn.BatchNorm:
+def _norm(name: str, train: bool, dtype: jnp.dtype) -> BatchNorm:
     """PyTorch's BatchNorm (batch statistics in training, running ones otherwise), its output in
-    dtype; statistics and parameters float32 whatever dtype is (Flax's float32 reductions)."""
-    return nn.BatchNorm(use_running_average=not train, dtype=dtype, name=name, **_BN)
+    dtype; statistics and parameters float32 whatever dtype is (`batch_norm.BatchNorm`: Flax's,
+    with its backward pass written out)."""
+    return BatchNorm(use_running_average=not train, dtype=dtype, name=name, **_BN)
 
 
 def upsample2x(x: jax.Array, kernel: jax.Array, compute_dtype=None,

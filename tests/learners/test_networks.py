@@ -9,10 +9,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from jax._src.ad_checkpoint import saved_residuals  # what jax.ad_checkpoint.print_saved_residuals prints
+from jax._src.ad_checkpoint import saved_residuals  # what print_saved_residuals prints
 
 from jaml import learners, stream
 from jaml.learners import networks
+from jaml.learners.batch_norm import BatchNorm
 from jaml.learners.networks import Conv, ConvDecoder, ConvEncoder, conv2d, elu, upsample2x
 
 
@@ -82,7 +83,7 @@ def test_bfloat16_activations_are_the_batch_norm_and_elu_outputs_and_track_float
 
         def apply(m, v, x):
             return m.apply(v, x, True, mutable=["batch_stats"],
-                           capture_intermediates=lambda mdl, _: isinstance(mdl, nn.BatchNorm))
+                           capture_intermediates=lambda mdl, _: isinstance(mdl, BatchNorm))
         want, _ = jax.jit(lambda v, x, m=mixed: apply(m, v, x))(variables, inp)
         got, state = jax.jit(lambda v, x, m=act: apply(m, v, x))(variables, inp)
         norms = jax.tree.leaves(state["intermediates"])

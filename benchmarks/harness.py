@@ -25,9 +25,10 @@ from pathlib import Path
 from jaml import _huge_pages
 
 HERE = Path(__file__).resolve().parent
-# JAML_BENCH_RESULTS redirects the raw results (e.g. to a remote machine's output folder).
+# JAML_BENCH_RESULTS redirects the raw results (e.g. to a remote machine's output folder); the
+# RESULTS.md made from them goes beside them, so a redirected run leaves the checkout's alone.
 RESULTS_JSONL = Path(os.environ.get("JAML_BENCH_RESULTS", HERE / "results.jsonl"))
-RESULTS_MD = HERE / "RESULTS.md"
+RESULTS_MD = RESULTS_JSONL.with_name("RESULTS.md")
 PACKAGES = ("jax", "jaxlib", "flax", "optax", "mujoco", "mujoco-mjx", "brax", "torch")
 
 

@@ -1,9 +1,12 @@
-"""The benchmark harness refuses results that name no commit, writes those that do, and names
+"""The benchmark harness refuses results that name no commit, writes those that do (a redirected
+run's RESULTS.md beside its results), and names
 the code a row ran as its commit, "+dirty" for uncommitted changes other than its own outputs;
 the Fig. 9 timing reads its runs' summaries right."""
 
 import json
+import os
 import subprocess
+import sys
 
 import pytest
 
@@ -24,6 +27,19 @@ def test_record_refuses_rows_without_a_commit_and_writes_rows_with_one(tmp_path,
     row = json.loads((tmp_path / "results.jsonl").read_text())
     assert row["commit"] == "abc1234" and row["modelled_wall_s"] == 2.0
     assert "modelled_wall_s" in (tmp_path / "RESULTS.md").read_text()
+
+
+def test_redirected_results_write_their_results_md_beside_them(tmp_path):
+    """With JAML_BENCH_RESULTS set (read when the harness is imported), a benchmark's record
+    writes its RESULTS.md next to the redirected results, not over the checkout's."""
+    redirected = tmp_path / "out" / "results.jsonl"
+    redirected.parent.mkdir()
+    code = ("from benchmarks import harness; "
+            "print(harness.RESULTS_JSONL); print(harness.RESULTS_MD)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=harness.HERE.parent,
+                         env={**os.environ, "JAML_BENCH_RESULTS": str(redirected)})
+    assert out.stdout.split() == [str(redirected), str(tmp_path / "out" / "RESULTS.md")]
 
 
 def test_results_md_keeps_the_latest_row_per_case_machine_and_settings(tmp_path, monkeypatch):

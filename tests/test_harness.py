@@ -1,7 +1,7 @@
 """The benchmark harness refuses results that name no commit, writes those that do (a redirected
-run's RESULTS.md beside its results), and names
-the code a row ran as its commit, "+dirty" for uncommitted changes other than its own outputs;
-the Fig. 9 timing reads its runs' summaries right."""
+run's RESULTS.md beside its results), and names the code a row ran as its commit, "+dirty" for
+uncommitted changes other than its own outputs; the Fig. 9 timing reads its runs' summaries
+right."""
 
 import json
 import os

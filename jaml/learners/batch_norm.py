@@ -1,7 +1,7 @@
 """Batch norm over the last axis with its training backward pass written out: Flax's
 `nn.BatchNorm` (the same variables, statistics, running averages and forward arithmetic), whose
-backward XLA fuses into one reduction pass over the incoming gradient where it split autodiff's
-into two (docs/learners.md, "The batch norm's backward").
+backward takes its two sums from one read of the incoming gradient, where XLA split autodiff's
+into two passes on the GPU (docs/learners.md, "The batch norm's backward").
 
 Shapes: x [..., C], statistics and parameters [C].
 """

@@ -276,9 +276,10 @@ class ConvEncoder(nn.Module):
         return x.reshape(x.shape[0], self.features).astype(jnp.float32)
 
 
-def _norm(name: str, train: bool, dtype: jnp.dtype) -> BatchNorm:
+def _norm(name: str, train: bool, dtype: jnp.dtype | None) -> BatchNorm:
     """PyTorch's BatchNorm (batch statistics in training, running ones otherwise), its output in
-    dtype; statistics and parameters float32 whatever dtype is (`batch_norm.BatchNorm`: Flax's,
+    dtype (None: the input's promoted with float32); statistics and parameters float32 whatever
+    dtype is (`batch_norm.BatchNorm`: Flax's,
     with its backward pass written out)."""
     return BatchNorm(use_running_average=not train, dtype=dtype, name=name, **_BN)
 

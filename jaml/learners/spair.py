@@ -29,9 +29,8 @@ import numpy as np
 
 from jaml.configs.learners import CELL_FIXED, WHERE, SPAIRConfig  # noqa: F401
 from jaml.learners import elbo
-from jaml.learners.batch_norm import BatchNorm
 from jaml.learners.learner import FRAME_SHAPE, Learner, Outputs
-from jaml.learners.networks import _BN, _HALVE, MLP, Upsample2x, elu
+from jaml.learners.networks import _HALVE, MLP, Upsample2x, _norm, elu
 
 # Neighbours a cell is conditioned on, as (row, col) offsets, in the order they are concatenated.
 NEIGHBOURS = ((-1, -1), (-1, 0), (-1, 1), (0, -1))  # up-left, up, up-right, left
@@ -248,7 +247,7 @@ class GridBackbone(nn.Module):
         for i, (f, size, stride, pad) in enumerate(layers):
             x = nn.Conv(f, (size, size), strides=stride, padding=pad, use_bias=False,
                         name=f"conv{i}")(x)
-            x = elu(BatchNorm(use_running_average=not train, name=f"bn{i}", **_BN)(x))
+            x = elu(_norm(f"bn{i}", train, None)(x))
         return x
 
 

@@ -342,7 +342,7 @@ def _fit_relation(
     if compiled is not None:  # the same loop, compiled ahead of time by `_compile_ahead`
         chunk = compiled
     if programs is not None and syz_params is None:
-        chunk = programs.setdefault((k, clip, cfg), chunk)  # a last resort's cfg differs
+        chunk = programs.setdefault(_loop_key(k, clip, cfg), chunk)  # a last resort's cfg differs
     start = 0
     if budget is not None:
         start = max(max_steps - budget, 0)
@@ -640,6 +640,12 @@ def _below_again(cfg, batches, empty, key, priors, callback, on_relation, pool, 
     return other
 
 
+def _loop_key(k: int, clip: float, cfg) -> tuple:
+    """Where a fit's `programs` hold g_{k+1}'s plain compiled loop: what the loop is built from
+    besides shapes (`relation_trainer`)."""
+    return k, clip, cfg
+
+
 def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, pool,
                    codim: int, programs: dict):
     """Compile g_{k_next+1}'s training loop in a background thread while g_{k_next} trains,
@@ -651,7 +657,7 @@ def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, 
     """
     clip = _clip(cfg, k_next, codim)
     if (cfg.independence != "transversality" or k_next >= cfg.max_relations
-            or (k_next, clip, cfg) in programs):
+            or _loop_key(k_next, clip, cfg) in programs):
         return {}
     width = relation_width(rs.num_relations, cfg.base_width, cfg.max_width)
     stand_in = rs.append(params, 0.0, 0.0, width)

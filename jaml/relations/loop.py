@@ -100,6 +100,11 @@ def make_chunk(train_step: Callable, length: int, draw: Callable | None = None):
     `train_step(state, batch, args) -> (state, metrics)` consumes one of them.
     """
 
+    # Jitted inside the loop so that its one trace serves both the metrics' shapes (the idle
+    # branch's zeros) and the step itself: JAX keeps a jitted function's trace by its inputs'
+    # types, and XLA inlines the call.
+    step = jax.jit(train_step)
+
     def run(state: LoopState, args):
         key, chunk_key = jax.random.split(state.key)
         state = state.replace(key=key)
@@ -110,10 +115,10 @@ def make_chunk(train_step: Callable, length: int, draw: Callable | None = None):
 
         def body(state, batch):
             def active(s):
-                new, metrics = train_step(s, batch, args)
+                new, metrics = step(s, batch, args)
                 return new, metrics, jnp.asarray(True)
 
-            shapes = jax.eval_shape(lambda s: train_step(s, batch, args)[1], state)
+            shapes = jax.eval_shape(step, state, batch, args)[1]
             zeros = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), shapes)
 
             def idle(s):

@@ -103,5 +103,6 @@ def main(argv=None) -> None:
             print(f"{name}, {where}: {'the same bits' if found['same'] else 'DIFFERENT bits'} "
                   f"({' '.join(found['here'] + found['processes'])})", flush=True)
 
+
 if __name__ == "__main__":
     main()

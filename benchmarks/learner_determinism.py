@@ -59,7 +59,11 @@ def in_new_process(learner_name: str, frames: int, dtype: str, steps: int,
     out = subprocess.run(
         [sys.executable, __file__, "--child", "--learners", learner_name, "--frames", str(frames),
          "--dtype", dtype, "--steps", str(steps)],
-        env=env, capture_output=True, text=True, check=True)
+        env=env, capture_output=True, text=True)
+    if out.returncode:
+        tail = out.stderr.strip().splitlines()[-1:] or ["no output"]
+        raise RuntimeError(f"the {learner_name} child process failed ({out.returncode}): "
+                           f"{tail[0]}")
     return json.loads(out.stdout.strip().splitlines()[-1])[learner_name][0]
 
 

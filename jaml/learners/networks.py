@@ -279,8 +279,7 @@ class ConvEncoder(nn.Module):
 def _norm(name: str, train: bool, dtype: jnp.dtype | None) -> BatchNorm:
     """PyTorch's BatchNorm (batch statistics in training, running ones otherwise), its output in
     dtype (None: the input's promoted with float32); statistics and parameters float32 whatever
-    dtype is (`batch_norm.BatchNorm`: Flax's,
-    with its backward pass written out)."""
+    dtype is (`batch_norm.BatchNorm`: Flax's, with its backward pass written out)."""
     return BatchNorm(use_running_average=not train, dtype=dtype, name=name, **_BN)
 
 

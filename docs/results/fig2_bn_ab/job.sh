@@ -10,6 +10,7 @@
 # second call on the same machine resumed them to epoch 1000 (about 155 s). Only config.json,
 # history.jsonl and summary.json of each run are kept.
 #   bash docs/results/fig2_bn_ab/job.sh OUT      (LIMIT=480, then again for the resume)
+# VARIANT=PRED runs that cell instead (docs/results/fig2_pred_ab/job.sh).
 set -u
 out=${1:-runs/fig2_bn_ab}
 root=$PWD
@@ -20,7 +21,7 @@ for side in old new; do
     # shellcheck disable=SC2086  # the seeds are three words
     (cd ".cell/$side" && CUDA_VISIBLE_DEVICES=$gpu XLA_PYTHON_CLIENT_MEM_FRACTION=0.45 \
       PYTHONPATH=$PWD timeout 560 python -m jaml.experiments.fig2 --out "$root/$out/$side" \
-      --envs CartPole --variants VAE_rpl --seeds $seeds \
+      --envs CartPole --variants "${VARIANT:-VAE_rpl}" --seeds $seeds \
       --learner-opt compute_dtype=bfloat16 --learner-opt activation_dtype=bfloat16 \
       --learner-opt current_action=hidden --checkpoint-every 1000 --no-final-checkpoint \
       --time-limit "${LIMIT:-480}") &

@@ -9,23 +9,9 @@
 # In the first call (LIMIT=500) the new runs finished (498 s) and the old ones stopped at epoch
 # 874, checkpointed; a second call on the same machine resumed them to epoch 1000. Only
 # config.json, history.jsonl and summary.json of each run are kept.
-#   bash docs/results/fig2_pred_ab/job.sh OUT
+#   bash docs/results/fig2_pred_ab/job.sh OUT      (LIMIT=500, then again for the resume)
 set -u
-out=${1:-runs/fig2_pred_ab}
-root=$PWD
-export PYTHONUNBUFFERED=1
-for side in old new; do
-  for gpu in 0 1; do
-    if [ "$gpu" = 0 ]; then seeds="6 7 8"; else seeds="9 10 11"; fi
-    # shellcheck disable=SC2086  # the seeds are three words
-    (cd ".cell/$side" && CUDA_VISIBLE_DEVICES=$gpu XLA_PYTHON_CLIENT_MEM_FRACTION=0.45 \
-      PYTHONPATH=$PWD timeout 560 python -m jaml.experiments.fig2 --out "$root/$out/$side" \
-      --envs CartPole --variants PRED --seeds $seeds \
-      --learner-opt compute_dtype=bfloat16 --learner-opt activation_dtype=bfloat16 \
-      --learner-opt current_action=hidden --checkpoint-every 1000 --no-final-checkpoint \
-      --time-limit "${LIMIT:-500}") &
-  done
-done
-wait
+# The batch norm's side-by-side job, with PRED for its cell and the trees above in .cell/.
+VARIANT=PRED LIMIT=${LIMIT:-500} bash "$(dirname "$0")/../fig2_bn_ab/job.sh" "${1:-runs/fig2_pred_ab}"
 # Then, here: python -m jaml.experiments.fig2 --out docs/results/fig2_pred_ab/new --report-only \
 #   --compare-with docs/results/fig2_pred_ab/old   (and --report-only on old for its own report)

@@ -368,10 +368,13 @@ def _group_means(env: str, histories: list[list[dict]],
 
 def compare(out: Path, other: Path, envs, variants, relative: bool = False) -> str:
     """Markdown: every (env, variant) cell under both OUT and OTHER, group means of OUT minus
-    OTHER with Welch's 90 % interval at their last common analysis, and at how many of their
-    common analyses that interval excludes 0 (a difference the seeds resolve). `relative`: each
-    group mean as a fraction of its run's constant predictor's (`group_value`), where the two
-    grids' runs have different streams and so different units."""
+    OTHER with Welch's 90 % interval at their last common analysis, at how many of their
+    common analyses that interval excludes 0 (a difference the seeds resolve), and one interval
+    for the later half of training: each seed's mean over the common analyses after half the
+    last one's epoch (a seed that is low at one analysis is low at the next, so the count's
+    resolutions come in runs; this is one test a row). `relative`: each group mean as a
+    fraction of its run's constant predictor's (`group_value`), where the two grids' runs have
+    different streams and so different units."""
     from jaml.evaluation import intervals
 
     units = ("as a fraction of each run's constant predictor's error" if relative
@@ -379,9 +382,11 @@ def compare(out: Path, other: Path, envs, variants, relative: bool = False) -> s
     lines = [f"## {out.name} − {other.name}, cell by cell ({units})", "",
              f"Group means ({units}) over the seeds of each grid; Welch's 90 % "
              "interval for the difference; `resolved`: analyses (of those both have) whose "
-             "interval excludes 0.", "",
+             "interval excludes 0; `later half`: each seed's mean over the analyses (of those "
+             "both have) after half the last one's epoch, the difference and its Welch 90 % "
+             "interval over seeds.", "",
              f"| cell | test set | group | epoch | {out.name} | {other.name} | difference "
-             "[90 % interval] | resolved |", "|---" * 8 + "|"]
+             "[90 % interval] | resolved | later half [90 % interval] |", "|---" * 9 + "|"]
     unscored = []  # cells in both grids with no analysis every seed of both can be read at
     for env in envs:
         mine, theirs = grid_histories(out, env, variants), grid_histories(other, env, variants)
@@ -399,9 +404,13 @@ def compare(out: Path, other: Path, envs, variants, relative: bool = False) -> s
                 same = [k for k in common if k[1:] == key[1:]]
                 resolved = sum(not (lo <= 0 <= hi) for _, lo, hi in
                                (intervals.welch_interval(a[k], b[k]) for k in same))
+                later = [k for k in same if k[0] > last / 2]  # the seeds' lists align: common
+                late, late_low, late_high = intervals.welch_interval(
+                    np.mean([a[k] for k in later], axis=0), np.mean([b[k] for k in later], axis=0))
                 lines.append(f"| {env} · {variant} | {key[1]} | {key[2]} | {last} | "
                              f"{np.mean(a[key]):.3f} | {np.mean(b[key]):.3f} | "
-                             f"{diff:+.3f} [{low:+.3f}, {high:+.3f}] | {resolved} of {len(same)} |")
+                             f"{diff:+.3f} [{low:+.3f}, {high:+.3f}] | {resolved} of {len(same)} | "
+                             f"{late:+.3f} [{late_low:+.3f}, {late_high:+.3f}] |")
     if unscored:
         why = " (runs recorded without baselines)" if relative else ""
         lines += ["", f"In both grids but not compared{why}: {', '.join(unscored)}."]

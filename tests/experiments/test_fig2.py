@@ -17,14 +17,17 @@ PAPER_SIZES = _runs.Sizes().overrides()
 
 
 def _write_run(path, learner, seed, errors_at_end, finished=True, learner_overrides=None,
-               baseline=None):
-    """Analyses at epochs 10 (errors 0.9) and, when finished, 20 of the 20 scheduled; with a
-    constant predictor's errors `baseline` (one list, every analysis), as stream.run records."""
+               baseline=None, errors_at_15=None):
+    """Analyses at epochs 10 (errors 0.9), 15 where `errors_at_15` is given and, when finished,
+    20 of the 20 scheduled; with a constant predictor's errors `baseline` (one list, every
+    analysis), as stream.run records."""
     path.mkdir(parents=True)
     config = {k: 1 for k in _runs.SIZES} | {"epochs": 20, "seed": seed,
                                           "learner_overrides": learner_overrides or {}}
     (path / "config.json").write_text(json.dumps(config))
     records = history_records(10, learner, {"pi_rand": [0.9] * 4}, NAMES, run=seed)
+    if errors_at_15 is not None:
+        records += history_records(15, learner, {"pi_rand": errors_at_15}, NAMES, run=seed)
     if finished:
         records += history_records(20, learner, {"pi_rand": errors_at_end}, NAMES, run=seed)
     if baseline is not None:
@@ -296,9 +299,34 @@ def test_compare_two_grids_cell_by_cell_with_welch_intervals(tmp_path):
     diff = a.mean() - b.mean()
     assert position[3] == "20" and position[4] == f"{a.mean():.3f}"
     assert position[6] == f"{diff:+.3f} [{diff - half:+.3f}, {diff + half:+.3f}]"
-    assert position[7] == "1 of 2 |"  # resolved at epoch 20, not at epoch 10 (all 0.9)
+    assert position[7] == "1 of 2"  # resolved at epoch 20, not at epoch 10 (all 0.9)
+    assert position[8] == position[6] + " |"  # the later half (after epoch 10) is epoch 20
     velocity = next(r for r in rows if r[2] == "velocity")
-    assert velocity[6] == "+0.000 [+0.000, +0.000]" and velocity[7] == "0 of 2 |"
+    assert velocity[6] == "+0.000 [+0.000, +0.000]" and velocity[7] == "0 of 2"
+
+
+def test_compare_averages_each_seed_over_the_later_half_before_the_interval(tmp_path):
+    """The later half's interval: each seed's mean over the analyses after half the last epoch
+    (15 and 20 of 20, not 10), then Welch's interval over those means, from its closed form."""
+    from scipy import stats
+
+    a = {15: [0.1, 0.3, 0.2], 20: [0.3, 0.2, 0.4]}
+    b = {15: [0.4, 0.5, 0.3, 0.6], 20: [0.2, 0.6, 0.5, 0.4]}
+    for grid, theta in (("a", a), ("b", b)):
+        for seed, (t15, t20) in enumerate(zip(theta[15], theta[20], strict=True)):
+            _write_run(tmp_path / grid / "CartPole" / "PRED" / f"seed_{seed}", "PRED", seed,
+                       [t20, 0.5, t20, 0.5], errors_at_15=[t15, 0.5, t15, 0.5])
+
+    text = fig2.compare(tmp_path / "a", tmp_path / "b", ["CartPole"], ["PRED"])
+
+    row = next(line.split(" | ") for line in text.splitlines() if "| position |" in line)
+    ma, mb = (np.add(a[15], a[20]) / 2), (np.add(b[15], b[20]) / 2)  # θ and x move together
+    va, vb = ma.var(ddof=1) / 3, mb.var(ddof=1) / 4
+    dof = (va + vb) ** 2 / (va**2 / 2 + vb**2 / 3)
+    half = stats.t.ppf(0.95, dof) * math.sqrt(va + vb)
+    diff = ma.mean() - mb.mean()
+    assert row[7] == "1 of 3"  # epoch 15 resolves; 10 (0.9 on both sides) and 20 do not
+    assert row[8] == f"{diff:+.3f} [{diff - half:+.3f}, {diff + half:+.3f}] |"
 
 
 def test_report_only_compares_with_each_grid_given(tmp_path, capsys):

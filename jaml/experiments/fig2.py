@@ -227,7 +227,9 @@ def has_baselines(histories: list[list[dict]]) -> bool:
 
 def figure_records(grid: dict[str, dict[str, list[list[dict]]]]) -> list[dict]:
     """History records of `grid` (env → `grid_histories`) re-keyed for the paper's layout:
-    errors = {panel: value}, learner = the variant's label, π_curr first (the top row).
+    errors = {panel: value}, baseline = {panel: the constant predictor's value} where the
+    record has one (`_panel_baseline`), learner = the variant's label, π_curr first (the top
+    row).
 
     Locomotion panels read each group as a fraction of its run's constant predictor's error,
     as the report's tables and findings do: each run's raw errors are in units of its own
@@ -244,18 +246,31 @@ def figure_records(grid: dict[str, dict[str, list[list[dict]]]]) -> list[dict]:
                     values = {title: float(np.mean([group_value(r, dims, relative)
                                                     for dims in groups]))
                               for title, groups in panels(env).items()}
-                    records.append(r | {"errors": values, "learner": variant})
+                    record = {k: v for k, v in r.items() if k != "baseline"}
+                    if r.get("baseline"):
+                        record["baseline"] = {title: _panel_baseline(r, groups, relative)
+                                              for title, groups in panels(env).items()}
+                    records.append(record | {"errors": values, "learner": variant})
     return sorted(records, key=lambda r: r["test_set"] != "pi_curr")
 
 
 def group_records(env: str, histories: dict[str, list[list[dict]]]) -> list[dict]:
     """A locomotion domain's records re-keyed for its per-group figure: errors = {group: its
-    fraction of the run's constant predictor's error}, learner = the variant's label; cells
-    without baselines (`has_baselines`) left out."""
+    fraction of the run's constant predictor's error}, baseline = 1 for each group (the
+    constant on its own scale), learner = the variant's label; cells without baselines
+    (`has_baselines`) left out."""
     groups = ld_groups(env)
     return [r | {"errors": {g: group_value(r, dims, relative=True) for g, dims in groups.items()},
-                 "learner": variant}
+                 "baseline": dict.fromkeys(groups, 1.0), "learner": variant}
             for variant, hs in histories.items() if has_baselines(hs) for h in hs for r in h]
+
+
+def _panel_baseline(record: dict, groups: list[list[str]], relative: bool) -> float:
+    """A constant predictor's error on a panel's scale: 1 where the panel reads fractions of
+    it, else the mean over the panel's groups of its mean over each group's dims."""
+    if relative:
+        return 1.0
+    return float(np.mean([np.mean([record["baseline"][d] for d in dims]) for dims in groups]))
 
 
 def report(out: Path, envs, variants) -> str:

@@ -174,8 +174,24 @@ def test_figure_panels_average_the_groups_of_each_domain(tmp_path):
                if r["step"] == 20]
     assert records[0]["errors"] == {"CartPole position": 0.2, "CartPole velocity": 0.6}
     assert records[0]["learner"] == "PRED"
+    assert "baseline" not in records[0]  # recorded without one: no constant curve to draw
     assert fig2.panels("Ant").keys() == {"Ant (pos, vel, contacts)"}
     assert len(fig2.panels("Ant")["Ant (pos, vel, contacts)"]) == 3
+
+
+def test_figure_panels_carry_the_constant_predictors_level_on_their_own_scale(tmp_path):
+    """fig2.png's dashed curve: a pendulum panel's constant predictor in training-std units
+    (the mean of its dims' baselines), drawn in the panel whose legend names it."""
+    _write_run(tmp_path / "CartPole" / "PRED" / "seed_0", "PRED", 0, [0.1, 0.5, 0.3, 0.7],
+               baseline=[0.8, 1.0, 0.6, 1.2])
+    records = fig2.figure_records(
+        {"CartPole": fig2.grid_histories(tmp_path, "CartPole", ["PRED"])})
+    assert records[0]["baseline"] == pytest.approx({"CartPole position": 0.7,
+                                                    "CartPole velocity": 1.1})
+    fig = plots.alignment_figure(records)
+    dashed = [line for line in fig.axes[0].get_lines() if line.get_linestyle() == "--"]
+    assert len(dashed) == 1 and dashed[0].get_label() == plots.CONSTANT
+    assert dashed[0].get_ydata() == pytest.approx([0.7, 0.7])  # epochs 10 and 20
 
 
 def _locomotion_cell(out, variant, with_baselines=True):
@@ -208,11 +224,13 @@ def test_locomotion_figures_read_fractions_of_the_constant_predictor(tmp_path):
     assert [(r["learner"], r["step"]) for r in records] == [("PRED", 10), ("PRED", 20)]
     value = records[0]["errors"]["HalfCheetah (pos, vel, contacts)"]
     assert value == pytest.approx(np.mean([0.5, 0.5, 0.25]))  # raw would be 0.467
+    assert records[0]["baseline"] == {"HalfCheetah (pos, vel, contacts)": 1.0}  # its own scale
     by_group = fig2.group_records("HalfCheetah", {"PRED": [lines], "VAE_rpl": [[
         {k: v for k, v in r.items() if k != "baseline"} for r in lines]]})
     assert [(r["learner"], r["step"]) for r in by_group] == [("PRED", 10), ("PRED", 20)]
     assert by_group[0]["errors"] == pytest.approx(
         {"position": 0.5, "velocity": 0.5, "contact": 0.25})
+    assert by_group[0]["baseline"] == {"position": 1.0, "velocity": 1.0, "contact": 1.0}
     assert fig2.panel_ylabels(["CartPole", "HalfCheetah"]) == {
         "HalfCheetah (pos, vel, contacts)": fig2.OF_CONSTANT}
 

@@ -327,13 +327,19 @@ def report(out: Path, methods) -> str:
     plot(runs, out / "fig9.png")
     metrics = functools.cache(_metrics)  # each run's metrics.jsonl read once per report
     fill = _fill_epochs(out, runs)
-    lines = [primary(runs, fill), "", bounds(out, runs), "",
-             "Streams (a seed's per-epoch episode returns and PPO losses against PRED's):",
-             *stream_check(out, runs, metrics), ""]
+    lines = [primary(runs, fill), "", bounds(out, runs), ""]
+    kept = any(metrics(out / method / f"seed_{seed}") for method, seeds in runs.items()
+               for seed in seeds)
+    if kept:
+        lines += ["Streams (a seed's per-epoch episode returns and PPO losses against PRED's):",
+                  *stream_check(out, runs, metrics), ""]
+    else:  # runs recorded before the records kept metrics.jsonl: one line, not empty tables
+        lines += ["Streams and learner losses: not in these runs' records (no metrics.jsonl).",
+                  ""]
     for table in (late_table(runs, fill), contrast_table(runs)):
         if table:
             lines += [*table, ""]
-    losses = losses_table(out, runs, metrics)
+    losses = losses_table(out, runs, metrics) if kept else []
     if losses:
         lines += [*losses, ""]
     for metric in METRICS:

@@ -64,6 +64,21 @@ def test_report_leads_with_the_primary_comparison_and_tables_paired_differences(
     assert (tmp_path / "fig9.png").stat().st_size > 0
 
 
+def test_runs_without_metrics_say_so_in_one_line_not_in_empty_tables(tmp_path):
+    """Records without metrics.jsonl (runs kept before it was): no stream check naming every
+    seed, no losses table of dashes; one line says what is missing."""
+    for method in ("PRED", "PRED+AML_trnsv"):
+        for seed in range(2):
+            _write_run(tmp_path / method / f"seed_{seed}", seed, (0.3, 0.2, 0.1))
+    text = fig9_report.report(tmp_path, list(fig9.METHODS))
+    assert "Streams and learner losses: not in these runs' records (no metrics.jsonl)." in text
+    assert "no metrics:" not in text and "**Learner losses**" not in text
+    _write_metrics(tmp_path / "PRED" / "seed_0", [1.0, 2.0])  # one run kept them: both parts
+    text = fig9_report.report(tmp_path, list(fig9.METHODS))
+    assert "- PRED+AML_trnsv vs PRED: 0 seeds identical; no metrics: seed_0, seed_1" in text
+    assert "**Learner losses**" in text
+
+
 def test_the_bounds_line_reads_the_constants_and_the_runs_floors(tmp_path):
     """The ceiling: each run's constant prediction at its last analysis; the floor: the true
     state's errors from summary.json, where a run recorded them."""

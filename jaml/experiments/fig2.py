@@ -247,9 +247,10 @@ def figure_records(grid: dict[str, dict[str, list[list[dict]]]]) -> list[dict]:
                                                     for dims in groups]))
                               for title, groups in panels(env).items()}
                     record = {k: v for k, v in r.items() if k != "baseline"}
-                    if r.get("baseline"):
-                        record["baseline"] = {title: _panel_baseline(r, groups, relative)
-                                              for title, groups in panels(env).items()}
+                    constants = {title: _panel_baseline(r, groups, relative)
+                                 for title, groups in panels(env).items()}
+                    if any(v is not None for v in constants.values()):
+                        record["baseline"] = {t: v for t, v in constants.items() if v is not None}
                     records.append(record | {"errors": values, "learner": variant})
     return sorted(records, key=lambda r: r["test_set"] != "pi_curr")
 
@@ -265,12 +266,16 @@ def group_records(env: str, histories: dict[str, list[list[dict]]]) -> list[dict
             for variant, hs in histories.items() if has_baselines(hs) for h in hs for r in h]
 
 
-def _panel_baseline(record: dict, groups: list[list[str]], relative: bool) -> float:
+def _panel_baseline(record: dict, groups: list[list[str]], relative: bool) -> float | None:
     """A constant predictor's error on a panel's scale: 1 where the panel reads fractions of
-    it, else the mean over the panel's groups of its mean over each group's dims."""
+    it, else the mean over the panel's groups of its mean over each group's dims; None where
+    the record lacks one of them."""
+    baseline = record.get("baseline") or {}
+    if not all(d in baseline for dims in groups for d in dims):
+        return None
     if relative:
         return 1.0
-    return float(np.mean([np.mean([record["baseline"][d] for d in dims]) for dims in groups]))
+    return float(np.mean([np.mean([baseline[d] for d in dims]) for dims in groups]))
 
 
 def report(out: Path, envs, variants) -> str:
@@ -419,7 +424,8 @@ def compare(out: Path, other: Path, envs, variants, relative: bool = False) -> s
                 same = [k for k in common if k[1:] == key[1:]]
                 resolved = sum(not (lo <= 0 <= hi) for _, lo, hi in
                                (intervals.welch_interval(a[k], b[k]) for k in same))
-                later = [k for k in same if k[0] > last / 2]  # the seeds' lists align: common
+                # Each seed has every common analysis once, in the grid's order: lists align.
+                later = [k for k in same if 2 * k[0] > last or k[0] == last]
                 late, late_low, late_high = intervals.welch_interval(
                     np.mean([a[k] for k in later], axis=0), np.mean([b[k] for k in later], axis=0))
                 lines.append(f"| {env} · {variant} | {key[1]} | {key[2]} | {last} | "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Mapping
 
@@ -157,7 +158,7 @@ def evaluate(rs: RelationSet, tau) -> jax.Array:
     tau = _check_tau(rs, tau)
     if rs.num_relations == 0:
         return jnp.zeros((*tau.shape[:-1], 0), tau.dtype)
-    return jnp.stack([rs.relation(k)(tau) for k in range(rs.num_relations)], axis=-1)
+    return _evaluate(canonical(rs), tau, False)
 
 
 def evaluate_raw(rs: RelationSet, tau) -> jax.Array:
@@ -165,7 +166,14 @@ def evaluate_raw(rs: RelationSet, tau) -> jax.Array:
     tau = _check_tau(rs, tau)
     if rs.num_relations == 0:
         return jnp.zeros((*tau.shape[:-1], 0), tau.dtype)
-    return jnp.stack([rs.relation(k, raw=True)(tau) for k in range(rs.num_relations)], axis=-1)
+    return _evaluate(canonical(rs), tau, True)
+
+
+@functools.partial(jax.jit, static_argnums=2)
+def _evaluate(rs: RelationSet, tau: jax.Array, raw: bool) -> jax.Array:
+    """One compiled program for every relation of a set (called op by op, each matmul, add and
+    tanh was a program of its own, compiled per shape and dispatched one at a time)."""
+    return jnp.stack([rs.relation(k, raw)(tau) for k in range(rs.num_relations)], axis=-1)
 
 
 def require_relations(rs: RelationSet, what: str) -> None:

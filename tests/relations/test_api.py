@@ -38,6 +38,24 @@ def test_fit_returns_the_declared_structure(tiny_set):
     )
 
 
+def test_evaluate_is_one_program_with_the_networks_own_values(tiny_set):
+    """`evaluate` runs every relation in one compiled program, kept for a set of the same
+    shapes whatever its tolerance or report, with each network's own values (its Flax module
+    applied op by op) bit for bit; raw gives them before the output tanh."""
+    from jaml.relations import relation_set
+
+    rs, rows = tiny_set
+    tau = rows[:7]
+    own = jnp.stack([rs.relation(k)(tau) for k in range(rs.num_relations)], axis=-1)
+    raw = jnp.stack([rs.relation(k, raw=True)(tau) for k in range(rs.num_relations)], axis=-1)
+    before = relation_set._evaluate._cache_size()
+    np.testing.assert_array_equal(relations.evaluate(rs, tau), own)
+    np.testing.assert_array_equal(relation_set.evaluate_raw(rs, tau), raw)
+    assert relation_set._evaluate._cache_size() == before + 2  # g and raw: one program each
+    relations.evaluate(rs.replace(tolerance=rs.tolerance * 2, quality=None), rows[7:14])
+    assert relation_set._evaluate._cache_size() == before + 2
+
+
 def test_penalty_is_differentiable_in_tau(tiny_set):
     rs, rows = tiny_set
     grad = jax.grad(lambda t: relations.penalty(rs, t).sum())(rows[:8])

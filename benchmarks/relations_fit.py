@@ -1,5 +1,6 @@
-"""AML speed: optimizer steps/s of g_1 and g_2 (transversality) at batch 1024, and wall time to
-learn the ellipse's two relations to the stopping rule; the PyTorch reference step (restated in
+"""AML speed: optimizer steps/s of g_1 and g_2 (transversality) at batch 1024, calls/s of
+`relations.evaluate` on both at 1,024 rows, and wall time to learn the ellipse's two relations
+to the stopping rule; the PyTorch reference step and its networks' forward pass (restated in
 `peers/aml_torch.py`, single-threaded as the reference was calibrated) in the same run.
 
     python benchmarks/relations_fit.py [--quick] [--no-peer]
@@ -22,6 +23,7 @@ import time
 from pathlib import Path
 
 import jax
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
@@ -35,6 +37,17 @@ from jaml.relations.training import relation_trainer
 # Steps the reference took on the ellipse (docs/reference/aml.md §9a: g1 7,875, g2 47,321).
 REFERENCE_STEPS = 7_875 + 47_321
 CHUNK = 500
+EVALUATE_ROWS = 1024
+EVALUATE_CALLS = 100  # calls a timed block: one call is short enough to time its dispatch
+
+
+def first_relations(k: int):
+    """A set of g_1..g_k (widths 4, 8, …, as the ellipse's fit) at fresh initial parameters."""
+    rs = relations.RelationSet.empty(3, 3, 1.5)
+    for j in range(k):
+        params = Relation(4 * 2**j).init(jax.random.key(j), jax.numpy.zeros((1, 3)))
+        rs = rs.append(params, 0.01, 0.1, 4 * 2**j)
+    return rs
 
 
 def jaml_steps_per_second(objective: str, k: int, repeats: int) -> dict:
@@ -43,10 +56,7 @@ def jaml_steps_per_second(objective: str, k: int, repeats: int) -> dict:
         objective=objective, separation_ratio=1e30, chunk_steps=CHUNK, max_steps=10**9
     )
     batches = prepare(sources.make("ellipse"), cfg.batch_size, 0.0, jax.random.key(0), 4)
-    rs = relations.RelationSet.empty(3, 3, 1.5)
-    for j in range(k):
-        params = Relation(4 * 2**j).init(jax.random.key(j), jax.numpy.zeros((1, 3)))
-        rs = rs.append(params, 0.01, 0.1, 4 * 2**j)
+    rs = first_relations(k)
     params = Relation(4 * 2**k).init(jax.random.key(9), jax.numpy.zeros((1, 3)))
     chunk, state, args = relation_trainer(cfg, batches, rs, params, jax.random.key(1), 10**9)
     holder = {"state": state}
@@ -70,6 +80,48 @@ def torch_steps_per_second(k: int, repeats: int, device: str) -> dict:
     steps = 200
     timing = measure(peer, steps, repeats=repeats)
     return {"steps_per_s": steps / timing["median_s"], "torch_threads": torch.get_num_threads()}
+
+
+def jaml_evaluate_calls_per_second(repeats: int) -> dict:
+    """Steady calls/s of the public `relations.evaluate` (g_1, g_2 at 1,024 rows), as a user
+    calls it outside `jit`, in blocks of EVALUATE_CALLS blocked calls."""
+    rs = first_relations(2)
+    tau = sources.make("ellipse").sample(jax.random.key(2), EVALUATE_ROWS)
+
+    def block_of_calls():
+        for _ in range(EVALUATE_CALLS):
+            out = relations.evaluate(rs, tau)
+        return out
+
+    timing = measure(block_of_calls, repeats=repeats)
+    return {"calls_per_s": EVALUATE_CALLS / timing["median_s"],
+            "first_block_s": timing["compile_s"]}
+
+
+def torch_evaluate_calls_per_second(repeats: int, device: str) -> dict:
+    """The same: the reference's two networks' forward passes on the same number of rows, under
+    `torch.no_grad`, stacked."""
+    import torch
+
+    from benchmarks.peers.aml_torch import ellipse_batch, relation_net
+
+    if device == "cpu":
+        torch.set_num_threads(1)  # as the steps' peer
+    nets = [relation_net(3, 4 * 2**j).to(device) for j in range(2)]
+    tau = torch.as_tensor(ellipse_batch(np.random.default_rng(2), EVALUATE_ROWS),
+                          dtype=torch.float32, device=device)
+
+    def block_of_calls():
+        with torch.no_grad():
+            for _ in range(EVALUATE_CALLS):
+                out = torch.cat([net(tau) for net in nets], dim=-1)
+        if device != "cpu":
+            torch.cuda.synchronize()
+        return out
+
+    timing = measure(block_of_calls, repeats=repeats)
+    return {"calls_per_s": EVALUATE_CALLS / timing["median_s"],
+            "torch_threads": torch.get_num_threads()}
 
 
 def mean_abs_sin(rs, src, seed: int) -> float:
@@ -106,7 +158,9 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="fewer repetitions and seeds")
     parser.add_argument("--no-peer", action="store_true", help="skip the PyTorch reference")
     parser.add_argument("--no-record", action="store_true", help="print only")
-    parser.add_argument("--no-steps", action="store_true", help="skip the steps/s measurements")
+    parser.add_argument("--no-steps", action="store_true",
+                        help="skip the steps/s and evaluate calls/s measurements")
+    parser.add_argument("--no-fits", action="store_true", help="skip the wall times to learn")
     parser.add_argument(
         "--objectives", default="paper,reference", help="objectives timed end to end"
     )
@@ -143,6 +197,15 @@ def main(argv=None):
                 {"case": f"{case}, batch 1024", "impl": f"jaml ({objective} objective)", **r}
             )
             print(rows[-1], flush=True)
+    if not args.no_steps:
+        case = f"relations.evaluate, g_1 and g_2 at {EVALUATE_ROWS} rows, steady calls"
+        r = jaml_evaluate_calls_per_second(repeats)
+        if not args.no_peer:
+            t = torch_evaluate_calls_per_second(repeats, "cuda" if device == "gpu" else "cpu")
+            rows.append({"case": case, "impl": "pytorch reference networks, forward", **t})
+            r["speedup_vs_pytorch"] = r["calls_per_s"] / t["calls_per_s"]
+        rows.append({"case": case, "impl": "jaml relations.evaluate", **r})
+        print(rows[-1], flush=True)
     peer_wall = None
     if peer:
         # The peer's time to learn: the reference's step counts at the per-step speed measured
@@ -156,7 +219,7 @@ def main(argv=None):
                 "steps": REFERENCE_STEPS,
             }
         )
-    for objective in args.objectives.split(","):
+    for objective in () if args.no_fits else args.objectives.split(","):
         if args.warm_cache:
             fit_wall_time(objective, seeds[0])
         runs = [fit_wall_time(objective, seed) for seed in seeds]

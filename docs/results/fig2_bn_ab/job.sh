@@ -10,7 +10,8 @@
 # second call on the same machine resumed them to epoch 1000 (about 155 s). Only config.json,
 # history.jsonl and summary.json of each run are kept.
 #   bash docs/results/fig2_bn_ab/job.sh OUT      (LIMIT=480, then again for the resume)
-# VARIANT=PRED runs that cell instead (docs/results/fig2_pred_ab/job.sh).
+# VARIANT=PRED or DSA runs that cell instead (docs/results/fig2_pred_ab/job.sh,
+# docs/results/fig2_dsa_ab/job.sh).
 set -u
 out=${1:-runs/fig2_bn_ab}
 root=$PWD

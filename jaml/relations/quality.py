@@ -35,6 +35,8 @@ SPARSE = 0.1  # warn when the landing distance exceeds this share of the box dia
 FAR_ACCEPTED = 0.1  # warn when `holds` accepts more than this share of box rows far from the data
 TANGENT_NEIGHBOURS = 32  # rows of the local PCA that gives the data's tangent space at a row
 TANGENT_RTOL = 0.2  # its directions: singular values above this share of the largest
+COVER_ROWS = 1024  # data rows whose reach by the projected box points `landing` measures
+COVERAGE = 0.5  # warn when those points reach less than this share of what as many rows reach
 
 
 def nearest_distances(points, reference) -> np.ndarray:
@@ -149,7 +151,9 @@ def landing(relations, key, low, high, reference, within: float, n: int = BOX_PO
     that row; extends if farther (the zero set going on past the sample's edge, as a plane
     goes on past the rows drawn of it); spurious if off the tangent space (a part of the zero
     set that is not the data's). `codim`: the data's codimension, which fixes the tangent
-    space's dimension (else local PCA decides it, point by point).
+    space's dimension (else local PCA decides it, point by point). Also how much of the data
+    the landed points reach (`coverage`): a zero set that is a few points of the data lands
+    every point and reaches little of it.
     """
     low, high = np.asarray(low, np.float32), np.asarray(high, np.float32)
     start = _uniform(key, n, low, high)
@@ -166,15 +170,32 @@ def landing(relations, key, low, high, reference, within: float, n: int = BOX_PO
                                            dim) <= across
     near = dist <= within
     spurious = converged & ~along
+    landed = converged & along & near
     return {
         "points": n,
         "within": float(within),
         "converged": float(converged.mean()),
-        "landed": float((converged & along & near).mean()),
+        "landed": float(landed.mean()),
         "extends": float((converged & along & ~near).mean()),
         "spurious": float(spurious.mean()),
         "median_distance": float(np.median(dist[converged])) if converged.any() else None,
+        **coverage(points[landed], reference, within, n),
     }, np.asarray(out.points)[spurious], dist[spurious]
+
+
+def coverage(points, reference, within: float, n: int) -> dict:
+    """The share of COVER_ROWS data rows (`reference`'s first) within `within` of one of
+    `points` [M, D] ("coverage"), and the share that n other rows of `reference` reach
+    ("coverage_of_rows": what n points spread over the data as the data is reach)."""
+    reference = np.asarray(reference, np.float64)
+    rows = min(COVER_ROWS, len(reference) // 2)
+    targets, spread = reference[:rows], reference[rows:rows + n]
+
+    def reached(by) -> float:
+        return float((cKDTree(by).query(targets)[0] <= within).mean()) if len(by) else 0.0
+
+    return {"coverage": reached(np.asarray(points, np.float64)),
+            "coverage_of_rows": reached(spread)}
 
 
 def on_data(land: dict) -> float:
@@ -297,6 +318,11 @@ def _warnings(report: dict) -> list[str]:
         out.append(f"the zero set has parts away from the data: {100 * land['spurious']:.0f}% of "
                    f"projected box points land on it farther than {land['within']:.3g} from "
                    f"the data")
+    if "coverage" in land and land["coverage"] < COVERAGE * land["coverage_of_rows"]:
+        out.append(f"the landed points reach {100 * land['coverage']:.0f}% of the data's rows, "
+                   f"where as many of its own rows reach {100 * land['coverage_of_rows']:.0f}%: "
+                   "the zero set is smaller than the data (a relation vanishes on part of it, "
+                   "or two near-coincident relations cut it)")
     hold = report.get("holds", {})
     far = hold.get("far_acceptance", 0.0)
     if far > FAR_ACCEPTED:
@@ -332,7 +358,9 @@ def _lines(report: dict) -> list[str]:
         + (f"{100 * land['extends']:.0f}% on its continuation past the sample's edge, "
            if land.get("extends") else "")
         + f"{100 * land['spurious']:.0f}% on spurious zeros, "
-        f"{100 * (1 - land['converged']):.0f}% not converged",
+        f"{100 * (1 - land['converged']):.0f}% not converged"
+        + (f"; they reach {100 * land['coverage']:.0f}% of the data's rows (as many of its "
+           f"rows reach {100 * land['coverage_of_rows']:.0f}%)" if "coverage" in land else ""),
         f"holds: recall {100 * hold['recall']:.1f}% of held-out rows, accepts "
         f"{100 * hold['off_acceptance']:.1f}% of box rows"
         + (f" and {100 * hold['far_acceptance']:.1f}% of the box rows farther than "
@@ -354,6 +382,7 @@ __all__ = [
     "assess",
     "calibrated",
     "calibrated_tolerance",
+    "coverage",
     "data_codimension",
     "distance_tolerance",
     "landing",

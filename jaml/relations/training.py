@@ -683,6 +683,7 @@ DROP_RATIO = 2.0  # off/on below which a capped relation up to the codimension i
 REFINE_SHARE = 5  # a refinement round's step budget: this fraction of max_steps
 REFINE_HALVES = 0.5  # a round leaving this share of the points landing away may separate less
 RETRY_SPURIOUS = 0.1  # a pre-mined relation with more box points landing away: tried again
+COVER_KEPT = 0.8  # beyond the codimension, a relation may not cut the data's reach below this
 # A start separating this share of what an exact relation reaches on the rows (the noise
 # floor) is not tried again for separation, where that is below the stopping bar (None: the bar).
 RETRY_FLOOR_SHARE = 0.5
@@ -798,8 +799,9 @@ def unexplained_share(cfg, batches, rs: RelationSet, g_k: Callable, key,
 
 def _beyond_codimension_unneeded(cfg: Config, unexplained: float, land, before) -> str:
     """Why a syzygy-trained relation of a `transversal_first` fit (so beyond the data's
-    codimension) is not kept, or "" if it is: a fresh syzygy explains it, or no more projected
-    box points land on the data with it than without."""
+    codimension) is not kept, or "" if it is: a fresh syzygy explains it, no more projected
+    box points land on the data with it than without, or they reach less of the data with it
+    (below COVER_KEPT of the share without it: its zero set cuts the data's)."""
     if not cfg.transversal_first:
         return ""
     if unexplained * cfg.separation_ratio < 1:
@@ -811,6 +813,10 @@ def _beyond_codimension_unneeded(cfg: Config, unexplained: float, land, before) 
     if with_it <= without:
         return (f"is new, but no more projected box points land on the data with it "
                 f"({100 * with_it:.0f}% against {100 * without:.0f}% without it)")
+    reach, reach_before = land.get("coverage"), before.get("coverage")
+    if reach is not None and reach_before is not None and reach < COVER_KEPT * reach_before:
+        return (f"is new, but cuts the data: the landed points reach {100 * reach:.0f}% of the "
+                f"data's rows with it against {100 * reach_before:.0f}% without it")
     return ""
 
 

@@ -163,6 +163,44 @@ def test_the_true_ellipse_relations_land_every_box_point_and_a_spurious_pair_doe
     assert bad["spurious"] >= 0.1 and bad["landed"] <= good["landed"] - 0.1, bad
 
 
+def test_a_third_relation_cutting_the_ellipse_to_two_points_lands_all_and_reaches_little():
+    """Coverage against closed forms: plane ∩ hyperboloid is the whole ellipse, so its landed
+    points reach about what as many of the data's own rows do; adding x = 0 leaves two points
+    of it, (0, 1, 0) and (0, -3, -2), where every box point still lands: the landing share
+    misses the cut, the coverage and the report's warning do not."""
+    t = np.random.default_rng(4).uniform(0, 2 * np.pi, 20_000)
+    curve = np.stack([np.sqrt(2) * np.cos(t), 2 * np.sin(t) - 1, np.sin(t) - 1], -1)
+    low, high = curve.min(0), curve.max(0)
+
+    def true(tau):
+        x, y, z = (tau[..., i] for i in range(3))
+        return jnp.stack([y - 2 * z - 1, x**2 + y**2 - 2 * z**2 - 1], -1)
+
+    def cut(tau):
+        return jnp.concatenate([true(tau), tau[..., :1]], -1)
+
+    within = quality.landing_distance(curve, curve[:1024], low, high)
+    whole, _, _ = quality.landing(true, jax.random.key(5), low, high, curve, within,
+                                  tolerance=1e-4)
+    points, _, _ = quality.landing(cut, jax.random.key(5), low, high, curve, within,
+                                   tolerance=1e-4)
+    assert whole["coverage"] >= 0.9 * whole["coverage_of_rows"] >= 0.85, whole
+    assert points["landed"] >= 0.9, points  # every converged point is on the curve
+    # The rows the two points reach: t within `within` / |d curve / dt| of each (the speed is
+    # √2 where cos t = 0), t uniform over 2π.
+    expected = 2 * (2 * within / np.sqrt(2)) / (2 * np.pi)
+    assert abs(points["coverage"] - expected) < 0.02, (points, expected)
+    report = {"relations": [{"index": j, "status": "done", "ratio": 100.0} for j in (1, 2, 3)],
+              "independence": {"median_abs_cos": np.eye(3).tolist()}, "landing": points}
+    assert [w for w in quality._warnings(report) if "smaller than the data" in w] == [
+        f"the landed points reach {100 * points['coverage']:.0f}% of the data's rows, where as "
+        f"many of its own rows reach {100 * points['coverage_of_rows']:.0f}%: the zero set is "
+        "smaller than the data (a relation vanishes on part of it, or two near-coincident "
+        "relations cut it)"]
+    report["landing"] = whole
+    assert not [w for w in quality._warnings(report) if "smaller than the data" in w]
+
+
 def test_a_zero_set_going_on_past_the_samples_edge_is_not_spurious_and_a_parallel_one_is():
     """Rows of the plane z = 0 drawn only for x ≤ 0.5, a box reaching x = 1; g = z (z − 0.3)
     vanishes on the whole plane and on the plane z = 0.3 too. Box points move along z only

@@ -80,7 +80,7 @@ def test_syzygy_mode_trains_up_to_the_codimension_with_transversality_and_judges
     assert [r.get("unexplained") for r in rs.quality.to_dict()["relations"]] == [None, None, 0.9]
 
 
-def test_a_relation_beyond_the_codimension_must_be_new_and_land_more_points():
+def test_a_relation_beyond_the_codimension_must_be_new_land_more_and_not_cut_the_data():
     from jaml.relations.training import _beyond_codimension_unneeded
 
     cfg = relations.Config(independence="syzygy")
@@ -89,6 +89,13 @@ def test_a_relation_beyond_the_codimension_must_be_new_and_land_more_points():
     assert "no more projected box points" in _beyond_codimension_unneeded(
         cfg, 0.5, {"landed": 0.85, "extends": 0.05}, before)
     assert _beyond_codimension_unneeded(cfg, 0.5, {"landed": 0.95}, before) == ""
+    # Landing more, but its zero set cuts the data to a few points (reach 7 % against 96 %):
+    reached = {"landed": 0.90, "coverage": 0.96}
+    assert "cuts the data: the landed points reach 7% of the data's rows with it against " \
+        "96% without it" in _beyond_codimension_unneeded(
+            cfg, 0.5, {"landed": 0.99, "coverage": 0.07}, reached)
+    assert _beyond_codimension_unneeded(
+        cfg, 0.5, {"landed": 0.99, "coverage": 0.90}, reached) == ""  # within COVER_KEPT
     assert _beyond_codimension_unneeded(cfg, 0.5, None, before) == ""
     paper = cfg.replace(transversal_first=False)
     assert _beyond_codimension_unneeded(paper, 0.1, {"landed": 0.5}, before) == ""

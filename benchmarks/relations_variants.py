@@ -6,8 +6,8 @@ rows) with `relations.Config(seed=s, **variant)` and measures where 512 uniform 
 under `relations.project` at its defaults (distance to a 200,000-row sample of the true
 manifold, share within 0.05; and, where a closed form knows the whole manifold, its share
 within 0.05 of that), the Jacobian's rank ≥ 2 share on the data and the quality report's
-statuses, off/on ratios and landing, and the fit's own log lines (what it tried and kept). One
-JSON line per run on stdout, as each run ends.
+statuses, off/on ratios, landing and warnings, and the fit's own log lines (what it tried
+and kept). One JSON line per run on stdout, as each run ends.
 
     python3 benchmarks/relations_variants.py ellipse-defaults,sphere05-defaults --jobs 16
 """
@@ -160,7 +160,7 @@ def one(source_name: str, seed: int, fields: dict) -> dict:
             "on_truth": None if truth is None else float(np.mean(truth < 0.05)),
             "truth_median": None if truth is None else float(np.median(truth)),
             "noise": report.get("noise"), "holds": report.get("holds"),
-            "report_landing": report.get("landing"),
+            "report_landing": report.get("landing"), "warnings": report.get("warnings"),
             "cos": report.get("independence", {}).get("median_abs_cos"),
             # A syzygy fitted after each relation: its residual as a share of mean |g_k|.
             "syzygy_unexplained": [[round(r["residual"] / max(r["g_scale"], 1e-30), 3)

@@ -6,6 +6,7 @@ checked on fresh data never seen in training.
 
 import contextlib
 import io
+import json
 
 import jax
 import jax.numpy as jnp
@@ -166,3 +167,8 @@ def test_the_seeds_figure_draws_each_seeds_projected_box_points(ellipse, tmp_pat
         relations.save(rs, tmp_path / f"fig5_top_s{seed}" / "checkpoint")
     path = draw_seeds("fig5_top", tmp_path, [0, 1])
     assert path == tmp_path / "fig5_top_seeds.png" and path.stat().st_size > 10_000
+    landed = json.loads((tmp_path / "fig5_top_seeds.json").read_text())
+    assert [r["seed"] for r in landed] == [0, 1]
+    assert all(r["relations"] == rs.num_relations and 0 <= r["landed"] <= 1 for r in landed)
+    # The two relations' zero set is the ellipse: the landed points reach it as its rows do.
+    assert all(r["coverage"] >= 0.5 * r["coverage_of_rows"] > 0 for r in landed)

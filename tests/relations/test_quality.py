@@ -139,24 +139,31 @@ def test_data_codimension_of_a_curve_a_surface_and_a_plane_in_r4():
     assert quality.data_codimension(block, key) == 2
 
 
+def _ellipse_rows():
+    """20,000 rows of the ellipse (√2 cos t, 2 sin t − 1, sin t − 1), t uniform, and their box."""
+    t = np.random.default_rng(4).uniform(0, 2 * np.pi, 20_000)
+    curve = np.stack([np.sqrt(2) * np.cos(t), 2 * np.sin(t) - 1, np.sin(t) - 1], -1)
+    return curve, curve.min(0), curve.max(0)
+
+
+def _ellipse_relations(tau):
+    """Its two exact relations: the plane y = 2z + 1 and the hyperboloid x² + y² − 2z² = 1."""
+    x, y, z = (tau[..., i] for i in range(3))
+    return jnp.stack([y - 2 * z - 1, x**2 + y**2 - 2 * z**2 - 1], -1)
+
+
 def test_the_true_ellipse_relations_land_every_box_point_and_a_spurious_pair_does_not():
     """The landing measure against closed forms: plane ∩ hyperboloid is the ellipse; plane ∩
     (hyperboloid · another plane) adds a line across it, which catches projected points."""
-    t = np.random.default_rng(4).uniform(0, 2 * np.pi, 20_000)
-    curve = np.stack([np.sqrt(2) * np.cos(t), 2 * np.sin(t) - 1, np.sin(t) - 1], -1)
-    low, high = curve.min(0), curve.max(0)
-
-    def true(tau):
-        x, y, z = (tau[..., i] for i in range(3))
-        return jnp.stack([y - 2 * z - 1, x**2 + y**2 - 2 * z**2 - 1], -1)
+    curve, low, high = _ellipse_rows()
 
     def spurious(tau):
-        g = true(tau)
+        g = _ellipse_relations(tau)
         return jnp.stack([g[..., 0], g[..., 1] * tau[..., 0]], -1)  # also x = 0 in the plane
 
     within = quality.landing_distance(curve, curve[:1024], low, high)
-    good, _, _ = quality.landing(true, jax.random.key(5), low, high, curve, within,
-                                 tolerance=1e-4)
+    good, _, _ = quality.landing(_ellipse_relations, jax.random.key(5), low, high, curve,
+                                 within, tolerance=1e-4)
     bad, _, _ = quality.landing(spurious, jax.random.key(5), low, high, curve, within,
                                 tolerance=1e-4)
     assert good["landed"] >= 0.97 and good["spurious"] <= 0.01, good
@@ -168,20 +175,14 @@ def test_a_third_relation_cutting_the_ellipse_to_two_points_lands_all_and_reache
     points reach about what as many of the data's own rows do; adding x = 0 leaves two points
     of it, (0, 1, 0) and (0, -3, -2), where every box point still lands: the landing share
     misses the cut, the coverage and the report's warning do not."""
-    t = np.random.default_rng(4).uniform(0, 2 * np.pi, 20_000)
-    curve = np.stack([np.sqrt(2) * np.cos(t), 2 * np.sin(t) - 1, np.sin(t) - 1], -1)
-    low, high = curve.min(0), curve.max(0)
-
-    def true(tau):
-        x, y, z = (tau[..., i] for i in range(3))
-        return jnp.stack([y - 2 * z - 1, x**2 + y**2 - 2 * z**2 - 1], -1)
+    curve, low, high = _ellipse_rows()
 
     def cut(tau):
-        return jnp.concatenate([true(tau), tau[..., :1]], -1)
+        return jnp.concatenate([_ellipse_relations(tau), tau[..., :1]], -1)
 
     within = quality.landing_distance(curve, curve[:1024], low, high)
-    whole, _, _ = quality.landing(true, jax.random.key(5), low, high, curve, within,
-                                  tolerance=1e-4)
+    whole, _, _ = quality.landing(_ellipse_relations, jax.random.key(5), low, high, curve,
+                                  within, tolerance=1e-4)
     points, _, _ = quality.landing(cut, jax.random.key(5), low, high, curve, within,
                                    tolerance=1e-4)
     assert whole["coverage"] >= 0.9 * whole["coverage_of_rows"] >= 0.85, whole

@@ -41,7 +41,8 @@ def test_fit_returns_the_declared_structure(tiny_set):
 def test_evaluate_is_one_program_with_the_networks_own_values(tiny_set):
     """`evaluate` runs every relation in one compiled program, kept for a set of the same
     shapes whatever its tolerance or report, with each network's own values (its Flax module
-    applied op by op) bit for bit; raw gives them before the output tanh."""
+    applied op by op) to float32 rounding; raw gives them before the output tanh. Bit for bit
+    on some CPUs; on others XLA orders the one program's sums differently (4 ulp seen)."""
     from jaml.relations import relation_set
 
     rs, rows = tiny_set
@@ -49,8 +50,8 @@ def test_evaluate_is_one_program_with_the_networks_own_values(tiny_set):
     own = jnp.stack([rs.relation(k)(tau) for k in range(rs.num_relations)], axis=-1)
     raw = jnp.stack([rs.relation(k, raw=True)(tau) for k in range(rs.num_relations)], axis=-1)
     before = relation_set._evaluate._cache_size()
-    np.testing.assert_array_equal(relations.evaluate(rs, tau), own)
-    np.testing.assert_array_equal(relation_set.evaluate_raw(rs, tau), raw)
+    np.testing.assert_array_max_ulp(relations.evaluate(rs, tau), own, maxulp=16)
+    np.testing.assert_array_max_ulp(relation_set.evaluate_raw(rs, tau), raw, maxulp=16)
     assert relation_set._evaluate._cache_size() == before + 2  # g and raw: one program each
     relations.evaluate(rs.replace(tolerance=rs.tolerance * 2, quality=None), rows[7:14])
     assert relation_set._evaluate._cache_size() == before + 2

@@ -63,7 +63,8 @@ def _print_summary(out, summary) -> None:
 class Relations:
     """Learn AML relations g_1..g_K on a source's on-manifold rows (paper §3, Alg. 1) and write
     a run directory (config, metrics, checkpoint, summary, figures). Re-running with the same out
-    directory and options resumes. Config defaults follow the paper."""
+    directory and options resumes. Defaults: the paper's loss and transversality, with jaml's
+    pre-mining, refinement and stopping rules (docs/relations.md lists each deviation)."""
 
     source: str
     """a preset (ellipse, circle, block45, block36-drag, block-drag-range, geom-on-incline,

@@ -186,7 +186,9 @@ def landing(relations, key, low, high, reference, within: float, n: int = BOX_PO
 def coverage(points, reference, within: float, n: int) -> dict:
     """The share of COVER_ROWS data rows (`reference`'s first) within `within` of one of
     `points` [M, D] ("coverage"), and the share that n other rows of `reference` reach
-    ("coverage_of_rows": what n points spread over the data as the data is reach)."""
+    ("coverage_of_rows": what n points spread over the data as the data is reach). `reference`
+    must be in random order (a fit's rows are shuffled before they are split), or both shares
+    speak of one stretch of it."""
     reference = np.asarray(reference, np.float64)
     rows = min(COVER_ROWS, len(reference) // 2)
     targets, spread = reference[:rows], reference[rows:rows + n]

@@ -813,8 +813,8 @@ def _beyond_codimension_unneeded(cfg: Config, unexplained: float, land, before) 
     if with_it <= without:
         return (f"is new, but no more projected box points land on the data with it "
                 f"({100 * with_it:.0f}% against {100 * without:.0f}% without it)")
-    reach, reach_before = land.get("coverage"), before.get("coverage")
-    if reach is not None and reach_before is not None and reach < COVER_KEPT * reach_before:
+    reach, reach_before = land["coverage"], before["coverage"]
+    if reach < COVER_KEPT * reach_before:
         return (f"is new, but cuts the data: the landed points reach {100 * reach:.0f}% of the "
                 f"data's rows with it against {100 * reach_before:.0f}% without it")
     return ""

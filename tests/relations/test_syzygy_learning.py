@@ -84,18 +84,19 @@ def test_a_relation_beyond_the_codimension_must_be_new_land_more_and_not_cut_the
     from jaml.relations.training import _beyond_codimension_unneeded
 
     cfg = relations.Config(independence="syzygy")
-    before = {"landed": 0.90, "extends": 0.0}
-    assert "not new" in _beyond_codimension_unneeded(cfg, 0.1, {"landed": 0.99}, before)
+    before = {"landed": 0.90, "extends": 0.0, "coverage": 0.96}
+    assert "not new" in _beyond_codimension_unneeded(
+        cfg, 0.1, {"landed": 0.99, "coverage": 0.96}, before)
     assert "no more projected box points" in _beyond_codimension_unneeded(
-        cfg, 0.5, {"landed": 0.85, "extends": 0.05}, before)
-    assert _beyond_codimension_unneeded(cfg, 0.5, {"landed": 0.95}, before) == ""
+        cfg, 0.5, {"landed": 0.85, "extends": 0.05, "coverage": 0.96}, before)
+    assert _beyond_codimension_unneeded(
+        cfg, 0.5, {"landed": 0.95, "coverage": 0.96}, before) == ""
     # Landing more, but its zero set cuts the data to a few points (reach 7 % against 96 %):
-    reached = {"landed": 0.90, "coverage": 0.96}
     assert "cuts the data: the landed points reach 7% of the data's rows with it against " \
         "96% without it" in _beyond_codimension_unneeded(
-            cfg, 0.5, {"landed": 0.99, "coverage": 0.07}, reached)
+            cfg, 0.5, {"landed": 0.99, "coverage": 0.07}, before)
     assert _beyond_codimension_unneeded(
-        cfg, 0.5, {"landed": 0.99, "coverage": 0.90}, reached) == ""  # within COVER_KEPT
+        cfg, 0.5, {"landed": 0.99, "coverage": 0.90}, before) == ""  # within COVER_KEPT
     assert _beyond_codimension_unneeded(cfg, 0.5, None, before) == ""
     paper = cfg.replace(transversal_first=False)
     assert _beyond_codimension_unneeded(paper, 0.1, {"landed": 0.5}, before) == ""

@@ -1,13 +1,14 @@
 """Config variants of `relations.fit` side by side on 8 seeds, one single-threaded process a run.
 
 A quick screen beside `relations_quality.py` (which runs the authors' code too): each run fits
-the ellipse, the 45° block, the circle, the drag row or a noisy sphere ("sphere:STD", 4,000
-rows) with `relations.Config(seed=s, **variant)` and measures where 512 uniform box points land
-under `relations.project` at its defaults (distance to a 200,000-row sample of the true
-manifold, share within 0.05; and, where a closed form knows the whole manifold, its share
-within 0.05 of that), the Jacobian's rank ≥ 2 share on the data and the quality report's
-statuses, off/on ratios, landing and warnings, and the fit's own log lines (what it tried
-and kept). One JSON line per run on stdout, as each run ends.
+the ellipse, the 45° block, the circle, the drag row, a noisy sphere ("sphere:STD", 4,000 rows)
+or rows of the MJX incline ("incline:drawn|fixed", pools drawn here once, under runs/pools, for
+machines without MuJoCo) with `relations.Config(seed=s, **variant)` and measures where 512
+uniform box points land under `relations.project` at its defaults (distance to a 200,000-row
+sample of the true manifold, share within 0.05; and, where a closed form knows the whole
+manifold, its share within 0.05 of that), the Jacobian's rank ≥ 2 share on the data and the
+quality report's statuses, off/on ratios, landing and warnings, and the fit's own log lines
+(what it tried and kept). One JSON line per run on stdout, as each run ends.
 
     python3 benchmarks/relations_variants.py ellipse-defaults,sphere05-defaults --jobs 16
 """
@@ -97,7 +98,15 @@ VARIANTS = {  # name: (source, Config fields beside the seed)
     # noisy rows stand against.
     "ellipse-n05": ("ellipse", {"max_relations": 2, "noise_scale": 0.05}),
     "ellipse-n02": ("ellipse", {"max_relations": 2, "noise_scale": 0.02}),
+    # Rows of the MJX GeomOnIncline env under random pushes (Fig. 9's source): mass and friction
+    # drawn per reset (codimension 1: the kinematic relation) or fixed (2: the dynamics too).
+    "incline-drawn-defaults": ("incline:drawn", {}),
+    "incline-fixed-defaults": ("incline:fixed", {}),
 }
+# The incline pools: drawn once with MJX (`main`, before any worker starts) and read by the
+# workers as file sources, so that a machine without MuJoCo runs the fits with them carried.
+POOLS = Path(__file__).resolve().parent.parent / "runs" / "pools"
+INCLINE_DYNAMICS = {"drawn": {}, "fixed": {"mass_range": (0.2, 0.2), "friction_range": (0.3, 0.3)}}
 THREADS = {"JAX_PLATFORMS": "cpu", "OMP_NUM_THREADS": "1",
            "XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"}
 
@@ -113,9 +122,10 @@ class _FitLog(logging.Handler):
         self.lines.append(record.getMessage())
 
 
-def one(source_name: str, seed: int, fields: dict) -> dict:
+def one(source_name: str, seed: int, fields: dict, keep: str | None = None) -> dict:
     """Fit and measure one run (in this process); a field "module:NAME" sets that module
-    constant first instead of a Config field."""
+    constant first instead of a Config field. `keep`: a directory the fitted relations are
+    saved to (`relations.save`)."""
     import importlib
 
     import jax
@@ -131,7 +141,8 @@ def one(source_name: str, seed: int, fields: dict) -> dict:
     sys.path.insert(1, str(Path(__file__).resolve().parent))  # after the jaml imported
     from relations_quality import syzygy_unexplained
 
-    source = _noisy_sphere(source_name) or sources.make(source_name)
+    source = (_noisy_sphere(source_name) or _incline_pool(source_name)
+              or sources.make(source_name))
     started = time.perf_counter()
     summaries, fit_log = [], _FitLog()
     logging.getLogger("jaml.relations").addHandler(fit_log)
@@ -143,6 +154,8 @@ def one(source_name: str, seed: int, fields: dict) -> dict:
     rs = relations.fit(source, relations.Config(seed=seed, **fields), on_relation=kept)
     fit_s = time.perf_counter() - started
     logged = list(fit_log.lines)
+    if keep is not None and rs.num_relations:
+        relations.save(rs, keep)
     if rs.num_relations == 0:  # the fit found none: nothing lands anywhere
         return {"seed": seed, "fit_s": fit_s, "relations": 0, "landed": 0.0, "on_truth": 0.0,
                 "status": [], "off_on": [], "log": logged}
@@ -215,12 +228,72 @@ def _noisy_sphere(source_name: str):
     return sources.make(str(path))
 
 
+def _incline_pool(source_name: str, seed: int = 0):
+    """"incline:DYNAMICS": the pool of 131,072 GeomOnIncline rows `draw_pools` wrote (`seed` 1:
+    a second pool, the truth's), as a file source; None for other names."""
+    if not source_name.startswith("incline:"):
+        return None
+    from jaml import sources
+
+    path = POOLS / f"{source_name.partition(':')[2]}-{seed}.npy"
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: run this script here first with MuJoCo installed "
+                                "(it draws the incline pools), then carry runs/pools")
+    return sources.make(str(path))
+
+
+def draw_pools(names: list[str]) -> None:
+    """The incline pools the variants `names` read, drawn with MJX where missing: two of each
+    dynamics (the training rows, and a second draw the landing is measured against)."""
+    import jax
+    import numpy as np
+
+    from jaml import sources
+
+    for dynamics in sorted({VARIANTS[n][0].partition(":")[2] for n in names
+                            if VARIANTS[n][0].startswith("incline:")}):
+        for seed in (0, 1):
+            path = POOLS / f"{dynamics}-{seed}.npy"
+            if path.exists():
+                continue
+            source = sources.make("geom-on-incline", **INCLINE_DYNAMICS[dynamics])
+            rows = np.asarray(source.sample(jax.random.key(seed), source.pool_size), np.float32)
+            POOLS.mkdir(parents=True, exist_ok=True)
+            np.save(path.with_suffix(".tmp.npy"), rows)
+            path.with_suffix(".tmp.npy").replace(path)
+            # The kinematic plane's slope in the rows' units, for machines without MJX.
+            from envs_mjx.domains import incline
+
+            slope = source.dt * incline.VELOCITY_SCALE / incline.POSITION_SCALE
+            (POOLS / f"{dynamics}.json").write_text(json.dumps({"slope": slope}))
+
+
+def _incline_truth(source_name: str, points):
+    """[N] distance of projected incline rows τ = (θ, s0, v0, a0, s1, v1) to what the env does:
+    the larger of their distance to the kinematic plane s1 − s0 = dt·(v0 + v1)/2 (in the
+    source's units; it holds on the rows to 0.2 % of s1's spread) and of (θ, v0, a0, v1) to
+    the nearest of a second pool's (the dynamics, where mass and friction are fixed)."""
+    import numpy as np
+    from scipy.spatial import cKDTree
+
+    dynamics = source_name.partition(":")[2]
+    c = json.loads((POOLS / f"{dynamics}.json").read_text())["slope"]
+    points = np.asarray(points, np.float64)
+    plane = np.abs(points[:, 4] - points[:, 1] - c * (points[:, 2] + points[:, 5]) / 2)
+    plane /= np.sqrt(2 + c * c / 2)
+    columns = [0, 2, 3, 5]
+    rows = np.asarray(_incline_pool(source_name, seed=1).rows, np.float64)
+    return np.maximum(plane, cKDTree(rows[:, columns]).query(points[:, columns])[0])
+
+
 def _truth(source_name: str, points):
     """[N] distance of projected points to the true manifold, where a closed form knows it
     (the data's sample ends at its box; the true block plane and circle do not; the drag row's
     flow, sampled densely over every incline it allows and wider starts), else None."""
     import numpy as np
 
+    if source_name.startswith("incline:"):
+        return _incline_truth(source_name, points)
     if source_name == "circle" or source_name.startswith("sphere:"):
         return np.abs(np.linalg.norm(points, axis=-1) - 1.0)
     if source_name == "block-drag-range":  # the same flow for every θ with c > 0 and wider starts
@@ -244,9 +317,10 @@ def _truth(source_name: str, points):
     return ellipse_nearest(points)[0] if source_name == "ellipse" else block_plane_distance(points)
 
 
-def launch(name: str, seed: int, timeout_s: float) -> dict:
+def launch(name: str, seed: int, timeout_s: float, keep: str | None = None) -> dict:
     source_name, fields = VARIANTS[name]
-    cmd = [sys.executable, __file__, "--worker", json.dumps([source_name, seed, fields])]
+    keep = None if keep is None else str(Path(keep) / f"{name}-{seed}")
+    cmd = [sys.executable, __file__, "--worker", json.dumps([source_name, seed, fields, keep])]
     try:
         proc = subprocess.run(cmd, env=os.environ | THREADS, capture_output=True, text=True,
                               timeout=timeout_s)
@@ -341,22 +415,26 @@ def main() -> None:
                         help="the record's field --plot draws, a dotted path into it "
                              "(unexplained.0: g_2's share; holds_by.value.far); several, "
                              "comma-separated, side by side")
+    parser.add_argument("--keep", help="a directory each run's fitted relations are saved "
+                                       "under (VARIANT-SEED)")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.plot:
         plot(args.plot[0], args.variants.split(","), args.plot[1], args.metric)
         return
     if args.worker:
-        source_name, seed, fields = json.loads(args.worker)
-        print(json.dumps(one(source_name, seed, fields)))
+        source_name, seed, fields, keep = json.loads(args.worker)
+        print(json.dumps(one(source_name, seed, fields, keep)))
         return
     names = args.variants.split(",")
     unknown = [n for n in names if n not in VARIANTS]
     if unknown:
         parser.error(f"unknown variants {unknown}; choose from {list(VARIANTS)}")
+    draw_pools(names)
     runs = [(n, s) for n in names for s in range(args.seeds)]
     with ThreadPoolExecutor(args.jobs) as pool:  # each record printed as its run ends
-        for done in as_completed([pool.submit(launch, *r, args.timeout_s) for r in runs]):
+        futures = [pool.submit(launch, *r, args.timeout_s, args.keep) for r in runs]
+        for done in as_completed(futures):
             print(json.dumps(done.result()), flush=True)
 
 

@@ -32,11 +32,14 @@ def test_syzygy_network_expresses_a_dependent_relation_but_not_an_independent_on
 
 @pytest.mark.loop_level
 def test_algorithm_1_with_syzygies_learns_separating_relations():
+    """The paper's Algorithm 1 with restricted syzygies, as written: jaml's further starts
+    (`premine_attempts`, which here train the whole fit twice) are tested in test_quality."""
     src = sources.make("ellipse")
     cfg = relations.Config(
         max_relations=2,
         independence="syzygy",
         transversal_first=False,  # syzygies from g_2 on, the paper's way
+        premine_attempts=1,
         syzygies_per_relation=1,
         max_steps=30_000,
         syzygy_max_steps=4000,

@@ -244,35 +244,37 @@ def _incline_pool(source_name: str, seed: int = 0):
 
 def draw_pools(names: list[str]) -> None:
     """The incline pools the variants `names` read, drawn with MJX where missing: two of each
-    dynamics (the training rows, and a second draw the landing is measured against)."""
-    import jax
-    import numpy as np
-
-    from jaml import sources
-
+    dynamics (the training rows, and a second draw the landing is measured against), and the
+    kinematic plane's slope in the rows' units, for the machines without MJX that read them."""
     for dynamics in sorted({VARIANTS[n][0].partition(":")[2] for n in names
                             if VARIANTS[n][0].startswith("incline:")}):
+        files = [POOLS / f"{dynamics}-0.npy", POOLS / f"{dynamics}-1.npy",
+                 POOLS / f"{dynamics}.json"]
+        if all(f.exists() for f in files):  # carried: no MJX needed
+            continue
+        import jax
+        import numpy as np
+
+        from envs_mjx.domains import incline
+        from jaml import sources
+
+        source = sources.make("geom-on-incline", **INCLINE_DYNAMICS[dynamics])
+        POOLS.mkdir(parents=True, exist_ok=True)
         for seed in (0, 1):
             path = POOLS / f"{dynamics}-{seed}.npy"
-            if path.exists():
-                continue
-            source = sources.make("geom-on-incline", **INCLINE_DYNAMICS[dynamics])
-            rows = np.asarray(source.sample(jax.random.key(seed), source.pool_size), np.float32)
-            POOLS.mkdir(parents=True, exist_ok=True)
-            np.save(path.with_suffix(".tmp.npy"), rows)
-            path.with_suffix(".tmp.npy").replace(path)
-            # The kinematic plane's slope in the rows' units, for machines without MJX.
-            from envs_mjx.domains import incline
-
-            slope = source.dt * incline.VELOCITY_SCALE / incline.POSITION_SCALE
-            (POOLS / f"{dynamics}.json").write_text(json.dumps({"slope": slope}))
+            if not path.exists():
+                rows = source.sample(jax.random.key(seed), source.pool_size)
+                np.save(path.with_suffix(".tmp.npy"), np.asarray(rows, np.float32))
+                path.with_suffix(".tmp.npy").replace(path)
+        slope = source.dt * incline.VELOCITY_SCALE / incline.POSITION_SCALE
+        (POOLS / f"{dynamics}.json").write_text(json.dumps({"slope": slope}))
 
 
 def _incline_truth(source_name: str, points):
     """[N] distance of projected incline rows τ = (θ, s0, v0, a0, s1, v1) to what the env does:
     the larger of their distance to the kinematic plane s1 − s0 = dt·(v0 + v1)/2 (in the
-    source's units; it holds on the rows to 0.2 % of s1's spread) and of (θ, v0, a0, v1) to
-    the nearest of a second pool's (the dynamics, where mass and friction are fixed)."""
+    source's units; the rows keep to it up to the integrator's error) and of (θ, v0, a0, v1)
+    to the nearest of a second pool's (the dynamics, where mass and friction are fixed)."""
     import numpy as np
     from scipy.spatial import cKDTree
 

@@ -291,6 +291,20 @@ def _bar_out_of_reach(report: dict) -> bool:
     return noise is not None and noise["separation"] < noise["separation_ratio"]
 
 
+def _band_hint(report: dict, index: int) -> str:
+    """For a capped g_index the local PCA asked for (at or below its estimate of the data's
+    codimension): the fix where that direction of the rows is a thin band, not a relation (the
+    estimate cannot tell them apart), else ""."""
+    ind = report.get("independence", {})
+    codim = ind.get("data_codimension")
+    if codim is None or not 1 < index <= codim or ind.get("data_codimension_from") != (
+            "by local PCA"):
+        return ""
+    return (f"; the data's codimension {codim} is the local PCA's estimate: if the rows only "
+            f"keep near a surface there (a band, not a relation), set "
+            f"Config.codimension={index - 1}")
+
+
 def _warnings(report: dict) -> list[str]:
     out = []
     noisy = _bar_out_of_reach(report)
@@ -299,7 +313,8 @@ def _warnings(report: dict) -> list[str]:
         if r["status"] not in ("done", "restored"):  # restored: its end is not known here
             out.append(f"g{r['index']} {r['status']}: it did not meet the stopping rule "
                        f"(held-out off/on {r['ratio']:.1f}"
-                       + ("; out of reach on these rows, see noise)" if noisy else ")"))
+                       + ("; out of reach on these rows, see noise)" if noisy else ")")
+                       + ("" if noisy else _band_hint(report, r["index"])))
         if "unexplained" in r and r["unexplained"] * bar < 1:  # `fit_syzygy`'s test
             out.append(f"g{r['index']} is a restricted syzygy of the earlier relations: a "
                        f"fresh syzygy network explains all but {100 * r['unexplained']:.0f}% "

@@ -245,6 +245,25 @@ def test_only_a_relation_known_to_have_missed_its_stopping_rule_is_warned_of():
         "g2 capped: it did not meet the stopping rule (held-out off/on 3.0)"]
 
 
+@pytest.mark.parametrize("index, codim_from, hinted", [
+    (2, "by local PCA", True), (2, "given", False), (1, "by local PCA", False),
+    (3, "by local PCA", False)])
+def test_a_capped_relation_the_local_pca_asked_for_names_the_codimension_to_give(
+        index, codim_from, hinted):
+    """A relation at or below the estimated codimension that caps may stand for a thin band
+    of the rows, not a relation (the MJX incline with mass and friction drawn): its warning
+    names `Config.codimension` one lower. Not where the codimension was given, not for g1 (the
+    codimension cannot be 0) and not beyond the codimension."""
+    report = {"relations": [{"index": index, "status": "capped", "ratio": 3.6}],
+              "independence": {"median_abs_cos": [[1.0]], "data_codimension": 2,
+                               "data_codimension_from": codim_from},
+              "landing": {"converged": 1.0, "spurious": 0.0, "within": 0.05}}
+    capped = f"g{index} capped: it did not meet the stopping rule (held-out off/on 3.6)"
+    hint = ("; the data's codimension 2 is the local PCA's estimate: if the rows only keep "
+            "near a surface there (a band, not a relation), set Config.codimension=1")
+    assert quality._warnings(report) == [capped + (hint if hinted else "")]
+
+
 @pytest.mark.parametrize("converged, warned", [(0.68, True), (0.95, False)])
 def test_box_points_that_reach_no_zero_are_warned_of(converged, warned):
     """Points `project` leaves unconverged are neither on the data nor spurious: more than a

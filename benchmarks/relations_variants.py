@@ -98,15 +98,15 @@ VARIANTS = {  # name: (source, Config fields beside the seed)
     # noisy rows stand against.
     "ellipse-n05": ("ellipse", {"max_relations": 2, "noise_scale": 0.05}),
     "ellipse-n02": ("ellipse", {"max_relations": 2, "noise_scale": 0.02}),
-    # Rows of the MJX GeomOnIncline env under random pushes (Fig. 9's source): mass and friction
-    # drawn per reset (codimension 1: the kinematic relation) or fixed (2: the dynamics too).
+    # Rows of the MJX GeomOnIncline env under random pushes (Fig. 9's source and its `DYNAMICS`):
+    # mass and friction drawn per reset (codimension 1: the kinematic relation) or fixed (2: the
+    # dynamics too).
     "incline-drawn-defaults": ("incline:drawn", {}),
     "incline-fixed-defaults": ("incline:fixed", {}),
 }
 # The incline pools: drawn once with MJX (`main`, before any worker starts) and read by the
 # workers as file sources, so that a machine without MuJoCo runs the fits with them carried.
 POOLS = Path(__file__).resolve().parent.parent / "runs" / "pools"
-INCLINE_DYNAMICS = {"drawn": {}, "fixed": {"mass_range": (0.2, 0.2), "friction_range": (0.3, 0.3)}}
 THREADS = {"JAX_PLATFORMS": "cpu", "OMP_NUM_THREADS": "1",
            "XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"}
 
@@ -257,8 +257,9 @@ def draw_pools(names: list[str]) -> None:
 
         from envs_mjx.domains import incline
         from jaml import sources
+        from jaml.experiments.fig9 import DYNAMICS
 
-        source = sources.make("geom-on-incline", **INCLINE_DYNAMICS[dynamics])
+        source = sources.make("geom-on-incline", **DYNAMICS[dynamics])
         POOLS.mkdir(parents=True, exist_ok=True)
         for seed in (0, 1):
             path = POOLS / f"{dynamics}-{seed}.npy"

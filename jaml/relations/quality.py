@@ -33,6 +33,7 @@ SPURIOUS = 0.1  # warn when more than this share of converged box points lands o
 UNCONVERGED = 0.1  # warn when more than this share of projected box points reaches no zero
 SPARSE = 0.1  # warn when the landing distance exceeds this share of the box diagonal
 FAR_ACCEPTED = 0.1  # warn when `holds` accepts more than this share of box rows far from the data
+BY_LOCAL_PCA = "by local PCA"  # where the report's data codimension came from, when estimated
 TANGENT_NEIGHBOURS = 32  # rows of the local PCA that gives the data's tangent space at a row
 TANGENT_RTOL = 0.2  # its directions: singular values above this share of the largest
 COVER_ROWS = 1024  # data rows whose reach by the projected box points `landing` measures
@@ -225,7 +226,7 @@ def calibrated(rs: RelationSet, rows) -> RelationSet:
 
 
 def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
-           data_codim: int | None = None, data_codim_from: str = "by local PCA",
+           data_codim: int | None = None, data_codim_from: str = BY_LOCAL_PCA,
            noise: dict | None = None, unexplained=()) -> Report:
     """The quality report of `rs` on held-out rows [H, D]; `reference` [R, D] are training rows
     (where "on the data" is measured), `statuses` each relation's end ("done" / "capped"),
@@ -297,8 +298,8 @@ def _band_hint(report: dict, index: int) -> str:
     estimate cannot tell them apart), else ""."""
     ind = report.get("independence", {})
     codim = ind.get("data_codimension")
-    if codim is None or not 1 < index <= codim or ind.get("data_codimension_from") != (
-            "by local PCA"):
+    estimated = ind.get("data_codimension_from") == BY_LOCAL_PCA
+    if not estimated or codim is None or not 1 < index <= codim:
         return ""
     return (f"; the data's codimension {codim} is the local PCA's estimate: if the rows only "
             f"keep near a surface there (a band, not a relation), set "
@@ -313,8 +314,8 @@ def _warnings(report: dict) -> list[str]:
         if r["status"] not in ("done", "restored"):  # restored: its end is not known here
             out.append(f"g{r['index']} {r['status']}: it did not meet the stopping rule "
                        f"(held-out off/on {r['ratio']:.1f}"
-                       + ("; out of reach on these rows, see noise)" if noisy else ")")
-                       + ("" if noisy else _band_hint(report, r["index"])))
+                       + ("; out of reach on these rows, see noise)" if noisy
+                          else ")" + _band_hint(report, r["index"])))
         if "unexplained" in r and r["unexplained"] * bar < 1:  # `fit_syzygy`'s test
             out.append(f"g{r['index']} is a restricted syzygy of the earlier relations: a "
                        f"fresh syzygy network explains all but {100 * r['unexplained']:.0f}% "
@@ -365,7 +366,7 @@ def _lines(report: dict) -> list[str]:
         f"quality on {report['held_out_rows']} held-out rows: {rel}",
         f"independence: rank {len(ind['median_abs_cos'])} on "
         f"{100 * ind['full_rank_fraction']:.0f}% of rows (codimension {ind['codimension']}"
-        + (f"; the data's, {ind.get('data_codimension_from', 'by local PCA')}: "
+        + (f"; the data's, {ind.get('data_codimension_from', BY_LOCAL_PCA)}: "
            f"{ind['data_codimension']}" if ind.get("data_codimension") is not None else "")
         + "), "
         + (f"largest pairwise median |cos| {ind['max_pair_cos']:.2f}"

@@ -898,11 +898,11 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pr
     within = quality.landing_distance(batches.dense, batches.held_out, batches.low, batches.high)
     codim = fit_cfg.codimension or quality.data_codimension(batches.dense,
                                                             jax.random.fold_in(key, 5))
-    codim_from = "given" if fit_cfg.codimension else "by local PCA"
+    codim_from = "given" if fit_cfg.codimension else quality.BY_LOCAL_PCA
     if codim == 0:  # the local PCA saw the data fill its neighbourhoods: noise, or too few rows
         log.warning("the data's local PCA finds no codimension (its neighbourhoods are full: "
                     "noisy or few rows); fitting as codimension 1 (Config.codimension sets it)")
-        codim, codim_from = 1, "by local PCA 0, taken as 1"
+        codim, codim_from = 1, f"{quality.BY_LOCAL_PCA} 0, taken as 1"
     log.info("the data's codimension: %d%s", codim, "" if fit_cfg.codimension else
              " (local PCA of the data; Config.codimension overrides it)")
     if fit_cfg.independence == "syzygy" and fit_cfg.transversal_first:

@@ -5,13 +5,16 @@ to the stopping rule; the PyTorch reference step and its networks' forward pass 
 
     python benchmarks/relations_fit.py [--quick] [--no-peer]
     python benchmarks/relations_fit.py --no-steps --no-peer --warm-cache   # as a rerun of `jaml`
+    python benchmarks/relations_fit.py --no-steps --no-peer --in-process   # a sweep in Python
 
-The wall times are cold by default: no persistent compilation cache, so every program of every
-seed is compiled (jaml's closures are rebuilt per fit). `--warm-cache` times what `jaml
-relations` does on a second run: JAX's persistent cache as the command line sets it
+The wall times are cold by default: no persistent compilation cache and JAX's in-memory caches
+cleared before each seed, so every program of every seed is compiled. `--warm-cache` times what
+`jaml relations` does on a second run: JAX's persistent cache as the command line sets it
 (`cli.use_compilation_cache`) in a fresh temporary directory, primed by one untimed fit of the
 first seed, then the seeds timed (the programs come from the cache, whatever the seed: they take
-the data and keys as arguments; tracing and lowering still run).
+the data and keys as arguments; tracing and lowering still run). `--in-process` times a sweep
+over seeds in one Python process: no persistent cache, one untimed fit of the first seed, then
+the seeds run the programs it compiled.
 """
 
 from __future__ import annotations
@@ -164,10 +167,15 @@ def main(argv=None):
     parser.add_argument(
         "--objectives", default="paper,reference", help="objectives timed end to end"
     )
-    parser.add_argument("--warm-cache", action="store_true",
+    warmth = parser.add_mutually_exclusive_group()
+    warmth.add_argument("--warm-cache", action="store_true",
                         help="time the fits with a primed persistent compilation cache")
+    warmth.add_argument("--in-process", action="store_true",
+                        help="time the fits after one untimed fit in the same process")
     args = parser.parse_args(argv)
-    cache = "cold (no persistent compilation cache)"
+    cache = "cold (no persistent compilation cache, in-memory caches cleared before each seed)"
+    if args.in_process:
+        cache = "in-process (programs compiled by one untimed fit in the same process)"
     if args.warm_cache:
         import tempfile
 
@@ -220,9 +228,13 @@ def main(argv=None):
             }
         )
     for objective in () if args.no_fits else args.objectives.split(","):
-        if args.warm_cache:
+        if args.warm_cache or args.in_process:
             fit_wall_time(objective, seeds[0])
-        runs = [fit_wall_time(objective, seed) for seed in seeds]
+        runs = []
+        for seed in seeds:
+            if not (args.warm_cache or args.in_process):
+                jax.clear_caches()
+            runs.append(fit_wall_time(objective, seed))
         for seed, run in zip(seeds, runs, strict=True):
             print({"objective": objective, "seed": seed, **run}, flush=True)
         by_time = sorted(runs, key=lambda r: r["wall_s"])
@@ -230,7 +242,8 @@ def main(argv=None):
         row = {
             "case": "ellipse, 2 relations to the stopping rule",
             "impl": f"jaml ({objective} objective), median of {len(runs)} seeds"
-            + (", warm compilation cache" if args.warm_cache else ""),
+            + (", warm compilation cache" if args.warm_cache else "")
+            + (", after a fit in the same process" if args.in_process else ""),
             "compilation": cache,
             **median,
             # every seed, in seed order: the quality bars hold per seed, not only at the median

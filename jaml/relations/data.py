@@ -57,6 +57,11 @@ class Batches(NamedTuple):
         """What the samplers below take as `data`."""
         return Data(self.rows, self.low, self.high)
 
+    def static(self) -> Batches:
+        """The samplers without their arrays: what a compiled program built from them depends
+        on, hashable, and equal for two fits of equal sources (programs are keyed by it)."""
+        return self._replace(rows=None, low=None, high=None, held_out=None, dense=None)
+
     def _noise(self, key, x, data: Data):
         if self.noise_scale == 0.0:
             return x
@@ -85,10 +90,35 @@ class Batches(NamedTuple):
         return self._noise(k_noise, box, data)
 
 
+class SourceSampler:
+    """A Source's `sample`, equal for equal sources: a bound method is equal only to the same
+    object's, so each fit of `sources.make("circle")` would otherwise compile its own programs.
+    A source that cannot be hashed is equal only to itself."""
+
+    __slots__ = ("_key", "source")
+
+    def __init__(self, source):
+        self.source = source
+        try:
+            hash(source)
+            self._key = (type(source), source)
+        except TypeError:
+            self._key = (type(source), id(source))  # kept alive by `source`: the id stays its
+
+    def __call__(self, key: jax.Array, n: int) -> jax.Array:
+        return self.source.sample(key, n)
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, SourceSampler) and self._key == other._key
+
+    def __hash__(self) -> int:
+        return hash(self._key)
+
+
 def _as_sampler(on_manifold):
     """A (key, n) -> [n, D] function for a Source, a key -> [B, D] callable, or None for rows."""
     if hasattr(on_manifold, "sample") and callable(on_manifold.sample):
-        return on_manifold.sample, tuple(getattr(on_manifold, "dim_names", ()))
+        return SourceSampler(on_manifold), tuple(getattr(on_manifold, "dim_names", ()))
     if callable(on_manifold):
         fn = on_manifold
 

@@ -29,7 +29,6 @@ from jaml.relations.geometry import codimension
 from jaml.relations.loop import (
     CAPPED,
     CONVERGED,
-    LOOP_COMPILER_OPTIONS,
     NONFINITE,
     ONCE_COMPILER_OPTIONS,
     PASS_RATE,
@@ -211,18 +210,57 @@ def relation_trainer(
 
     `pool` = (rows [C, D], count): mined points where g_{K+1} must not vanish (`mine`).
 
-    `chunk(state, args)` runs `cfg.chunk_steps` optimizer steps in one jitted `lax.scan`.
+    `chunk(state, args)` runs `cfg.chunk_steps` optimizer steps in one jitted `lax.scan`. The
+    data, the key and every parameter are its arguments: one chunk serves every fit of the
+    process whose config agrees on `LOOP_FIELDS`, with equal samplers and relation shapes.
     """
-    k = rs.num_relations
-    module = Relation(relation_width(k, cfg.base_width, cfg.max_width), cfg.depth)
-    earlier = [Relation(w, rs.depth) for w in rs.widths]
     num_syz = 0 if syz_params is None else int(jax.tree.leaves(syz_params)[0].shape[0])
-    objective = _relation_objective(cfg, module, earlier, num_syz, with_mined, clip)
-    optimizer = optax.adam(cfg.learning_rate)
-
+    # A syzygy round's loop (its thickening drawn for it) is built for that round alone.
+    build = _build_relation_loop if num_syz else _relation_loop
+    chunk = build(_LoopConfig(cfg), batches.static(), tuple(rs.widths), rs.depth, num_syz,
+                  with_mined, clip, max_steps, float(thickening) if num_syz else 0.0)
     if pool is None:
         pool = empty_pool(cfg, batches.dim)
     pool_rows, pool_count = pool
+    args = (batches.data, syz_params, rs.params, jnp.asarray(pool_rows),
+            jnp.asarray(pool_count, jnp.int32))
+    return chunk, init_state(params, optax.adam(cfg.learning_rate), key), args
+
+
+# The fields of a Config the relation loop reads. The rest (the seed, how many relations, their
+# starts and rounds) decide what a fit does around its loops, so fits differing only there run
+# one loop; tests/relations/test_sources.py holds this list to the code.
+LOOP_FIELDS = ("independence", "objective", "batch_size", "learning_rate", "base_width",
+               "max_width", "depth", "gradient_cap", "transversality_weight", "syzygy_width",
+               "separation_ratio", "separation_top_fraction", "min_angle", "stop_patience",
+               "mined_weight", "chunk_steps")
+
+
+class _LoopConfig:
+    """A Config as a key of the relation loops: equal where the loop's fields are."""
+
+    __slots__ = ("cfg", "key")
+
+    def __init__(self, cfg: Config):
+        self.cfg, self.key = cfg, tuple(getattr(cfg, name) for name in LOOP_FIELDS)
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, _LoopConfig) and self.key == other.key
+
+    def __hash__(self) -> int:
+        return hash(self.key)
+
+
+def _build_relation_loop(loop_cfg: _LoopConfig, batches: Batches,
+                         earlier_widths: tuple[int, ...], earlier_depth: int, num_syz: int,
+                         with_mined: bool, clip: float, max_steps: int, thickening: float):
+    """`relation_trainer`'s jitted chunk, built from what it does not take as arguments."""
+    cfg = loop_cfg.cfg
+    k = len(earlier_widths)
+    module = Relation(relation_width(k, cfg.base_width, cfg.max_width), cfg.depth)
+    earlier = [Relation(w, earlier_depth) for w in earlier_widths]
+    objective = _relation_objective(cfg, module, earlier, num_syz, with_mined, clip)
+    optimizer = optax.adam(cfg.learning_rate)
 
     def draw(key, args):
         data, rows, count = args[0], args[3], args[4]
@@ -246,10 +284,13 @@ def relation_trainer(
             patience=cfg.stop_patience,
         )
 
-    chunk = make_chunk(train_step, cfg.chunk_steps, draw)
-    args = (batches.data, syz_params, rs.params, jnp.asarray(pool_rows),
-            jnp.asarray(pool_count, jnp.int32))
-    return chunk, init_state(params, optimizer, key), args
+    return make_chunk(train_step, cfg.chunk_steps, draw)
+
+
+# Compiled relation loops kept across fits: every start, refinement round and later fit of a
+# process runs the loop its key names. On XLA:CPU each compiled loop holds hundreds of memory
+# mappings, and Linux allows a process about 65,000 (docs/notes/usage.md): a few loops are kept.
+_relation_loop = functools.lru_cache(maxsize=8)(_build_relation_loop)
 
 
 MINED_SHARE = 4  # a step's mined rows: a quarter of its batch
@@ -319,30 +360,24 @@ def _fit_relation(
     thickening: float = 0.0,
     callback=None,
     phase="relation",
-    compiled=None,
     partial: Partial | None = None,
     pool=None,
     budget: int | None = None,
-    programs: dict | None = None,
     codim: int = 1,
     clip: float = MINED_CLIP,
 ):
     """Train g_{K+1} until its stopping rule holds or it has taken `max_steps` (or `budget`)
     steps; returns its loop state, `step` counting the steps taken here.
 
-    `programs` keeps the compiled plain loop of each relation, so later rounds (refinement)
-    run it again rather than compile their own: a `budget` below `max_steps` starts the step
-    counter at max_steps − budget instead of building a loop with another cap.
+    Later rounds (refinement, other starts) run the loop the first compiled: a `budget` below
+    `max_steps` starts the step counter at max_steps − budget instead of building a loop with
+    another cap.
     """
     k = rs.num_relations
     chunk, state, args = relation_trainer(
         cfg, batches, rs, params, key, max_steps, syz_params, thickening, pool,
         with_mined=_with_mined(cfg, rs.num_relations, codim), clip=clip,
     )
-    if compiled is not None:  # the same loop, compiled ahead of time by `_compile_ahead`
-        chunk = compiled
-    if programs is not None and syz_params is None:
-        chunk = programs.setdefault(_loop_key(k, clip, cfg), chunk)  # a last resort's cfg differs
     start = 0
     if budget is not None:
         start = max(max_steps - budget, 0)
@@ -468,18 +503,22 @@ def choose_thickening(cfg, batches: Batches, rs: RelationSet, key) -> float:
 def record_means(cfg, batches: Batches, module, params, key):
     """Mean |g| of g = module.apply(params, ·) over `eval_batches` fresh on- and off-manifold
     batches (App. B.3.1)."""
-    # The samplers read their arrays from `data`: the program depends on the rest alone.
-    shape_only = batches._replace(rows=None, low=None, high=None, held_out=None, dense=None)
-    means = _means_program(shape_only, module, cfg.batch_size * cfg.eval_batches)
+    means = _means_program(batches.static(), module, cfg.batch_size * cfg.eval_batches)
     on, off = jax.device_get(means(key, batches.data, params))
     return float(on), float(off)
 
 
 @functools.lru_cache(maxsize=16)
+def _init_program(module: Relation):
+    """g_k's jitted initialisation, one per width and depth for every fit of the process."""
+    return jax.jit(module.init, compiler_options=ONCE_COMPILER_OPTIONS)
+
+
+@functools.lru_cache(maxsize=16)
 def _means_program(batches: Batches, module, n: int):
     """One compiled call (op by op this cost seconds of dispatch on CPU), with the parameters as
-    an argument rather than baked-in constants: one program per relation width and fit, kept
-    for the relation's later rounds, which the persistent compilation cache can serve again."""
+    an argument rather than baked-in constants: one program per relation width and samplers,
+    kept for the relation's later rounds and the process's later fits."""
 
     @functools.partial(jax.jit, compiler_options=ONCE_COMPILER_OPTIONS)
     def means(key, data, params):
@@ -579,19 +618,16 @@ def fit(
         raise TypeError("priors must be a sequence of callables (or None entries)")
 
     pool = ThreadPoolExecutor(1, thread_name_prefix="jaml-compile")
-    # The compiled plain loop of each relation (`_fit_relation`), kept for the whole fit: the
-    # relations trained again from other starts run the loops their first starts compiled.
-    programs = {}
     try:
         # A fresh fit pauses at the codimension where its relation lands away on every start:
         # the relations below it train again before any relation beyond it is spent on them.
-        fitted = _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, programs,
-                           partial, pause_away=rs.num_relations == 0 and cfg.premine_attempts > 1)
+        fitted = _fit_loop(cfg, batches, rs, key, priors, callback, on_relation, pool, partial,
+                           pause_away=rs.num_relations == 0 and cfg.premine_attempts > 1)
         if fitted.paused:
             fitted = _below_again(cfg, batches, rs, key, priors, callback, on_relation, pool,
-                                  programs, fitted)
+                                  fitted)
             fitted = _fit_loop(cfg, batches, fitted.rs, key, priors, callback, on_relation,
-                               pool, programs, partial, after=fitted)
+                               pool, partial, after=fitted)
         return fitted.rs
     finally:
         pool.shutdown(wait=False, cancel_futures=True)
@@ -616,7 +652,7 @@ def _lands_away(land: dict | None) -> bool:
     return land is not None and 1 - quality.on_data(land) > RETRY_SPURIOUS
 
 
-def _below_again(cfg, batches, empty, key, priors, callback, on_relation, pool, programs,
+def _below_again(cfg, batches, empty, key, priors, callback, on_relation, pool,
                  first: _Loop) -> _Loop:
     """The fit once more with the relations below the codimension from other starts, kept
     where more projected box points land on the data; the kept relations reach `on_relation`
@@ -625,7 +661,7 @@ def _below_again(cfg, batches, empty, key, priors, callback, on_relation, pool, 
     log.info("the codimension-th relation leaves %.0f%% of projected box points away from the "
              "data on every start: the relations below it trained again from another "
              "initialisation", 100 * (1 - quality.on_data(first.land)))
-    other = _fit_loop(cfg, batches, empty, key, priors, callback, None, pool, programs,
+    other = _fit_loop(cfg, batches, empty, key, priors, callback, None, pool,
                       below_attempt=1, pause_at_codim=True)
     if other.land is None or quality.on_data(other.land) <= quality.on_data(first.land):
         log.info("trained again, %s: the first relations kept",
@@ -640,40 +676,38 @@ def _below_again(cfg, batches, empty, key, priors, callback, on_relation, pool, 
     return other
 
 
-def _loop_key(k: int, clip: float, cfg) -> tuple:
-    """Where a fit's `programs` hold g_{k+1}'s plain compiled loop: what the loop is built from
-    besides shapes (`relation_trainer`)."""
-    return k, clip, cfg
-
-
 def _compile_ahead(cfg, batches: Batches, rs: RelationSet, params, k_next: int, pool,
-                   codim: int, programs: dict):
-    """Compile g_{k_next+1}'s training loop in a background thread while g_{k_next} trains,
-    unless `programs` (`_fit_relation`'s) holds it already.
+                   codim: int):
+    """Compile g_{k_next+1}'s training loop in a background thread while g_{k_next} trains:
+    one call of the loop on a finished state (every step idle) leaves its program compiled,
+    a dispatch only where an earlier fit of the process compiled it.
 
     The loop depends on the frozen relations only through their shapes, so the still untrained
     `params` of g_{k_next} stand in for it. Only the plain transversality loop is compiled ahead
-    (syzygy rounds have data-dependent shapes). Returns {k_next: future of the compiled chunk}.
+    (syzygy rounds have data-dependent shapes). Returns {k_next: future}: wait for it before
+    running that loop, or both threads compile it.
     """
-    clip = _clip(cfg, k_next, codim)
-    if (cfg.independence != "transversality" or k_next >= cfg.max_relations
-            or _loop_key(k_next, clip, cfg) in programs):
+    if cfg.independence != "transversality" or k_next >= cfg.max_relations:
         return {}
     width = relation_width(rs.num_relations, cfg.base_width, cfg.max_width)
     stand_in = rs.append(params, 0.0, 0.0, width)
     next_module = Relation(relation_width(k_next, cfg.base_width, cfg.max_width), cfg.depth)
-
-    # Traced here, in the caller's thread: JAX's config contexts (e.g. a caller's
-    # `jax.threefry_partitionable`, which decides the random bits of the loop's fresh batches)
-    # are thread-local, so a program traced in the pool could differ from one traced here. XLA's
-    # compilation, the expensive part, is what runs in the background.
     next_params = jax.eval_shape(next_module.init, jax.random.key(0), jnp.zeros((1, rs.dim)))
     next_params = jax.tree.map(lambda x: jnp.zeros(x.shape, x.dtype), next_params)
     chunk, state, args = relation_trainer(
         cfg, batches, stand_in, next_params, jax.random.key(0), cfg.max_steps,
-        with_mined=_with_mined(cfg, k_next, codim), clip=clip,
+        with_mined=_with_mined(cfg, k_next, codim), clip=_clip(cfg, k_next, codim),
     )
-    return {k_next: pool.submit(chunk.lower(state, args).compile, LOOP_COMPILER_OPTIONS)}
+    done = state.replace(status=jnp.asarray(CONVERGED, jnp.int32))
+    # JAX's config contexts are thread-local and a compiled program is kept under the caller's:
+    # the one that decides the loop's random bits is set again in the pool's thread.
+    partitionable = jax.config.jax_threefry_partitionable
+
+    def warm():
+        with jax.threefry_partitionable(partitionable):
+            jax.block_until_ready(chunk(done, args))
+
+    return {k_next: pool.submit(warm)}
 
 
 # ‖∇g‖ past which −log‖∇g‖ stops pushing in a relation's first last resort (None: not tried).
@@ -717,8 +751,8 @@ class _Fitted(NamedTuple):
         return self.off_mean / max(self.on_mean, 1e-30)
 
 
-def _refine(cfg, batches, rs, module, width, fitted: _Fitted, within, codim, programs,
-            callback, k_train, k_mine, k_eval, pool=None, clip: float = MINED_CLIP):
+def _refine(cfg, batches, rs, module, width, fitted: _Fitted, within, codim, callback,
+            k_train, k_mine, k_eval, pool=None, clip: float = MINED_CLIP):
     """Where the intersection with g_k has parts away from the data, train g_k on, pushed off
     the points that landed there (and those mined before), for up to `refine_rounds` rounds.
     A round is kept only if more projected points then land on the data and g_k still
@@ -743,7 +777,7 @@ def _refine(cfg, batches, rs, module, width, fitted: _Fitted, within, codim, pro
                                 jax.random.fold_in(k_train, 100 + r), cfg.max_steps,
                                 callback=callback, phase="refine", pool=pool,
                                 budget=max(cfg.max_steps // REFINE_SHARE, 1),
-                                programs=programs, codim=codim, clip=clip)
+                                codim=codim, clip=clip)
         spent += int(refined.step)
         if int(refined.status) == NONFINITE:
             break
@@ -880,14 +914,14 @@ def _noise_floor(cfg: Config, batches: Batches, codim: int, key) -> dict:
     return floor
 
 
-def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, programs: dict,
-              partial=None, below_attempt: int = 0, pause_away: bool = False,
+def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, partial=None,
+              below_attempt: int = 0, pause_away: bool = False,
               pause_at_codim: bool = False, after: _Loop | None = None) -> _Loop:
     """Algorithm 1 from `rs` on; `below_attempt` > 0 draws the relations below the data's
     codimension from another start (every key of theirs folded with it). The loop pauses
     (no report) once the codimension-th relation of at least two is kept, with `pause_at_codim`
     always, with `pause_away` where it `_lands_away`; `after` (a paused loop's) goes on from
-    it, as if it had not paused. `programs`: the fit's compiled loops (`_fit_relation`)."""
+    it, as if it had not paused."""
     ahead = {}
     kept, codim_land = [], None  # (the set so far, its summary) as each relation is kept
     statuses, unexplained = _start_ends(rs) if after is None else map(list, after.ends)
@@ -924,18 +958,20 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pr
         k_mine = jax.random.fold_in(k_key, 7)
         width = relation_width(k, cfg.base_width, cfg.max_width)
         module = Relation(width, cfg.depth)
-        init = jax.jit(module.init, compiler_options=ONCE_COMPILER_OPTIONS)
+        init = _init_program(module)
         example_tau = jnp.zeros((1, batches.dim))
         params = init(k_init, example_tau)
         ahead |= _compile_ahead(_relation_config(fit_cfg, k + 1, codim), batches, rs, params,
-                                k + 1, pool, codim, programs)
+                                k + 1, pool, codim)
         resuming = partial is not None and partial.holds(k)
         if priors is not None and k < len(priors) and priors[k] is not None and not resuming:
             params = _pretrain(cfg, batches, module, params, priors[k], k_pre)
         # From the codim-th relation on, the intersection should be the data: its parts away
         # from the data are spurious, and g_k is refined not to vanish there (below).
         completing = k + 1 >= codim
-        compiled = ahead.pop(k, None)
+        warm = ahead.pop(k, None)
+        if warm is not None:
+            warm.result()
 
         def start_of(attempt, params=params, keys=(k_init, k_train), init=init,
                      example=example_tau):
@@ -948,7 +984,7 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pr
 
         def plain_fit(params, rs=rs, k_train=k_train, cfg=cfg):  # the paper's way, no mined rows
             return _fit_relation(cfg, batches, rs, params, k_train, cfg.max_steps,
-                                 callback=callback, programs=programs, codim=codim)
+                                 callback=callback, codim=codim)
 
         def refine(state, pool=None, clip=MINED_CLIP, rs=rs, module=module, width=width,
                    keys=(k_train, k_mine, k_eval), cfg=cfg):
@@ -956,18 +992,16 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pr
             grown = _grow(cfg, batches, rs, module, state.params, width, keys[2])
             return _refine(cfg, batches, rs, module, width,
                            _Fitted(state, *grown, int(state.status)), within, codim,
-                           programs, callback, *keys, pool, clip)
+                           callback, *keys, pool, clip)
 
         premined, clip = None, MINED_CLIP
-        if _premines(cfg, k, codim):
-            if resuming:  # the mined rows are not kept: go on the paper's way
-                compiled = None
-            else:
-                premined, _ = mine(cfg, rs, batches, jax.random.fold_in(k_mine, 0), within,
-                                   codim=codim)
-                clip = cfg.premine_clip
-                log.info("relation %d: %d points of the earlier relations' zero set away from "
-                         "the data mined before training", k + 1, premined[1])
+        # Resuming, the mined rows are not kept: training goes on the paper's way.
+        if _premines(cfg, k, codim) and not resuming:
+            premined, _ = mine(cfg, rs, batches, jax.random.fold_in(k_mine, 0), within,
+                               codim=codim)
+            clip = cfg.premine_clip
+            log.info("relation %d: %d points of the earlier relations' zero set away from "
+                     "the data mined before training", k + 1, premined[1])
         state = _fit_relation(
             cfg,
             batches,
@@ -976,9 +1010,7 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pr
             k_train,
             cfg.max_steps,
             callback=callback,
-            compiled=compiled.result() if compiled is not None else None,
             partial=partial,
-            programs=programs,
             codim=codim,
             pool=premined,
             clip=clip,
@@ -1105,7 +1137,7 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pr
                 else:
                     again = _fit_relation(
                         cfg, batches, rs, start, k_start, cfg.max_steps, callback=callback,
-                        programs=programs, codim=codim, pool=premined, clip=clip,
+                        codim=codim, pool=premined, clip=clip,
                         budget=cfg.premine_steps)
                 attempt += 1
                 steps += int(again.step)

@@ -337,7 +337,7 @@ def test_a_refining_round_that_halves_the_share_landing_away_may_separate_less(
     start = training._Fitted(state, "start", 1.0, 5.5, CAPPED_STATUS)
     fitted, land, rounds, _ = training._refine(
         relations.Config(refine_rounds=1), None, SimpleNamespace(num_relations=1), None, 8,
-        start, 0.05, codim, {}, None, *jax.random.split(jax.random.key(0), 3))
+        start, 0.05, codim, None, *jax.random.split(jax.random.key(0), 3))
     assert (fitted.grown, rounds) == (("refined", 1) if kept else ("start", 0))
     assert land["spurious"] == (away if kept else 0.26)
 

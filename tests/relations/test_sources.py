@@ -204,3 +204,51 @@ def test_a_fits_programs_do_not_depend_on_its_seed():
     assert not np.array_equal(*(np.asarray(prepare(sources.make("ellipse"), 64, 0.1,
                                                    jax.random.key(s), 2).low) for s in (0, 1)))
     assert texts[0] == texts[1]
+
+
+# Another valid value of every Config field the relation loop does not read.
+_OUTSIDE_THE_LOOP = {
+    "max_relations": 3, "seed": 7, "syzygy_learning_rate": 3e-4, "max_steps": 1234,
+    "syzygies_per_relation": 2, "syzygy_max_steps": 77, "syzygy_push_steps": 55,
+    "syzygy_training": "joint", "transversal_first": False, "syzygy_clip": 5.0,
+    "tolerance": 2.5, "noise_scale": 0.1, "mine_points": 64, "refine_rounds": 1,
+    "premine": False, "premine_clip": 3.0, "premine_steps": 99, "premine_attempts": 1,
+    "mined_patience": None, "codimension": 2, "stop_when_complete": False,
+    "pretrain_steps": 17, "eval_batches": 3,
+}
+
+
+def test_the_relation_loop_reads_no_config_field_outside_its_key(monkeypatch):
+    """Fits whose configs differ only outside `training.LOOP_FIELDS` run one compiled loop, so
+    none of those fields may shape it: built afresh with every one of them changed, the loop
+    lowers to the same program, with and without syzygies and mined rows; a field of the key
+    changes it."""
+    import dataclasses
+
+    from jaml import relations
+    from jaml.relations import training
+    from jaml.relations.networks import Relation, SyzygyCoefficients
+
+    outside = {f.name for f in dataclasses.fields(relations.Config)} - set(training.LOOP_FIELDS)
+    assert set(_OUTSIDE_THE_LOOP) == outside  # a new field is placed on one side or the other
+    monkeypatch.setattr(training, "_relation_loop", training._build_relation_loop)  # uncached
+    base = relations.Config(chunk_steps=2, batch_size=32)
+    batches = prepare(sources.make("ellipse"), 32, 0.0, jax.random.key(0), 2)
+    g1 = Relation(4).init(jax.random.key(1), jnp.zeros((1, 3)))
+    rs = relations.RelationSet.empty(3, 3, 1.5).append(g1, 0.1, 1.0, 4)
+    params = Relation(8).init(jax.random.key(2), jnp.zeros((1, 3)))
+    f = SyzygyCoefficients(1, base.syzygy_width, 3).init(jax.random.key(3), jnp.zeros((1, 3)))
+    syzygies = jax.tree.map(lambda x: x[None], f)
+    pool = (np.zeros((8, 4), np.float32), 2)
+
+    def lowered(cfg):
+        texts = []
+        for syz in (None, syzygies):
+            chunk, state, args = training.relation_trainer(
+                cfg, batches, rs, params, jax.random.key(4), 10, syz, 0.1, pool)
+            texts.append(chunk.lower(state, args).as_text())
+        return texts
+
+    reference = lowered(base)
+    assert lowered(base.replace(**_OUTSIDE_THE_LOOP)) == reference
+    assert lowered(base.replace(separation_ratio=7.0)) != reference

@@ -15,8 +15,9 @@ every module (to compare). A test's own long loop in a cheap module compiles at 
 inside `xla_optimized()`. In the cheap modules a program's own LLVM level (the relation loops
 ask for 1) is lowered to 0 as well: their loops are short there. A test whose relation loops run
 thousands of steps is marked `loop_level` and keeps the level it asks for. The persistent cache
-is shared by the xdist workers of one run (keyed by xdist's run id), so a program one worker
-compiled is read, not rebuilt, by the other.
+is shared by the xdist workers of one run (the controller makes it, the workers inherit its
+path), so a program one worker compiled is read, not rebuilt, by the other; it is removed when
+the run ends.
 The cheap setting also compiles with XLA:CPU's older (elemental) fusion emitters, the option
 jaml already gives its env programs (`envs_mjx/compile.py`): the same HLO, emitted by the older
 code generator, which compiles the stream's rendering rollouts and learner steps faster (on two
@@ -30,6 +31,7 @@ one worker while the other sat idle; `pytest_configure` turns that reordering of
 
 import contextlib
 import os
+import shutil
 import sys
 import tempfile
 
@@ -43,12 +45,12 @@ from jax._src import compiler as _compiler  # noqa: E402
 
 from jaml._command import quiet_closed_loop_callbacks  # noqa: E402
 
-_run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
-_cache = (
-    os.path.join(tempfile.gettempdir(), f"jaml-xla-cache-{_run}")
-    if _run
-    else tempfile.mkdtemp(prefix="jaml-xla-cache-")
-)
+# The run's first process (xdist's controller, or the only one) makes the cache directory and
+# removes it at its end; the workers it starts find the directory in their environment.
+_cache = os.environ.get(_CACHE_VARIABLE := "JAML_TEST_XLA_CACHE")
+_OWN_CACHE = _cache is None
+if _OWN_CACHE:
+    _cache = os.environ[_CACHE_VARIABLE] = tempfile.mkdtemp(prefix="jaml-xla-cache-")
 # Each `relations.fit` builds fresh jitted closures; with a persistent cache the XLA
 # compilation of an identical program is reused across fits and across the run's workers
 # (the cache key includes the optimisation setting).
@@ -145,6 +147,12 @@ def pytest_configure(config):
     if hasattr(config.option, "loadscopereorder"):
         config.option.loadscopereorder = False
     sys.unraisablehook = quiet_closed_loop_callbacks(sys.unraisablehook)
+
+
+def pytest_unconfigure(config):
+    """The run's persistent cache goes with it (tens of MB a run, left in the temp directory)."""
+    if _OWN_CACHE:
+        shutil.rmtree(_cache, ignore_errors=True)
 
 
 def pytest_collection_modifyitems(items):

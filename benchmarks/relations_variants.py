@@ -103,6 +103,12 @@ VARIANTS = {  # name: (source, Config fields beside the seed)
     # dynamics too).
     "incline-drawn-defaults": ("incline:drawn", {}),
     "incline-fixed-defaults": ("incline:fixed", {}),
+    "incline-drawn-codim1": ("incline:drawn", {"codimension": 1}),
+    # The authors' code on the same rows (`peers/aml_reference.py`, its defaults, two relations
+    # by transversality, under a wall-clock budget): "reference" holds its options.
+    **{f"incline-{d}-reference": (f"incline:{d}", {"reference": {"max_relations": 2,
+                                                                 "budget_s": 450}})
+       for d in ("drawn", "fixed")},
 }
 # The incline pools: drawn once with MJX (`main`, before any worker starts) and read by the
 # workers as file sources, so that a machine without MuJoCo runs the fits with them carried.
@@ -134,7 +140,6 @@ def one(source_name: str, seed: int, fields: dict, keep: str | None = None) -> d
     for key in [k for k in fields if ":" in k]:
         module, _, name = key.partition(":")
         setattr(importlib.import_module(module), name, fields.pop(key))
-    from scipy.spatial import cKDTree
 
     from jaml import relations, sources
 
@@ -143,6 +148,8 @@ def one(source_name: str, seed: int, fields: dict, keep: str | None = None) -> d
 
     source = (_noisy_sphere(source_name) or _incline_pool(source_name)
               or sources.make(source_name))
+    dense = np.asarray(source.sample(jax.random.key(99), 200_000))
+    low, high = dense.min(0), dense.max(0)
     started = time.perf_counter()
     summaries, fit_log = [], _FitLog()
     logging.getLogger("jaml.relations").addHandler(fit_log)
@@ -151,27 +158,27 @@ def one(source_name: str, seed: int, fields: dict, keep: str | None = None) -> d
     def kept(_, summary):  # a relation reported again replaces it and those after it
         summaries[summary.index - 1:] = [summary]
 
-    rs = relations.fit(source, relations.Config(seed=seed, **fields), on_relation=kept)
+    reference = fields.pop("reference", None)
+    peer = {}
+    if reference is not None:
+        rs, peer = _reference_fit(source, seed, reference, (low, high), keep)
+    else:
+        rs = relations.fit(source, relations.Config(seed=seed, **fields), on_relation=kept)
     fit_s = time.perf_counter() - started
     logged = list(fit_log.lines)
-    if keep is not None and rs.num_relations:
+    if keep is not None and rs is not None and reference is None:
         relations.save(rs, keep)
-    if rs.num_relations == 0:  # the fit found none: nothing lands anywhere
+    if rs is None or rs.num_relations == 0:  # the fit found none: nothing lands anywhere
         return {"seed": seed, "fit_s": fit_s, "relations": 0, "landed": 0.0, "on_truth": 0.0,
-                "status": [], "off_on": [], "log": logged}
-    dense = np.asarray(source.sample(jax.random.key(99), 200_000))
-    low, high = dense.min(0), dense.max(0)
-    box = np.random.default_rng(seed).uniform(low, high, (512, dense.shape[1]))
-    distance = cKDTree(dense).query(np.asarray(relations.project(rs, box.astype(np.float32))
-                                               .points))[0]
-    ranks, _ = relations.jacobian_ranks(rs, dense[:2048])
+                "status": [], "off_on": [], "log": logged, **peer}
+    if reference is not None:  # their relations carry no quality report: their own record
+        return {"seed": seed, "fit_s": fit_s, "relations": rs.num_relations, **peer,
+                **_landing(rs, source_name, dense, low, high, seed),
+                "holds_by": _holds_by(rs, source, dense, None)}
     report = rs.quality.to_dict() if rs.quality is not None else {}
-    truth = _truth(source_name, np.asarray(relations.project(rs, box.astype(np.float32)).points))
     return {"seed": seed, "fit_s": fit_s, "relations": rs.num_relations,
             "holds_by": _holds_by(rs, source, dense, report.get("landing")),
-            "landed": float(np.mean(distance < 0.05)), "rank2": float(np.mean(ranks >= 2)),
-            "on_truth": None if truth is None else float(np.mean(truth < 0.05)),
-            "truth_median": None if truth is None else float(np.median(truth)),
+            **_landing(rs, source_name, dense, low, high, seed),
             "noise": report.get("noise"), "holds": report.get("holds"),
             "report_landing": report.get("landing"), "warnings": report.get("warnings"),
             "cos": report.get("independence", {}).get("median_abs_cos"),
@@ -183,6 +190,44 @@ def one(source_name: str, seed: int, fields: dict, keep: str | None = None) -> d
             "status": [r["status"] for r in report.get("relations", [])],
             "off_on": [round(r["ratio"], 1) for r in report.get("relations", [])],
             "log": logged}
+
+
+def _landing(rs, source_name: str, dense, low, high, seed: int) -> dict:
+    """Where 512 uniform points of the data's box land under `relations.project` at its
+    defaults: the share within 0.05 of the data's sample, and of the truth where known; the
+    Jacobian's rank ≥ 2 share on the data."""
+    import numpy as np
+    from scipy.spatial import cKDTree
+
+    from jaml import relations
+
+    box = np.random.default_rng(seed).uniform(low, high, (512, dense.shape[1]))
+    points = np.asarray(relations.project(rs, box.astype(np.float32)).points)
+    distance = cKDTree(dense).query(points)[0]
+    ranks, _ = relations.jacobian_ranks(rs, dense[:2048])
+    truth = _truth(source_name, points)
+    return {"landed": float(np.mean(distance < 0.05)), "rank2": float(np.mean(ranks >= 2)),
+            "on_truth": None if truth is None else float(np.mean(truth < 0.05)),
+            "truth_median": None if truth is None else float(np.median(truth))}
+
+
+def _reference_fit(source, seed: int, options: dict, box, keep: str | None):
+    """(RelationSet of their weights or None, their record's summary): the authors' code
+    (`peers/aml_reference.py`) on the rows of a file source, `box` the data's (low, high)."""
+    import tempfile
+
+    sys.path.insert(1, str(Path(__file__).resolve().parent.parent))
+    from benchmarks.peers import aml_reference
+
+    out = Path(keep) if keep is not None else Path(tempfile.mkdtemp(prefix="aml-reference-"))
+    record = aml_reference.fit(source=f"{aml_reference.ROWS}{source.path}", seed=seed,
+                               out=out, **options)
+    rs = (aml_reference.relation_set(record["npz"], bounds=box) if record["relations"]
+          else None)
+    return rs, {"status": [r["status"] for r in record["relations"]],
+                "off_on": [round(r["off_on"], 1) for r in record["relations"]],
+                "steps": [r["steps"] for r in record["relations"]],
+                "cut": record["cut"], "train_error": record["train_error"]}
 
 
 def _holds_by(rs, source, dense, landing) -> dict:

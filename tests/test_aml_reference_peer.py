@@ -101,3 +101,26 @@ def test_a_budget_cut_fit_keeps_its_relation_flagged(torch, tmp_path):
     (scalars,) = tmp_path.glob("AML_Ellipse_*/scalars.csv")
     assert "g_loss" in scalars.read_text()
     assert getattr(sys.modules.get("tensorboardX"), "SummaryWriter", None) is not ar._ScalarWriter
+
+
+def test_a_file_of_rows_trains_behind_their_data_source_interface(torch, tmp_path):
+    """`rows:FILE`: their batches are rows of the file (drawn by their seeded data RNG, the same
+    draws for the same seed), their off-manifold rows uniform inside each batch's box as their
+    `process_data` makes them, and a short fit on the rows exports relations of its width."""
+    rows = np.random.default_rng(0).normal(size=(500, 4))
+    path = tmp_path / "rows.npy"
+    np.save(path, rows)
+    main = ar.load_reference(seed=5)
+    source = ar.rows_source(main, path)(64, "cpu")
+    on = source.get_batch(64, "cpu").numpy()
+    assert on.shape == (64, 4) and source.dim_names == ["x0", "x1", "x2", "x3"]
+    assert all(np.isclose(rows, row, atol=1e-6).all(1).any() for row in on)
+    np.testing.assert_array_equal(
+        on, ar.rows_source(ar.load_reference(seed=5), path)(64, "cpu").get_batch(64).numpy())
+    off = source.get_batch(4096, "cpu", on_manifold=False).numpy()
+    assert not any(np.isclose(rows, row, atol=1e-6).all(1).any() for row in off[:64])
+    assert (off.min(0) >= rows.min(0) - 1e-6).all() and (off.max(0) <= rows.max(0) + 1e-6).all()
+    summary = ar.fit(f"{ar.ROWS}{path}", seed=0, max_relations=1, budget_s=2.0, out=tmp_path)
+    (g1,) = summary["relations"]
+    assert g1["steps"] > 0 and g1["width"] == 4
+    assert ar.load_relations(summary["npz"])(rows[:3].astype(np.float32)).shape == (3, 1)

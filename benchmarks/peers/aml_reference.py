@@ -13,6 +13,10 @@ flagged "cut".
     python benchmarks/peers/aml_reference.py --source Ellipse --seed 0 --max-relations 2 \\
         --budget-s 60 --out runs/aml_reference/ellipse-2-s0
 
+`--source rows:FILE` trains on a .npy file of rows [N, D] (jaml's τ order, kept as it is)
+behind their data-source interface (`rows_source`): each batch drawn from the rows with their
+data RNG, its off-manifold rows made as their own sources make them.
+
 The checkout: `--checkout`, else $JAML_AML_REFERENCE, else `.aml_reference` at the repository
 root (git-ignored; see `MISSING`).
 """
@@ -44,7 +48,8 @@ MISSING = (
     "<its git dir> archive 300a446 | tar -x -C {path}` (or set $JAML_AML_REFERENCE to a "
     "folder holding it)"
 )
-SOURCES = ("Ellipse", "ConservativeBlock45Incline1D")
+SOURCES = ("Ellipse", "ConservativeBlock45Incline1D")  # theirs; or "rows:FILE" (`rows_source`)
+ROWS = "rows:"
 # τ order. Their block rows are state-major (s0, s1, v0, v1) (docs/reference/aml.md §6), jaml's are
 # time-major (s0, v0, s1, v1): reference τ = jaml τ[..., JAML_TO_REFERENCE[source]].
 JAML_TO_REFERENCE = {"Ellipse": (0, 1, 2), "ConservativeBlock45Incline1D": (0, 2, 1, 3)}
@@ -139,9 +144,38 @@ def reference_batch(source: str, seed: int, n: int, on_manifold=True, noise_scal
     return data.get_batch(n, "cpu", on_manifold=on_manifold, noise_scale=noise_scale).numpy()
 
 
+def rows_source(main: types.ModuleType, path) -> type:
+    """A DataSource of their interface over the rows of a .npy file: `get_batch` draws rows with
+    replacement by their data RNG and hands them to their `process_data`, which makes the
+    off-manifold rows (uniform in the batch's own box, as for every source of theirs) and adds
+    their noise. Their code subclasses nothing of it; `train` only calls `get_batch`."""
+    data_sources = sys.modules[main.__name__.rpartition(".")[0] + ".data_sources"]
+    rows = np.load(path).astype(np.float64)
+    if rows.ndim != 2 or not np.isfinite(rows).all():
+        raise ValueError(f"{path}: rows must be a finite [N, D] array, got shape {rows.shape}")
+
+    class Rows(data_sources.DataSource):
+        def _dim_names(self):
+            return [f"x{i}" for i in range(rows.shape[1])]
+
+        def get_batch(self, batch_size=None, device=None, on_manifold=True, noise_scale=0.0):
+            picked = rows[data_sources.rng.integers(0, len(rows), batch_size or self.batch_size)]
+            return data_sources.process_data(picked, on_manifold, noise_scale,
+                                             device or self.device)
+
+    return Rows
+
+
+def _order(source: str) -> tuple[int, ...]:
+    """Their τ order as indices of jaml's (identity for a file of rows)."""
+    if source.startswith(ROWS):
+        return tuple(range(np.load(source[len(ROWS):], mmap_mode="r").shape[1]))
+    return JAML_TO_REFERENCE[source]
+
+
 def to_jaml_order(rows: np.ndarray, source: str) -> np.ndarray:
     """Their rows [..., D] in jaml's coordinate order."""
-    inverse = np.argsort(JAML_TO_REFERENCE[source])
+    inverse = np.argsort(_order(source))
     return np.asarray(rows)[..., inverse]
 
 
@@ -188,8 +222,8 @@ def fit(source: str = "Ellipse", seed: int = 0, max_relations: int = 2, max_syzy
     "cut": the wall-clock budget ended it; "error": their code raised, `train_error` says what),
     their EMA on/off means, wall seconds and phases.
     """
-    if source not in SOURCES:
-        raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
+    if source not in SOURCES and not source.startswith(ROWS):
+        raise ValueError(f"source must be one of {SOURCES} or {ROWS}FILE, got {source!r}")
     os.environ["OMP_NUM_THREADS"] = "1"
     import torch
 
@@ -197,7 +231,10 @@ def fit(source: str = "Ellipse", seed: int = 0, max_relations: int = 2, max_syzy
     main = load_reference(seed, checkout)
     out = Path(out) if out is not None else Path(tempfile.mkdtemp(prefix="aml-reference-"))
     out.mkdir(parents=True, exist_ok=True)
-    argv = ["--data_source", source, "--seed", str(seed), "--max_relations", str(max_relations),
+    # Their parser takes only their sources' names; for a file of rows the name only names
+    # their run folder.
+    named = "Ellipse" if source.startswith(ROWS) else source
+    argv = ["--data_source", named, "--seed", str(seed), "--max_relations", str(max_relations),
             "--max_syzygies", str(max_syzygies), "--noise_scale", repr(float(noise_scale)),
             "--device", "cpu", "--save_path_prefix", str(out), *extra_args]
     with _patched(sys, "argv", ["aml_main", *argv]):
@@ -251,7 +288,8 @@ def fit(source: str = "Ellipse", seed: int = 0, max_relations: int = 2, max_syzy
         if isinstance(data, str) and data.startswith("learn_g done") and records:
             records[-1]["phases"][-1]["_done"] = True
 
-    base = main.data_sources[source]
+    base = (rows_source(main, source[len(ROWS):]) if source.startswith(ROWS)
+            else main.data_sources[source])
 
     def get_batch(self, *a, **kw):
         clock.check()
@@ -287,6 +325,8 @@ def fit(source: str = "Ellipse", seed: int = 0, max_relations: int = 2, max_syzy
     nets, optims = [], []
     if aml is not None and aml.new_g_nn is not None:
         nets, optims = [*aml.gj_nns, aml.new_g_nn], [*aml.gj_optims, aml.new_g_optim]
+    if error is not None:  # raised inside add_g: its network may have no record
+        nets, optims = nets[:len(records)], optims[:len(records)]
     assert len(nets) == len(records), (len(nets), len(records))
     for rec, net, optim in zip(records, nets, optims, strict=True):
         rec["width"] = int(net.nn[0].out_features)
@@ -344,7 +384,7 @@ def export(nets, records: list[dict], path, source: str) -> Path:
     arrays["widths"] = np.asarray([r["width"] for r in records], np.int64)
     arrays["steps"] = np.asarray([r["steps"] for r in records], np.int64)
     arrays["status"] = np.asarray([r["status"] for r in records], str)
-    arrays["jaml_to_reference"] = np.asarray(JAML_TO_REFERENCE[source], np.int64)
+    arrays["jaml_to_reference"] = np.asarray(_order(source), np.int64)
     arrays["source"] = np.asarray(source)
     arrays["commit"] = np.asarray(COMMIT)
     np.savez(path, **arrays)
@@ -421,7 +461,8 @@ def relation_set(path, bounds=None, tolerance: float = 1.5):
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         description="One fit of the authors' PyTorch AML (MaksimIM/aml 300a446).")
-    parser.add_argument("--source", choices=SOURCES, default="Ellipse")
+    parser.add_argument("--source", default="Ellipse",
+                        help=f"one of {', '.join(SOURCES)}, or {ROWS}FILE (a .npy of rows)")
     parser.add_argument("--seed", type=int, default=0, help="torch seed (data RNG seeded from it)")
     parser.add_argument("--max-relations", type=int, default=2)
     parser.add_argument("--max-syzygies", type=int, default=0, help="0: transversality")

@@ -206,9 +206,14 @@ def _landing(rs, source_name: str, dense, low, high, seed: int) -> dict:
     distance = cKDTree(dense).query(points)[0]
     ranks, _ = relations.jacobian_ranks(rs, dense[:2048])
     truth = _truth(source_name, points)
-    return {"landed": float(np.mean(distance < 0.05)), "rank2": float(np.mean(ranks >= 2)),
-            "on_truth": None if truth is None else float(np.mean(truth < 0.05)),
-            "truth_median": None if truth is None else float(np.median(truth))}
+    out = {"landed": float(np.mean(distance < 0.05)), "rank2": float(np.mean(ranks >= 2)),
+           "on_truth": None if truth is None else float(np.mean(truth < 0.05)),
+           "truth_median": None if truth is None else float(np.median(truth))}
+    if source_name.startswith("incline:"):  # the exact relation and the rows' reach apart
+        plane, pool = _incline_truth(source_name, points, parts=True)
+        out |= {"on_plane": float(np.mean(plane < 0.05)), "plane_median": float(np.median(plane)),
+                "on_pool": float(np.mean(pool < 0.05))}
+    return out
 
 
 def _reference_fit(source, seed: int, options: dict, box, keep: str | None):
@@ -316,11 +321,12 @@ def draw_pools(names: list[str]) -> None:
         (POOLS / f"{dynamics}.json").write_text(json.dumps({"slope": slope}))
 
 
-def _incline_truth(source_name: str, points):
+def _incline_truth(source_name: str, points, parts: bool = False):
     """[N] distance of projected incline rows τ = (θ, s0, v0, a0, s1, v1) to what the env does:
     the larger of their distance to the kinematic plane s1 − s0 = dt·(v0 + v1)/2 (in the
     source's units; the rows keep to it up to the integrator's error) and of (θ, v0, a0, v1)
-    to the nearest of a second pool's (the dynamics, where mass and friction are fixed)."""
+    to the nearest of a second pool's (the dynamics, where mass and friction are fixed; a band
+    the rows fill, where they are drawn). `parts`: the two distances, (plane, pool)."""
     import numpy as np
     from scipy.spatial import cKDTree
 
@@ -331,7 +337,8 @@ def _incline_truth(source_name: str, points):
     plane /= np.sqrt(2 + c * c / 2)
     columns = [0, 2, 3, 5]
     rows = np.asarray(_incline_pool(source_name, seed=1).rows, np.float64)
-    return np.maximum(plane, cKDTree(rows[:, columns]).query(points[:, columns])[0])
+    pool = cKDTree(rows[:, columns]).query(points[:, columns])[0]
+    return (plane, pool) if parts else np.maximum(plane, pool)
 
 
 def _truth(source_name: str, points):

@@ -38,6 +38,10 @@ def test_incline_truth_is_the_plane_and_the_nearest_dynamics(pools):
                 max(SLOPE / 2 * 0.5 / math.sqrt(2 + SLOPE**2 / 2), nearest)]
     np.testing.assert_allclose(rv._incline_truth("incline:fixed", points), expected, atol=1e-6)
     assert rv._truth("incline:fixed", points) is not None  # the screen's measure uses it
+    plane, pool = rv._incline_truth("incline:fixed", points, parts=True)
+    np.testing.assert_allclose(plane, [0.0, expected[1], SLOPE / 2 * 0.5
+                                       / math.sqrt(2 + SLOPE**2 / 2)], atol=1e-6)
+    np.testing.assert_allclose(pool, [0.0, 0.0, nearest], atol=1e-6)
 
 
 def test_incline_pool_is_the_drawn_file_or_says_how_to_draw_it(pools, tmp_path):

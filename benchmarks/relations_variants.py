@@ -402,7 +402,7 @@ def plot(records_path: str, variants: list[str], out: str, metric: str = "landed
 
     lines = Path(records_path).read_text().splitlines()
     records = [json.loads(line) for line in lines if line.startswith("{")]
-    fig, ax = plt.subplots(figsize=(8, 3.6))
+    fig, ax = plt.subplots(figsize=(9.5, 3.6))
     groups, colours, ticks, lowest, highest = [], {}, [], 1.0, 0.0
     metrics = metric.split(",")
     for item in variants:
@@ -432,13 +432,16 @@ def plot(records_path: str, variants: list[str], out: str, metric: str = "landed
         ax.axhline(0.2 if metric.startswith("unexplained") else 0.9, color="grey", lw=0.8,
                    ls="--")
         ax.set(ylim=(max(0.0, int(lowest * 10) / 10 - 0.1), 1.02))
-    ax.set(xlabel="seeds 0–7 of each source", ylabel=YLABELS.get(metric.partition(".")[0], metric))
-    ax.legend(fontsize=7, loc="upper left" if metric.startswith("holds_by") else "lower left")
+    ylabel = (YLABELS.get(metric.partition(".")[0], metric) if len(metrics) == 1
+              else "share (the legend names each measure)")
+    ax.set(xlabel="seeds 0–7 of each source", ylabel=ylabel)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))  # beside the points
     fig.tight_layout()
     fig.savefig(out, dpi=110)
 
 
 YLABELS = {"holds_by": "box rows far from the data that holds accepts",
+           "on_plane": "box points within 0.05 of the kinematic plane",
            "landed": "box points landing within 0.05 of the data",
            "on_truth": "box points within 0.05 of the manifold",
            "unexplained": "share of g_k a fresh syzygy leaves unexplained"}

@@ -252,3 +252,24 @@ def test_the_relation_loop_reads_no_config_field_outside_its_key(monkeypatch):
     reference = lowered(base)
     assert lowered(base.replace(**_OUTSIDE_THE_LOOP)) == reference
     assert lowered(base.replace(separation_ratio=7.0)) != reference
+
+
+def test_two_fits_of_equal_sources_key_their_programs_alike():
+    """`Batches.static()` keys the compiled programs: equal for two `sources.make` of the same
+    source and options (a bound `sample` would be equal only for one object), different for
+    other options, and a source that cannot be hashed is equal only to itself."""
+    def static(source, seed=0):
+        return prepare(source, 32, 0.0, jax.random.key(seed), 2).static()
+
+    first, again = static(sources.make("ellipse")), static(sources.make("ellipse"), seed=1)
+    assert first == again and hash(first) == hash(again)
+    assert static(sources.make("block45")) != static(sources.make("block45", friction=0.1))
+
+    class Unhashable:
+        __hash__ = None
+
+        def sample(self, key, n):
+            return sources.make("circle").sample(key, n)
+
+    one = Unhashable()
+    assert static(one) == static(one) and static(one) != static(Unhashable())

@@ -11,8 +11,9 @@ The wall times are cold by default: no persistent compilation cache and JAX's in
 cleared before each seed, so every program of every seed is compiled. `--warm-cache` times what
 `jaml relations` does on a second run: JAX's persistent cache as the command line sets it
 (`cli.use_compilation_cache`) in a fresh temporary directory, primed by one untimed fit of the
-first seed, then the seeds timed (the programs come from the cache, whatever the seed: they take
-the data and keys as arguments; tracing and lowering still run). `--in-process` times a sweep
+first seed, then the seeds timed, JAX's in-memory caches cleared before each as a new process
+would have them (the programs come from the disk cache, whatever the seed: they take the data
+and keys as arguments; tracing and lowering still run). `--in-process` times a sweep
 over seeds in one Python process: no persistent cache, one untimed fit of the first seed, then
 the seeds run the programs it compiled.
 """
@@ -232,7 +233,7 @@ def main(argv=None):
             fit_wall_time(objective, seeds[0])
         runs = []
         for seed in seeds:
-            if not (args.warm_cache or args.in_process):
+            if not args.in_process:  # each seed as a new process would run it
                 jax.clear_caches()
             runs.append(fit_wall_time(objective, seed))
         for seed, run in zip(seeds, runs, strict=True):

@@ -237,24 +237,44 @@ def _reference_fit(source, seed: int, options: dict, box, keep: str | None):
 
 def _holds_by(rs, source, dense, landing) -> dict:
     """`relations.holds` by distance and by value on the same rows: the share of fresh data
-    rows each accepts (recall), of 20,000 uniform points of the fit's box (off) and of those
-    farther than the report's landing distance from the data (far)."""
+    rows each accepts (recall), of 20,000 uniform points of the fit's box (off), of those
+    farther than the report's landing distance from the data (far), and of fresh rows moved 1 %
+    of the box diagonal in a random direction (near). By distance also with one tolerance for
+    every relation ("shared": the largest distance's quantile, as fits calibrated it before
+    per-relation tolerances) beside the per-relation ones, both calibrated here on the same
+    4,096 rows."""
     import jax
     import numpy as np
     from scipy.spatial import cKDTree
 
     from jaml import relations
+    from jaml.relations import quality
 
     fresh = np.asarray(source.sample(jax.random.key(98), 4096), np.float32)
     low, high = np.asarray(rs.low), np.asarray(rs.high)
-    box = np.random.default_rng(97).uniform(low, high, (20_000, len(low))).astype(np.float32)
+    rng = np.random.default_rng(97)
+    box = rng.uniform(low, high, (20_000, len(low))).astype(np.float32)
     far = cKDTree(dense).query(box)[0] > landing["within"] if landing else np.ones(len(box), bool)
+    step = rng.normal(size=fresh.shape)
+    step *= 0.01 * np.linalg.norm(high - low) / np.linalg.norm(step, axis=1, keepdims=True)
+    near = (fresh + step).astype(np.float32)
+    ways = {"value": {"by": "value"}}
+    if rs.distance_tolerance is not None:
+        calib = np.asarray(relations.distances(rs, source.sample(jax.random.key(96), 4096)))
+        shared = float(np.quantile(calib.max(-1), quality.RECALL))
+        ways = {"distance": {"by": "distance"},
+                "per_relation": {"by": "distance",
+                                 "tolerance": quality.joint_quantiles(calib, quality.RECALL)},
+                "shared": {"by": "distance", "tolerance": shared}, **ways}
     out = {}
-    for by in ("distance", "value") if rs.distance_tolerance is not None else ("value",):
-        accepted = np.asarray(relations.holds(rs, box, by=by))
-        out[by] = {"recall": float(np.mean(np.asarray(relations.holds(rs, fresh, by=by)))),
-                   "off": float(accepted.mean()),
-                   "far": float(accepted[far].mean()) if far.any() else 0.0}
+    for name, how in ways.items():
+        accepted = np.asarray(relations.holds(rs, box, **how))
+        out[name] = {"recall": float(np.mean(np.asarray(relations.holds(rs, fresh, **how)))),
+                     "off": float(accepted.mean()),
+                     "far": float(accepted[far].mean()) if far.any() else 0.0,
+                     "near": float(np.mean(np.asarray(relations.holds(rs, near, **how))))}
+        if "tolerance" in how:
+            out[name]["tolerance"] = how["tolerance"]
     return out
 
 

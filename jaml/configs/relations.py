@@ -74,8 +74,8 @@ class Config:
         gradients to exceed this (radians; reference 0.4·π/2).
       tolerance: `project` counts τ converged when every |g_k(τ)| < tolerance × its recorded
         on-manifold mean. The starting value only: `fit` calibrates it after each relation so
-        that 99 % of training rows pass (`rs.tolerance`), and `holds`' distance beside it
-        (`rs.distance_tolerance`); `rs.replace(tolerance=t)` sets another.
+        that 99 % of training rows pass (`rs.tolerance`), and `holds`' distances beside it, one
+        per relation (`rs.distance_tolerance`); `rs.replace(tolerance=t)` sets another.
       noise_scale: uniform noise, as a fraction of the data box, added to on and off rows.
       mined_weight: weight of jaml's mined-rows term (0 turns mining off: the paper's
         algorithm). From the data's codimension-th relation on, box points are projected onto

@@ -33,7 +33,8 @@ def _describe(rs: RelationSet) -> dict:
         "depth": rs.depth,
         "widths": list(rs.widths),
         "tolerance": rs.tolerance,
-        "distance_tolerance": rs.distance_tolerance,
+        "distance_tolerance": (None if rs.distance_tolerance is None
+                               else list(rs.distance_tolerance)),
         "syzygies": list(rs.syzygies),
         "dim_names": list(rs.dim_names),
         "on_means": np.asarray(rs.on_means).tolist(),
@@ -114,7 +115,8 @@ def load(path) -> RelationSet:
         low=tuple(meta.get("low") or ()),
         high=tuple(meta.get("high") or ()),
         quality=Report(meta["quality"]) if meta.get("quality") else None,
-        distance_tolerance=meta.get("distance_tolerance"),  # None: written before it
+        # None: written before it; one number (for every relation): before per-relation ones.
+        distance_tolerance=meta.get("distance_tolerance"),
     )
     log.info("loaded %d relation%s (%d syzygies) from %s; mean |g| on / off the data: %s",
              rs.num_relations, "" if rs.num_relations == 1 else "s", sum(rs.syzygies), path,

@@ -19,7 +19,14 @@ from scipy.spatial import cKDTree
 
 from jaml.configs.relations import Config
 from jaml.relations.geometry import independence, project
-from jaml.relations.relation_set import RelationSet, Report, evaluate, holds, holds_measure
+from jaml.relations.relation_set import (
+    RelationSet,
+    Report,
+    distances,
+    evaluate,
+    holds,
+    holds_measure,
+)
 
 log = logging.getLogger("jaml.relations")
 
@@ -206,22 +213,40 @@ def on_data(land: dict) -> float:
     return land["landed"] + land.get("extends", 0.0)
 
 
-def calibrated_tolerance(rs: RelationSet, held_out, by: str = "value") -> float:
-    """`holds`' tolerance `by` "value" or "distance" (`holds_measure`) under which the RECALL
-    quantile of held-out rows holds: recall ≈ RECALL on fresh rows by construction."""
-    return float(np.quantile(np.asarray(holds_measure(rs, held_out, by)), RECALL))
+def calibrated_tolerance(rs: RelationSet, held_out) -> float:
+    """`holds`' tolerance by value (and `project`'s converged) under which the RECALL quantile of
+    held-out rows holds: recall ≈ RECALL on fresh rows by construction."""
+    return float(np.quantile(np.asarray(holds_measure(rs, held_out, "value", 1.0)), RECALL))
 
 
-def distance_tolerance(rs: RelationSet, rows) -> float | None:
-    """`holds`' distance tolerance calibrated on `rows`; None where more than 1 - RECALL of the
-    rows sit where a relation is flat (no finite distance: `holds` then goes by value)."""
-    distance = calibrated_tolerance(rs, rows, "distance")
-    return distance if np.isfinite(distance) else None
+def distance_tolerance(rs: RelationSet, rows) -> tuple[float, ...] | None:
+    """`holds`' per-relation distance tolerances calibrated on `rows` (`joint_quantiles` of
+    their `distances`); None where a relation is flat at more than 1 - RECALL of the rows (no
+    finite distance: `holds` then goes by value)."""
+    return joint_quantiles(np.asarray(distances(rs, rows)), RECALL)
+
+
+def joint_quantiles(d, recall: float) -> tuple[float, ...] | None:
+    """Per-column thresholds t [K] of d [N, K] that all of a `recall` share of its rows meet:
+    each column's `recall` quantile, scaled by one factor until that share of rows is below
+    every threshold at once. A wide column (a fuzzy relation) keeps its width to itself rather
+    than widening a narrow one's; a single column gets its quantile. None where not finite."""
+    d = np.asarray(d, np.float64)
+    with np.errstate(invalid="ignore"):  # quantiles between infinite distances
+        scale = np.quantile(d, recall, axis=0)
+    if not np.all(np.isfinite(scale)):
+        return None
+    scale = np.maximum(scale, np.finfo(np.float32).tiny)
+    with np.errstate(invalid="ignore"):
+        factor = np.quantile(np.max(d / scale, axis=-1), recall)
+    if not np.isfinite(factor):
+        return None
+    return tuple(float(t) for t in factor * scale)
 
 
 def calibrated(rs: RelationSet, rows) -> RelationSet:
     """`rs` with both tolerances calibrated on `rows`."""
-    return rs.replace(tolerance=calibrated_tolerance(rs, rows, "value"),
+    return rs.replace(tolerance=calibrated_tolerance(rs, rows),
                       distance_tolerance=distance_tolerance(rs, rows))
 
 
@@ -356,6 +381,16 @@ def _warnings(report: dict) -> list[str]:
     return out
 
 
+def _within(tolerances) -> str:
+    """Per-relation distance tolerances in words (one number, from reports written before
+    them)."""
+    if not isinstance(tolerances, list | tuple):
+        return f"{tolerances:.3g} of every relation's zero set"
+    if len(set(tolerances)) == 1:
+        return f"{tolerances[0]:.3g} of every relation's zero set"
+    return ", ".join(f"{t:.3g} of g{k + 1}'s" for k, t in enumerate(tolerances)) + " zero set"
+
+
 def _lines(report: dict) -> list[str]:
     rel = "; ".join(f"g{r['index']} {r['status']} off/on {r['ratio']:.1f}"
                     + (f", {100 * r['unexplained']:.0f}% unexplained by a syzygy"
@@ -384,8 +419,7 @@ def _lines(report: dict) -> list[str]:
         + (f" and {100 * hold['far_acceptance']:.1f}% of the box rows farther than "
            f"{land['within']:.3g} from the data" if "far_acceptance" in hold else "")
         + (f" (tolerance {hold['tolerance']:.3g})" if hold.get("distance_tolerance") is None
-           else f" (within {hold['distance_tolerance']:.3g} of every relation's zero set, to "
-           "first order)"),
+           else f" (within {_within(hold['distance_tolerance'])}, to first order)"),
     ]
     if _bar_out_of_reach(report):
         noise = report["noise"]
@@ -403,6 +437,7 @@ __all__ = [
     "coverage",
     "data_codimension",
     "distance_tolerance",
+    "joint_quantiles",
     "landing",
     "landing_distance",
     "nearest_distances",

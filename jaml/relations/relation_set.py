@@ -55,9 +55,10 @@ class RelationSet:
       widths: hidden width of each g_k. depth: hidden layers. dim: D, the size of τ.
       tolerance: every |g_k| < tolerance × on_means[k]: the residuals down to the data's own
         level (`project`'s converged; `holds` where there is no distance_tolerance).
-      distance_tolerance: `holds` accepts τ where every relation's first-order distance
-        |g_k| / ‖∇g_k‖ to its zero set is below it (τ's units); None in checkpoints written
-        before it (and where the fit's rows sit where a relation is flat).
+      distance_tolerance: per relation, `holds` accepts τ where each relation's first-order
+        distance |g_k| / ‖∇g_k‖ to its zero set is below its own tolerance (τ's units), so a
+        fuzzy relation does not loosen an exact one; None in checkpoints written before it (and
+        where the fit's rows sit where a relation is flat).
       syzygies: restricted syzygies found (and pushed away from) per relation.
       dim_names: names of τ's coordinates, when the source gave them.
       low, high: the box of the training data (per coordinate), `project`'s trust region.
@@ -76,7 +77,15 @@ class RelationSet:
     low: tuple[float, ...] = struct.field(pytree_node=False, default=())
     high: tuple[float, ...] = struct.field(pytree_node=False, default=())
     quality: Report | None = struct.field(pytree_node=False, default=None)
-    distance_tolerance: float | None = struct.field(pytree_node=False, default=None)
+    distance_tolerance: tuple[float, ...] | None = struct.field(pytree_node=False, default=None)
+
+    def __post_init__(self):
+        # A single tolerance (checkpoints written before per-relation ones) holds every relation.
+        t = self.distance_tolerance
+        if t is not None and not isinstance(t, tuple):
+            t = tuple(float(x) for x in t) if hasattr(t, "__len__") else (float(t),) * len(
+                self.params)
+            object.__setattr__(self, "distance_tolerance", t)
 
     @property
     def num_relations(self) -> int:
@@ -95,7 +104,7 @@ class RelationSet:
         count = f"{self.num_relations} relation{'' if self.num_relations == 1 else 's'}"
         head = (f"RelationSet({count} of τ in R^{self.dim}{names}, depth {self.depth}, "
                 f"tolerance {self.tolerance:.3g}"
-                + (f", holds within {self.distance_tolerance:.3g}"
+                + (f", holds within {_tolerance_text(self.distance_tolerance)}"
                    if self.distance_tolerance is not None else "")
                 + (f": {rows})" if rows else ")"))
         if self.quality is None:
@@ -134,6 +143,8 @@ class RelationSet:
             widths=tuple(self.widths[i] for i in indices),
             syzygies=syzygies,
             quality=None,
+            distance_tolerance=(None if self.distance_tolerance is None
+                                else tuple(self.distance_tolerance[i] for i in indices)),
         )
 
     @classmethod
@@ -218,34 +229,53 @@ def distances(rs: RelationSet, tau) -> jax.Array:
     return d.reshape(*tau.shape[:-1], rs.num_relations)
 
 
-def holds_measure(rs: RelationSet, tau, by: str | None = None) -> jax.Array:
-    """[...]: what `holds` compares with its tolerance: by "distance", the largest of the
-    relations' `distances`; by "value", of |g_k| / on_means[k]. Default: by distance where the
-    set records a distance_tolerance."""
+def holds_measure(rs: RelationSet, tau, by: str | None = None, tolerance=None) -> jax.Array:
+    """[...]: how far from holding tau is, in units of `holds`' tolerance (it holds below 1): by
+    "distance", the largest of the relations' `distances`, each over its own tolerance; by
+    "value", of |g_k| / on_means[k] over `rs.tolerance`. `tolerance` as `holds` takes it."""
     require_relations(rs, "holds")
-    if (by or _by(rs)) == "value":
-        return jnp.max(jnp.abs(evaluate(rs, tau)) / rs.on_means, axis=-1)
-    return jnp.max(distances(rs, tau), axis=-1)
+    by = _checked_by(by, rs)
+    tolerance = _tolerances(rs, by, tolerance)
+    if by == "value":
+        return jnp.max(jnp.abs(evaluate(rs, tau)) / rs.on_means, axis=-1) / tolerance
+    return jnp.max(distances(rs, tau) / tolerance, axis=-1)
 
 
-def _by(rs: RelationSet) -> str:
-    return "value" if rs.distance_tolerance is None else "distance"
-
-
-def holds(rs: RelationSet, tau, tolerance: float | None = None, by: str | None = None
-          ) -> jax.Array:
-    """bool [...]: every relation holds at tau: `holds_measure` below `tolerance` (default the
-    fit's, calibrated so that 99 % of held-out rows hold). `by` "distance" or "value" (default:
-    by distance where the set records a distance_tolerance, as fits do)."""
+def _checked_by(by: str | None, rs: RelationSet) -> str:
     if by not in (None, "distance", "value"):
         raise ValueError(f"by must be 'distance' or 'value', got {by!r}")
-    by = by or _by(rs)
+    return by or ("value" if rs.distance_tolerance is None else "distance")
+
+
+def _tolerances(rs: RelationSet, by: str, tolerance):
+    """`holds`' tolerance `by` value (a number) or by distance ([K], one per relation)."""
     if tolerance is None:
         tolerance = rs.tolerance if by == "value" else rs.distance_tolerance
     if tolerance is None:
         raise ValueError("holds by distance: this RelationSet records no distance_tolerance "
                          "(a checkpoint written before it): pass tolerance=, or by='value'")
+    if by == "value":
+        return float(tolerance)
+    tolerance = jnp.broadcast_to(jnp.asarray(tolerance, jnp.float32), (rs.num_relations,))
+    return tolerance
+
+
+def holds(rs: RelationSet, tau, tolerance=None, by: str | None = None) -> jax.Array:
+    """bool [...]: every relation holds at tau. By "distance" (where the set records a
+    distance_tolerance, as fits do), each relation's first-order distance to its zero set is
+    below its own tolerance, calibrated so that 99 % of held-out rows hold them all; by
+    "value", every |g_k| < tolerance × on_means[k]. `tolerance`: a number for every relation,
+    or by distance one per relation; default the fit's."""
+    require_relations(rs, "holds")
+    by = _checked_by(by, rs)
+    tolerance = _tolerances(rs, by, tolerance)
     if by == "value":  # as `project` has always compared, not via the ratio (same rounding)
-        require_relations(rs, "holds")
         return jnp.all(jnp.abs(evaluate(rs, tau)) < tolerance * rs.on_means, axis=-1)
-    return holds_measure(rs, tau, by) < tolerance
+    return jnp.all(distances(rs, tau) < tolerance, axis=-1)
+
+
+def _tolerance_text(tolerances) -> str:
+    """Per-relation tolerances in a line: one number where they agree."""
+    if len(set(tolerances)) == 1:
+        return f"{tolerances[0]:.3g}"
+    return " / ".join(f"{t:.3g}" for t in tolerances)

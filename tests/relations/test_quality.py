@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from jaml import relations, sources
-from jaml.relations import quality
+from jaml.relations import quality, relation_set
 from jaml.relations.data import MIN_ROWS, padded_box, prepare
 from jaml.relations.networks import Relation
 from jaml.relations.relation_set import RelationSet
@@ -100,7 +100,8 @@ def test_holds_by_distance_measures_the_distance_to_the_zero_set_to_first_order(
     rows = jax.random.normal(jax.random.key(1), (4096, 3)) * 0.2
     fitted = quality.calibrated(rs, rows)
     d = np.asarray(relations.distances(rs, rows))[:, 0]
-    assert fitted.distance_tolerance == pytest.approx(np.quantile(d, quality.RECALL), rel=1e-5)
+    assert fitted.distance_tolerance == pytest.approx((np.quantile(d, quality.RECALL),),
+                                                      rel=1e-5)
     assert fitted.tolerance == pytest.approx(quality.calibrated_tolerance(rs, rows), rel=1e-6)
     assert float(np.mean(relations.holds(fitted, rows))) == pytest.approx(quality.RECALL,
                                                                           abs=1e-3)
@@ -112,6 +113,58 @@ def test_holds_by_distance_measures_the_distance_to_the_zero_set_to_first_order(
                                   relations.holds(old, rows, by="value"))
     with pytest.raises(ValueError, match="no distance_tolerance"):
         relations.holds(old, rows, by="distance")
+
+
+def test_per_relation_distance_tolerances_against_the_closed_form():
+    """Two independent relations whose distances on the rows are |N(0, σ_k)|: every relation
+    holds on a RECALL share of rows where each column's share is √RECALL, so t_k = σ_k ·
+    Φ⁻¹((1 + √RECALL) / 2). The fuzzy relation (σ 100× wider) keeps its width to itself; one
+    tolerance for both (the largest distance's quantile) was the fuzzy one's for both."""
+    from scipy.stats import norm
+
+    sigma = np.array([0.001, 0.1])
+    d = np.abs(np.random.default_rng(0).normal(size=(400_000, 2))) * sigma
+    t = np.asarray(quality.joint_quantiles(d, quality.RECALL))
+    np.testing.assert_allclose(t, sigma * norm.ppf((1 + np.sqrt(quality.RECALL)) / 2), rtol=0.02)
+    assert np.mean(np.all(d < t, -1)) == pytest.approx(quality.RECALL, abs=1e-4)
+    assert np.quantile(d.max(-1), quality.RECALL) > 50 * t[0]  # the one shared tolerance
+    one = d[:, :1]
+    assert quality.joint_quantiles(one, quality.RECALL) == pytest.approx(
+        (np.quantile(one, quality.RECALL),), rel=1e-12)
+    d[:3_000, 0] = np.inf  # 0.75 % of rows where g_1 is flat: still calibrated
+    assert quality.joint_quantiles(d, quality.RECALL) is not None
+    d[3_000:6_000, 1] = np.inf  # and 0.75 % others where g_2 is: 1.5 % of rows, not
+    assert quality.joint_quantiles(d, quality.RECALL) is None
+
+
+def test_holds_checks_each_relation_at_its_own_tolerance(tmp_path, monkeypatch):
+    """`holds` by distance is every distance below its relation's tolerance (a plain numpy
+    check); a number holds every relation to it; a checkpoint keeps the tuple, and one written
+    with a single tolerance (before per-relation ones) holds every relation to that."""
+    rs = _random_set().append(Relation(8, 2).init(jax.random.key(1), jnp.zeros((1, 3))),
+                              0.05, 1.0, 8)
+    rows = jax.random.normal(jax.random.key(2), (2048, 3)) * 0.2
+    d = np.asarray(relations.distances(rs, rows))
+    t = tuple(float(x) for x in np.quantile(d, [0.2, 0.9], axis=0).diagonal())
+    tight = rs.replace(distance_tolerance=t)
+    np.testing.assert_array_equal(relations.holds(tight, rows), np.all(d < np.asarray(t), -1))
+    np.testing.assert_allclose(relation_set.holds_measure(tight, rows),
+                               np.max(d / np.asarray(t), -1), rtol=1e-6)
+    np.testing.assert_array_equal(relations.holds(tight, rows, tolerance=0.05),
+                                  np.all(d < 0.05, -1))
+    assert rs.replace(distance_tolerance=0.05).distance_tolerance == (0.05, 0.05)
+    assert tight.select([1]).distance_tolerance == (t[1],)
+    assert f"holds within {t[0]:.3g} / {t[1]:.3g}" in repr(tight)
+    relations.save(tight, tmp_path / "new")
+    assert relations.load(tmp_path / "new").distance_tolerance == pytest.approx(t)
+    from jaml.relations import checkpoint
+
+    describe = checkpoint._describe
+    monkeypatch.setattr(checkpoint, "_describe",
+                        lambda r: describe(r) | {"distance_tolerance": 0.05})
+    relations.save(tight, tmp_path / "old")
+    np.testing.assert_array_equal(relations.holds(relations.load(tmp_path / "old"), rows),
+                                  np.all(d < 0.05, -1))
 
 
 def test_holds_calibrated_on_rows_accepts_that_share_of_fresh_rows():

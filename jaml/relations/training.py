@@ -89,10 +89,6 @@ def phase_budgets(cfg: Config) -> dict[str, int]:
 MINED_CLIP = 2.0  # the mined term at most this × the first term, like the paper's other terms
 
 
-def _frozen_relations(rs: RelationSet):
-    return [rs.relation(j) for j in range(rs.num_relations)]
-
-
 def _relation_objective(
     cfg: Config, module: Relation, earlier_modules: Sequence[Relation], num_syz: int,
     with_mined: bool = True,
@@ -211,19 +207,18 @@ def relation_trainer(
     `pool` = (rows [C, D], count): mined points where g_{K+1} must not vanish (`mine`).
 
     `chunk(state, args)` runs `cfg.chunk_steps` optimizer steps in one jitted `lax.scan`. The
-    data, the key and every parameter are its arguments: one chunk serves every fit of the
-    process whose config agrees on `LOOP_FIELDS`, with equal samplers and relation shapes.
+    data, the key, every parameter and the thickening are its arguments: one chunk serves every
+    fit of the process whose config agrees on `LOOP_FIELDS`, with equal samplers and relation
+    shapes (and as many syzygies).
     """
     num_syz = 0 if syz_params is None else int(jax.tree.leaves(syz_params)[0].shape[0])
-    # A syzygy round's loop (its thickening drawn for it) is built for that round alone.
-    build = _build_relation_loop if num_syz else _relation_loop
-    chunk = build(_LoopConfig(cfg), batches.static(), tuple(rs.widths), rs.depth, num_syz,
-                  with_mined, clip, max_steps, float(thickening) if num_syz else 0.0)
+    chunk = _relation_loop(_LoopConfig(cfg), batches.static(), tuple(rs.widths), rs.depth,
+                           num_syz, with_mined, clip, max_steps)
     if pool is None:
         pool = empty_pool(cfg, batches.dim)
     pool_rows, pool_count = pool
     args = (batches.data, syz_params, rs.params, jnp.asarray(pool_rows),
-            jnp.asarray(pool_count, jnp.int32))
+            jnp.asarray(pool_count, jnp.int32), jnp.asarray(thickening, jnp.float32))
     return chunk, init_state(params, optax.adam(cfg.learning_rate), key), args
 
 
@@ -237,12 +232,12 @@ LOOP_FIELDS = ("independence", "objective", "batch_size", "learning_rate", "base
 
 
 class _LoopConfig:
-    """A Config as a key of the relation loops: equal where the loop's fields are."""
+    """A Config as a key of compiled loops: equal where the fields the loop reads are."""
 
     __slots__ = ("cfg", "key")
 
-    def __init__(self, cfg: Config):
-        self.cfg, self.key = cfg, tuple(getattr(cfg, name) for name in LOOP_FIELDS)
+    def __init__(self, cfg: Config, fields: tuple[str, ...] = LOOP_FIELDS):
+        self.cfg, self.key = cfg, (fields, *(getattr(cfg, name) for name in fields))
 
     def __eq__(self, other) -> bool:
         return isinstance(other, _LoopConfig) and self.key == other.key
@@ -253,7 +248,7 @@ class _LoopConfig:
 
 def _build_relation_loop(loop_cfg: _LoopConfig, batches: Batches,
                          earlier_widths: tuple[int, ...], earlier_depth: int, num_syz: int,
-                         with_mined: bool, clip: float, max_steps: int, thickening: float):
+                         with_mined: bool, clip: float, max_steps: int):
     """`relation_trainer`'s jitted chunk, built from what it does not take as arguments."""
     cfg = loop_cfg.cfg
     k = len(earlier_widths)
@@ -263,7 +258,7 @@ def _build_relation_loop(loop_cfg: _LoopConfig, batches: Batches,
     optimizer = optax.adam(cfg.learning_rate)
 
     def draw(key, args):
-        data, rows, count = args[0], args[3], args[4]
+        data, rows, count, thickening = args[0], args[3], args[4], args[5]
         k_on, k_off, k_thick, k_jit, k_mined = jax.random.split(key, 5)
         thick = None
         if num_syz:  # syzygy push rounds only: skip the extra batch otherwise
@@ -419,8 +414,8 @@ class _Plateau:
 def fit_syzygy(
     cfg: Config,
     batches: Batches,
-    earlier: Sequence[Callable],
-    g_k: Callable,
+    earlier: Sequence[Callable | tuple],
+    g_k: Callable | tuple,
     key,
     thickening: float,
     callback: Callback | None = None,
@@ -428,50 +423,28 @@ def fit_syzygy(
 ):
     """Fit a restricted syzygy: f with Σ_j f_j(τ) g_j(τ) ≈ g_k(τ) on thickened data (L1).
 
-    The relations are frozen functions τ [..., D] → [...]. Returns (f params, found, info):
-    `found` says whether f explains g_k on fresh test data, i.e. its mean residual is below
-    1/separation_ratio of mean |g_k| there (the "f ≈ 0" of Algorithm 1).
+    The relations are frozen: functions τ [..., D] → [...], or (module, params) pairs that
+    apply as `module.apply(params, τ)` (a `Relation` and its parameters: the compiled loop is
+    then kept for every round and fit of the process with those shapes). Returns (f params,
+    found, info): `found` says whether f explains g_k on fresh test data, i.e. its mean residual
+    is below 1/separation_ratio of mean |g_k| there (the "f ≈ 0" of Algorithm 1).
     """
-    module = SyzygyCoefficients(len(earlier), cfg.syzygy_width, cfg.depth)
-    optimizer = optax.adam(cfg.syzygy_learning_rate)
-    min_steps = cfg.syzygy_steps // 10  # the reference's early exit waits for a tenth of the budget
-
-    def objective(params, step, thick):
-        earlier_vals = jnp.stack([gj(thick) for gj in earlier], axis=-1)
-        y = g_k(thick)
-        residual = jnp.abs(losses.syzygy_residual(module.apply(params, thick), earlier_vals, y))
-        loss = jnp.mean(residual)
-        scale = jnp.mean(jnp.abs(y))
-        holds = (loss * cfg.separation_ratio < scale) & (step >= min_steps)
-        return loss, ({"residual": loss, "g_scale": scale}, holds)
-
-    def draw(key, data):
-        k_on, k_jit = jax.random.split(key)
-        return thicken(k_jit, batches.on(k_on, data), data.low, data.high, thickening)
-
-    def train_step(state, thick, data):
-        return optimizer_step(
-            state,
-            objective,
-            optimizer,
-            cfg.syzygy_steps,
-            state.step,
-            thick,
-            patience=cfg.stop_patience,
-        )
-
+    earlier = [_applied(f) for f in earlier]
+    g_module, g_params = _applied(g_k)
+    program = _syzygy_loop(_LoopConfig(cfg, SYZYGY_LOOP_FIELDS), batches.static(),
+                           tuple(m for m, _ in earlier), g_module)
     k_init, k_loop, k_test = jax.random.split(key, 3)
-    params = module.init(k_init, jnp.zeros((1, batches.dim)))
-    state = init_state(params, optimizer, k_loop)
+    params = program.module.init(k_init, jnp.zeros((1, batches.dim)))
+    state = init_state(params, program.optimizer, k_loop)
+    args = (batches.data, tuple(p for _, p in earlier), g_params,
+            jnp.asarray(thickening, jnp.float32))
     report = None
     if callback is not None:
         report = lambda s, m, n: callback("syzygy", index, {"step": int(s.step), "steps": n, **m})  # noqa: E731
-    chunk = make_chunk(train_step, min(cfg.chunk_steps, cfg.syzygy_steps), draw)
-    state = run_until_done(chunk, state, batches.data, report)
+    state = run_until_done(program.chunk, state, args, report)
     # Judge on fresh test data (Algorithm 1: "if f ≠ 0 on τ_off^test").
-    test = draw(k_test, batches.data)
-    _, (metrics, _) = objective(state.params, jnp.asarray(min_steps), test)
-    info = {k: float(v) for k, v in metrics.items()}
+    info = {k: float(v) for k, v in jax.device_get(program.judge(state.params, k_test,
+                                                                 args)).items()}
     found = info["residual"] * cfg.separation_ratio < info["g_scale"]
     return (
         state.params,
@@ -480,24 +453,114 @@ def fit_syzygy(
     )
 
 
+# The Config fields the syzygy loop reads (tests/relations/test_sources.py holds it to the code).
+SYZYGY_LOOP_FIELDS = ("syzygy_width", "depth", "syzygy_learning_rate", "syzygy_steps",
+                      "stop_patience", "chunk_steps", "separation_ratio")
+
+
+class _Plain:
+    """A frozen function of τ as the syzygy loop applies a relation (`apply(params, τ)`, params
+    unused): its loop is compiled for it alone."""
+
+    def __init__(self, fn: Callable):
+        self.fn = fn
+
+    def apply(self, params, tau):
+        return self.fn(tau)
+
+
+def _applied(relation) -> tuple:
+    """(module, params) of a frozen relation given as a pair or as a function of τ."""
+    if isinstance(relation, tuple):
+        return relation
+    return _Plain(relation), None
+
+
+def _relation_pairs(rs: RelationSet) -> list[tuple]:
+    """The relations of `rs` as (module, params) pairs."""
+    return [(Relation(w, rs.depth), p) for w, p in zip(rs.widths, rs.params, strict=True)]
+
+
+class _SyzygyProgram(NamedTuple):
+    module: SyzygyCoefficients
+    optimizer: optax.GradientTransformation
+    chunk: Callable  # (state, args) → (state, metrics, valid), as `make_chunk`
+    judge: Callable  # (f params, key, args) → metrics on fresh thickened rows
+
+
+@functools.lru_cache(maxsize=8)
+def _syzygy_loop(loop_cfg: _LoopConfig, batches: Batches, earlier: tuple, g_module
+                 ) -> _SyzygyProgram:
+    """`fit_syzygy`'s compiled loop, built from what it does not take as arguments: args are
+    (data, earlier params, g_k's params, thickening)."""
+    cfg = loop_cfg.cfg
+    module = SyzygyCoefficients(len(earlier), cfg.syzygy_width, cfg.depth)
+    optimizer = optax.adam(cfg.syzygy_learning_rate)
+    min_steps = cfg.syzygy_steps // 10  # the reference's early exit waits for a tenth of the budget
+
+    def objective(params, step, thick, args):
+        earlier_vals = jnp.stack([m.apply(p, thick) for m, p in zip(earlier, args[1],
+                                                                     strict=True)], axis=-1)
+        y = g_module.apply(args[2], thick)
+        residual = jnp.abs(losses.syzygy_residual(module.apply(params, thick), earlier_vals, y))
+        loss = jnp.mean(residual)
+        scale = jnp.mean(jnp.abs(y))
+        holds = (loss * cfg.separation_ratio < scale) & (step >= min_steps)
+        return loss, ({"residual": loss, "g_scale": scale}, holds)
+
+    def draw(key, args):
+        data = args[0]
+        k_on, k_jit = jax.random.split(key)
+        return thicken(k_jit, batches.on(k_on, data), data.low, data.high, args[3])
+
+    def train_step(state, thick, args):
+        return optimizer_step(
+            state,
+            lambda p, step, t: objective(p, step, t, args),
+            optimizer,
+            cfg.syzygy_steps,
+            state.step,
+            thick,
+            patience=cfg.stop_patience,
+        )
+
+    @functools.partial(jax.jit, compiler_options=ONCE_COMPILER_OPTIONS)
+    def judge(params, key, args):
+        _, (metrics, _) = objective(params, jnp.asarray(min_steps), draw(key, args), args)
+        return metrics
+
+    chunk = make_chunk(train_step, min(cfg.chunk_steps, cfg.syzygy_steps), draw)
+    return _SyzygyProgram(module, optimizer, chunk, judge)
+
+
 def choose_thickening(cfg, batches: Batches, rs: RelationSet, key) -> float:
     """The reference's σ: the first level whose jittered rows sit > 2× as far from the earlier
     relations' zero sets (mean d_g) as on-manifold rows do, else the smallest level."""
-    earlier = _frozen_relations(rs)
-
-    def mean_distance(tau):
-        return jnp.mean(
-            jnp.stack([jnp.mean(losses.distance(*losses.input_gradients(g, tau))) for g in earlier])
-        )
-
+    pairs = _relation_pairs(rs)
+    mean_distance = _mean_distance_program(tuple(m for m, _ in pairs))
+    params = tuple(p for _, p in pairs)
     k_on, k_jit = jax.random.split(key)
     on = batches.on(k_on, batches.data)
-    base = mean_distance(on)
+    base = mean_distance(params, on)
     for level in THICKENING_LEVELS:
-        wide = mean_distance(thicken(k_jit, on, batches.low, batches.high, level))
+        wide = mean_distance(params, thicken(k_jit, on, batches.low, batches.high, level))
         if float(wide) > 2.0 * float(base):
             return float(level)
     return float(THICKENING_LEVELS[0])
+
+
+@functools.lru_cache(maxsize=8)
+def _mean_distance_program(modules: tuple):
+    """The relations' mean first-order distance d_g over rows, one compiled call."""
+
+    @functools.partial(jax.jit, compiler_options=ONCE_COMPILER_OPTIONS)
+    def mean_distance(params, tau):
+        return jnp.mean(jnp.stack([
+            jnp.mean(losses.distance(*losses.input_gradients(
+                lambda t, m=m, p=p: m.apply(p, t), tau)))
+            for m, p in zip(modules, params, strict=True)]))
+
+    return mean_distance
 
 
 def record_means(cfg, batches: Batches, module, params, key):
@@ -820,13 +883,13 @@ def _joint_syzygy(cfg, batches, rs: RelationSet, module, state: LoopState, key, 
     return state.replace(params=joint.params["g"], status=joint.status), int(joint.step)
 
 
-def unexplained_share(cfg, batches, rs: RelationSet, g_k: Callable, key,
+def unexplained_share(cfg, batches, rs: RelationSet, g_k: Callable | tuple, key,
                       callback: Callback | None = None) -> float:
     """Share of mean |g_k| that a restricted syzygy of the relations `rs`, fitted afresh
     (Algorithm 1's f, on thickened rows), leaves unexplained on test rows: near 0, g_k is a
     copy of them (Σ_j f_j g_j); at least 1/separation_ratio, it is new."""
     level = choose_thickening(cfg, batches, rs, key)
-    _, _, info = fit_syzygy(cfg, batches, _frozen_relations(rs), g_k, jax.random.fold_in(key, 1),
+    _, _, info = fit_syzygy(cfg, batches, _relation_pairs(rs), g_k, jax.random.fold_in(key, 1),
                             level, callback, rs.num_relations)
     return info["residual"] / max(info["g_scale"], 1e-30)
 
@@ -1027,12 +1090,11 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
             for s in range(cfg.syzygies_per_relation):
                 ks = jax.random.fold_in(k_syz, s)
                 level = choose_thickening(cfg, batches, rs, ks)
-                g_k = module.bind(state.params)
                 f_params, found, info = fit_syzygy(
                     cfg,
                     batches,
-                    _frozen_relations(rs),
-                    g_k,
+                    _relation_pairs(rs),
+                    (module, state.params),
                     jax.random.fold_in(ks, 1),
                     level,
                     callback,
@@ -1232,7 +1294,7 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
                 rs.num_relations)
             break
         if syzygies:
-            summary.unexplained = unexplained_share(cfg, batches, rs, module.bind(state.params),
+            summary.unexplained = unexplained_share(cfg, batches, rs, (module, state.params),
                                                     jax.random.fold_in(k_syz, 1_000), callback)
             log.info("relation %d: a fresh syzygy of the earlier relations leaves %.0f%% of it "
                      "unexplained", k + 1, 100 * summary.unexplained)

@@ -254,6 +254,60 @@ def test_the_relation_loop_reads_no_config_field_outside_its_key(monkeypatch):
     assert lowered(base.replace(separation_ratio=7.0)) != reference
 
 
+def test_the_syzygy_loop_reads_no_config_field_outside_its_key_and_compiles_once():
+    """`fit_syzygy` on (module, params) pairs keeps its loop by `training.SYZYGY_LOOP_FIELDS`,
+    the sampler and the relations' modules: lowered with every other field changed it is the
+    same program, a key field changes it, and a later round with other parameters, key and
+    thickening compiles nothing."""
+    import dataclasses
+    import logging
+
+    from jaml import relations
+    from jaml.relations import training
+    from jaml.relations.networks import Relation
+
+    fields = {f.name for f in dataclasses.fields(relations.Config)}
+    read = {"syzygy_width", "depth", "syzygy_learning_rate", "syzygy_max_steps", "max_steps",
+            "stop_patience", "chunk_steps", "separation_ratio"}  # syzygy_steps: the two steps'
+    base = relations.Config(chunk_steps=2, batch_size=32, syzygy_max_steps=40)
+    other = {"max_relations": 3, "seed": 7, "learning_rate": 3e-4, "batch_size": 32,
+             "base_width": 8, "max_width": 16, "gradient_cap": 0.5, "independence": "syzygy",
+             "objective": "reference", "transversality_weight": 3.0,
+             "separation_top_fraction": 0.5, "min_angle": 0.3, "mined_weight": 0.0}
+    changed = {k: v for k, v in _OUTSIDE_THE_LOOP.items() if k not in read} | other
+    assert set(changed) | read == fields  # a new field is placed on one side or the other
+    batches = prepare(sources.make("ellipse"), 32, 0.0, jax.random.key(0), 2)
+    earlier = [(Relation(4), Relation(4).init(jax.random.key(1), jnp.zeros((1, 3))))]
+    g = (Relation(8), Relation(8).init(jax.random.key(2), jnp.zeros((1, 3))))
+
+    def lowered(cfg):
+        program = training._syzygy_loop.__wrapped__(
+            training._LoopConfig(cfg, training.SYZYGY_LOOP_FIELDS), batches.static(),
+            (earlier[0][0],), g[0])
+        params = program.module.init(jax.random.key(3), jnp.zeros((1, 3)))
+        state = training.init_state(params, program.optimizer, jax.random.key(4))
+        args = (batches.data, (earlier[0][1],), g[1], jnp.float32(0.1))
+        return program.chunk.lower(state, args).as_text()
+
+    reference = lowered(base)
+    assert lowered(base.replace(**changed)) == reference
+    assert lowered(base.replace(separation_ratio=7.0)) != reference
+
+    training.fit_syzygy(base, batches, earlier, g, jax.random.key(5), 0.1)
+    logs = []
+    handler = logging.Handler()
+    handler.emit = lambda record: logs.append(record.getMessage())
+    logger = logging.getLogger("jax")
+    logger.addHandler(handler)
+    try:
+        with jax.log_compiles():
+            g_later = (g[0], jax.tree.map(lambda x: 2 * x, g[1]))
+            training.fit_syzygy(base, batches, earlier, g_later, jax.random.key(6), 0.3)
+    finally:
+        logger.removeHandler(handler)
+    assert not [m for m in logs if m.startswith(("Compiling jit(run)", "Compiling jit(judge)"))]
+
+
 def test_two_fits_of_equal_sources_key_their_programs_alike():
     """`Batches.static()` keys the compiled programs: equal for two `sources.make` of the same
     source and options (a bound `sample` would be equal only for one object), different for

@@ -41,6 +41,10 @@ UNCONVERGED = 0.1  # warn when more than this share of projected box points reac
 SPARSE = 0.1  # warn when the landing distance exceeds this share of the box diagonal
 FAR_ACCEPTED = 0.1  # warn when `holds` accepts more than this share of box rows far from the data
 BY_LOCAL_PCA = "by local PCA"  # where the report's data codimension came from, when estimated
+# A direction across the rows scattered more than this share of the box diagonal, and more than
+# BAND_RATIO times the tightest direction, is a band the rows fill, not a relation.
+BAND_SCATTER = 1e-3
+BAND_RATIO = 10.0
 TANGENT_NEIGHBOURS = 32  # rows of the local PCA that gives the data's tangent space at a row
 TANGENT_RTOL = 0.2  # its directions: singular values above this share of the largest
 COVER_ROWS = 1024  # data rows whose reach by the projected box points `landing` measures
@@ -102,11 +106,27 @@ def separation_floor(rows, codim: int, key, low, high, top_fraction: float = 0.2
     rows = np.asarray(rows, np.float64)
     rng = _rng(key)
     sub = rows[rng.permutation(rows.shape[0])[:sample]]
+    width = sub.shape[1]
+    tree = cKDTree(sub)
+    design, across, beta = _quadratic_patches(sub, tree, codim, queries)
+    scatter = np.linalg.norm(across[:, 0] - np.einsum("mp,mpc->mc", design[:, 0], beta), axis=-1)
+    top = np.sort(scatter)[::-1][: max(1, int(top_fraction * scatter.size))].mean()
+    low, high = np.asarray(low, np.float64), np.asarray(high, np.float64)
+    box = rng.uniform(low, high, (sample, width))
+    off = float(tree.query(box)[0].mean())
+    diag = float(np.linalg.norm(high - low))
+    return {"across": float(top) / diag, "separation": off / max(float(top), 1e-12 * diag)}
+
+
+def _quadratic_patches(sub, tree: cKDTree, codim: int, queries: int):
+    """The local quadratic fits of the first `queries` rows' neighbourhoods in `sub` [N, D]:
+    (design [M, k, P], across [M, k, codim], beta [M, P, codim]) with the D − codim leading
+    local-PCA directions as coordinates and the other ones (largest first) regressed on their
+    quadratic polynomial; a row is its neighbourhood's first."""
     n, width = sub.shape
     dim = max(width - codim, 0)
     terms = 1 + dim + dim * (dim + 1) // 2
     k = min(max(TANGENT_NEIGHBOURS, 3 * terms), n)
-    tree = cKDTree(sub)
     _, idx = tree.query(sub[:queries], k=k)  # each query row is its own nearest neighbour
     patch = sub[idx]
     centred = patch - patch.mean(axis=1, keepdims=True)
@@ -118,13 +138,25 @@ def separation_floor(rows, codim: int, key, low, high, top_fraction: float = 0.2
     design = np.concatenate([np.ones_like(along[..., :1]), along, quadratic], axis=-1)
     gram = np.einsum("mkp,mkq->mpq", design, design) + 1e-12 * np.eye(terms)
     beta = np.linalg.solve(gram, np.einsum("mkp,mkc->mpc", design, across))
-    scatter = np.linalg.norm(across[:, 0] - np.einsum("mp,mpc->mc", design[:, 0], beta), axis=-1)
-    top = np.sort(scatter)[::-1][: max(1, int(top_fraction * scatter.size))].mean()
-    low, high = np.asarray(low, np.float64), np.asarray(high, np.float64)
-    box = rng.uniform(low, high, (sample, width))
-    off = float(tree.query(box)[0].mean())
-    diag = float(np.linalg.norm(high - low))
-    return {"across": float(top) / diag, "separation": off / max(float(top), 1e-12 * diag)}
+    return design, across, beta
+
+
+def band_directions(rows, codim: int, key, sample: int = 4096, queries: int = 1024) -> dict:
+    """Of the `codim` directions across the rows [N, D], those that are thin but not exact: a
+    band the rows fill, not a relation they keep to. Each direction's scatter is the median
+    (over `queries` neighbourhoods of a `sample` of rows) of the RMS offset along it from a
+    local quadratic fit, curvature fitted away, over the box diagonal; a direction is a band
+    where its scatter exceeds BAND_SCATTER and BAND_RATIO × the tightest direction's (noise
+    around a manifold scatters every direction alike). Returns {"scatter": [codim] ascending,
+    "bands": how many}."""
+    rows = np.asarray(rows, np.float64)
+    sub = rows[_rng(key).permutation(rows.shape[0])[:sample]]
+    design, across, beta = _quadratic_patches(sub, cKDTree(sub), codim, queries)
+    residual = across - np.einsum("mkp,mpc->mkc", design, beta)
+    diag = float(np.linalg.norm(rows.max(0) - rows.min(0)))
+    scatter = np.sort(np.median(np.sqrt((residual**2).mean(axis=1)), axis=0)) / max(diag, 1e-30)
+    bands = (scatter > BAND_SCATTER) & (scatter > BAND_RATIO * scatter[0])
+    return {"scatter": scatter.tolist(), "bands": int(bands.sum())}
 
 
 def tangent_offsets(points, tree: cKDTree, nearest, dim: int | None = None) -> np.ndarray:
@@ -432,6 +464,7 @@ def _lines(report: dict) -> list[str]:
 
 __all__ = [
     "assess",
+    "band_directions",
     "calibrated",
     "calibrated_tolerance",
     "coverage",

@@ -996,6 +996,24 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
     codim = fit_cfg.codimension or quality.data_codimension(batches.dense,
                                                             jax.random.fold_in(key, 5))
     codim_from = "given" if fit_cfg.codimension else quality.BY_LOCAL_PCA
+    bands = 0  # directions across the rows read as a band: one relation is still tried there
+    if not fit_cfg.codimension and codim >= 2:
+        band = quality.band_directions(batches.dense, codim, jax.random.fold_in(key, 5))
+        if band["bands"]:
+            scatter = band["scatter"]
+            log.info("the rows fill a band across %d of the local PCA's %d directions off them "
+                     "(scatter %s of the box diagonal, %.0fx the tightest): %s, not a "
+                     "relation; fitting codimension %d (Config.codimension=%d fits a relation "
+                     "there)", band["bands"], codim,
+                     ", ".join(f"{100 * x:.2g}%" for x in scatter[-band["bands"]:]),
+                     scatter[-1] / max(scatter[0], 1e-30),
+                     "a band" if band["bands"] == 1 else "bands", codim - band["bands"], codim)
+            log.info("a relation beyond it is still tried, and kept only if it separates "
+                     "on- from off-manifold rows fully (noise around a surface can)")
+            bands = band["bands"]
+            codim -= bands
+            codim_from = f"{quality.BY_LOCAL_PCA}, less {band['bands']} band direction" + (
+                "s" if band["bands"] > 1 else "")
     if codim == 0:  # the local PCA saw the data fill its neighbourhoods: noise, or too few rows
         log.warning("the data's local PCA finds no codimension (its neighbourhoods are full: "
                     "noisy or few rows); fitting as codimension 1 (Config.codimension sets it)")
@@ -1331,8 +1349,10 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
             on_relation(rs, summary)
         if k + 1 == codim >= 2 and (pause_at_codim or (pause_away and _lands_away(land))):
             return _Loop(rs, codim_land, kept, (statuses, unexplained), paused=True)
+        # Where a band was read off the codimension, a relation beyond it is still tried: it is
+        # kept only if it separates fully (noise around a surface can; a band does not).
         if cfg.stop_when_complete and land is not None and land["spurious"] <= COMPLETE and \
-                k + 1 < cfg.max_relations:
+                k + 1 < cfg.max_relations and not (bands and k + 1 == codim):
             log.info("relations complete: %.0f%% of projected box points land on the data, "
                      "none away from it; stopping at %d relations", 100 * quality.on_data(land),
                      k + 1)

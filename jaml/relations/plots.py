@@ -20,7 +20,7 @@ from PIL import Image
 
 from jaml.relations.data import PADDED
 from jaml.relations.geometry import project
-from jaml.relations.relation_set import RelationSet, _tolerance_text, holds
+from jaml.relations.relation_set import RelationSet, holds, tolerances_text
 
 PROJECTION_STEPS = 30
 ARROWS = 250  # per phase-space panel
@@ -61,7 +61,7 @@ def _one_holds(rs: RelationSet) -> str:
     """`holds`' criterion for one relation, in words."""
     if rs.distance_tolerance is None:
         return f"one |g_k| < {rs.tolerance:.3g}× its on-manifold mean"
-    return f"one |g_k| / ‖∇g_k‖ < {_tolerance_text(rs.distance_tolerance)}"
+    return f"one |g_k| / ‖∇g_k‖ < {tolerances_text(rs.distance_tolerance)}"
 
 
 def _converging(rs: RelationSet) -> str:

@@ -104,7 +104,7 @@ class RelationSet:
         count = f"{self.num_relations} relation{'' if self.num_relations == 1 else 's'}"
         head = (f"RelationSet({count} of τ in R^{self.dim}{names}, depth {self.depth}, "
                 f"tolerance {self.tolerance:.3g}"
-                + (f", holds within {_tolerance_text(self.distance_tolerance)}"
+                + (f", holds within {tolerances_text(self.distance_tolerance)}"
                    if self.distance_tolerance is not None else "")
                 + (f": {rows})" if rows else ")"))
         if self.quality is None:
@@ -256,8 +256,7 @@ def _tolerances(rs: RelationSet, by: str, tolerance):
                          "(a checkpoint written before it): pass tolerance=, or by='value'")
     if by == "value":
         return float(tolerance)
-    tolerance = jnp.broadcast_to(jnp.asarray(tolerance, jnp.float32), (rs.num_relations,))
-    return tolerance
+    return jnp.broadcast_to(jnp.asarray(tolerance, jnp.float32), (rs.num_relations,))
 
 
 def holds(rs: RelationSet, tau, tolerance=None, by: str | None = None) -> jax.Array:
@@ -274,7 +273,7 @@ def holds(rs: RelationSet, tau, tolerance=None, by: str | None = None) -> jax.Ar
     return jnp.all(distances(rs, tau) < tolerance, axis=-1)
 
 
-def _tolerance_text(tolerances) -> str:
+def tolerances_text(tolerances) -> str:
     """Per-relation tolerances in a line: one number where they agree."""
     if len(set(tolerances)) == 1:
         return f"{tolerances[0]:.3g}"

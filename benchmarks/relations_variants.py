@@ -115,6 +115,9 @@ VARIANTS = {  # name: (source, Config fields beside the seed)
     **{f"{name}-reference": (EVERY_SOURCE[name][0], {"reference": {"max_relations": 1,
                                                                    "budget_s": 300}})
        for name in ("circle", "drag", "sphere01", "sphere02", "sphere05")},
+    # The same hand-over on the ellipse, whose own source theirs has (`relations_quality.py`
+    # runs that): a check that rows handed over as a file train their code as its own source.
+    "ellipse-rows-reference": ("ellipse", {"reference": {"max_relations": 2, "budget_s": 420}}),
 }
 REFERENCE_POOL = 131_072  # rows a sampled source hands the authors' code (the incline pools' size)
 # The incline pools: drawn once with MJX (`main`, before any worker starts) and read by the

@@ -241,7 +241,8 @@ def _reference_fit(source, seed: int, options: dict, box, keep: str | None):
         import jax
         import numpy as np
 
-        path = Path(tempfile.mkdtemp(prefix="aml-reference-rows-")) / "rows.npy"
+        out.mkdir(parents=True, exist_ok=True)  # the pool beside their run, kept with it
+        path = out / "rows.npy"
         np.save(path, np.asarray(source.sample(jax.random.key(0), REFERENCE_POOL), np.float32))
     record = aml_reference.fit(source=f"{aml_reference.ROWS}{path}", seed=seed, out=out,
                                **options)

@@ -42,6 +42,8 @@ def _describe(rs: RelationSet) -> dict:
         "low": list(rs.low),
         "high": list(rs.high),
         "quality": rs.quality.to_dict() if rs.quality is not None else None,
+        # Only where the fit centred its rows (`relations.units`): other checkpoints unchanged.
+        **({"centre": list(rs.centre)} if rs.centre else {}),
     }
 
 
@@ -117,6 +119,7 @@ def load(path) -> RelationSet:
         quality=Report(meta["quality"]) if meta.get("quality") else None,
         # None: written before it; one number (for every relation): before per-relation ones.
         distance_tolerance=meta.get("distance_tolerance"),
+        centre=tuple(meta.get("centre") or ()),
     )
     log.info("loaded %d relation%s (%d syzygies) from %s; mean |g| on / off the data: %s",
              rs.num_relations, "" if rs.num_relations == 1 else "s", sum(rs.syzygies), path,

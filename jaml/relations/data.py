@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaml import sources
+from jaml.relations.units import ScaledSampler, Units, choose
 from jaml.sources.off_manifold import bounding_box, uniform_in_box
 
 log = logging.getLogger(__name__)
@@ -47,6 +48,8 @@ class Batches(NamedTuple):
     # of spurious zeros measures distances to ([R, D]); neither enters the training loops.
     held_out: jax.Array | None = None
     dense: jax.Array | None = None
+    # The fit's units (`relations.units`): every array above is in them.
+    units: Units = Units()
 
     @property
     def dim(self) -> int:
@@ -225,6 +228,24 @@ def prepare(on_manifold, batch_size: int, noise_scale: float, key, calibration_b
     """
     if isinstance(on_manifold, str | os.PathLike):
         on_manifold = sources.make(os.fspath(on_manifold))
+    batches = _prepare(on_manifold, batch_size, noise_scale, key, calibration_batches)
+    if not batches.units.identity:
+        log.info("the rows are far from unit scale or the origin: fitting them %s (the "
+                 "relations returned take τ as given)", batches.units.describe(batches.dim_names))
+    return batches
+
+
+def _box_and_units(host, names) -> tuple[np.ndarray, np.ndarray, Units]:
+    """The padded box of rows [N, D] (the user's units, its warnings in them) and the fit's
+    units, the box moved into them."""
+    low, high = padded_box(*np.asarray(bounding_box(jnp.asarray(host, jnp.float32))), names)
+    units = choose(*np.asarray(bounding_box(jnp.asarray(host, jnp.float32))))
+    if units.identity:
+        return low, high, units
+    return units.to_fit(low.astype(np.float64)), units.to_fit(high.astype(np.float64)), units
+
+
+def _prepare(on_manifold, batch_size: int, noise_scale: float, key, calibration_batches: int):
     sampler, names = _as_sampler(on_manifold)
     pool_size = _pool_size(on_manifold)
     if sampler is None or pool_size is not None:
@@ -250,21 +271,24 @@ def prepare(on_manifold, batch_size: int, noise_scale: float, key, calibration_b
         if train.shape[0] < batch_size:
             log.warning("%d training rows < batch_size %d: batches repeat rows (drawn with "
                         "replacement)", train.shape[0], batch_size)
-        low, high = padded_box(*np.asarray(bounding_box(jnp.asarray(host))), names)
+        low, high, units = _box_and_units(host, names)
+        held_out, train = units.to_fit(held_out), units.to_fit(train)
         rows = jnp.asarray(train, jnp.float32)
         dense = rows[: min(DENSE, rows.shape[0])]
         return Batches(rows, None, jnp.asarray(low), jnp.asarray(high), batch_size,
-                       noise_scale, names, jnp.asarray(held_out, jnp.float32), dense)
+                       noise_scale, names, jnp.asarray(held_out, jnp.float32), dense, units)
     sample = _call_sampler(sampler, key, batch_size * calibration_batches)
     host = _check_rows(sample, "the on_manifold sampler's output")
     if names and len(names) != host.shape[1]:
         names = ()
-    low, high = padded_box(*np.asarray(bounding_box(jnp.asarray(host, jnp.float32))), names)
+    low, high, units = _box_and_units(host, names)
+    if not units.identity:
+        sampler = ScaledSampler(sampler, units)
     fresh = jnp.asarray(_call_sampler(sampler, jax.random.fold_in(key, 1), HELD_OUT + DENSE),
                         jnp.float32)
     held_out, dense = fresh[:HELD_OUT], fresh[HELD_OUT:]
     return Batches(None, sampler, jnp.asarray(low), jnp.asarray(high), batch_size, noise_scale,
-                   names, held_out, dense)
+                   names, held_out, dense, units)
 
 
 def _call_sampler(sampler, key, n: int):

@@ -338,9 +338,14 @@ def assess(rs: RelationSet, key, held_out, reference, low, high, statuses=(),
     }
     if noise is not None:
         report["noise"] = {k: float(v) for k, v in noise.items()}
-    report["warnings"] = _warnings(report)
-    report["lines"] = _lines(report)
-    return Report(report)
+    return Report(relabelled(report))
+
+
+def relabelled(report: dict) -> dict:
+    """`report` with its warnings and lines written again from its numbers (after they change,
+    e.g. into other units)."""
+    report = {**report, "warnings": _warnings(report)}
+    return {**report, "lines": _lines(report)}
 
 
 def _bar_out_of_reach(report: dict) -> bool:
@@ -475,6 +480,7 @@ __all__ = [
     "landing_distance",
     "nearest_distances",
     "on_data",
+    "relabelled",
     "separation_floor",
     "tangent_offsets",
 ]

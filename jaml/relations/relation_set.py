@@ -63,6 +63,8 @@ class RelationSet:
       dim_names: names of τ's coordinates, when the source gave them.
       low, high: the box of the training data (per coordinate), `project`'s trust region.
       quality: the fit's quality report on held-out rows (`relations.quality.assess`), or None.
+      centre: subtracted from τ before the networks, per coordinate ((): none): where the rows
+        sat far from the origin, the fit trained on them centred (`relations.units`).
     """
 
     params: tuple
@@ -78,6 +80,7 @@ class RelationSet:
     high: tuple[float, ...] = struct.field(pytree_node=False, default=())
     quality: Report | None = struct.field(pytree_node=False, default=None)
     distance_tolerance: tuple[float, ...] | None = struct.field(pytree_node=False, default=None)
+    centre: tuple[float, ...] = struct.field(pytree_node=False, default=())
 
     def __post_init__(self):
         # A single tolerance (checkpoints written before per-relation ones) holds every relation.
@@ -102,7 +105,9 @@ class RelationSet:
                          for k, (w, m) in enumerate(zip(self.widths, means, strict=True)))
         names = f" ({', '.join(self.dim_names)})" if self.dim_names else ""
         count = f"{self.num_relations} relation{'' if self.num_relations == 1 else 's'}"
-        head = (f"RelationSet({count} of τ in R^{self.dim}{names}, depth {self.depth}, "
+        centred = (f", centred at ({', '.join(f'{c:.6g}' for c in self.centre)})"
+                   if self.centre else "")
+        head = (f"RelationSet({count} of τ in R^{self.dim}{names}{centred}, depth {self.depth}, "
                 f"tolerance {self.tolerance:.3g}"
                 + (f", holds within {tolerances_text(self.distance_tolerance)}"
                    if self.distance_tolerance is not None else "")
@@ -115,7 +120,10 @@ class RelationSet:
         """g_{k+1} as a function of τ [..., D] → [...]; raw: its output before the final tanh
         (atanh g: the same zero set, with no plateau where g saturates at ±1)."""
         module = Relation(self.widths[k], self.depth, raw)
-        return lambda tau: module.apply(self.params[k], tau)
+        if not self.centre:
+            return lambda tau: module.apply(self.params[k], tau)
+        centre = jnp.asarray(self.centre, jnp.float32)
+        return lambda tau: module.apply(self.params[k], tau - centre.astype(tau.dtype))
 
     def append(self, params, on_mean, off_mean, width: int, syzygies: int = 0) -> RelationSet:
         return self.replace(
@@ -203,7 +211,7 @@ def penalty(rs: RelationSet, tau) -> jax.Array:
 
 def canonical(rs: RelationSet) -> RelationSet:
     """rs without the static fields no computation of g reads (its tolerance, box, names,
-    report): one compiled program serves every set of the same shapes."""
+    report): one compiled program serves every set of the same shapes (and centre)."""
     return rs.replace(tolerance=1.0, syzygies=(), dim_names=(), low=(), high=(), quality=None,
                       distance_tolerance=None)
 

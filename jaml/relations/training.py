@@ -24,6 +24,7 @@ import optax
 
 from jaml.configs.relations import Config
 from jaml.relations import losses, quality, syzygy
+from jaml.relations import units as units_lib
 from jaml.relations.data import Batches, prepare
 from jaml.relations.geometry import codimension
 from jaml.relations.loop import (
@@ -670,15 +671,19 @@ def fit(
     key = jax.random.key(cfg.seed)
     k_data, key = jax.random.split(key)
     batches = prepare(on_manifold, cfg.batch_size, cfg.noise_scale, k_data, cfg.eval_batches)
+    units = batches.units
     if start is not None:
         if start.dim != batches.dim:
             raise ValueError(f"start relations take τ of size {start.dim}, data has {batches.dim}")
-        rs = start
+        rs = units_lib.to_fit(start, units)
     else:
         rs = RelationSet.empty(batches.dim, cfg.depth, cfg.tolerance, batches.dim_names,
                                np.asarray(batches.low), np.asarray(batches.high))
     if priors is not None and not all(p is None or callable(p) for p in priors):
         raise TypeError("priors must be a sequence of callables (or None entries)")
+    if not units.identity:  # the fit trains in its own units; the user sees theirs
+        priors = priors and [None if p is None else _in_fit_units(p, units) for p in priors]
+        on_relation = on_relation and _in_user_units(on_relation, units)
 
     pool = ThreadPoolExecutor(1, thread_name_prefix="jaml-compile")
     try:
@@ -691,9 +696,26 @@ def fit(
                                   fitted)
             fitted = _fit_loop(cfg, batches, fitted.rs, key, priors, callback, on_relation,
                                pool, partial, after=fitted)
-        return fitted.rs
+        return units_lib.to_user(fitted.rs, units)
     finally:
         pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _in_fit_units(prior: Callable, units: units_lib.Units) -> Callable:
+    """A prior h(τ) of the user's τ as a function of the fit's."""
+    return lambda tau: prior(units.from_fit(tau))
+
+
+def _in_user_units(on_relation: Callable, units: units_lib.Units) -> Callable:
+    """`on_relation` handed the set and its summary's lengths in the user's units."""
+    scale = units.scale
+
+    def call(rs: RelationSet, summary: RelationSummary):
+        land = {k: (v * scale if k in ("within", "median_distance") and v is not None else v)
+                for k, v in summary.landing.items()}
+        on_relation(units_lib.to_user(rs, units), dataclasses.replace(summary, landing=land))
+
+    return call
 
 
 class _Loop(NamedTuple):
@@ -1362,7 +1384,7 @@ def _fit_loop(fit_cfg, batches, rs, key, priors, callback, on_relation, pool, pa
                                 batches.dense, batches.low, batches.high, statuses, codim,
                                 codim_from, noise, unexplained)
         rs = rs.replace(quality=report)
-        for line in report["lines"]:
+        for line in units_lib.scaled_report(report, batches.units.scale)["lines"]:
             (log.warning if line.startswith("warning") else log.info)("%s", line)
     return _Loop(rs, codim_land, kept, (statuses, unexplained))
 

@@ -120,6 +120,61 @@ def test_training_continues_from_a_loaded_set(tiny_set):
         np.testing.assert_array_equal(a, b)
 
 
+def test_rows_in_other_units_train_in_units_near_one_and_the_set_takes_theirs(tiny_set,
+                                                                               tmp_path):
+    """Rows 2^10 and 2^12 times the ellipse's (both beyond `units.BAND`) train on the same bits:
+    g at τ·2^10 of one set is g at τ·2^12 of the other, and their lengths (box, `holds`'
+    distance tolerances, the report's landing distance) are 4× apart. Rows far from the origin
+    train centred: the centre is kept on the set and in its checkpoint, and a fit continued from
+    it goes on in the same units (on rows centred elsewhere it is refused)."""
+    _, rows = tiny_set
+    cfg = TINY.replace(max_relations=1)
+    small, big = relations.fit(rows * 2**10, cfg), relations.fit(rows * 2**12, cfg)
+    tau = rows[:64]
+    np.testing.assert_array_equal(relations.evaluate(small, tau * 2**10),
+                                  relations.evaluate(big, tau * 2**12))
+    assert small.centre == big.centre == () and big.low == tuple(4 * x for x in small.low)
+    np.testing.assert_array_equal(big.distance_tolerance,
+                                  [4 * t for t in small.distance_tolerance])
+    assert big.quality["landing"]["within"] == 4 * small.quality["landing"]["within"]
+    assert f"within {big.quality['landing']['within']:.3g})" in str(big)
+
+    far = relations.fit(rows + 1000, cfg)
+    box_centre = (np.asarray(rows).min(0) + np.asarray(rows).max(0)) / 2 + 1000
+    np.testing.assert_allclose(far.centre, box_centre, rtol=1e-6)
+    assert "centred at (" in str(far)
+    g = relations.evaluate(far, tau + 1000)
+    assert bool(jnp.all(jnp.isfinite(g))) and relations.holds(far, tau + 1000).mean() > 0.5
+    relations.save(far, tmp_path / "far")
+    loaded = relations.load(tmp_path / "far")
+    assert loaded.centre == far.centre
+    np.testing.assert_array_equal(relations.evaluate(loaded, tau + 1000), g)
+    grown = relations.fit(rows + 1000, TINY, start=loaded)
+    assert grown.num_relations == 2 and grown.centre == far.centre
+    np.testing.assert_array_equal(relations.evaluate(grown, tau + 1000)[:, 0], g[:, 0])
+    with pytest.raises(ValueError, match="centred at"):
+        relations.fit(rows + 2000, TINY, start=loaded)
+
+
+def test_units_keep_rows_near_unit_scale_and_move_the_rest():
+    """`units.choose` by hand: a box's widest half-side within [2^-1.5, 2^1.5] keeps its scale,
+    one beyond it is divided by the nearest power of two; a column whose centre lies more than 6
+    half-sides out is centred. The sources the defaults were measured on keep their units (the
+    incline presets' boxes, half-side 1 and centres within 0.5 of it, are not sampled here)."""
+    from jaml.relations import units
+
+    assert units.choose([-1, -2], [1, 2]).identity
+    assert units.choose([-0.36, 0], [0.36, 0.1]).identity
+    assert units.choose([-1000, -1], [1000, 1]) == units.Units((), 1024.0)
+    assert units.choose([-0.3, 0], [0.3, 0.1]) == units.Units((), 0.25)
+    assert units.choose([6.5, -1], [9.5, 1]) == units.Units((), 1.0)  # 8 = 5.3 half-sides
+    assert units.choose([7.5, -1], [9.5, 1]) == units.Units((8.5, 0.0), 1.0)  # 8.5 half-sides
+    assert units.choose([999, 999], [1001, 1001]) == units.Units((1000.0, 1000.0), 1.0)
+    for name in ("ellipse", "circle", "block45", "block36-drag"):
+        rows = np.asarray(sources.make(name).sample(jax.random.key(0), 4096))
+        assert units.choose(rows.min(0), rows.max(0)).identity, name
+
+
 def test_missing_and_corrupt_checkpoints_raise(tiny_set, tmp_path):
     with pytest.raises(FileNotFoundError, match="no relations checkpoint"):
         relations.load(tmp_path / "absent")

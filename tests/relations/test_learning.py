@@ -144,6 +144,25 @@ def test_every_fit_carries_its_quality_report_measured_on_held_out_rows(ellipse,
     assert (points <= np.asarray(fresh.max(0)) + 0.51 * width).all()
 
 
+@pytest.mark.slow  # three fits at the defaults
+@pytest.mark.parametrize(("scale", "centre"), [(1000.0, 0.0), (1.0, 1000.0), (0.001, 0.0)])
+def test_a_circle_in_other_units_is_learned_as_the_unit_circle(scale, centre):
+    """The unit circle's rows times 1000, centred at (1000, 1000), or times 0.001: the defaults
+    fit them in units near one (`relations.units`) and the set takes the rows' own: ≥ 90 % of
+    projected box points land within 0.05 radii of the true circle and `holds` recalls ≥ 95 %
+    of fresh rows, as on the unit circle (docs/results/aml_quality.md)."""
+    src = sources.make("circle")
+    rows = np.asarray(src.sample(jax.random.key(0), 20_000), np.float64) * scale + centre
+    rs = relations.fit(rows.astype(np.float32), relations.Config())
+    assert rs.num_relations == 1
+    fresh = np.asarray(src.sample(jax.random.key(1), 4096), np.float64) * scale + centre
+    assert float(relations.holds(rs, jnp.asarray(fresh, jnp.float32)).mean()) >= 0.95
+    box = jax.random.uniform(jax.random.key(2), (512, 2), minval=-1.2, maxval=1.2)
+    points = relations.project(rs, np.asarray(box) * scale + centre).points
+    radius = np.linalg.norm((np.asarray(points, np.float64) - centre) / scale, axis=-1)
+    assert np.mean(np.abs(radius - 1) < 0.05) >= 0.9
+
+
 @pytest.mark.parametrize("preset", ["block45",
                                     pytest.param("block36-drag", marks=pytest.mark.slow)])
 def test_block_relations_generalize_beyond_the_training_range(preset):

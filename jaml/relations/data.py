@@ -150,7 +150,8 @@ def _check_rows(rows, what: str) -> np.ndarray:
         rows = np.asarray(rows)
         dtype = rows.dtype
     if not np.issubdtype(dtype, np.floating):
-        raise TypeError(f"{what} must be a floating-point array, got dtype {dtype}")
+        raise TypeError(f"{what} must be a floating-point array, got dtype {dtype}: cast it "
+                        "first (rows.astype(np.float32))")
     host = np.asarray(rows)
     if host.ndim != 2:
         raise ValueError(f"{what} must have shape [N, D], got {host.shape}")

@@ -122,11 +122,15 @@ VARIANTS = {  # name: (source, Config fields beside the seed)
 # The unit circle in other units ("moved:SCALE:CENTRE": its rows times SCALE plus CENTRE in every
 # column), jaml at its defaults and the authors' code asked for its one relation; measured in
 # the unit circle's own units, as the circle's rows are.
-MOVES = {"x1000": (1000.0, 0.0), "plus1000": (1.0, 1000.0), "x0.001": (0.001, 0.0)}
+MOVES = {"x1000": (1000.0, 0.0), "plus1000": (1.0, 1000.0), "x0.001": (0.001, 0.0),
+         "plus5": (1.0, 5.0)}
 VARIANTS |= {f"circle-{move}{peer}": (f"moved:{scale:g}:{centre:g}", fields)
              for move, (scale, centre) in MOVES.items()
              for peer, fields in (("", {}), ("-reference",
                                              VARIANTS["circle-reference"][1]))}
+# Rows 3-6 half-sides out fitted as given (`units.FAR` before 2026-12-02) against centred.
+VARIANTS |= {"block-far6": ("block45", {"max_relations": 2, "jaml.relations.units:FAR": 6.0}),
+             "circle-plus5-far6": ("moved:1:5", {"jaml.relations.units:FAR": 6.0})}
 REFERENCE_POOL = 131_072  # rows a sampled source hands the authors' code (the incline pools' size)
 # The incline pools: drawn once with MJX (`main`, before any worker starts) and read by the
 # workers as file sources, so that a machine without MuJoCo runs the fits with them carried.

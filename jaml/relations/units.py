@@ -22,9 +22,9 @@ from jaml.relations.relation_set import RelationSet, Report
 # Rows whose box's widest half-side lies within [1/BAND, BAND] keep their scale: every source
 # the defaults were measured on (half-sides 1 to 2) trains as it always has.
 BAND = 2**1.5
-# A column whose centre lies farther than FAR half-sides from zero is centred (the 45° block's
-# rows sit 4.7 half-sides out and train as given).
-FAR = 6.0
+# A column whose centre lies farther than FAR half-sides from zero is centred (the unit circle
+# centred at (5, 5) capped where at (3, 3) it trained as at the origin).
+FAR = 3.0
 
 
 class Units(NamedTuple):

@@ -158,21 +158,24 @@ def test_rows_in_other_units_train_in_units_near_one_and_the_set_takes_theirs(ti
 
 def test_units_keep_rows_near_unit_scale_and_move_the_rest():
     """`units.choose` by hand: a box's widest half-side within [2^-1.5, 2^1.5] keeps its scale,
-    one beyond it is divided by the nearest power of two; a column whose centre lies more than 6
-    half-sides out is centred. The sources the defaults were measured on keep their units (the
-    incline presets' boxes, half-side 1 and centres within 0.5 of it, are not sampled here)."""
+    one beyond it is divided by the nearest power of two; a column whose centre lies more than 3
+    half-sides out is centred. The analytic sources keep their units but the 45° block, whose
+    next velocity is centred (the incline presets' boxes, half-side 1 and centres within 0.5 of
+    it, are not sampled here)."""
     from jaml.relations import units
 
     assert units.choose([-1, -2], [1, 2]).identity
     assert units.choose([-0.36, 0], [0.36, 0.1]).identity
     assert units.choose([-1000, -1], [1000, 1]) == units.Units((), 1024.0)
     assert units.choose([-0.3, 0], [0.3, 0.1]) == units.Units((), 0.25)
-    assert units.choose([6.5, -1], [9.5, 1]) == units.Units((), 1.0)  # 8 = 5.3 half-sides
+    assert units.choose([1.5, -1], [4.5, 1]) == units.Units((), 1.0)  # 3 = 2 half-sides
     assert units.choose([7.5, -1], [9.5, 1]) == units.Units((8.5, 0.0), 1.0)  # 8.5 half-sides
     assert units.choose([999, 999], [1001, 1001]) == units.Units((1000.0, 1000.0), 1.0)
     for name in ("ellipse", "circle", "block45", "block36-drag"):
         rows = np.asarray(sources.make(name).sample(jax.random.key(0), 4096))
-        assert units.choose(rows.min(0), rows.max(0)).identity, name
+        chosen = units.choose(rows.min(0), rows.max(0))
+        assert chosen.scale == 1.0 and [c != 0 for c in chosen.centre] == (
+            [False, False, False, True] if name == "block45" else []), name
 
 
 def test_missing_and_corrupt_checkpoints_raise(tiny_set, tmp_path):

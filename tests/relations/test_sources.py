@@ -173,11 +173,15 @@ def test_prepare_draws_a_sources_pool_once():
 
     batches = prepare(Pooled(), 64, 0.0, jax.random.key(0), 4)
     assert calls == [300] and batches.sampler is None and batches.dim_names == Pooled.dim_names
-    # the pool's rows, a tenth held out of training for the quality report
+    # the pool's rows, a tenth held out of training for the quality report, in the fit's units
+    # (the block's next velocity, centred 4.7 half-sides out, is centred: `relations.units`)
     pooled = np.concatenate([np.asarray(batches.rows), np.asarray(batches.held_out)])
-    np.testing.assert_array_equal(np.sort(pooled, axis=0), np.sort(rows, axis=0))
+    assert [c != 0 for c in batches.units.centre] == [False, False, False, True]
+    np.testing.assert_array_equal(np.sort(pooled, axis=0),
+                                  np.sort(batches.units.to_fit(rows), axis=0))
     assert batches.held_out.shape == (30, 4)
-    np.testing.assert_array_equal(np.asarray(batches.low), rows.min(0))
+    np.testing.assert_array_equal(np.asarray(batches.low),
+                                  batches.units.to_fit(rows.min(0).astype(np.float64)))
     on = np.asarray(batches.on(jax.random.key(1), batches.data))
     assert on.shape == (64, 4) and np.isin(on[:, 0], np.asarray(batches.rows)[:, 0]).all()
     Pooled.pool_size = 1

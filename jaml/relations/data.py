@@ -239,8 +239,9 @@ def prepare(on_manifold, batch_size: int, noise_scale: float, key, calibration_b
 def _box_and_units(host, names) -> tuple[np.ndarray, np.ndarray, Units]:
     """The padded box of rows [N, D] (the user's units, its warnings in them) and the fit's
     units, the box moved into them."""
-    low, high = padded_box(*np.asarray(bounding_box(jnp.asarray(host, jnp.float32))), names)
-    units = choose(*np.asarray(bounding_box(jnp.asarray(host, jnp.float32))))
+    box = np.asarray(bounding_box(jnp.asarray(host, jnp.float32)))
+    low, high = padded_box(*box, names)
+    units = choose(*box)
     if units.identity:
         return low, high, units
     return units.to_fit(low.astype(np.float64)), units.to_fit(high.astype(np.float64)), units

@@ -708,11 +708,9 @@ def _in_fit_units(prior: Callable, units: units_lib.Units) -> Callable:
 
 def _in_user_units(on_relation: Callable, units: units_lib.Units) -> Callable:
     """`on_relation` handed the set and its summary's lengths in the user's units."""
-    scale = units.scale
 
     def call(rs: RelationSet, summary: RelationSummary):
-        land = {k: (v * scale if k in ("within", "median_distance") and v is not None else v)
-                for k, v in summary.landing.items()}
+        land = units_lib.scaled_landing(summary.landing, units.scale)
         on_relation(units_lib.to_user(rs, units), dataclasses.replace(summary, landing=land))
 
     return call

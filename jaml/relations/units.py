@@ -17,6 +17,7 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
+from jaml.relations import quality
 from jaml.relations.relation_set import RelationSet, Report
 
 # Rows whose box's widest half-side lies within [1/BAND, BAND] keep their scale: every source
@@ -107,22 +108,24 @@ def _kernels(params: dict, factor: float) -> dict:
     return {**params, "params": inner}
 
 
-# Report fields that are lengths in τ's units.
-_LENGTHS = (("landing", "within"), ("landing", "box_diagonal"), ("landing", "median_distance"))
+# The fields of `quality.landing` (and the report's landing) that are lengths in τ's units.
+_LANDING_LENGTHS = ("within", "box_diagonal", "median_distance")
+
+
+def scaled_landing(land: dict, scale: float) -> dict:
+    """A landing record with its lengths in units `scale` times its own."""
+    return {k: v * scale if k in _LANDING_LENGTHS and v is not None else v
+            for k, v in land.items()}
 
 
 def scaled_report(report: Report | None, scale: float) -> Report | None:
     """The quality report with its lengths in units `scale` times the fit's."""
     if report is None or scale == 1.0:
         return report
-    from jaml.relations import quality
-
     data = report.to_dict()
     if "landing" not in data:  # the statuses a resumed run's checkpoint carries: no lengths
         return report
-    for part, name in _LENGTHS:
-        if data.get(part, {}).get(name) is not None:
-            data[part][name] *= scale
+    data["landing"] = scaled_landing(data["landing"], scale)
     hold = data.get("holds", {})
     if hold.get("distance_tolerance") is not None:
         hold["distance_tolerance"] = [t * scale for t in hold["distance_tolerance"]]
